@@ -1,0 +1,98 @@
+"""Shared benchmark plumbing: machine header, timing by median, table printing, JSON output."""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import os
+import platform
+import statistics
+import subprocess
+import time
+from pathlib import Path
+from typing import Callable, Sequence
+
+from controltac_il.io import write_json
+
+
+def machine_info() -> dict:
+    """Where and when a benchmark ran: CPU, cores, torch threads, git commit, date (UTC)."""
+    try:
+        import torch
+
+        torch_version, threads = torch.__version__, torch.get_num_threads()
+        cuda = torch.cuda.get_device_name(0) if torch.cuda.is_available() else None
+    except ImportError:  # pragma: no cover - torch is a dependency
+        torch_version, threads, cuda = None, None, None
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    try:
+        commit = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+            cwd=Path(__file__).resolve().parent, check=False,
+        ).stdout.strip() or None
+    except OSError:
+        commit = None
+    return {
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "torch": torch_version,
+        "torch_threads": threads,
+        "cuda_device": cuda,
+        "python": platform.python_version(),
+        "git_commit": commit,
+        "date_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+    }
+
+
+def median_time(fn: Callable[[], object], repeats: int = 5, warmup: int = 1) -> float:
+    """Median wall time of ``fn()`` in seconds over ``repeats`` runs after ``warmup`` runs."""
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def print_table(rows: Sequence[dict], columns: Sequence[str], title: str | None = None) -> None:
+    """Print ``rows`` (dicts) as an aligned text table over ``columns``."""
+
+    def fmt(v) -> str:
+        if isinstance(v, float):
+            return f"{v:.4g}"
+        return "" if v is None else str(v)
+
+    cells = [[fmt(r.get(c)) for c in columns] for r in rows]
+    widths = [max(len(c), *(len(row[i]) for row in cells)) if cells else len(c) for i, c in enumerate(columns)]
+    if title:
+        print(f"\n{title}")
+    print("  ".join(c.ljust(w) for c, w in zip(columns, widths)))
+    print("  ".join("-" * w for w in widths))
+    for row in cells:
+        print("  ".join(v.ljust(w) for v, w in zip(row, widths)))
+
+
+def base_parser(description: str) -> argparse.ArgumentParser:
+    """Argument parser with the flags every benchmark takes (``--out``, ``--quick``)."""
+    p = argparse.ArgumentParser(description=description)
+    p.add_argument("--out", type=Path, default=None, help="write the results as JSON to this file")
+    p.add_argument("--quick", action="store_true", help="small version that finishes in about a minute (CI)")
+    return p
+
+
+def write_results(out: Path | None, results: dict) -> dict:
+    """Prepend the machine header and write ``results`` to ``out`` (if given) atomically."""
+    doc = {"machine": machine_info(), **results}
+    if out is not None:
+        write_json(out, doc)
+        print(f"\nwrote {out}")
+    return doc

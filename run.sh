@@ -1,0 +1,41 @@
+#!/usr/bin/env bash
+# One entry point that sets up a fresh machine and then runs a job.
+#   ./run.sh            the main job on the embedded default (see README)
+#   ./run.sh test       the test suite (what CI runs)
+#   ./run.sh <cmd...>   any command inside the set-up environment
+set -euo pipefail
+cd "$(dirname "$0")"
+PY=${PYTHON:-python3}
+export MUJOCO_GL=${MUJOCO_GL:-egl}
+export PYOPENGL_PLATFORM=${PYOPENGL_PLATFORM:-$MUJOCO_GL}
+
+setup() {
+    # torch: keep whatever the user has (e.g. a CUDA build); on a machine without one
+    # install the CPU build pin, because plain `torch` pulls several GB of CUDA wheels.
+    if ! "$PY" -c "import torch" 2>/dev/null; then
+        echo "[setup] installing torch==2.13.0 (CPU build)"
+        "$PY" -m pip install -q torch==2.13.0
+    fi
+    # headless OpenGL for MuJoCo's renderer (Debian/Ubuntu); skipped when present.
+    if [ "$MUJOCO_GL" = egl ] && ! ldconfig -p 2>/dev/null | grep -q libEGL.so.1; then
+        if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
+            echo "[setup] installing libegl1 for headless rendering"
+            (apt-get update -qq && apt-get install -y -qq libegl1 libgl1 >/dev/null) || true
+        fi
+    fi
+    local stamp=".setup-stamp"
+    local want
+    want=$(cat pyproject.toml | sha1sum | cut -d' ' -f1)
+    if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ] || ! "$PY" -c "import controltac_il" 2>/dev/null; then
+        echo "[setup] installing controltac-il and its dependencies"
+        "$PY" -m pip install -q -e ".[dev]"
+        echo "$want" > "$stamp"
+    fi
+}
+
+setup
+case "${1:-main}" in
+    main) shift || true; exec "$PY" -m controltac_il "$@" ;;
+    test) shift; exec "$PY" -m pytest -q "$@" ;;
+    *) exec "$@" ;;
+esac
