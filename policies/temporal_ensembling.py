@@ -1,0 +1,80 @@
+"""ACT temporal ensembling: every chunk predicted so far votes for the action at step t.
+
+A chunk predicted from the observation at step ``t0`` holds actions for steps ``t0 .. t0+len-1``.
+The action at step ``t`` is the weighted mean of the chunks that cover ``t``, ordered oldest
+first, with weights ``w_i = exp(-k * i)`` (``i = 0`` is the OLDEST prediction, as in ACT's
+``all_time_actions`` with ``k = 0.01``), normalised to sum to one.
+"""
+
+from __future__ import annotations
+
+import bisect
+import threading
+
+import numpy as np
+
+
+class TemporalEnsembler:
+    """Collect action chunks by the step they were predicted for and blend them per step.
+
+    chunk_size: largest chunk length accepted (ACT's N_a, 20 in the paper).
+    action_dim: width A of an action vector.
+    k: decay of the weights exp(-k * i) from the oldest prediction (0.01 in ACT); k >= 0.
+    Thread-safe: a policy thread may call :meth:`add_chunk` while the control loop calls :meth:`action`.
+    """
+
+    def __init__(self, chunk_size: int, action_dim: int, k: float = 0.01):
+        if int(chunk_size) < 1:
+            raise ValueError(f"chunk_size must be a positive integer, got {chunk_size}")
+        if int(action_dim) < 1:
+            raise ValueError(f"action_dim must be a positive integer, got {action_dim}")
+        if not np.isfinite(k) or k < 0:
+            raise ValueError(f"k must be a finite number >= 0, got {k}")
+        self.chunk_size, self.action_dim, self.k = int(chunk_size), int(action_dim), float(k)
+        self._starts: list[int] = []  # sorted t0 of the chunks kept
+        self._chunks: list[np.ndarray] = []
+        self._lock = threading.Lock()
+
+    def add_chunk(self, t: int, chunk: np.ndarray) -> None:
+        """Add the chunk (L, action_dim), 1 <= L <= chunk_size, predicted from the observation at step ``t``."""
+        chunk = np.asarray(chunk, dtype=np.float64)
+        if chunk.ndim != 2 or chunk.shape[1] != self.action_dim or not 1 <= chunk.shape[0] <= self.chunk_size:
+            raise ValueError(
+                f"chunk must have shape (L, {self.action_dim}) with 1 <= L <= {self.chunk_size}, got {chunk.shape}"
+            )
+        if not np.isfinite(chunk).all():
+            raise ValueError(f"chunk for step {t} contains NaN or inf")
+        with self._lock:
+            i = bisect.bisect_right(self._starts, int(t))
+            self._starts.insert(i, int(t))
+            self._chunks.insert(i, chunk.copy())
+
+    def covers(self, t: int) -> bool:
+        """True when at least one chunk holds an action for step ``t``."""
+        with self._lock:
+            return any(s <= t < s + len(c) for s, c in zip(self._starts, self._chunks))
+
+    def action(self, t: int) -> np.ndarray:
+        """Blended action (action_dim,) float64 for step ``t``; drops chunks that end before ``t``.
+
+        Raises LookupError when no chunk covers ``t`` (the policy is late).
+        """
+        with self._lock:
+            keep = [i for i, (s, c) in enumerate(zip(self._starts, self._chunks)) if s + len(c) > t]
+            self._starts = [self._starts[i] for i in keep]
+            self._chunks = [self._chunks[i] for i in keep]
+            votes = [c[t - s] for s, c in zip(self._starts, self._chunks) if s <= t]
+        if not votes:
+            raise LookupError(f"no predicted chunk covers step {t}")
+        w = np.exp(-self.k * np.arange(len(votes)))
+        return (w / w.sum()) @ np.stack(votes)
+
+    def reset(self) -> None:
+        """Forget every chunk (start of an episode)."""
+        with self._lock:
+            self._starts.clear()
+            self._chunks.clear()
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self._chunks)

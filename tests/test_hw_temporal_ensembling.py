@@ -1,0 +1,79 @@
+"""Temporal ensembling against a hand computation of ACT's weights exp(-0.01 i), i = 0 oldest."""
+
+import math
+import threading
+
+import numpy as np
+import pytest
+
+from policies.temporal_ensembling import TemporalEnsembler
+
+
+def test_three_chunks_match_hand_computation():
+    ens = TemporalEnsembler(chunk_size=4, action_dim=2)
+    ens.add_chunk(0, [[0, 0], [1, 10], [2, 20], [3, 30]])
+    ens.add_chunk(1, [[100, 0], [101, 0], [102, 0], [103, 0]])
+    ens.add_chunk(2, [[7, 7], [8, 8], [9, 9], [10, 10]])
+    # step 2 is covered by chunk@0 (index 2 -> [2, 20]), chunk@1 (index 1 -> [101, 0]), chunk@2 (index 0 -> [7, 7]);
+    # weights exp(0), exp(-0.01), exp(-0.02) with the OLDEST (chunk@0) first.
+    w0, w1, w2 = 1.0, math.exp(-0.01), math.exp(-0.02)
+    s = w0 + w1 + w2
+    expected = [(w0 * 2 + w1 * 101 + w2 * 7) / s, (w0 * 20 + w1 * 0 + w2 * 7) / s]
+    np.testing.assert_allclose(ens.action(2), expected, rtol=1e-12)
+
+
+def test_oldest_gets_largest_weight_with_large_k():
+    ens = TemporalEnsembler(chunk_size=3, action_dim=1, k=50.0)
+    ens.add_chunk(0, [[0], [1], [2]])
+    ens.add_chunk(1, [[-5], [-6], [-7]])
+    assert ens.action(1)[0] == pytest.approx(1.0, abs=1e-12)  # exp(-50) ~ 0 for the newer chunk
+
+
+def test_out_of_order_arrival_is_ordered_by_prediction_step():
+    a = TemporalEnsembler(chunk_size=3, action_dim=1)
+    b = TemporalEnsembler(chunk_size=3, action_dim=1)
+    a.add_chunk(0, [[1], [2], [3]]); a.add_chunk(1, [[10], [20], [30]])
+    b.add_chunk(1, [[10], [20], [30]]); b.add_chunk(0, [[1], [2], [3]])
+    assert a.action(2)[0] == b.action(2)[0]
+    assert a.action(2)[0] != pytest.approx((3 + 20) / 2)  # weights are not uniform
+
+
+def test_single_chunk_passes_actions_through_and_expires():
+    ens = TemporalEnsembler(chunk_size=3, action_dim=2)
+    ens.add_chunk(5, np.arange(6).reshape(3, 2))
+    with pytest.raises(LookupError, match="step 4"):
+        ens.action(4)
+    np.testing.assert_array_equal(ens.action(7), [4, 5])
+    with pytest.raises(LookupError, match="step 8"):
+        ens.action(8)
+    assert len(ens) == 0 and not ens.covers(7)
+
+
+@pytest.mark.parametrize(
+    "chunk, match",
+    [(np.zeros((5, 2)), "1 <= L <= 4"), (np.zeros((4, 3)), r"\(L, 2\)"), (np.zeros(4), "shape"),
+     (np.array([[0.0, np.nan]]), "NaN")],
+)
+def test_bad_chunks_are_rejected(chunk, match):
+    with pytest.raises(ValueError, match=match):
+        TemporalEnsembler(chunk_size=4, action_dim=2).add_chunk(0, chunk)
+
+
+@pytest.mark.parametrize("kwargs", [dict(chunk_size=0, action_dim=1), dict(chunk_size=1, action_dim=0),
+                                    dict(chunk_size=1, action_dim=1, k=-1.0)])
+def test_bad_construction(kwargs):
+    with pytest.raises(ValueError):
+        TemporalEnsembler(**kwargs)
+
+
+def test_concurrent_adds_lose_nothing():
+    ens = TemporalEnsembler(chunk_size=2, action_dim=1)
+    threads = [threading.Thread(target=lambda s=s: ens.add_chunk(s, [[s], [s]])) for s in range(200)]
+    for th in threads:
+        th.start()
+    for th in threads:
+        th.join()
+    assert len(ens) == 200
+    # step 10 covered by chunks @9 and @10 only; weights 1 and exp(-0.01), oldest (9) first
+    w = math.exp(-0.01)
+    assert ens.action(10)[0] == pytest.approx((9 + 10 * w) / (1 + w))
