@@ -1,0 +1,77 @@
+"""``ACTPolicy``: a trained ACT behind the control loop's protocol ``predict_chunk(observation)``.
+
+Observations are the scene's / robot's flat dict of numpy arrays:
+    ``qpos`` (D,), ``images/<cam>`` uint8 (H, W, 3), ``tactile/<sensor>`` uint8 (H, W, 3) and,
+    optionally, ``tactile_background/<sensor>`` uint8 (H, W, 3). Without it the background stored in
+    the checkpoint (the training data's no-contact frame) is used.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from policies.act.checkpoint import load_checkpoint
+from policies.act.configuration_act import ACTConfig
+from policies.act.modeling_act import ACT
+
+
+class ACTPolicy:
+    """Inference wrapper: numpy observation in, (N_a, A) float32 action chunk out."""
+
+    def __init__(self, model: ACT, backgrounds: dict[str, np.ndarray] | None = None) -> None:
+        self.model = model.eval()
+        self.backgrounds = dict(backgrounds or {})
+
+    @classmethod
+    def from_pretrained(cls, path: str | Path, device: str = "cpu") -> "ACTPolicy":
+        """Load a checkpoint folder (raises ``CheckpointError`` on any problem)."""
+        model, backgrounds, _ = load_checkpoint(path, device)
+        return cls(model, backgrounds)
+
+    @property
+    def config(self) -> ACTConfig:
+        return self.model.config
+
+    def check_observation(self, observation: dict) -> None:
+        """Raise ValueError if ``observation`` lacks a stream the policy needs or has the wrong sizes."""
+        cfg = self.config
+        missing = [k for k in ["qpos"] + [f"images/{c}" for c in cfg.camera_names]
+                   + [f"tactile/{s}" for s in cfg.tactile_names] if k not in observation]
+        missing += [f"tactile_background/{s}" for s in cfg.tactile_names
+                    if f"tactile_background/{s}" not in observation and s not in self.backgrounds]
+        if missing:
+            raise ValueError(f"observation is missing {missing}; the checkpoint expects cameras "
+                             f"{list(cfg.camera_names)} and tactile sensors {list(cfg.tactile_names)}")
+        qpos = np.asarray(observation["qpos"])
+        if qpos.shape != (cfg.state_dim,):
+            raise ValueError(f"observation['qpos'] must have shape ({cfg.state_dim},), got {qpos.shape}")
+        for key in [f"images/{c}" for c in cfg.camera_names] + [f"tactile/{s}" for s in cfg.tactile_names]:
+            img = np.asarray(observation[key])
+            if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
+                raise ValueError(f"observation[{key!r}] must be uint8 (H, W, 3), got {img.dtype} {img.shape}")
+
+    def _background(self, observation: dict, sensor: str) -> np.ndarray:
+        return np.asarray(observation.get(f"tactile_background/{sensor}", self.backgrounds.get(sensor)))
+
+    def to_batch(self, observation: dict) -> dict[str, torch.Tensor]:
+        """One observation as a batch of one in the model's key layout."""
+        self.check_observation(observation)
+        cfg = self.config
+
+        def chw(a) -> torch.Tensor:
+            return torch.from_numpy(np.ascontiguousarray(np.asarray(a).transpose(2, 0, 1)))[None]
+
+        batch = {"observation.qpos": torch.as_tensor(np.asarray(observation["qpos"], np.float32))[None]}
+        for c in cfg.camera_names:
+            batch[f"observation.images.{c}"] = chw(observation[f"images/{c}"])
+        for s in cfg.tactile_names:
+            batch[f"observation.tactile.{s}"] = chw(observation[f"tactile/{s}"])
+            batch[f"observation.tactile_background.{s}"] = chw(self._background(observation, s))
+        return batch
+
+    def predict_chunk(self, observation: dict) -> np.ndarray:
+        """(N_a, A) float32 actions (absolute targets in the training data's units)."""
+        return self.model.predict(self.to_batch(observation))[0].cpu().numpy().astype(np.float32)
