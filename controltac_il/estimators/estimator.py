@@ -1,0 +1,121 @@
+"""``ForceEstimator``: read [Fx, Fy, Fz] (N, sensor frame) from tactile residual images."""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from safetensors.torch import load_file, save_file
+
+from controltac_il.estimators.config import EstimatorConfig
+from controltac_il.estimators.model import ForceCNN
+from controltac_il.io import atomic_dir, atomic_path, write_json
+
+DEFAULT_CHECKPOINT = Path(__file__).resolve().parent / "checkpoints" / "default"
+WEIGHTS_FILE = "model.safetensors"
+CONFIG_FILE = "config.json"
+
+
+def validate_residuals(residuals, name: str = "residuals") -> np.ndarray:
+    """Check a batch of residual images and return it as a numpy array (N, H, W, 3).
+
+    Accepts uint8, or floats holding 0-255 values (finite); anything else raises ValueError
+    naming ``name`` and the expected form.
+    """
+    if isinstance(residuals, torch.Tensor):
+        residuals = residuals.detach().cpu().numpy()
+    if not isinstance(residuals, np.ndarray):
+        raise ValueError(f"{name} must be a numpy array (N, H, W, 3) uint8, got {type(residuals).__name__}")
+    if residuals.ndim != 4 or residuals.shape[-1] != 3:
+        raise ValueError(
+            f"{name} must have shape (N, H, W, 3) (channels last, RGB), got {residuals.shape}; "
+            "add a batch axis for a single frame"
+        )
+    n, h, w, _ = residuals.shape
+    if n == 0 or h < 8 or w < 8:
+        raise ValueError(f"{name} must hold at least one image of at least 8x8 pixels, got shape {residuals.shape}")
+    if residuals.dtype == np.uint8:
+        return residuals
+    if np.issubdtype(residuals.dtype, np.floating):
+        if not np.isfinite(residuals).all():
+            raise ValueError(f"{name} contains NaN or infinite values; expected 0-255 residual pixels")
+        if residuals.min() < 0 or residuals.max() > 255:
+            raise ValueError(
+                f"{name} values must lie in [0, 255] (residual with 127 offset), got "
+                f"[{residuals.min():.3g}, {residuals.max():.3g}]"
+            )
+        return residuals
+    raise ValueError(f"{name} must be uint8 (or float in [0, 255]), got dtype {residuals.dtype}")
+
+
+def preprocess(residuals: np.ndarray | torch.Tensor, config: EstimatorConfig) -> torch.Tensor:
+    """(N, H, W, 3) residual pixels -> network input (N, 3, h, w) float32, resized and normalised."""
+    x = torch.as_tensor(residuals).permute(0, 3, 1, 2).float()
+    size = (config.input_height, config.input_width)
+    if tuple(x.shape[-2:]) != size:
+        x = F.interpolate(x, size=size, mode="bilinear", antialias=True, align_corners=False)
+    return (x - config.residual_offset) / config.residual_scale
+
+
+class ForceEstimator:
+    """A trained :class:`ForceCNN` with its config; ``predict`` maps residuals to forces in N."""
+
+    def __init__(self, config: EstimatorConfig, model: ForceCNN | None = None, device: str = "cpu"):
+        self.config = config
+        self.device = torch.device(device)
+        self.model = (model or ForceCNN(config)).to(self.device).eval()
+        self._mean = torch.tensor(config.force_mean, dtype=torch.float32, device=self.device)
+        self._std = torch.tensor(config.force_std, dtype=torch.float32, device=self.device)
+
+    # ---- force units <-> network outputs
+    def normalise_forces(self, forces: torch.Tensor) -> torch.Tensor:
+        return (forces.to(self.device) - self._mean) / self._std
+
+    def denormalise_forces(self, outputs: torch.Tensor) -> torch.Tensor:
+        return outputs * self._std + self._mean
+
+    @torch.no_grad()
+    def predict(self, residuals, batch_size: int = 256) -> np.ndarray:
+        """Forces [Fx, Fy, Fz] in N, sensor frame, float32 (N, 3) for residuals (N, H, W, 3).
+
+        Any H, W is resized to the network's input size (same physical pad assumed).
+        """
+        residuals = validate_residuals(residuals)
+        self.model.eval()
+        out = []
+        for i in range(0, len(residuals), batch_size):
+            x = preprocess(residuals[i : i + batch_size], self.config).to(self.device)
+            out.append(self.denormalise_forces(self.model(x)).cpu())
+        return torch.cat(out).numpy().astype(np.float32)
+
+    # ---- checkpoints (safetensors + JSON, atomic, no pickle)
+    def save(self, path: str | Path, card: str | None = None) -> Path:
+        """Write ``model.safetensors`` + ``config.json`` (+ ``README.md`` if ``card``) as one folder, atomically."""
+        path = Path(path)
+        with atomic_dir(path) as tmp:
+            state = {k: v.detach().cpu().contiguous() for k, v in self.model.state_dict().items()}
+            save_file(state, str(tmp / WEIGHTS_FILE))
+            write_json(tmp / CONFIG_FILE, self.config.to_dict())
+            if card is not None:
+                with atomic_path(tmp / "README.md") as t:
+                    t.write_text(card)
+        return path
+
+    @classmethod
+    def from_pretrained(cls, path: str | Path | None = None, device: str = "cpu") -> "ForceEstimator":
+        """Load a checkpoint folder; ``None`` loads the shipped default checkpoint."""
+        path = Path(path) if path is not None else DEFAULT_CHECKPOINT
+        weights, cfg = path / WEIGHTS_FILE, path / CONFIG_FILE
+        if not weights.is_file() or not cfg.is_file():
+            raise FileNotFoundError(f"{path} is not a force-estimator checkpoint: expected {WEIGHTS_FILE} and {CONFIG_FILE}")
+        config = EstimatorConfig.load(cfg)
+        est = cls(config, device=device)
+        est.model.load_state_dict(load_file(str(weights), device=str(est.device)))
+        est.model.eval()
+        est.checkpoint_hash = hashlib.sha256(weights.read_bytes()).hexdigest()[:16]
+        return est
+
+    checkpoint_hash: str | None = None
