@@ -1,0 +1,92 @@
+"""Sensor specification: geometry, gel mechanics and optics of one GelSight-type sensor instance."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class SensorSpec:
+    """One sensor instance. Two instances of the same model may differ in lighting, background, stiffness.
+
+    Attributes:
+        height, width: image size in pixels (rows, columns). GelSight Mini: 240×320 after the 15 % crop.
+        mm_per_px: pixel pitch on the gel in mm at this resolution (GelSight Mini: 0.0634 at 320×240).
+        gel_thickness_mm: elastomer thickness; sets the elastic smoothing length and the strain scale.
+        foundation_modulus: Winkler foundation stiffness in N/mm³ (pressure per mm of penetration);
+            the effective E/thickness of the gel. Default calibrated so a Ø16 mm sphere sinks ≈ 1 mm at 10 N.
+        stiffening: dimensionless strain-stiffening coefficient: pressure = k·p·(1 + s·(p/t)²).
+        smoothing_mm: length scale of the elastic smoothing of penetration into the gel surface.
+        conformity: weight of the exact indenter imprint against its elastic smoothing, in [0, 1].
+        shear_compliance_mm_per_n: lateral gel displacement at the contact per newton of shear.
+        optics_gain: multiplier on the optical response (lighting brightness of this instance).
+        light_elevation_deg: elevation of the three lights above the gel plane (three-light model).
+        vignetting: strength of the radial fall-off of the optical response at the corners, in [0, 1).
+        noise_std: standard deviation of additive sensor noise in grey levels.
+        background: name of a background asset ("gelsight_mini") or a path to an RGB image.
+    """
+
+    height: int = 240
+    width: int = 320
+    mm_per_px: float = 0.0634
+    gel_thickness_mm: float = 3.0
+    foundation_modulus: float = 0.4
+    stiffening: float = 2.0
+    smoothing_mm: float = 0.5
+    conformity: float = 0.5
+    shear_compliance_mm_per_n: float = 0.25
+    optics_gain: float = 1.0
+    light_elevation_deg: float = 30.0
+    vignetting: float = 0.35
+    noise_std: float = 1.2
+    background: str = "gelsight_mini"
+
+    def __post_init__(self) -> None:
+        for name in ("height", "width"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or v < 8:
+                raise ValueError(f"SensorSpec.{name} must be an int >= 8 pixels, got {v!r}")
+        for name in ("mm_per_px", "gel_thickness_mm", "foundation_modulus", "smoothing_mm", "optics_gain"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"SensorSpec.{name} must be a finite number > 0, got {v!r}")
+        for name in ("stiffening", "shear_compliance_mm_per_n", "noise_std"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ValueError(f"SensorSpec.{name} must be a finite number >= 0, got {v!r}")
+        if not 0.0 <= self.conformity <= 1.0:
+            raise ValueError(f"SensorSpec.conformity must be in [0, 1], got {self.conformity!r}")
+        if not 0.0 <= self.vignetting < 1.0:
+            raise ValueError(f"SensorSpec.vignetting must be in [0, 1), got {self.vignetting!r}")
+        if not 5.0 <= self.light_elevation_deg <= 85.0:
+            raise ValueError(f"SensorSpec.light_elevation_deg must be in [5, 85], got {self.light_elevation_deg!r}")
+
+    @classmethod
+    def gelsight_mini(cls, **overrides) -> "SensorSpec":
+        """GelSight Mini defaults (240×320, 0.0634 mm/px); keyword overrides make another instance."""
+        return cls(**overrides)
+
+    def scaled(self, height: int, width: int) -> "SensorSpec":
+        """The same physical pad sampled at ``height × width`` pixels (aspect ratio must match)."""
+        if not (isinstance(height, int) and isinstance(width, int) and height >= 8 and width >= 8):
+            raise ValueError(f"scaled(height, width) needs ints >= 8, got {(height, width)!r}")
+        if abs(height / width - self.height / self.width) > 0.02:
+            raise ValueError(
+                f"scaled({height}, {width}) changes the aspect ratio {self.height}:{self.width}; "
+                "the pad's physical size is fixed"
+            )
+        return dataclasses.replace(self, height=height, width=width, mm_per_px=self.mm_per_px * self.width / width)
+
+    @property
+    def pad_size_mm(self) -> tuple[float, float]:
+        """Physical pad size (height, width) in mm."""
+        return self.height * self.mm_per_px, self.width * self.mm_per_px
+
+    @property
+    def pixel_area_mm2(self) -> float:
+        return self.mm_per_px**2
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
