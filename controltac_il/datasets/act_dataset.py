@@ -1,0 +1,224 @@
+"""ACT training dataset over a folder of episodes (``episode_<i>.hdf5``).
+
+Index ``i`` runs over every frame of every episode (LeRobot convention). An item is the frame's
+observations plus the action chunk that starts at it::
+
+    episode_index                          int
+    frame_index                            int
+    observation.qpos                       float32 (D,)
+    observation.images.<camera>            uint8 (3, H, W)
+    observation.tactile.<sensor>           uint8 (3, H, W)
+    observation.tactile_background.<sensor> uint8 (3, H, W)
+    observation.force.<sensor>             float32 (3,)   only when the episodes carry force labels
+    action                                 float32 (chunk_size, A) actions t .. t+chunk_size-1
+    action_is_pad                          bool (chunk_size,) True past the episode's end
+
+Past the end the chunk repeats the last action (masked by ``action_is_pad``). qpos and action are
+returned as recorded; ``dataset.stats`` holds their mean/std (computed once over all frames and saved
+as JSON outside the data folder) for the policy to normalise with. Files are opened read-only.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import warnings
+from pathlib import Path
+
+import h5py
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from controltac_il.datasets.background import estimate_background
+from controltac_il.datasets.episodes import episode_index, episode_paths
+from controltac_il.io import write_json
+
+STD_FLOOR = 1e-2  # ACT's floor on the std used for normalisation (avoids dividing by ~0)
+
+
+def default_stats_dir() -> Path:
+    """Folder for normalisation stats: $CONTROLTAC_CACHE or $XDG_CACHE_HOME/controltac_il or ~/.cache/controltac_il."""
+    base = os.environ.get("CONTROLTAC_CACHE")
+    if base:
+        return Path(base) / "stats"
+    return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "controltac_il" / "stats"
+
+
+def _keys(f: h5py.File, group: str) -> list[str]:
+    return sorted(f[f"observations/{group}"].keys()) if f"observations/{group}" in f else []
+
+
+class EpisodeDataset(Dataset):
+    """Frames of a folder of ACT episodes with their padded action chunks.
+
+    Args:
+        root: folder with ``episode_<i>.hdf5`` files (never written to).
+        chunk_size: actions per item (ACT's N_a), >= 1.
+        cameras: camera names to return; None = all cameras of the first episode.
+        tactile_sensors: tactile sensor names to return; None = all of the first episode.
+        stats_path: JSON file for the qpos/action mean and std; None = a file named after the folder in
+            ``default_stats_dir()``. Recomputed when the episode files change (names and sizes).
+    """
+
+    def __init__(self, root, chunk_size: int = 20, cameras=None, tactile_sensors=None, stats_path=None):
+        if not isinstance(chunk_size, int) or chunk_size < 1:
+            raise ValueError(f"chunk_size: expected an int >= 1, got {chunk_size!r}")
+        self.root = Path(root).resolve()
+        self.chunk_size = chunk_size
+        self.paths = episode_paths(self.root)
+        if not self.paths:
+            raise ValueError(f"root: no episode_<i>.hdf5 files in {self.root}")
+        self.episode_ids = [episode_index(p) for p in self.paths]
+        lengths, forces_present, backgrounds = [], [], {}
+        for n, p in enumerate(self.paths):
+            with h5py.File(p, "r") as f:
+                if n == 0:
+                    all_cams, all_tactile = _keys(f, "images"), _keys(f, "tactile")
+                    self.cameras = self._select("cameras", cameras, all_cams)
+                    self.tactile_sensors = self._select("tactile_sensors", tactile_sensors, all_tactile)
+                for group, names in (("images", self.cameras), ("tactile", self.tactile_sensors)):
+                    missing = set(names) - set(_keys(f, group))
+                    if missing:
+                        raise ValueError(f"{p.name}: no /observations/{group}/{sorted(missing)[0]} (present in other episodes)")
+                lengths.append(int(f["observations/qpos"].shape[0]))
+                forces_present.append(set(_keys(f, "force")))
+                for s in self.tactile_sensors:
+                    key = f"observations/tactile_background/{s}"
+                    backgrounds[(n, s)] = f[key][()] if key in f else None
+        # Force labels are returned for a sensor only when every episode has them (collation needs it).
+        self.force_sensors = [s for s in self.tactile_sensors if all(s in fp for fp in forces_present)]
+        self.lengths = np.asarray(lengths, dtype=np.int64)
+        self.offsets = np.concatenate([[0], np.cumsum(self.lengths)])
+        self.backgrounds = self._fill_backgrounds(backgrounds)
+        self.stats_path = Path(stats_path) if stats_path is not None else self._default_stats_path()
+        self.stats = self._load_or_compute_stats()
+        self._files: dict[int, h5py.File] = {}
+        self._pid = None
+
+    @staticmethod
+    def _select(field: str, wanted, available: list[str]) -> list[str]:
+        if wanted is None:
+            return list(available)
+        wanted = [wanted] if isinstance(wanted, str) else list(wanted)
+        unknown = [w for w in wanted if w not in available]
+        if unknown:
+            raise ValueError(f"{field}: unknown name {unknown[0]!r}; the episodes have {available}")
+        return wanted
+
+    def _fill_backgrounds(self, found: dict) -> dict:
+        out = {}
+        for (n, s), bg in found.items():
+            if bg is None:
+                with h5py.File(self.paths[n], "r") as f:
+                    frames = f[f"observations/tactile/{s}"][()]
+                    fkey = f"observations/force/{s}"
+                    force = f[fkey][()] if fkey in f else None
+                bg, used = estimate_background(frames, force)
+                warnings.warn(
+                    f"{self.paths[n].name}: no tactile background for sensor {s!r}; estimated from "
+                    f"{len(used)} no-contact frame(s) of the episode "
+                    f"({'force labels' if force is not None else 'frames unchanged from the start'})",
+                    stacklevel=3,
+                )
+            out[(n, s)] = bg
+        return out
+
+    # --- normalisation statistics -------------------------------------------------------------
+    def fingerprint(self) -> dict:
+        """Identity of the data: episode file names, sizes and lengths (changes when files change)."""
+        return {
+            "root": str(self.root),
+            "files": [[p.name, p.stat().st_size, int(n)] for p, n in zip(self.paths, self.lengths)],
+        }
+
+    def _default_stats_path(self) -> Path:
+        digest = hashlib.sha256(str(self.root).encode()).hexdigest()[:16]
+        return default_stats_dir() / f"{self.root.name}-{digest}.json"
+
+    def _load_or_compute_stats(self) -> dict:
+        fp = self.fingerprint()
+        if self.stats_path.is_file():
+            try:
+                doc = json.loads(self.stats_path.read_text())
+                if doc.get("fingerprint") == fp:
+                    return {k: {m: np.asarray(v, np.float32) for m, v in doc[k].items()} for k in ("qpos", "action")}
+            except (OSError, json.JSONDecodeError, KeyError, TypeError):
+                pass
+        if self.root in self.stats_path.resolve().parents:
+            raise ValueError(f"stats_path: must not be inside the data folder {self.root}")
+        qpos, action = [], []
+        for p in self.paths:
+            with h5py.File(p, "r") as f:
+                qpos.append(f["observations/qpos"][()])
+                action.append(f["action"][()])
+        stats = {}
+        for name, parts in (("qpos", qpos), ("action", action)):
+            arr = np.concatenate(parts).astype(np.float64)
+            stats[name] = {"mean": arr.mean(0).astype(np.float32),
+                           "std": np.maximum(arr.std(0), STD_FLOOR).astype(np.float32)}
+        write_json(self.stats_path, {
+            "fingerprint": fp,
+            "std_floor": STD_FLOOR,
+            **{k: {m: v.tolist() for m, v in d.items()} for k, d in stats.items()},
+        })
+        return stats
+
+    # --- indexing -----------------------------------------------------------------------------
+    def __len__(self) -> int:
+        return int(self.offsets[-1])
+
+    def locate(self, index: int) -> tuple[int, int]:
+        """(position of the episode in ``self.paths``, frame) of dataset index ``index``."""
+        if not -len(self) <= index < len(self):
+            raise IndexError(f"index {index} out of range for {len(self)} frames")
+        index = index % len(self)
+        n = int(np.searchsorted(self.offsets, index, side="right") - 1)
+        return n, int(index - self.offsets[n])
+
+    def frame_table(self) -> tuple[np.ndarray, np.ndarray]:
+        """(episode_index, frame_index) of every dataset index, without reading images."""
+        ep = np.repeat(np.asarray(self.episode_ids, dtype=np.int64), self.lengths)
+        fr = np.concatenate([np.arange(n, dtype=np.int64) for n in self.lengths])
+        return ep, fr
+
+    def _file(self, n: int) -> h5py.File:
+        if self._pid != os.getpid():  # handles do not survive fork: reopen in each worker
+            self._files, self._pid = {}, os.getpid()
+        f = self._files.get(n)
+        if f is None:
+            f = self._files[n] = h5py.File(self.paths[n], "r")
+        return f
+
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        state["_files"], state["_pid"] = {}, None
+        return state
+
+    def __getitem__(self, index: int) -> dict:
+        n, t = self.locate(int(index))
+        f = self._file(n)
+        T = int(self.lengths[n])
+        stop = min(t + self.chunk_size, T)
+        chunk = f["action"][t:stop]
+        pad = self.chunk_size - len(chunk)
+        if pad:
+            chunk = np.concatenate([chunk, np.repeat(chunk[-1:], pad, axis=0)])
+        is_pad = np.zeros(self.chunk_size, dtype=bool)
+        is_pad[self.chunk_size - pad:] = True
+        item = {
+            "episode_index": self.episode_ids[n],
+            "frame_index": t,
+            "observation.qpos": torch.from_numpy(f["observations/qpos"][t]),
+        }
+        for cam in self.cameras:
+            item[f"observation.images.{cam}"] = torch.from_numpy(f[f"observations/images/{cam}"][t]).permute(2, 0, 1)
+        for s in self.tactile_sensors:
+            item[f"observation.tactile.{s}"] = torch.from_numpy(f[f"observations/tactile/{s}"][t]).permute(2, 0, 1)
+            item[f"observation.tactile_background.{s}"] = torch.from_numpy(self.backgrounds[(n, s)]).permute(2, 0, 1)
+        for s in self.force_sensors:
+            item[f"observation.force.{s}"] = torch.from_numpy(f[f"observations/force/{s}"][t])
+        item["action"] = torch.from_numpy(np.ascontiguousarray(chunk, dtype=np.float32))
+        item["action_is_pad"] = torch.from_numpy(is_pad)
+        return item

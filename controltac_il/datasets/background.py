@@ -1,0 +1,55 @@
+"""Estimate a tactile sensor's no-contact background from an episode's own frames.
+
+Used where a recording has no ``/observations/tactile_background/<sensor>``. No-contact frames are
+those with a labelled normal force below ``no_contact_force`` (N) when labels exist; otherwise the
+frames that barely differ from the episode's first frames (a demonstration starts before the grasp).
+The background is the per-pixel median of those frames (median removes the sensor noise).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+MAX_FRAMES = 64  # frames used for the median (evenly spaced), bounds memory and time
+
+
+def changed_fraction(frames: np.ndarray, reference: np.ndarray, threshold: int = 12) -> np.ndarray:
+    """Fraction of pixels per frame whose largest channel difference to ``reference`` exceeds ``threshold``.
+
+    frames: uint8 (T, H, W, 3); reference: uint8 (H, W, 3) -> float (T,).
+    """
+    diff = np.abs(frames.astype(np.int16) - reference.astype(np.int16)).max(axis=-1)
+    return (diff > threshold).mean(axis=(1, 2))
+
+
+def estimate_background(
+    frames: np.ndarray,
+    force: np.ndarray | None = None,
+    no_contact_force: float = 0.1,
+    max_changed_fraction: float = 0.005,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Background (uint8 (H, W, 3)) and the indices of the no-contact frames it was taken from.
+
+    frames: uint8 (T, H, W, 3) tactile images of one episode; force: optional float (T, 3) labels
+    [Fx, Fy, Fz] N (Fz > 0 pressing). Falls back to the least-changed tenth of the frames when no
+    frame qualifies as no-contact.
+    """
+    frames = np.asarray(frames)
+    if frames.dtype != np.uint8 or frames.ndim != 4 or frames.shape[-1] != 3 or len(frames) == 0:
+        raise ValueError(f"frames: expected uint8 (T, H, W, 3) with T >= 1, got {frames.dtype} {frames.shape}")
+    idle = np.zeros(0, dtype=np.int64)
+    if force is not None:
+        force = np.asarray(force, dtype=np.float32)
+        if force.shape != (len(frames), 3):
+            raise ValueError(f"force: expected shape ({len(frames)}, 3), got {force.shape}")
+        idle = np.flatnonzero(force[:, 2] < no_contact_force)
+    if len(idle) == 0:
+        start = np.median(frames[: min(5, len(frames))], axis=0).astype(np.uint8)
+        change = changed_fraction(frames, start)
+        idle = np.flatnonzero(change <= max_changed_fraction)
+        if len(idle) == 0:
+            idle = np.sort(np.argsort(change, kind="stable")[: max(1, len(frames) // 10)])
+    if len(idle) > MAX_FRAMES:
+        idle = idle[np.linspace(0, len(idle) - 1, MAX_FRAMES).round().astype(np.int64)]
+    background = np.median(frames[idle], axis=0).round().astype(np.uint8)
+    return background, idle

@@ -1,0 +1,147 @@
+"""EpisodeDataset: frame indexing, padded action chunks, stats saved once, read-only, background estimate."""
+
+import hashlib
+import json
+import os
+import warnings
+
+import numpy as np
+import pytest
+import torch
+from torch.utils.data import DataLoader
+
+from controltac_il.datasets import Episode, EpisodeDataset, estimate_background, write_episode
+
+H, W = 12, 16
+
+
+def synthetic_episode(T, seed, background=True, force=True, contact=range(3, 7)):
+    """Tactile frames = flat background + noise, with a bright blob on the frames in ``contact``."""
+    rng = np.random.default_rng(seed)
+    bg = np.full((H, W, 3), 100, np.uint8)
+    tactile = np.repeat(bg[None], T, 0).astype(np.int16) + rng.integers(-2, 3, (T, H, W, 3))
+    f = np.zeros((T, 3), np.float32)
+    for t in (t for t in contact if t < T):
+        tactile[t, 3:9, 4:12] += 60
+        f[t] = (0.1, -0.2, 2.0 + t)
+    return Episode(
+        qpos=np.arange(T * 4, dtype=np.float32).reshape(T, 4) + 1000 * seed,
+        action=-np.arange(T * 3, dtype=np.float32).reshape(T, 3) - 1000 * seed,
+        images={"wrist": rng.integers(0, 256, (T, 6, 8, 3), dtype=np.uint8)},
+        tactile={"left": tactile.clip(0, 255).astype(np.uint8)},
+        tactile_background={"left": bg} if background else {},
+        force={"left": f} if force else {},
+        sim=True,
+    )
+
+
+@pytest.fixture
+def folder(tmp_path):
+    root = tmp_path / "demos"
+    for i, T in enumerate((9, 4)):
+        write_episode(root / f"episode_{i}.hdf5", synthetic_episode(T, i))
+    return root
+
+
+def test_items_and_padded_chunks(folder, tmp_path):
+    ds = EpisodeDataset(folder, chunk_size=5, stats_path=tmp_path / "s.json")
+    assert len(ds) == 13
+    it = ds[7]  # episode 0, frame 7 of 9: 2 real actions + 3 padded
+    assert it["episode_index"] == 0 and it["frame_index"] == 7
+    ep = synthetic_episode(9, 0)
+    np.testing.assert_array_equal(it["observation.qpos"].numpy(), ep.qpos[7])
+    np.testing.assert_array_equal(it["action"][:2].numpy(), ep.action[7:9])
+    np.testing.assert_array_equal(it["action"][2:].numpy(), np.repeat(ep.action[8:9], 3, 0))
+    assert it["action_is_pad"].tolist() == [False, False, True, True, True]
+    assert it["action"].dtype == torch.float32 and it["action"].shape == (5, 3)
+    np.testing.assert_array_equal(it["observation.images.wrist"].permute(1, 2, 0).numpy(), ep.images["wrist"][7])
+    np.testing.assert_array_equal(it["observation.tactile.left"].permute(1, 2, 0).numpy(), ep.tactile["left"][7])
+    assert it["observation.tactile_background.left"].shape == (3, H, W)
+    np.testing.assert_array_equal(it["observation.force.left"].numpy(), ep.force["left"][7])
+    it = ds[9]  # episode 1 (4 frames), frame 0: one padded action
+    assert (it["episode_index"], it["frame_index"]) == (1, 0)
+    assert it["action_is_pad"].tolist() == [False] * 4 + [True]
+    assert ds[-1]["frame_index"] == 3
+    with pytest.raises(IndexError):
+        ds[13]
+    ep_idx, fr_idx = ds.frame_table()
+    assert ep_idx.tolist() == [0] * 9 + [1] * 4 and fr_idx.tolist() == list(range(9)) + list(range(4))
+
+
+def test_stats_computed_once_and_saved_outside_data(folder, tmp_path):
+    os.environ["CONTROLTAC_CACHE"] = str(tmp_path / "cache")
+    try:
+        ds = EpisodeDataset(folder)
+    finally:
+        del os.environ["CONTROLTAC_CACHE"]
+    assert ds.stats_path.is_file() and folder not in ds.stats_path.parents
+    qpos = np.concatenate([synthetic_episode(9, 0).qpos, synthetic_episode(4, 1).qpos])
+    np.testing.assert_allclose(ds.stats["qpos"]["mean"], qpos.mean(0), rtol=1e-6)
+    np.testing.assert_allclose(ds.stats["qpos"]["std"], qpos.std(0), rtol=1e-5)
+    mtime = ds.stats_path.stat().st_mtime_ns
+    ds2 = EpisodeDataset(folder, stats_path=ds.stats_path)
+    assert ds.stats_path.stat().st_mtime_ns == mtime  # loaded, not recomputed
+    np.testing.assert_array_equal(ds2.stats["action"]["std"], ds.stats["action"]["std"])
+    # a changed data folder invalidates the saved stats
+    write_episode(folder / "episode_2.hdf5", synthetic_episode(5, 2))
+    ds3 = EpisodeDataset(folder, stats_path=ds.stats_path)
+    assert json.loads(ds.stats_path.read_text())["fingerprint"]["files"][-1][0] == "episode_2.hdf5"
+    assert not np.allclose(ds3.stats["qpos"]["mean"], ds.stats["qpos"]["mean"])
+    with pytest.raises(ValueError, match="stats_path: must not be inside"):
+        EpisodeDataset(folder, stats_path=folder / "stats.json")
+
+
+def test_read_only_folder_is_untouched(folder, tmp_path):
+    sums = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in folder.iterdir()}
+    for p in folder.iterdir():
+        os.chmod(p, 0o444)
+    os.chmod(folder, 0o555)
+    try:
+        ds = EpisodeDataset(folder, chunk_size=3, stats_path=tmp_path / "s.json")
+        batches = list(DataLoader(ds, batch_size=4, shuffle=True, num_workers=2))
+    finally:
+        os.chmod(folder, 0o755)
+    assert sum(len(b["episode_index"]) for b in batches) == 13
+    assert {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in folder.iterdir()} == sums
+
+
+def test_missing_background_is_estimated_with_warning(tmp_path):
+    root = tmp_path / "d"
+    write_episode(root / "episode_0.hdf5", synthetic_episode(10, 0, background=False, force=False))
+    with pytest.warns(UserWarning, match="no tactile background for sensor 'left'.*6 no-contact"):
+        ds = EpisodeDataset(root, stats_path=tmp_path / "s.json")
+    bg = ds[0]["observation.tactile_background.left"].permute(1, 2, 0).numpy().astype(int)
+    assert np.abs(bg - 100).max() <= 2  # the blob (+60) frames are excluded
+    root2 = tmp_path / "d2"
+    write_episode(root2 / "episode_0.hdf5", synthetic_episode(10, 0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a recorded background: no estimate, no warning
+        EpisodeDataset(root2, stats_path=tmp_path / "s2.json")
+
+
+def test_estimate_background_prefers_force_labels():
+    ep = synthetic_episode(10, 0, contact=range(0, 6))  # in contact from the start: only labels can tell
+    bg, used = estimate_background(ep.tactile["left"], ep.force["left"])
+    assert used.tolist() == [6, 7, 8, 9]
+    assert np.abs(bg.astype(int) - 100).max() <= 2
+    with pytest.raises(ValueError, match="force: expected shape"):
+        estimate_background(ep.tactile["left"], ep.force["left"][:3])
+    with pytest.raises(ValueError, match="frames: expected uint8"):
+        estimate_background(ep.tactile["left"].astype(np.float32))
+
+
+def test_bad_input(folder, tmp_path):
+    with pytest.raises(ValueError, match="chunk_size"):
+        EpisodeDataset(folder, chunk_size=0)
+    with pytest.raises(ValueError, match="cameras: unknown name 'top'"):
+        EpisodeDataset(folder, cameras=["top"], stats_path=tmp_path / "s.json")
+    with pytest.raises(ValueError, match="tactile_sensors: unknown name 'right'"):
+        EpisodeDataset(folder, tactile_sensors="right", stats_path=tmp_path / "s.json")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ValueError, match="no episode_<i>.hdf5"):
+        EpisodeDataset(tmp_path / "empty")
+    ep = synthetic_episode(3, 5)
+    ep.images = {"top": ep.images["wrist"]}
+    write_episode(folder / "episode_5.hdf5", ep)
+    with pytest.raises(ValueError, match="episode_5.hdf5: no /observations/images/wrist"):
+        EpisodeDataset(folder, stats_path=tmp_path / "s.json")
