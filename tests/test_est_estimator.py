@@ -1,0 +1,97 @@
+"""Force estimator: input validation, resizing, checkpoint round trip, config validation."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from controltac_il.estimators import EstimatorConfig, ForceEstimator, validate_residuals
+from controltac_il.estimators.estimator import preprocess
+
+
+@pytest.fixture()
+def est():
+    torch.manual_seed(0)
+    return ForceEstimator(EstimatorConfig(force_mean=(0.1, -0.2, 5.0), force_std=(0.5, 0.5, 3.0)))
+
+
+def test_predict_shape_dtype_and_any_resolution(est):
+    rng = np.random.default_rng(0)
+    for h, w in [(64, 80), (128, 160), (240, 320)]:
+        out = est.predict(rng.integers(0, 256, (3, h, w, 3), dtype=np.uint8))
+        assert out.shape == (3, 3) and out.dtype == np.float32 and np.isfinite(out).all()
+
+
+def test_float_input_in_range_matches_uint8(est):
+    r = np.random.default_rng(1).integers(0, 256, (2, 128, 160, 3), dtype=np.uint8)
+    np.testing.assert_allclose(est.predict(r), est.predict(r.astype(np.float32)), atol=1e-5)
+
+
+def test_batching_does_not_change_predictions(est):
+    r = np.random.default_rng(2).integers(100, 160, (7, 64, 80, 3), dtype=np.uint8)
+    np.testing.assert_allclose(est.predict(r, batch_size=2), est.predict(r, batch_size=64), atol=1e-5)
+
+
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        (np.zeros((128, 160, 3), np.uint8), r"\(N, H, W, 3\)"),
+        (np.zeros((2, 3, 128, 160), np.uint8), r"\(N, H, W, 3\)"),
+        (np.zeros((0, 128, 160, 3), np.uint8), "at least one image"),
+        (np.zeros((1, 4, 4, 3), np.uint8), "8x8"),
+        (np.zeros((1, 64, 80, 3), np.int64), "dtype int64"),
+        (np.zeros((1, 64, 80, 3), bool), "dtype bool"),
+        (np.full((1, 64, 80, 3), np.nan, np.float32), "NaN"),
+        (np.full((1, 64, 80, 3), 300.0, np.float32), r"\[0, 255\]"),
+        ([[1, 2, 3]], "numpy array"),
+    ],
+)
+def test_bad_input_is_rejected_with_clear_error(est, bad, match):
+    with pytest.raises(ValueError, match=match):
+        est.predict(bad)
+
+
+def test_validate_accepts_torch_tensor():
+    t = torch.full((1, 16, 16, 3), 127, dtype=torch.uint8)
+    assert isinstance(validate_residuals(t), np.ndarray)
+
+
+def test_preprocess_maps_offset_to_zero_and_resizes():
+    cfg = EstimatorConfig(input_height=32, input_width=40)
+    x = preprocess(np.full((2, 240, 320, 3), 127, np.uint8), cfg)
+    assert x.shape == (2, 3, 32, 40)
+    assert x.abs().max() < 1e-5
+    x = preprocess(np.full((1, 32, 40, 3), 127 + 32, np.uint8), cfg)
+    assert torch.allclose(x, torch.ones_like(x))
+
+
+def test_save_load_round_trip_is_exact(est, tmp_path):
+    r = np.random.default_rng(3).integers(0, 256, (4, 128, 160, 3), dtype=np.uint8)
+    est.save(tmp_path / "ck", card="# card\n")
+    assert sorted(p.name for p in (tmp_path / "ck").iterdir()) == ["README.md", "config.json", "model.safetensors"]
+    loaded = ForceEstimator.from_pretrained(tmp_path / "ck")
+    assert loaded.config == est.config
+    np.testing.assert_array_equal(loaded.predict(r), est.predict(r))
+    assert len(loaded.checkpoint_hash) == 16
+    # saving again over an existing folder replaces it whole (atomic folder swap)
+    est.save(tmp_path / "ck")
+    assert not (tmp_path / "ck" / "README.md").exists()
+
+
+def test_from_pretrained_missing_folder_is_clear(tmp_path):
+    with pytest.raises(FileNotFoundError, match="model.safetensors"):
+        ForceEstimator.from_pretrained(tmp_path)
+
+
+def test_config_rejects_unknown_and_bad_fields(tmp_path):
+    with pytest.raises(ValueError, match="unknown EstimatorConfig fields"):
+        EstimatorConfig.from_dict({"input_height": 64, "colour": 1})
+    with pytest.raises(ValueError, match="force_std"):
+        EstimatorConfig(force_std=(1.0, 0.0, 1.0))
+    with pytest.raises(ValueError, match="input_width"):
+        EstimatorConfig(input_width=4)
+    with pytest.raises(ValueError, match="widths"):
+        EstimatorConfig(widths=(8, 8))
+    cfg = EstimatorConfig(widths=[8, 8, 16, 16])
+    assert EstimatorConfig.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
