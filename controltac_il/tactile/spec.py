@@ -75,7 +75,8 @@ class SensorSpec:
         if abs(height / width - self.height / self.width) > 0.02:
             raise ValueError(
                 f"scaled({height}, {width}) changes the aspect ratio {self.height}:{self.width}; "
-                "the pad's physical size is fixed"
+                "the pad's physical size is fixed; render at the pad's aspect (e.g. scaled(120, 160)) and "
+                "resize the images (the generator resizes to its own 128×160 input, as the paper resizes to 256×320)"
             )
         return dataclasses.replace(self, height=height, width=width, mm_per_px=self.mm_per_px * self.width / width)
 
