@@ -1,0 +1,221 @@
+"""ACT training loop: AdamW, periodic validation, atomic checkpoints, resume, torchrun data parallelism.
+
+Works on any map-style dataset whose items follow the EpisodeDataset contract (LeRobot-style keys,
+see ``ACTConfig.input_keys`` plus ``action`` / ``action_is_pad``). Under ``torchrun`` each process
+trains on its shard (DistributedSampler) and gradients are averaged (DDP; gloo on CPU, nccl on CUDA);
+rank 0 validates, logs and writes checkpoints.
+
+Output folder::
+
+    OUT/last/        newest checkpoint + optimizer state (what --resume continues from)
+    OUT/best/        checkpoint with the lowest validation L1 (z = 0, as deployed)
+    OUT/train_log.json   losses and validation curve
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from torch.utils.data import DataLoader, Dataset
+from torch.utils.data.distributed import DistributedSampler
+from tqdm import tqdm
+
+from controltac_il.io import write_json
+from policies.act.checkpoint import CheckpointError, load_checkpoint, load_optimizer_state, save_checkpoint
+from policies.act.configuration_act import ACTConfig
+from policies.act.modeling_act import ACT
+
+
+@dataclass
+class TrainConfig:
+    """Optimisation schedule.
+
+    steps: optimiser steps in total (a resumed run continues up to this number).
+    batch_size: samples per step and per process (global batch = batch_size * world size).
+    val_every: run validation (and keep ``best``) every this many steps, and at the end.
+    save_every: write ``last`` (with optimizer state) every this many steps, and at the end.
+    warmup_steps: linear learning-rate warm-up from 0, then constant (ACT uses a constant rate).
+    grad_clip: max gradient L2 norm (0 = no clipping).
+    num_workers: DataLoader worker processes (0 = load in the training process).
+    max_val_batches: cap on validation batches per evaluation (keeps validation cheap on CPU).
+    seed: seeds the model initialisation, the sampling order and the CVAE noise.
+    """
+
+    steps: int = 2000
+    batch_size: int = 16
+    val_every: int = 250
+    save_every: int = 500
+    warmup_steps: int = 50
+    grad_clip: float = 10.0
+    num_workers: int = 0
+    max_val_batches: int = 20
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("steps", "batch_size", "val_every", "save_every", "max_val_batches"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v <= 0:
+                raise ValueError(f"TrainConfig.{name} must be a positive int, got {v!r}")
+        for name in ("warmup_steps", "num_workers"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or v < 0:
+                raise ValueError(f"TrainConfig.{name} must be an int >= 0, got {v!r}")
+        if not self.grad_clip >= 0:
+            raise ValueError(f"TrainConfig.grad_clip must be >= 0, got {self.grad_clip!r}")
+
+
+def _dist_info() -> tuple[int, int]:
+    """(rank, world size); initialises the process group when launched by torchrun."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world > 1 and not dist.is_initialized():
+        dist.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
+    if dist.is_initialized():
+        return dist.get_rank(), dist.get_world_size()
+    return 0, 1
+
+
+def _optimizer(model: ACT) -> torch.optim.AdamW:
+    cfg = model.config
+    backbone, rest = [], []
+    for name, p in model.named_parameters():
+        (backbone if name.split(".")[0] in ("camera_backbone", "tactile_backbone") else rest).append(p)
+    return torch.optim.AdamW([{"params": rest, "lr": cfg.lr}, {"params": backbone, "lr": cfg.lr_backbone}],
+                             lr=cfg.lr, weight_decay=cfg.weight_decay)
+
+
+def _batches(loader: DataLoader, sampler, start_epoch: int):
+    epoch = start_epoch
+    while True:
+        if sampler is not None:
+            sampler.set_epoch(epoch)
+        yield from loader
+        epoch += 1
+
+
+@torch.no_grad()
+def evaluate(model: ACT, loader: DataLoader, max_batches: int) -> dict[str, float]:
+    """Mean training loss (posterior z) and masked L1 with z = 0 (normalised units) over ``loader``."""
+    was_training = model.training
+    model.eval()
+    totals, n = {"val_loss": 0.0, "val_l1": 0.0}, 0
+    for i, batch in enumerate(loader):
+        if i >= max_batches:
+            break
+        totals["val_loss"] += float(model(batch)["loss"])
+        pred = model.predict(batch)
+        valid = (~batch["action_is_pad"]).unsqueeze(-1).float()
+        err = ((pred - batch["action"].float()) / model.action_std).abs() * valid
+        totals["val_l1"] += float(err.sum() / (valid.sum() * model.config.action_dim).clamp(min=1))
+        n += 1
+    model.train(was_training)
+    return {k: v / max(n, 1) for k, v in totals.items()}
+
+
+def train(act_config: ACTConfig, train_config: TrainConfig, train_set: Dataset, val_set: Dataset | None,
+          out_dir: str | Path, *, stats: dict, backgrounds: dict[str, np.ndarray] | None = None,
+          resume: bool = False, meta: dict | None = None, progress: bool = True) -> dict:
+    """Train ACT and write checkpoints under ``out_dir``; returns the run summary (also in train_log.json).
+
+    stats: normalisation statistics (``{"qpos": {"mean", "std"}, "action": {...}}``) of the training data.
+    backgrounds: tactile no-contact frames stored with the checkpoint for deployment.
+    resume: continue from ``out_dir/last`` (its config must equal ``act_config``).
+    """
+    out_dir = Path(out_dir)
+    rank, world = _dist_info()
+    torch.manual_seed(train_config.seed)
+    model = ACT(act_config)
+    model.set_stats(stats)
+    optimizer = _optimizer(model)
+    step, log = 0, {"train": [], "val": []}
+    best = math.inf
+    if resume:
+        if not (out_dir / "last").is_dir():
+            raise CheckpointError(f"--resume: no checkpoint to continue from at {out_dir / 'last'}")
+        loaded, _, last_meta = load_checkpoint(out_dir / "last")
+        if loaded.config.to_dict() != act_config.to_dict():
+            raise CheckpointError(f"--resume: {out_dir / 'last'} was trained with a different ACT config; "
+                                  f"use a new --out folder or the same --preset and options")
+        model.load_state_dict(loaded.state_dict())
+        load_optimizer_state(out_dir / "last", optimizer)
+        step = int(last_meta.get("step", 0))
+        best = float(last_meta.get("best_val_l1", math.inf))
+        log = last_meta.get("log", log)
+    model.train()
+    ddp = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
+    sampler = DistributedSampler(train_set, world, rank, shuffle=True, seed=train_config.seed) if world > 1 else None
+    gen = torch.Generator().manual_seed(train_config.seed + step)
+    loader = DataLoader(train_set, batch_size=train_config.batch_size, shuffle=sampler is None, sampler=sampler,
+                        drop_last=len(train_set) >= train_config.batch_size * world,
+                        num_workers=train_config.num_workers, generator=gen)
+    val_loader = (DataLoader(val_set, batch_size=train_config.batch_size, shuffle=False)
+                  if val_set is not None and len(val_set) and rank == 0 else None)
+    run_meta = {**(meta or {}), "train_config": asdict(train_config), "world_size": world}
+
+    def save(final: bool) -> None:
+        m = {**run_meta, "step": step, "best_val_l1": best, "log": log}
+        save_checkpoint(out_dir / "last", model, backgrounds=backgrounds, meta=m, optimizer=optimizer)
+        if final:
+            write_json(out_dir / "train_log.json", {k: v for k, v in m.items()})
+
+    bar = tqdm(total=train_config.steps, initial=step, desc="train ACT", disable=not progress or rank != 0,
+               dynamic_ncols=True)
+    t0, samples = time.perf_counter(), 0
+    batches = _batches(loader, sampler, start_epoch=step // max(len(loader), 1))
+    while step < train_config.steps:
+        batch = next(batches)
+        lr_scale = min(1.0, (step + 1) / train_config.warmup_steps) if train_config.warmup_steps else 1.0
+        for group, base in zip(optimizer.param_groups, (act_config.lr, act_config.lr_backbone)):
+            group["lr"] = base * lr_scale
+        out = ddp(batch)
+        optimizer.zero_grad(set_to_none=True)
+        out["loss"].backward()
+        if train_config.grad_clip:
+            torch.nn.utils.clip_grad_norm_(model.parameters(), train_config.grad_clip)
+        optimizer.step()
+        step += 1
+        samples += batch["observation.qpos"].shape[0] * world
+        if rank == 0:
+            row = {"step": step, **{k: round(float(v), 5) for k, v in out.items()}}
+            if step % 10 == 0 or step == 1:
+                log["train"].append(row)
+            bar.update(1)
+            bar.set_postfix(loss=f"{row['loss']:.3f}", l1=f"{row['l1']:.3f}", kl=f"{row['kl']:.3f}")
+            last = step == train_config.steps
+            if val_loader is not None and (step % train_config.val_every == 0 or last):
+                val = evaluate(model, val_loader, train_config.max_val_batches)
+                log["val"].append({"step": step, **{k: round(v, 5) for k, v in val.items()}})
+                bar.write(f"step {step}: val_loss {val['val_loss']:.4f}  val_l1 (z=0) {val['val_l1']:.4f}")
+                if val["val_l1"] < best:
+                    best = val["val_l1"]
+                    save_checkpoint(out_dir / "best", model, backgrounds=backgrounds,
+                                    meta={**run_meta, "step": step, "best_val_l1": best})
+            if step % train_config.save_every == 0 or last:
+                save(final=last)
+        if world > 1:
+            dist.barrier()
+    bar.close()
+    elapsed = time.perf_counter() - t0
+    summary = {"steps": step, "samples_per_s": samples / elapsed if elapsed > 0 else None,
+               "best_val_l1": best if math.isfinite(best) else None,
+               "final_loss": log["train"][-1]["loss"] if log["train"] else None, "world_size": world}
+    if world > 1:
+        dist.destroy_process_group()
+    return summary
+
+
+def resolve_checkpoint(path: str | Path) -> Path:
+    """A checkpoint folder, or a training output folder (then its ``best``, else its ``last``)."""
+    path = Path(path)
+    if (path / "config.json").is_file():
+        return path
+    for sub in ("best", "last"):
+        if (path / sub / "config.json").is_file():
+            return path / sub
+    raise CheckpointError(f"no ACT checkpoint at {path} (expected config.json there or in best/ or last/)")
