@@ -37,3 +37,49 @@ def with_no_contact(residuals: np.ndarray, forces: np.ndarray, fraction: float, 
     empty = no_contact_residuals(n, residuals.shape[1], residuals.shape[2], std, seed)
     return (np.concatenate([residuals, empty]),
             np.concatenate([forces, np.zeros((n, 3), np.float32)]).astype(np.float32))
+
+
+def load_arrays(ds, indices=None, size: tuple[int, int] | None = None, chunk: int = 256,
+                progress: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Residuals uint8 (N, h, w, 3) and forces float32 (N, 3) of a loaded tactile dataset.
+
+    ``ds`` is a ``controltac_il.tactile.dataset.TactileDataset``; ``indices`` selects rows (default
+    all); ``size`` = (h, w) resizes each residual (area-averaged) to save memory.
+    """
+    import cv2
+    from tqdm.auto import tqdm
+
+    indices = list(range(len(ds))) if indices is None else list(indices)
+    if not indices:
+        raise ValueError("load_arrays: no rows selected")
+    forces = np.asarray([ds.records[i].force for i in indices], dtype=np.float32)
+    out = []
+    for i in tqdm(indices, desc="loading residuals", disable=not progress, unit="img"):
+        r = ds.residual(i)
+        if size is not None and r.shape[:2] != tuple(size):
+            r = cv2.resize(r, (size[1], size[0]), interpolation=cv2.INTER_AREA)
+        out.append(r)
+    return np.stack(out), forces
+
+
+def split_by_pose(groups: dict, fraction: float, seed: int = 0) -> tuple[list[int], list[int]]:
+    """Split row indices so that all images of one contact pose fall on the same side.
+
+    ``groups``: {(object, pose_id): [row indices]}; returns (kept, held_out) with about
+    ``fraction`` of the poses of every object held out (at least one when fraction > 0).
+    """
+    if not 0 <= fraction < 1:
+        raise ValueError(f"held-out fraction must be in [0, 1), got {fraction}")
+    rng = np.random.default_rng(seed)
+    by_object: dict = {}
+    for key in sorted(groups):
+        by_object.setdefault(key[0], []).append(key)
+    kept, held = [], []
+    for obj in sorted(by_object):
+        keys = by_object[obj]
+        n_held = 0 if fraction == 0 else max(1, int(round(fraction * len(keys))))
+        n_held = min(n_held, len(keys) - 1)
+        order = rng.permutation(len(keys))
+        for j, k in enumerate(order):
+            (held if j < n_held else kept).extend(groups[keys[k]])
+    return sorted(kept), sorted(held)

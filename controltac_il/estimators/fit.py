@@ -122,13 +122,14 @@ def fit(
     state_dir: str | Path | None = None,
     resume: bool = False,
     progress: bool = True,
-    on_checkpoint: Callable[[ForceEstimator, int], None] | None = None,
+    on_checkpoint: Callable[[ForceEstimator, int, list], None] | None = None,
 ) -> tuple[ForceEstimator, list[dict]]:
     """Train a force estimator on residuals uint8 (N, H, W, 3) and forces float (N, 3) in N.
 
     Images are resized once to the model input size. ``force_mean``/``force_std`` of the model
     config are set from ``forces``. With ``state_dir`` the resumable state is written there every
-    ``train.checkpoint_every`` steps; ``resume=True`` continues from it. Returns the estimator
+    ``train.checkpoint_every`` steps; ``resume=True`` continues from it; ``on_checkpoint(est, step, history)`` is called after each
+    intermediate state write. Returns the estimator
     (eval mode) and the evaluation history (step, val MAE per axis).
     """
     train = train or TrainConfig()
@@ -180,7 +181,7 @@ def fit(
         if state_path is not None and train.checkpoint_every and step % train.checkpoint_every == 0 and step < train.steps:
             _save_state(state_path, est, opt, gen, step, train, history)
             if on_checkpoint is not None:
-                on_checkpoint(est, step)
+                on_checkpoint(est, step, history)
     bar.close()
     if not history or history[-1]["step"] != step:
         evaluate(step)
