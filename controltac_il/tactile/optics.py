@@ -11,7 +11,7 @@ Two interchangeable models, both returning the float change in grey levels (H, W
   (gradient magnitude bin, gradient direction bin) a quadratic polynomial in pixel position per channel.
   The change is lookup(gradient) − lookup(flat).
 
-``vignette`` darkens the optical response towards the corners, ``add_noise`` adds sensor noise; the
+``contact_tint`` brightens pressed gel (the coating's reflectance under contact), ``vignette`` darkens the optical response towards the corners, ``add_noise`` adds sensor noise; the
 sensor facade composes them over the background.
 """
 
@@ -104,6 +104,12 @@ def make_optics(name: str):
     if name == "polynomial":
         return PolynomialOptics()
     raise ValueError(f"optics must be 'three_light' or 'polynomial', got {name!r}")
+
+
+def contact_tint(height_mm: np.ndarray, spec: SensorSpec) -> np.ndarray:
+    """Brightening of pressed gel, (H, W, 3): contact_tint · (1 − exp(−height / tint_depth)); 0 where flat."""
+    level = 1.0 - np.exp(-np.maximum(height_mm, 0.0) / spec.tint_depth_mm)
+    return level[..., None] * np.asarray(spec.contact_tint, dtype=np.float32)
 
 
 def vignette(spec: SensorSpec) -> np.ndarray:

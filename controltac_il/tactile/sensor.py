@@ -8,7 +8,7 @@ import numpy as np
 
 from controltac_il.tactile import mechanics
 from controltac_il.tactile.indenters import get_indenter
-from controltac_il.tactile.optics import add_noise, load_background, make_optics, vignette
+from controltac_il.tactile.optics import add_noise, contact_tint, load_background, make_optics, vignette
 from controltac_il.tactile.residual import to_residual
 from controltac_il.tactile.spec import SensorSpec
 
@@ -107,6 +107,6 @@ class TactileSensor:
 
     def _shade(self, height, noise_seed):
         rng = self._rng if noise_seed is None else np.random.default_rng(noise_seed)
-        img = self.background.astype(np.float32) + self.optics.shade(height, self.spec) * self._vignette
+        img = self.background.astype(np.float32) + (self.optics.shade(height, self.spec) + contact_tint(height, self.spec)) * self._vignette
         img = add_noise(img, self.spec.noise_std, rng)
         return np.clip(np.rint(img), 0, 255).astype(np.uint8)

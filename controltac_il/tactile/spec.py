@@ -23,6 +23,9 @@ class SensorSpec:
         shear_compliance_mm_per_n: lateral gel displacement at the contact per newton of shear.
         optics_gain: multiplier on the optical response (lighting brightness of this instance).
         light_elevation_deg: elevation of the three lights above the gel plane (three-light model).
+        contact_tint: RGB brightening (grey levels) where the gel is pressed fully: the coating's
+            reflectance change under contact, visible even for a flat face with no slope.
+        tint_depth_mm: gel displacement at which the tint reaches 63 % of ``contact_tint``.
         vignetting: strength of the radial fall-off of the optical response at the corners, in [0, 1).
         noise_std: standard deviation of additive sensor noise in grey levels.
         background: name of a background asset ("gelsight_mini") or a path to an RGB image.
@@ -39,6 +42,8 @@ class SensorSpec:
     shear_compliance_mm_per_n: float = 0.25
     optics_gain: float = 1.0
     light_elevation_deg: float = 30.0
+    contact_tint: tuple[float, float, float] = (14.0, 8.0, 12.0)
+    tint_depth_mm: float = 0.15
     vignetting: float = 0.35
     noise_std: float = 1.2
     background: str = "gelsight_mini"
@@ -48,7 +53,7 @@ class SensorSpec:
             v = getattr(self, name)
             if not isinstance(v, int) or v < 8:
                 raise ValueError(f"SensorSpec.{name} must be an int >= 8 pixels, got {v!r}")
-        for name in ("mm_per_px", "gel_thickness_mm", "foundation_modulus", "smoothing_mm", "optics_gain"):
+        for name in ("mm_per_px", "gel_thickness_mm", "foundation_modulus", "smoothing_mm", "optics_gain", "tint_depth_mm"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"SensorSpec.{name} must be a finite number > 0, got {v!r}")
@@ -56,6 +61,8 @@ class SensorSpec:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"SensorSpec.{name} must be a finite number >= 0, got {v!r}")
+        if len(self.contact_tint) != 3 or not all(math.isfinite(v) for v in self.contact_tint):
+            raise ValueError(f"SensorSpec.contact_tint must be 3 finite grey levels (R, G, B), got {self.contact_tint!r}")
         if not 0.0 <= self.conformity <= 1.0:
             raise ValueError(f"SensorSpec.conformity must be in [0, 1], got {self.conformity!r}")
         if not 0.0 <= self.vignetting < 1.0:

@@ -1,0 +1,173 @@
+"""Sensor model: hard cases (numerical stability), monotonicity, conventions and bad input."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from controltac_il.tactile import (
+    HELDOUT_OBJECTS, INDENTERS, TRAIN_OBJECTS, SensorSpec, TactileSensor, contact_mask, from_residual, to_residual,
+)
+from controltac_il.tactile import mechanics
+from controltac_il.tactile.residual import residual_magnitude
+
+FORCES = [0.0, 1e-6, 1.0, 10.0, 50.0]
+SPEC = SensorSpec.gelsight_mini().scaled(120, 160)
+QUIET = dataclasses.replace(SPEC, noise_std=0.0)
+
+# (object, pose): the issue's hard cases plus one ordinary contact
+HARD_CASES = {
+    "flat face, area jumps (cube face)": ("cube_face", (0.0, 0.0, 0.2)),
+    "object larger than the pad": ("big_sphere", (0.0, 0.0, 0.0)),
+    "half off the sensor edge": ("usb_c", (SPEC.pad_size_mm[1] / 2, 0.0, 0.0)),
+    "very thin object": ("slim_cylinder", (1.0, -1.0, 0.7)),
+    "sharp edge": ("cube_edge", (0.0, 0.0, 0.4)),
+}
+
+
+@pytest.fixture(scope="module")
+def quiet_sensor():
+    return TactileSensor(QUIET, optics="three_light")
+
+
+@pytest.mark.parametrize("case", sorted(HARD_CASES))
+@pytest.mark.parametrize("optics", ["three_light", "polynomial"])
+def test_hard_cases_finite_converged_and_monotone(case, optics):
+    obj, pose = HARD_CASES[case]
+    sensor = TactileSensor(QUIET, optics=optics)
+    areas, magnitudes = [], []
+    for fz in FORCES:
+        c = sensor.press(obj, pose, (0.0, 0.0, fz))
+        for arr in (c.height_mm, c.penetration_mm, c.image):
+            assert np.isfinite(arr.astype(np.float64)).all()
+        assert abs(c.force[2] - fz) <= mechanics.FORCE_RTOL * fz + mechanics.FORCE_ATOL
+        # the reached force is the model's force of the rendered penetration
+        assert mechanics.normal_force(c.penetration_mm, QUIET) == pytest.approx(fz, rel=1e-3, abs=1e-6)
+        areas.append(c.area_mm2)
+        magnitudes.append(float(residual_magnitude(c.residual).mean()))
+    assert all(b >= a for a, b in zip(areas, areas[1:])), areas
+    assert all(b >= a - 1e-9 for a, b in zip(magnitudes, magnitudes[1:])), magnitudes
+    assert areas[0] == 0.0 and areas[-1] > 0.0
+    assert magnitudes[-1] > magnitudes[0]
+
+
+def test_zero_force_is_the_background(quiet_sensor):
+    c = quiet_sensor.press("big_sphere", (0, 0, 0), (0, 0, 0))
+    assert c.depth_mm == 0.0 and c.iterations == 0 and not c.mask.any()
+    np.testing.assert_array_equal(c.image, quiet_sensor.background)
+    assert (c.residual == 127).all()
+
+
+def test_cube_face_contact_area_jumps_to_full_pad(quiet_sensor):
+    c = quiet_sensor.press("cube_face", (0, 0, 0.2), (0, 0, 1.0))
+    pad_area = np.prod(SPEC.pad_size_mm)
+    assert c.area_mm2 > 0.95 * pad_area
+
+
+def test_every_object_renders_a_visible_contact_at_5n(quiet_sensor):
+    for obj in TRAIN_OBJECTS + HELDOUT_OBJECTS:
+        c = quiet_sensor.press(obj, (0.5, -0.5, 0.3), (0, 0, 5.0))
+        if obj == "cube_face":  # larger than the pad: a faint uniform tint, no edges in view
+            assert 0.5 < c.residual.astype(float).mean() - 127 < 12
+        else:
+            assert contact_mask(c.residual).sum() > 20, obj
+
+
+def test_depth_grows_with_force_and_solver_is_not_fixed_step(quiet_sensor):
+    depths = [quiet_sensor.press("big_sphere", (0, 0, 0), (0, 0, f)).depth_mm for f in (1, 2, 4, 8)]
+    assert all(b > a for a, b in zip(depths, depths[1:]))
+    # a Winkler sphere: F ∝ d² at small depth, so doubling F multiplies d by about √2
+    assert depths[1] / depths[0] == pytest.approx(np.sqrt(2), rel=0.1)
+
+
+def test_gel_surface_is_smooth_not_hard_imprint(quiet_sensor):
+    c = quiet_sensor.press("cross", (0, 0, 0), (0, 0, 5.0))
+    outside = ~c.mask
+    assert (c.height_mm[outside] > 1e-3).any(), "the gel must slope down around the contact"
+    assert c.height_mm.max() < c.penetration_mm.max()
+
+
+def test_shear_moves_the_imprint_along_the_force(quiet_sensor):
+    def centroid_x(fx):
+        c = quiet_sensor.press("big_sphere", (0, 0, 0), (fx, 0.0, 5.0))
+        w = c.height_mm
+        return (w * np.arange(w.shape[1])).sum() / w.sum()
+
+    assert centroid_x(1.0) > centroid_x(0.0) > centroid_x(-1.0)
+
+
+def test_noise_is_seeded():
+    s = TactileSensor(SPEC)
+    a = s.press("cross", (0, 0, 0), (0, 0, 3), noise_seed=7).image
+    b = s.press("cross", (0, 0, 0), (0, 0, 3), noise_seed=7).image
+    c = s.press("cross", (0, 0, 0), (0, 0, 3), noise_seed=8).image
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+
+
+def test_no_contact_residual_is_127_plus_noise():
+    s = TactileSensor(SPEC)
+    res = s.press("big_sphere", (0, 0, 0), (0, 0, 0), noise_seed=1).residual.astype(np.float64) - 127
+    assert abs(res.mean()) < 0.3
+    assert res.std() == pytest.approx(SPEC.noise_std, rel=0.2)
+
+
+def test_residual_round_trip():
+    rng = np.random.default_rng(0)
+    bg = rng.integers(60, 200, size=(8, 10, 3), dtype=np.uint8)
+    img = np.clip(bg.astype(int) + rng.integers(-100, 100, size=bg.shape), 0, 255).astype(np.uint8)
+    res = to_residual(img, bg)
+    assert res.dtype == np.uint8
+    np.testing.assert_array_equal(from_residual(res, bg), img)  # exact within the ±127 range
+
+
+def test_render_penetration_matches_press(quiet_sensor):
+    c = quiet_sensor.press("thin_cylinder", (0, 0, 0.5), (0.3, -0.2, 4.0))
+    img = quiet_sensor.render_penetration(c.penetration_mm, shear=(0.3, -0.2))
+    np.testing.assert_array_equal(img, c.image)
+
+
+def test_scaled_keeps_the_pad():
+    s = SensorSpec.gelsight_mini()
+    half = s.scaled(120, 160)
+    assert half.pad_size_mm == pytest.approx(s.pad_size_mm)
+    assert half.mm_per_px == pytest.approx(2 * s.mm_per_px)
+
+
+@pytest.mark.parametrize(
+    "force, field",
+    [((0, 0, -1.0), "Fz"), ((0, 0, np.nan), "finite"), ((0, 0), "3 components"), ("abc", "force")],
+)
+def test_bad_force_is_rejected(quiet_sensor, force, field):
+    with pytest.raises(ValueError, match=field):
+        quiet_sensor.press("cross", (0, 0, 0), force)
+
+
+def test_bad_object_pose_image_and_spec_are_rejected(quiet_sensor):
+    with pytest.raises(ValueError, match="unknown object 'banana'.*cross"):
+        quiet_sensor.press("banana")
+    with pytest.raises(ValueError, match="pose"):
+        quiet_sensor.press("cross", (0, np.inf, 0))
+    with pytest.raises(ValueError, match="uint8"):
+        to_residual(np.zeros((120, 160, 3), np.float32), quiet_sensor.background)
+    with pytest.raises(ValueError, match="shape"):
+        to_residual(np.zeros((100, 160, 3), np.uint8), quiet_sensor.background)
+    with pytest.raises(ValueError, match="penetration_mm must have shape"):
+        quiet_sensor.render_penetration(np.zeros((10, 10)))
+    with pytest.raises(ValueError, match="penetration_mm must be finite"):
+        quiet_sensor.render_penetration(np.full((120, 160), -1.0))
+    with pytest.raises(ValueError, match="foundation_modulus"):
+        SensorSpec(foundation_modulus=0.0)
+    with pytest.raises(ValueError, match="aspect ratio"):
+        SensorSpec().scaled(128, 160)
+    with pytest.raises(ValueError, match="optics"):
+        TactileSensor(SPEC, optics="raytrace")
+
+
+def test_inputs_are_not_modified(quiet_sensor):
+    pen = np.zeros((120, 160), np.float32)
+    pen[50:60, 70:90] = 0.4
+    before = pen.copy()
+    quiet_sensor.render_penetration(pen, shear=(0.5, 0.5))
+    np.testing.assert_array_equal(pen, before)
+    assert set(TRAIN_OBJECTS).isdisjoint(HELDOUT_OBJECTS) and len(INDENTERS) == 12
