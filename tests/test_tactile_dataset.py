@@ -1,0 +1,112 @@
+"""Dataset writer/loader: determinism, atomicity, FeelAnyForce sign convention, malformed manifests."""
+
+import csv
+import hashlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from controltac_il.tactile import SensorSpec
+from controltac_il.tactile import dataset as tds
+
+SPEC = SensorSpec.gelsight_mini().scaled(60, 80)
+
+
+def _digest(root: Path) -> str:
+    h = hashlib.sha256()
+    for p in sorted(root.rglob("*")):
+        if p.is_file():
+            h.update(p.relative_to(root).as_posix().encode())
+            h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+def _write(path, **kw):
+    args = dict(objects=("cross", "big_sphere"), poses_per_object=2, forces_per_pose=3, seed=3, spec=SPEC, progress=False)
+    args.update(kw)
+    return tds.write_dataset(path, **args)
+
+
+def test_same_seed_same_bytes_other_seed_differs(tmp_path):
+    a, b, c = _write(tmp_path / "a"), _write(tmp_path / "b"), _write(tmp_path / "c", seed=4)
+    assert _digest(a) == _digest(b)
+    assert _digest(a) != _digest(c)
+
+
+def test_round_trip_and_pose_groups(tmp_path):
+    ds = tds.load_dataset(_write(tmp_path / "d"))
+    assert len(ds) == 12
+    groups = ds.pose_groups()
+    assert len(groups) == 4 and all(len(v) == 3 for v in groups.values())
+    for idx in groups.values():  # one pose per group, forces differ
+        assert len({ds.records[i].pose for i in idx}) == 1
+        assert len({ds.records[i].force for i in idx}) == 3
+    f = ds.forces()
+    assert f.shape == (12, 3) and (f[:, 2] > 0).all() and (np.abs(f[:, :2]) <= 1).all()
+    assert ds.image(0).shape == (60, 80, 3) and ds.residual(0).dtype == np.uint8
+
+
+def test_interrupted_write_leaves_nothing(tmp_path, monkeypatch):
+    calls = {"n": 0}
+    real_press = tds.TactileSensor.press
+
+    def failing_press(self, *a, **k):
+        calls["n"] += 1
+        if calls["n"] == 5:
+            raise KeyboardInterrupt
+        return real_press(self, *a, **k)
+
+    monkeypatch.setattr(tds.TactileSensor, "press", failing_press)
+    with pytest.raises(KeyboardInterrupt):
+        _write(tmp_path / "out")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_rewrite_replaces_existing_dataset_only_when_complete(tmp_path):
+    out = _write(tmp_path / "d")
+    before = _digest(out)
+    _write(tmp_path / "d", seed=9)
+    assert _digest(out) != before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d"]
+
+
+def _feelanyforce_like(root: Path, rows):
+    root.mkdir()
+    with open(root / "manifest.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["image", "object", "pose_id", "Fx", "Fy", "Fz"])
+        w.writerows(rows)
+    return root
+
+
+def test_feelanyforce_negative_fz_is_converted(tmp_path):
+    root = _feelanyforce_like(tmp_path / "faf", [["a.png", "cross", 0, 0.1, 0.2, -3.0], ["b.png", "cross", 0, 0.0, 0.0, -5.0]])
+    ds = tds.load_dataset(root)
+    np.testing.assert_allclose(ds.forces()[:, 2], [3.0, 5.0])
+    ds = tds.load_dataset(root, fz_pressing="positive")
+    np.testing.assert_allclose(ds.forces()[:, 2], [-3.0, -5.0])
+
+
+@pytest.mark.parametrize(
+    "row, message",
+    [
+        (["a.png", "cross", 0, 0.1, 0.2], "missing field 'fz'"),
+        (["a.png", "cross", "x", 0.1, 0.2, 1.0], "field 'pose_id' must be int"),
+        (["a.png", "cross", 0, "nan", 0.2, 1.0], "field 'fx' must be finite"),
+        (["a.png", "cross", 0, "abc", 0.2, 1.0], "field 'fx' must be float"),
+    ],
+)
+def test_malformed_manifest_rows_name_the_line_and_field(tmp_path, row, message):
+    root = _feelanyforce_like(tmp_path / "bad", [["ok.png", "cross", 0, 0.0, 0.0, 1.0], row])
+    with pytest.raises(ValueError, match=f"line 3: {message}"):
+        tds.load_dataset(root)
+
+
+def test_not_a_dataset_and_bad_options(tmp_path):
+    with pytest.raises(ValueError, match="no manifest.csv"):
+        tds.load_dataset(tmp_path)
+    with pytest.raises(ValueError, match="fz_range"):
+        _write(tmp_path / "x", fz_range=(5.0, 1.0))
+    with pytest.raises(ValueError, match="unknown object"):
+        _write(tmp_path / "y", objects=("banana",))
