@@ -1,0 +1,405 @@
+"""One control loop for simulation and robot: observe, infer, ensemble, make safe, command.
+
+Every period (10 Hz by default) the loop reads the arm, the gripper and the newest frame of each
+camera and tactile sensor, hands the observation to the policy, takes the temporally ensembled action
+for the current step, passes it through :class:`~hardware.safety.SafetyFilter` and streams it to the arm.
+
+Inference is asynchronous by default (as in the paper): the policy runs in its own thread on the newest
+observation whenever it is idle; its chunk is filed under the step of that observation, so a chunk that
+arrives late contributes from where the loop already is. The loop never waits for the policy; a policy
+call that runs past ``inference_deadline_s``, or a step that no chunk covers, is a late policy.
+
+The arm is stopped (``arm.stop()`` before anything else happens) on Ctrl-C, on any exception (device
+fault, policy error, safety violation), on a stale sensor frame or missing command (watchdog) and on a
+late policy; then the exception propagates with a message that says what happened. ``loop.stats`` holds
+the deadline statistics of the run either way. The loop knows only the interfaces in
+:mod:`hardware.interfaces`: the same code drives MuJoCo, an xArm or a UR.
+
+Policy protocol: ``policy.predict_chunk(observation: dict[str, np.ndarray]) -> (chunk, 5)`` actions
+``[x, y, z, yaw, gripper]``. Observation keys: ``qpos`` float32 (5,) = measured ``[x, y, z, yaw, gripper]``;
+``images/<camera>`` and ``tactile/<sensor>`` uint8 (H, W, 3) RGB; ``tactile_background/<sensor>`` uint8
+(H, W, 3) for sensors that captured a no-contact background.
+"""
+
+from __future__ import annotations
+
+import itertools
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Mapping, Protocol
+
+import numpy as np
+
+from hardware.interfaces import ACTION_DIM, Arm, ArmState, Clock, FrameSource, Gripper, HardwareError, WallClock
+from hardware.safety import SafetyCounts, SafetyFilter, SafetyLimits, Watchdog, WatchdogTimeout
+from policies.temporal_ensembling import TemporalEnsembler
+
+
+class PolicyError(HardwareError):
+    """The policy raised or returned a malformed chunk."""
+
+
+class PolicyLateError(HardwareError):
+    """The policy missed its deadline: no action for the current step."""
+
+
+class Policy(Protocol):
+    def predict_chunk(self, observation: dict[str, np.ndarray]) -> np.ndarray: ...
+
+
+@dataclass
+class ControlLoopConfig:
+    """Timing and inference settings of :class:`ControlLoop`.
+
+    rate_hz: control rate, Hz (paper: 10).
+    chunk_size: largest action chunk the policy returns (ACT N_a = 20).
+    ensemble_k: temporal-ensembling decay, weights exp(-k * i) with i = 0 the oldest chunk (ACT: 0.01).
+    inference: "async" = policy in its own thread, the loop never waits (robot); "sync" = policy called in
+        the loop thread every ``query_every`` steps (deterministic; for simulation with a VirtualClock).
+    query_every: steps between policy calls in "sync" mode (1 = every step, as with temporal ensembling).
+    inference_deadline_s: a policy call running longer than this (clock seconds) is late; checked only
+        with a real-time clock.
+    warmup_timeout_s: wall seconds allowed for the first chunk (model warm-up) before the arm moves.
+    stale_after_periods: a sensor frame older than this many periods, or no command sent for that long,
+        trips the watchdog (issue: two periods).
+    """
+
+    rate_hz: float = 10.0
+    chunk_size: int = 20
+    ensemble_k: float = 0.01
+    inference: str = "async"
+    query_every: int = 1
+    inference_deadline_s: float = 0.5
+    warmup_timeout_s: float = 60.0
+    stale_after_periods: float = 2.0
+
+    def __post_init__(self):
+        for name in ("rate_hz", "inference_deadline_s", "warmup_timeout_s", "stale_after_periods"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a positive number, got {v!r}")
+        for name in ("chunk_size", "query_every"):
+            v = getattr(self, name)
+            if not (isinstance(v, int) and v >= 1):
+                raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
+        if self.inference not in ("async", "sync"):
+            raise ValueError(f"inference must be 'async' or 'sync', got {self.inference!r}")
+        if not (np.isfinite(self.ensemble_k) and self.ensemble_k >= 0):
+            raise ValueError(f"ensemble_k must be a number >= 0, got {self.ensemble_k!r}")
+
+    @property
+    def period_s(self) -> float:
+        return 1.0 / self.rate_hz
+
+
+def _percentiles(values, scale: float = 1.0) -> dict:
+    if not values:
+        return {"p50": None, "p99": None, "max": None}
+    v = np.asarray(values, dtype=np.float64) * scale
+    return {"p50": float(np.percentile(v, 50)), "p99": float(np.percentile(v, 99)), "max": float(v.max())}
+
+
+@dataclass
+class LoopStats:
+    """Per-cycle timing of one run (clock seconds).
+
+    cycle_starts: start time of every cycle; work_s: time from a cycle's start to its command sent;
+    inference_s: duration of every policy call; deadline_misses: cycles whose work overran the period;
+    safety: how many commands each limit changed; stop_reason: why the run ended.
+    """
+
+    period_s: float
+    cycle_starts: list = field(default_factory=list)
+    work_s: list = field(default_factory=list)
+    inference_s: list = field(default_factory=list)
+    deadline_misses: int = 0
+    safety: SafetyCounts = field(default_factory=SafetyCounts)
+    stop_reason: str = ""
+
+    @property
+    def steps(self) -> int:
+        return len(self.work_s)
+
+    def period_errors_s(self) -> np.ndarray:
+        """Measured period minus the nominal one, per consecutive cycle pair (s)."""
+        return np.diff(np.asarray(self.cycle_starts, dtype=np.float64)) - self.period_s
+
+    def summary(self) -> dict:
+        """Steps, |period error|, work and inference times (ms: p50, p99, max), misses, clamps, stop reason."""
+        return {
+            "steps": self.steps,
+            "period_ms": self.period_s * 1e3,
+            "period_error_ms": _percentiles(np.abs(self.period_errors_s()).tolist(), 1e3),
+            "work_ms": _percentiles(self.work_s, 1e3),
+            "inference_ms": _percentiles(self.inference_s, 1e3),
+            "deadline_misses": self.deadline_misses,
+            "safety_clamps": self.safety.as_dict(),
+            "stop_reason": self.stop_reason,
+        }
+
+
+def _validate_chunk(chunk, chunk_size: int) -> np.ndarray:
+    try:
+        a = np.asarray(chunk, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise PolicyError(f"policy.predict_chunk returned {type(chunk).__name__}, not an array: {exc}") from None
+    if a.ndim != 2 or a.shape[1] != ACTION_DIM or not 1 <= a.shape[0] <= chunk_size:
+        raise PolicyError(
+            f"policy.predict_chunk returned shape {a.shape}, expected (L, {ACTION_DIM}) with 1 <= L <= {chunk_size} "
+            "(actions [x, y, z, yaw, gripper])"
+        )
+    if not np.isfinite(a).all():
+        raise PolicyError("policy.predict_chunk returned NaN or inf")
+    return a
+
+
+class _PolicyWorker:
+    """Runs the policy in a daemon thread on one submitted observation at a time."""
+
+    def __init__(self, policy: Policy, ensembler: TemporalEnsembler, clock: Clock, stats: LoopStats):
+        self.policy, self.ensembler, self.clock, self.stats = policy, ensembler, clock, stats
+        self.busy_since: float | None = None
+        self.busy_step: int | None = None
+        self.error: BaseException | None = None
+        self.chunk_ready = threading.Event()
+        self._cv = threading.Condition()
+        self._request: tuple[int, dict] | None = None
+        self._closing = False
+        self._thread = threading.Thread(target=self._run, name="policy", daemon=True)
+        self._thread.start()
+
+    def submit(self, step: int, observation: dict) -> bool:
+        """Queue ``observation`` (taken at ``step``) unless a call is in flight; True if queued."""
+        with self._cv:
+            if self.busy_since is not None or self.error is not None:
+                return False
+            self.busy_since, self.busy_step = self.clock.now(), step
+            self._request = (step, observation)
+            self._cv.notify()
+            return True
+
+    def _run(self) -> None:
+        while True:
+            with self._cv:
+                while self._request is None and not self._closing:
+                    self._cv.wait()
+                if self._closing:
+                    return
+                step, obs = self._request
+                self._request = None
+            t0 = self.clock.now()
+            try:
+                chunk = _validate_chunk(self.policy.predict_chunk(obs), self.ensembler.chunk_size)
+                self.ensembler.add_chunk(step, chunk)
+            except BaseException as exc:  # handed to the control thread, which stops the arm
+                self.error = exc
+                self.chunk_ready.set()
+                return
+            finally:
+                self.stats.inference_s.append(self.clock.now() - t0)
+            with self._cv:
+                self.busy_since = self.busy_step = None
+            self.chunk_ready.set()
+
+    def close(self) -> None:
+        with self._cv:
+            self._closing = True
+            self._cv.notify()
+
+
+def _policy_error(exc: BaseException) -> PolicyError:
+    if isinstance(exc, PolicyError):
+        return exc
+    err = PolicyError(f"policy.predict_chunk raised {type(exc).__name__}: {exc}")
+    err.__cause__ = exc
+    return err
+
+
+class ControlLoop:
+    """Drive ``arm`` (and ``gripper``) with ``policy`` at a fixed rate; see the module docstring.
+
+    arm, gripper: connected devices (the caller opens and closes them; the loop only stops them).
+    cameras, tactile: frame sources by name -> observation keys ``images/<name>``, ``tactile/<name>``.
+    limits: safety limits between policy and arm. config: timing and inference settings.
+    clock: time source; ``WallClock()`` for a robot, a :class:`~hardware.interfaces.VirtualClock` shared
+        with a simulated robot's frame sources to run faster than real time.
+    """
+
+    def __init__(
+        self,
+        arm: Arm,
+        policy: Policy,
+        *,
+        gripper: Gripper | None = None,
+        cameras: Mapping[str, FrameSource] | None = None,
+        tactile: Mapping[str, FrameSource] | None = None,
+        limits: SafetyLimits | None = None,
+        config: ControlLoopConfig | None = None,
+        clock: Clock | None = None,
+    ):
+        self.arm, self.policy, self.gripper = arm, policy, gripper
+        self.cameras, self.tactile = dict(cameras or {}), dict(tactile or {})
+        self.limits = limits or SafetyLimits()
+        self.config = config or ControlLoopConfig()
+        self.clock = clock or WallClock()
+        self.stats = LoopStats(self.config.period_s)
+        self._device_lock = threading.Lock()
+        self._last_grip = 0.0
+
+    # -- observation -------------------------------------------------------------------------
+    def _observe(self, watchdog: Watchdog) -> tuple[dict[str, np.ndarray], ArmState]:
+        """Observation dict and the arm state it was built from; feeds frame timestamps to the watchdog."""
+        state = self.arm.state()
+        grip = self.gripper.state().position if self.gripper is not None else self._last_grip
+        obs = {"qpos": np.append(np.asarray(state.pose, dtype=np.float32), np.float32(grip))}
+        for kind, sources in (("images", self.cameras), ("tactile", self.tactile)):
+            for name, src in sources.items():
+                frame = src.latest()
+                watchdog.feed(f"frame:{kind}/{name}", frame.timestamp)
+                obs[f"{kind}/{name}"] = frame.image
+                if kind == "tactile" and src.background is not None:
+                    obs[f"tactile_background/{name}"] = src.background
+        return obs, state
+
+    # -- stopping ----------------------------------------------------------------------------
+    def _stop_devices(self) -> list[str]:
+        """Stop the arm first, then the gripper; return what failed while stopping."""
+        problems = []
+        for name, dev in (("arm", self.arm), ("gripper", self.gripper)):
+            if dev is None:
+                continue
+            try:
+                dev.stop()
+            except Exception as exc:  # keep stopping the rest; reported with the original error
+                problems.append(f"{name}.stop() failed: {type(exc).__name__}: {exc}")
+        return problems
+
+    def _watchdog_trip(self) -> None:
+        # called from the watchdog thread when the control thread went silent: stop now, without the lock
+        try:
+            self.arm.stop()
+        except Exception:
+            pass
+
+    # -- main loop ---------------------------------------------------------------------------
+    def run(self, max_steps: int | None = None,
+            on_step: Callable[[int, dict, np.ndarray], bool] | None = None) -> LoopStats:
+        """Run until ``max_steps`` steps, ``on_step(step, observation, target)`` returns True, or a fault.
+
+        The arm is stopped at the end in every case. Returns :class:`LoopStats` (also ``self.stats``).
+        """
+        if max_steps is not None and (not isinstance(max_steps, int) or max_steps < 1):
+            raise ValueError(f"max_steps must be a positive integer or None, got {max_steps!r}")
+        cfg, clock = self.config, self.clock
+        period = cfg.period_s
+        self.stats = stats = LoopStats(period)
+        ensembler = TemporalEnsembler(cfg.chunk_size, ACTION_DIM, cfg.ensemble_k)
+        safety = SafetyFilter(self.limits)
+        stats.safety = safety.counts
+        watchdog = Watchdog(cfg.stale_after_periods * period, clock)
+        worker: _PolicyWorker | None = None
+        try:
+            obs, state = self._observe(watchdog)
+            safety.reset(state.pose)
+            if cfg.inference == "async":
+                worker = _PolicyWorker(self.policy, ensembler, clock, stats)
+                worker.submit(0, obs)
+                if not worker.chunk_ready.wait(cfg.warmup_timeout_s):
+                    raise PolicyLateError(f"no first chunk within warmup_timeout_s = {cfg.warmup_timeout_s} s")
+                if worker.error is not None:
+                    raise _policy_error(worker.error)
+            else:
+                self._predict_sync(0, obs, ensembler, stats, deadline=cfg.warmup_timeout_s)
+            if clock.realtime:
+                watchdog.start(self._watchdog_trip)
+            next_start = clock.now()
+            steps = range(max_steps) if max_steps is not None else itertools.count()
+            for step in steps:
+                start = clock.now()
+                stats.cycle_starts.append(start)
+                if step > 0:
+                    obs, state = self._observe(watchdog)
+                    safety.check_state(state.pose)
+                watchdog.check(start)
+                if worker is not None:
+                    self._poll_worker(worker, step, obs, start)
+                elif step > 0 and step % cfg.query_every == 0:
+                    self._predict_sync(step, obs, ensembler, stats, deadline=cfg.inference_deadline_s)
+                target = self._action(ensembler, step, safety)
+                self._command(target, watchdog)
+                stats.work_s.append(clock.now() - start)
+                if on_step is not None and on_step(step, obs, target):
+                    stats.stop_reason = f"on_step ended the run at step {step}"
+                    break
+                next_start += period
+                now = clock.now()
+                if now > next_start:
+                    stats.deadline_misses += 1
+                    next_start = now
+                clock.sleep_until(next_start)
+            else:
+                stats.stop_reason = f"finished {max_steps} steps"
+        except BaseException as exc:
+            problems = self._stop_devices()
+            stats.stop_reason = (
+                "Ctrl-C" if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
+            )
+            for p in problems:
+                exc.add_note(p)
+            raise
+        else:
+            problems = self._stop_devices()
+            if problems:
+                raise HardwareError("; ".join(problems))
+        finally:
+            watchdog.stop()
+            if worker is not None:
+                worker.close()
+        return stats
+
+    def _poll_worker(self, worker: _PolicyWorker, step: int, obs: dict, now: float) -> None:
+        if worker.error is not None:
+            raise _policy_error(worker.error)
+        busy_since, busy_step = worker.busy_since, worker.busy_step
+        if busy_since is None:
+            if step > 0:
+                worker.submit(step, obs)
+        elif self.clock.realtime and now - busy_since > self.config.inference_deadline_s:
+            raise PolicyLateError(
+                f"policy inference on the observation of step {busy_step} has run {now - busy_since:.3f} s, "
+                f"past inference_deadline_s = {self.config.inference_deadline_s} s"
+            )
+
+    def _predict_sync(self, step: int, obs: dict, ensembler: TemporalEnsembler, stats: LoopStats,
+                      deadline: float) -> None:
+        t0 = time.perf_counter()
+        try:
+            chunk = _validate_chunk(self.policy.predict_chunk(obs), ensembler.chunk_size)
+        except Exception as exc:
+            raise _policy_error(exc) from exc
+        elapsed = time.perf_counter() - t0
+        stats.inference_s.append(elapsed)
+        if self.clock.realtime and elapsed > deadline:
+            raise PolicyLateError(f"policy inference at step {step} took {elapsed:.3f} s, past its deadline of {deadline} s")
+        ensembler.add_chunk(step, chunk)
+
+    def _action(self, ensembler: TemporalEnsembler, step: int, safety: SafetyFilter) -> np.ndarray:
+        try:
+            action = ensembler.action(step)
+        except LookupError:
+            raise PolicyLateError(
+                f"no action for step {step}: every chunk predicted so far has run out "
+                f"(chunk_size {self.config.chunk_size}); the policy is late"
+            ) from None
+        return safety(action)
+
+    def _command(self, target: np.ndarray, watchdog: Watchdog) -> None:
+        with self._device_lock:
+            if watchdog.tripped is not None:
+                raise WatchdogTimeout(watchdog.tripped)
+            self.arm.servo(target[:4])
+            if self.gripper is not None:
+                self.gripper.command(float(target[4]))
+            self._last_grip = float(target[4])
+        watchdog.feed("command", self.clock.now())

@@ -1,0 +1,210 @@
+"""Safety between the policy and the arm: workspace box, largest step, gripper limits, watchdog.
+
+:class:`SafetyFilter` turns a policy action ``[x, y, z, yaw, gripper]`` into a target the arm may
+take: clamped into the workspace box, moved at most ``max_step_m`` and ``max_rotation_rad`` from the
+previous command, gripper clipped to its limits. A non-finite action or a measured pose outside the box
+is a :class:`SafetyViolation` (the loop then stops the arm). :class:`Watchdog` stops the arm when no
+fresh command or sensor frame arrived within its timeout (two control periods by default).
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from hardware.interfaces import ACTION_DIM, POSE_DIM, Clock, HardwareError
+
+
+class SafetyViolation(HardwareError):
+    """An action or a measured state broke a safety limit that cannot be clamped."""
+
+
+class WatchdogTimeout(HardwareError):
+    """No fresh command or sensor frame within the watchdog timeout."""
+
+
+def wrap_angle(a):
+    """Angle(s) wrapped into [-pi, pi); angles already inside are returned exactly."""
+    a = np.asarray(a, dtype=np.float64)
+    return np.where((a >= -np.pi) & (a < np.pi), a, (a + np.pi) % (2 * np.pi) - np.pi)
+
+
+@dataclass
+class SafetyLimits:
+    """Limits enforced on every command.
+
+    workspace_min / workspace_max: corners (x, y, z) of the allowed end-effector box, metres, base frame.
+    yaw_min / yaw_max: allowed yaw range, radians (within [-pi, pi]).
+    max_step_m: largest translation between two consecutive commands, metres (per control period).
+    max_rotation_rad: largest yaw change between two consecutive commands, radians.
+    gripper_min / gripper_max: allowed gripper command range within [0, 1] (0 open, 1 closed).
+    state_tolerance_m: a measured pose further than this outside the box is a violation (arm stopped).
+    """
+
+    workspace_min: tuple[float, float, float] = (0.2, -0.3, 0.0)
+    workspace_max: tuple[float, float, float] = (0.7, 0.3, 0.5)
+    yaw_min: float = -np.pi
+    yaw_max: float = np.pi
+    max_step_m: float = 0.02
+    max_rotation_rad: float = 0.1
+    gripper_min: float = 0.0
+    gripper_max: float = 1.0
+    state_tolerance_m: float = 0.02
+
+    def __post_init__(self):
+        lo = np.asarray(self.workspace_min, dtype=float)
+        hi = np.asarray(self.workspace_max, dtype=float)
+        for name, v in (("workspace_min", lo), ("workspace_max", hi)):
+            if v.shape != (3,) or not np.isfinite(v).all():
+                raise ValueError(f"{name} must be three finite numbers (x, y, z) in metres, got {getattr(self, name)!r}")
+        if not (lo < hi).all():
+            raise ValueError(f"workspace_min must be below workspace_max on every axis, got {lo.tolist()} / {hi.tolist()}")
+        self.workspace_min, self.workspace_max = tuple(lo.tolist()), tuple(hi.tolist())
+        if not -np.pi <= self.yaw_min < self.yaw_max <= np.pi:
+            raise ValueError(f"yaw_min < yaw_max within [-pi, pi] radians required, got {self.yaw_min}, {self.yaw_max}")
+        for name in ("max_step_m", "max_rotation_rad", "state_tolerance_m"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a positive number, got {v!r}")
+        if not 0.0 <= self.gripper_min < self.gripper_max <= 1.0:
+            raise ValueError(
+                f"gripper_min < gripper_max within [0, 1] required, got {self.gripper_min}, {self.gripper_max}"
+            )
+
+
+@dataclass
+class SafetyCounts:
+    """How many commands each limit changed (clamps are counted, never silent)."""
+
+    workspace: int = 0
+    yaw_range: int = 0
+    step: int = 0
+    rotation: int = 0
+    gripper: int = 0
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+class SafetyFilter:
+    """Apply :class:`SafetyLimits` to a stream of actions ``[x, y, z, yaw, gripper]``."""
+
+    def __init__(self, limits: SafetyLimits):
+        self.limits = limits
+        self.counts = SafetyCounts()
+        self._last: np.ndarray | None = None  # last commanded pose (4,)
+
+    def reset(self, pose: np.ndarray) -> None:
+        """Start from the measured pose (4,); the first command moves at most one step from it."""
+        self.check_state(pose)
+        self._last = np.asarray(pose, dtype=np.float64).copy()
+
+    def check_state(self, pose: np.ndarray) -> None:
+        """Raise :class:`SafetyViolation` when the measured pose is non-finite or outside the box by more than the tolerance."""
+        p = np.asarray(pose, dtype=np.float64)
+        if p.shape != (POSE_DIM,) or not np.isfinite(p).all():
+            raise SafetyViolation(f"measured pose must be 4 finite numbers [x, y, z, yaw], got {p!r}")
+        tol = self.limits.state_tolerance_m
+        lo, hi = np.asarray(self.limits.workspace_min), np.asarray(self.limits.workspace_max)
+        if (p[:3] < lo - tol).any() or (p[:3] > hi + tol).any():
+            raise SafetyViolation(
+                f"measured position {np.round(p[:3], 4).tolist()} m is outside the workspace box "
+                f"{list(lo)}..{list(hi)} by more than {tol} m"
+            )
+
+    def __call__(self, action: np.ndarray) -> np.ndarray:
+        """Safe target (5,) float64 for ``action`` (5,); requires :meth:`reset` first."""
+        a = np.asarray(action, dtype=np.float64)
+        if a.shape != (ACTION_DIM,):
+            raise SafetyViolation(f"action must have shape ({ACTION_DIM},) [x, y, z, yaw, gripper], got {a.shape}")
+        if not np.isfinite(a).all():
+            raise SafetyViolation(f"action contains NaN or inf: {a.tolist()}")
+        if self._last is None:
+            raise RuntimeError("SafetyFilter.reset(measured_pose) must be called before the first action")
+        lim, out = self.limits, a.copy()
+        lo, hi = np.asarray(lim.workspace_min), np.asarray(lim.workspace_max)
+        xyz = np.clip(a[:3], lo, hi)
+        self.counts.workspace += int(not np.array_equal(xyz, a[:3]))
+        delta = xyz - self._last[:3]
+        dist = float(np.linalg.norm(delta))
+        if dist > lim.max_step_m:
+            xyz = self._last[:3] + delta * (lim.max_step_m / dist)
+            self.counts.step += 1
+        yaw = float(np.clip(wrap_angle(a[3]), lim.yaw_min, lim.yaw_max))
+        self.counts.yaw_range += int(yaw != float(wrap_angle(a[3])))
+        dyaw = float(wrap_angle(yaw - self._last[3]))
+        if abs(dyaw) > lim.max_rotation_rad:
+            yaw = float(wrap_angle(self._last[3] + np.sign(dyaw) * lim.max_rotation_rad))
+            self.counts.rotation += 1
+        grip = float(np.clip(a[4], lim.gripper_min, lim.gripper_max))
+        self.counts.gripper += int(grip != a[4])
+        out[:3], out[3], out[4] = xyz, yaw, grip
+        self._last = out[:POSE_DIM].copy()
+        return out
+
+
+@dataclass
+class Watchdog:
+    """Trips when a feed (``"command"``, ``"frame:<name>"``) has not been fed within ``timeout_s``.
+
+    timeout_s: seconds a feed may stay silent (two control periods in the loop).
+    A feed is watched from its first :meth:`feed`. :meth:`check` raises :class:`WatchdogTimeout`;
+    :meth:`start` runs the check in a thread that calls ``on_trip`` (e.g. ``arm.stop``) at once, so
+    the arm stops even when the control thread hangs inside a device call.
+    """
+
+    timeout_s: float
+    clock: Clock
+    _fed: dict = field(default_factory=dict, repr=False)
+    tripped: str | None = None
+
+    def __post_init__(self):
+        if not (np.isfinite(self.timeout_s) and self.timeout_s > 0):
+            raise ValueError(f"timeout_s must be a positive number of seconds, got {self.timeout_s}")
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def feed(self, name: str, t: float) -> None:
+        """Record that ``name`` was fresh at clock time ``t`` (s)."""
+        with self._lock:
+            self._fed[name] = max(t, self._fed.get(name, -np.inf))
+
+    def check(self, now: float | None = None) -> None:
+        """Raise :class:`WatchdogTimeout` (and remember it) when a feed is older than the timeout."""
+        now = self.clock.now() if now is None else now
+        with self._lock:
+            if self.tripped is None:
+                for name, t in self._fed.items():
+                    if now - t > self.timeout_s:
+                        self.tripped = (
+                            f"watchdog: no fresh {name.replace(':', ' ')} for {now - t:.3f} s "
+                            f"(limit {self.timeout_s:.3f} s)"
+                        )
+                        break
+            if self.tripped is not None:
+                raise WatchdogTimeout(self.tripped)
+
+    def start(self, on_trip: Callable[[], None], interval_s: float | None = None) -> None:
+        """Check in a daemon thread every ``interval_s`` (default timeout/4); call ``on_trip`` once on a trip."""
+        interval = self.timeout_s / 4 if interval_s is None else interval_s
+
+        def run():
+            while not self._stop.wait(interval):
+                try:
+                    self.check()
+                except WatchdogTimeout:
+                    on_trip()
+                    return
+
+        self._thread = threading.Thread(target=run, name="watchdog", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop the checking thread (if started)."""
+        self._stop.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout=1.0)

@@ -1,0 +1,297 @@
+"""Control loop with fake devices: exact actions in sync/virtual time, async inference on the wall clock,
+and fault injection (policy raises, late policy, stale frame, arm error, hung arm, Ctrl-C): the arm is
+stopped before the exception reaches the caller, nothing is commanded after the fault, and the error
+says what happened."""
+
+import math
+import signal
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from hardware.control_loop import ControlLoop, ControlLoopConfig, PolicyError, PolicyLateError
+from hardware.fakes import FakeArm, FakeGripper, SyntheticFrameSource
+from hardware.interfaces import ArmFault, SensorError, VirtualClock, WallClock
+from hardware.safety import SafetyLimits, SafetyViolation, WatchdogTimeout
+from policies.temporal_ensembling import TemporalEnsembler
+
+START = (0.4, 0.0, 0.2, 0.0)
+LIMITS = SafetyLimits(max_step_m=0.05, max_rotation_rad=0.2)
+
+
+class RampPolicy:
+    """Chunk of targets that creep +1 mm in x per step from the observed pose; records its calls."""
+
+    def __init__(self, chunk=5, delay_s=0.0, fail_on_call=None, late_on_call=None, late_s=1.0):
+        self.chunk, self.delay_s = chunk, delay_s
+        self.fail_on_call, self.late_on_call, self.late_s = fail_on_call, late_on_call, late_s
+        self.calls, self.threads, self.qpos = 0, set(), []
+
+    def predict_chunk(self, obs):
+        self.calls += 1
+        self.threads.add(threading.current_thread().name)
+        self.qpos.append(obs["qpos"].copy())
+        if self.fail_on_call == self.calls:
+            raise RuntimeError("boom in the policy")
+        if self.late_on_call is not None and self.calls >= self.late_on_call:
+            time.sleep(self.late_s)
+        time.sleep(self.delay_s)
+        q = obs["qpos"].astype(np.float64)
+        out = np.tile(np.r_[q[:4], 0.8], (self.chunk, 1))
+        out[:, 0] += 0.001 * np.arange(1, self.chunk + 1)
+        return out
+
+
+def make(clock, policy, inference="sync", tactile=True, **cfg):
+    log = []
+    arm, grip = FakeArm(START, clock, log), FakeGripper(clock, log)
+    tac = {"left": SyntheticFrameSource("left", (24, 32), clock, background=True)} if tactile else {}
+    cams = {"wrist": SyntheticFrameSource("wrist", (24, 32), clock)}
+    loop = ControlLoop(arm, policy, gripper=grip, cameras=cams, tactile=tac, limits=LIMITS,
+                       config=ControlLoopConfig(inference=inference, chunk_size=5, **cfg), clock=clock)
+    return loop, arm, log
+
+
+def commands(log):
+    return [v for e, v in log if e == "servo"]
+
+
+def assert_stopped_after_last_command(log):
+    events = [e for e, _ in log]
+    assert "arm-stop" in events, events
+    last_stop = len(events) - 1 - events[::-1].index("arm-stop")
+    assert "servo" not in events[last_stop:] and "gripper" not in events[last_stop:]
+    assert events.index("arm-stop") < (events.index("gripper-stop") if "gripper-stop" in events else len(events))
+
+
+def test_sync_virtual_time_matches_hand_ensembling():
+    clock = VirtualClock()
+    policy = RampPolicy(chunk=5)
+    loop, arm, log = make(clock, policy)
+    stats = loop.run(max_steps=6)
+    # replay: chunk from step s starts at the pose measured at s (the previous command), ramps +1 mm/step
+    ens, pose, expected = TemporalEnsembler(5, 5), np.array(START), []
+    for t in range(6):
+        chunk = np.tile(np.r_[pose, 0.8], (5, 1))
+        chunk[:, 0] += 0.001 * np.arange(1, 6)
+        ens.add_chunk(t, chunk)
+        a = ens.action(t)
+        expected.append(a[:4])
+        pose = a[:4]
+    np.testing.assert_allclose(np.array(commands(log)), np.array(expected), atol=1e-6)
+    assert [v for e, v in log if e == "gripper"] == pytest.approx([0.8] * 6)
+    assert policy.threads == {threading.main_thread().name} and policy.calls == 6
+    assert clock.now() == pytest.approx(0.6)  # 6 periods at 10 Hz in virtual time: no real waiting
+    np.testing.assert_allclose(stats.period_errors_s(), 0.0, atol=1e-9)
+    assert stats.steps == 6 and stats.deadline_misses == 0 and stats.stop_reason == "finished 6 steps"
+    assert log[-2:] == [("arm-stop", None), ("gripper-stop", None)]
+
+
+def test_observation_keys_and_qpos():
+    clock = VirtualClock()
+    seen = {}
+
+    class P(RampPolicy):
+        def predict_chunk(self, obs):
+            seen.update(obs)
+            return super().predict_chunk(obs)
+
+    make(clock, P())[0].run(max_steps=1)
+    assert set(seen) == {"qpos", "images/wrist", "tactile/left", "tactile_background/left"}
+    assert seen["qpos"].dtype == np.float32 and seen["qpos"].tolist() == pytest.approx([*START, 0.0])
+    assert seen["tactile/left"].shape == (24, 32, 3) and seen["tactile/left"].dtype == np.uint8
+
+
+def test_deadline_miss_is_counted_and_period_error_exact():
+    clock = VirtualClock()
+
+    class SlowArm(FakeArm):
+        def servo(self, target):
+            super().servo(target)
+            if len(commands(self.log)) == 3:
+                clock.advance(0.15)  # the third cycle's work overruns the 0.1 s period by 0.05 s
+
+    policy = RampPolicy()
+    loop, _, log = make(clock, policy)
+    loop.arm = SlowArm(START, clock, log)
+    loop.config = ControlLoopConfig(inference="sync", chunk_size=5, stale_after_periods=5)
+    stats = loop.run(max_steps=5)
+    np.testing.assert_allclose(stats.period_errors_s(), [0, 0, 0.05, 0], atol=1e-9)
+    assert stats.deadline_misses == 1
+    assert stats.summary()["period_error_ms"]["max"] == pytest.approx(50.0)
+
+
+def test_async_inference_runs_in_its_own_thread_at_10hz():
+    policy = RampPolicy(chunk=5, delay_s=0.02)
+    loop, arm, log = make(WallClock(), policy, inference="async")
+    stats = loop.run(max_steps=8)
+    assert policy.threads == {"policy"}
+    assert stats.steps == 8 and len(commands(log)) == 8
+    assert stats.period_errors_s().mean() == pytest.approx(0.0, abs=0.03)
+    assert 2 <= policy.calls <= 9
+    assert_stopped_after_last_command(log)
+
+
+def test_policy_exception_stops_arm_and_names_it():
+    policy = RampPolicy(fail_on_call=3)
+    loop, arm, log = make(VirtualClock(), policy)
+    with pytest.raises(PolicyError, match="policy.predict_chunk raised RuntimeError: boom in the policy"):
+        loop.run(max_steps=10)
+    assert arm.stopped and len(commands(log)) == 2
+    assert_stopped_after_last_command(log)
+    assert "PolicyError" in loop.stats.stop_reason
+
+
+def test_async_policy_exception_stops_arm():
+    policy = RampPolicy(fail_on_call=2)
+    loop, arm, log = make(WallClock(), policy, inference="async")
+    with pytest.raises(PolicyError, match="boom"):
+        loop.run(max_steps=20)
+    assert arm.stopped
+    assert_stopped_after_last_command(log)
+
+
+def test_late_async_policy_stops_arm():
+    policy = RampPolicy(chunk=5, late_on_call=2, late_s=1.5)
+    loop, arm, log = make(WallClock(), policy, inference="async", inference_deadline_s=0.25)
+    with pytest.raises(PolicyLateError, match=r"has run 0\.\d+ s, past inference_deadline_s = 0\.25 s"):
+        loop.run(max_steps=50)
+    assert arm.stopped and len(commands(log)) <= 5
+    assert_stopped_after_last_command(log)
+
+
+def test_chunks_running_out_is_a_late_policy():
+    # sync mode querying every 10 steps with 5-step chunks: step 5 has no action
+    loop, arm, log = make(VirtualClock(), RampPolicy(chunk=5), query_every=10)
+    with pytest.raises(PolicyLateError, match="no action for step 5"):
+        loop.run(max_steps=20)
+    assert len(commands(log)) == 5
+    assert_stopped_after_last_command(log)
+
+
+def test_malformed_chunk_is_rejected_before_motion():
+    class Bad:
+        def predict_chunk(self, obs):
+            return np.zeros((5, 4))
+
+    loop, arm, log = make(VirtualClock(), Bad())
+    with pytest.raises(PolicyError, match=r"shape \(5, 4\), expected \(L, 5\)"):
+        loop.run(max_steps=3)
+    assert commands(log) == [] and arm.stopped
+
+
+def test_nan_action_is_a_safety_violation():
+    class NaNAfterTwo(RampPolicy):
+        def predict_chunk(self, obs):
+            out = super().predict_chunk(obs)
+            if self.calls >= 3:
+                out[:] = np.nan
+            return out
+
+    loop, arm, log = make(VirtualClock(), NaNAfterTwo())
+    with pytest.raises(PolicyError, match="NaN or inf"):
+        loop.run(max_steps=10)
+    assert len(commands(log)) == 2
+    assert_stopped_after_last_command(log)
+
+
+def test_stale_tactile_frame_stops_arm():
+    clock = VirtualClock()
+    policy = RampPolicy()
+    loop, arm, log = make(clock, policy)
+
+    def on_step(step, obs, target):
+        if step == 3:
+            loop.tactile["left"].freeze()
+        return False
+
+    with pytest.raises(WatchdogTimeout, match=r"no fresh frame tactile/left for 0\.300 s \(limit 0\.200 s\)"):
+        loop.run(max_steps=20, on_step=on_step)
+    assert len(commands(log)) == 6  # frozen at t=0.3: fine at 0.4 and 0.5, stale at 0.6
+    assert_stopped_after_last_command(log)
+
+
+def test_unplugged_sensor_stops_arm():
+    loop, arm, log = make(VirtualClock(), RampPolicy())
+    with pytest.raises(SensorError, match="left: device unplugged"):
+        loop.run(max_steps=20, on_step=lambda s, o, t: s == 2 and loop.tactile["left"].unplug())
+    assert len(commands(log)) == 3
+    assert_stopped_after_last_command(log)
+
+
+def test_arm_error_code_stops_arm():
+    loop, arm, log = make(VirtualClock(), RampPolicy())
+
+    def on_step(step, obs, target):
+        if step == 4:
+            arm.error_code = 31
+        return False
+
+    with pytest.raises(ArmFault, match="error code 31"):
+        loop.run(max_steps=20, on_step=on_step)
+    assert len(commands(log)) == 5
+    assert_stopped_after_last_command(log)
+
+
+def test_measured_pose_outside_workspace_stops_arm():
+    loop, arm, log = make(VirtualClock(), RampPolicy())
+
+    def on_step(step, obs, target):
+        if step == 1:
+            arm.pose = np.array([2.0, 0.0, 0.2, 0.0])  # e.g. a collision pushed it away
+        return False
+
+    with pytest.raises(SafetyViolation, match="outside the workspace box"):
+        loop.run(max_steps=20, on_step=on_step)
+    assert len(commands(log)) == 2
+    assert_stopped_after_last_command(log)
+
+
+def test_hung_arm_is_stopped_by_the_watchdog_thread():
+    policy = RampPolicy(chunk=5)
+    loop, arm, log = make(WallClock(), policy, inference="async")
+
+    def on_step(step, obs, target):
+        if step == 2:
+            arm.servo_delay_s = 0.6  # the next servo call hangs for three periods
+        return False
+
+    with pytest.raises(WatchdogTimeout, match="no fresh command"):
+        loop.run(max_steps=20, on_step=on_step)
+    events = [e for e, _ in log]
+    hung = events.index("servo-returned")
+    assert "arm-stop" in events[:hung], "the watchdog thread must stop the arm while servo() hangs"
+    assert_stopped_after_last_command(log)
+
+
+def test_ctrl_c_stops_arm_and_propagates():
+    loop, arm, log = make(WallClock(), RampPolicy(), inference="async")
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    timer = threading.Timer(0.4, lambda: signal.pthread_kill(threading.main_thread().ident, signal.SIGINT))
+    try:
+        timer.start()
+        with pytest.raises(KeyboardInterrupt):
+            loop.run()  # no max_steps: runs until interrupted
+    finally:
+        timer.cancel()
+        signal.signal(signal.SIGINT, previous)
+    assert arm.stopped and loop.stats.stop_reason == "Ctrl-C" and loop.stats.steps >= 2
+    assert_stopped_after_last_command(log)
+
+
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [(dict(rate_hz=0), "rate_hz"), (dict(chunk_size=0), "chunk_size"), (dict(inference="threads"), "inference"),
+     (dict(query_every=1.5), "query_every"), (dict(stale_after_periods=-1), "stale_after_periods")],
+)
+def test_config_validation_names_the_field(kwargs, field):
+    with pytest.raises(ValueError, match=field):
+        ControlLoopConfig(**kwargs)
+
+
+def test_bad_max_steps():
+    loop, _, _ = make(VirtualClock(), RampPolicy())
+    with pytest.raises(ValueError, match="max_steps"):
+        loop.run(max_steps=0)

@@ -1,0 +1,118 @@
+"""Safety filter and watchdog: exact clamping semantics, counts, violations, bad configuration."""
+
+import math
+
+import numpy as np
+import pytest
+
+from hardware.interfaces import VirtualClock
+from hardware.safety import SafetyFilter, SafetyLimits, SafetyViolation, Watchdog, WatchdogTimeout, wrap_angle
+
+LIMITS = SafetyLimits(workspace_min=(0.0, -0.5, 0.0), workspace_max=(1.0, 0.5, 0.5), max_step_m=0.01,
+                      max_rotation_rad=0.05, gripper_min=0.1, gripper_max=0.9)
+
+
+def make_filter(pose=(0.5, 0.0, 0.2, 0.0)):
+    f = SafetyFilter(LIMITS)
+    f.reset(np.array(pose))
+    return f
+
+
+def test_action_within_limits_passes_unchanged():
+    f = make_filter()
+    a = np.array([0.505, 0.003, 0.2, 0.02, 0.5])
+    np.testing.assert_array_equal(f(a), a)
+    assert f.counts.as_dict() == dict(workspace=0, yaw_range=0, step=0, rotation=0, gripper=0)
+
+
+def test_large_step_is_scaled_along_its_direction():
+    f = make_filter()
+    out = f(np.array([0.53, 0.04, 0.2, 0.0, 0.5]))  # 5 cm away along (3, 4)/5
+    np.testing.assert_allclose(out[:3], [0.5 + 0.006, 0.008, 0.2], atol=1e-12)
+    assert f.counts.step == 1
+    out2 = f(np.array([0.53, 0.04, 0.2, 0.0, 0.5]))  # the next step starts from the last command
+    np.testing.assert_allclose(out2[:3], [0.512, 0.016, 0.2], atol=1e-12)
+
+
+def test_workspace_clamp_then_step_limit():
+    f = make_filter(pose=(0.995, 0.0, 0.2, 0.0))
+    out = f(np.array([1.5, 0.0, 0.2, 0.0, 0.5]))
+    assert out[0] == pytest.approx(1.0)
+    assert f.counts.workspace == 1 and f.counts.step == 0
+
+
+def test_yaw_step_wraps_through_pi():
+    f = make_filter(pose=(0.5, 0.0, 0.2, math.pi - 0.02))
+    out = f(np.array([0.5, 0.0, 0.2, -math.pi + 0.01, 0.5]))  # 0.03 rad across the seam: allowed
+    assert wrap_angle(out[3] - (-math.pi + 0.01)) == pytest.approx(0.0, abs=1e-12)
+    out = f(np.array([0.5, 0.0, 0.2, -math.pi + 0.5, 0.5]))  # 0.49 rad: limited to 0.05
+    assert wrap_angle(out[3] - (-math.pi + 0.06)) == pytest.approx(0.0, abs=1e-12)
+    assert f.counts.rotation == 1
+
+
+def test_gripper_clipped_to_limits():
+    f = make_filter()
+    assert f(np.array([0.5, 0, 0.2, 0, 1.0]))[4] == pytest.approx(0.9)
+    assert f(np.array([0.5, 0, 0.2, 0, -3.0]))[4] == pytest.approx(0.1)
+    assert f.counts.gripper == 2
+
+
+@pytest.mark.parametrize("bad", [[np.nan, 0, 0.2, 0, 0], [0.5, 0, 0.2, np.inf, 0], [0.5, 0, 0.2, 0]])
+def test_non_finite_or_misshaped_action_is_a_violation(bad):
+    with pytest.raises(SafetyViolation, match="NaN or inf|shape"):
+        make_filter()(np.array(bad, dtype=float))
+
+
+def test_measured_pose_outside_box_is_a_violation():
+    f = make_filter()
+    f.check_state(np.array([1.015, 0, 0.2, 0]))  # within the 2 cm tolerance
+    with pytest.raises(SafetyViolation, match="outside the workspace box"):
+        f.check_state(np.array([1.03, 0, 0.2, 0]))
+
+
+def test_filter_requires_reset():
+    with pytest.raises(RuntimeError, match="reset"):
+        SafetyFilter(LIMITS)(np.zeros(5))
+
+
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [(dict(workspace_min=(0, 0, 1), workspace_max=(1, 1, 0.5)), "workspace_min must be below"),
+     (dict(workspace_min=(0, 0)), "workspace_min must be three"),
+     (dict(max_step_m=0.0), "max_step_m"), (dict(max_rotation_rad=-1), "max_rotation_rad"),
+     (dict(gripper_min=0.5, gripper_max=0.2), "gripper_min"), (dict(yaw_min=-4.0), "yaw_min")],
+)
+def test_limits_validation_names_the_field(kwargs, field):
+    with pytest.raises(ValueError, match=field):
+        SafetyLimits(**kwargs)
+
+
+def test_watchdog_trips_on_the_silent_feed_only():
+    clock = VirtualClock()
+    wd = Watchdog(0.2, clock)
+    wd.feed("command", 0.0)
+    wd.feed("frame:tactile/left", 0.0)
+    clock.advance(0.15)
+    wd.feed("command", clock.now())
+    wd.check()
+    clock.advance(0.1)  # frame last fed at 0.0, now 0.25
+    with pytest.raises(WatchdogTimeout, match=r"no fresh frame tactile/left for 0\.250 s \(limit 0\.200 s\)"):
+        wd.check()
+    wd.feed("frame:tactile/left", clock.now())
+    with pytest.raises(WatchdogTimeout):  # stays tripped
+        wd.check()
+
+
+def test_watchdog_thread_calls_on_trip():
+    import threading
+    import time
+
+    from hardware.interfaces import WallClock
+
+    wd = Watchdog(0.05, WallClock())
+    tripped = threading.Event()
+    wd.feed("command", time.monotonic())
+    wd.start(tripped.set)
+    assert tripped.wait(2.0)
+    wd.stop()
+    assert "no fresh command" in wd.tripped
