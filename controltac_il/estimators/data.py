@@ -7,13 +7,12 @@ import numpy as np
 from controltac_il.tactile.residual import OFFSET
 
 
-def estimate_noise_std(residuals: np.ndarray, max_images: int = 64) -> float:
-    """Sensor noise (grey levels) from residuals (N, H, W, 3): robust MAD of pixels about 127.
-
-    Contact covers a small part of each frame, so the median deviation is the noise.
-    """
-    r = residuals[:: max(1, len(residuals) // max_images)].astype(np.float32) - OFFSET
-    return float(1.4826 * np.median(np.abs(r)))
+def estimate_noise_std(residuals: np.ndarray, max_images: int = 64, contact_level: float = 10.0) -> float:
+    """Sensor noise (grey levels) from residuals (N, H, W, 3): RMS deviation from 127 of pixels
+    within ``contact_level`` of it (contact covers a small part of each frame and is excluded)."""
+    d = residuals[:: max(1, len(residuals) // max_images)].astype(np.float32) - OFFSET
+    d = d[np.abs(d) <= contact_level]
+    return float(np.sqrt(np.mean(d * d))) if d.size else 0.0
 
 
 def no_contact_residuals(n: int, height: int, width: int, noise_std: float, seed: int = 0) -> np.ndarray:

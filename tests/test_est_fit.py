@@ -1,0 +1,116 @@
+"""Estimator training: learning on a synthetic task, exact resume after a crash, data helpers."""
+
+import numpy as np
+import pytest
+
+from controltac_il.estimators import EstimatorConfig, TrainConfig, fit
+from controltac_il.estimators.data import (
+    estimate_noise_std,
+    no_contact_residuals,
+    split_by_pose,
+    with_no_contact,
+)
+
+TINY = EstimatorConfig(input_height=32, input_width=40, widths=(8, 8, 16, 16), hidden=32)
+
+
+def blobs(n: int, seed: int, h: int = 48, w: int = 60):
+    """Residuals whose red blob grows with Fz and shifts with (Fx, Fy): a learnable toy task."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[:h, :w]
+    f = np.stack([rng.uniform(-1, 1, n), rng.uniform(-1, 1, n), rng.uniform(0.5, 10, n)], 1).astype(np.float32)
+    out = np.full((n, h, w, 3), 127.0, np.float32)
+    for i in range(n):
+        cx, cy = rng.uniform(18, w - 18), rng.uniform(14, h - 14)
+        r2 = (xx - cx - 4 * f[i, 0]) ** 2 + (yy - cy + 4 * f[i, 1]) ** 2
+        out[i, ..., 0] += 10 * f[i, 2] * np.exp(-r2 / (2 * (2 + 0.4 * f[i, 2]) ** 2))
+        out[i, ..., 2] -= 40 * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / 8)
+    out += rng.normal(0, 1.5, out.shape)
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8), f
+
+
+def test_fit_learns_and_sets_force_normalisation():
+    x, f = blobs(240, 0)
+    xv, fv = blobs(60, 1)
+    est, hist = fit(x, f, TINY, TrainConfig(steps=150, batch_size=32, lr=3e-3, warmup=10, eval_every=0),
+                    val=(xv, fv), progress=False)
+    np.testing.assert_allclose(est.config.force_mean, f.mean(0), rtol=1e-5, atol=1e-6)
+    baseline = np.abs(fv - f.mean(0)).mean()  # predicting the training mean
+    assert hist[-1]["step"] == 150
+    assert hist[-1]["val_mae_mean"] < 0.6 * baseline
+
+
+class Crash(Exception):
+    pass
+
+
+def test_resume_after_crash_gives_identical_weights(tmp_path):
+    x, f = blobs(64, 2)
+    train = TrainConfig(steps=12, batch_size=8, warmup=2, checkpoint_every=5, eval_every=0)
+    ref, _ = fit(x, f, TINY, train, progress=False)
+
+    def crash(est, step, history):
+        if step == 10:
+            raise Crash
+
+    with pytest.raises(Crash):
+        fit(x, f, TINY, train, state_dir=tmp_path / "st", progress=False, on_checkpoint=crash)
+    resumed, _ = fit(x, f, TINY, train, state_dir=tmp_path / "st", resume=True, progress=False)
+    for (k, a), b in zip(ref.model.state_dict().items(), resumed.model.state_dict().values()):
+        np.testing.assert_array_equal(a.numpy(), b.numpy(), err_msg=k)
+
+
+def test_resume_needs_state_and_matching_config(tmp_path):
+    x, f = blobs(16, 3)
+    train = TrainConfig(steps=2, batch_size=4, warmup=1, eval_every=0)
+    with pytest.raises(FileNotFoundError, match="no training state"):
+        fit(x, f, TINY, train, state_dir=tmp_path / "st", resume=True, progress=False)
+    fit(x, f, TINY, train, state_dir=tmp_path / "st", progress=False)
+    other = EstimatorConfig(**{**TINY.to_dict(), "hidden": 16})
+    with pytest.raises(ValueError, match="another model config"):
+        fit(x, f, other, train, state_dir=tmp_path / "st", resume=True, progress=False)
+
+
+def test_fit_rejects_bad_labels():
+    x, f = blobs(8, 4)
+    with pytest.raises(ValueError, match=r"forces must have shape \(N, 3\)"):
+        fit(x, f[:, :2], TINY, TrainConfig(steps=1), progress=False)
+    f[0, 2] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        fit(x, f, TINY, TrainConfig(steps=1), progress=False)
+
+
+def test_train_config_validation_and_schedule():
+    with pytest.raises(ValueError, match="steps"):
+        TrainConfig(steps=0)
+    with pytest.raises(ValueError, match="min_lr"):
+        TrainConfig(lr=1e-3, min_lr=1e-2)
+    t = TrainConfig(steps=100, lr=1e-3, min_lr=1e-5, warmup=10)
+    assert t.lr_at(0) == pytest.approx(1e-4)
+    assert t.lr_at(9) == pytest.approx(1e-3)
+    assert t.lr_at(99) == pytest.approx(1e-5, rel=0.05)
+    assert all(t.lr_at(s) >= t.lr_at(s + 1) for s in range(10, 99))
+
+
+def test_no_contact_frames_match_noise_and_label_zero():
+    empty = no_contact_residuals(50, 40, 50, noise_std=2.0, seed=0)
+    assert empty.dtype == np.uint8 and empty.shape == (50, 40, 50, 3)
+    assert estimate_noise_std(empty) == pytest.approx(2.0, rel=0.1)
+    x, f = blobs(30, 5)
+    x2, f2 = with_no_contact(x, f, 0.25, seed=0)
+    assert len(x2) == 40 and (f2[30:] == 0).all() and (x2[:30] == x).all()
+    with pytest.raises(ValueError, match="fraction"):
+        with_no_contact(x, f, 1.0)
+
+
+def test_split_by_pose_keeps_poses_whole_and_covers_every_object():
+    groups = {(obj, p): [100 * i + 10 * p + k for k in range(3)]
+              for i, obj in enumerate(["a", "b"]) for p in range(10)}
+    kept, held = split_by_pose(groups, 0.2, seed=0)
+    assert sorted(kept + held) == sorted(i for v in groups.values() for i in v)
+    for key, rows in groups.items():
+        assert set(rows) <= set(kept) or set(rows) <= set(held), key
+    held_poses = {k for k, rows in groups.items() if rows[0] in held}
+    assert {k[0] for k in held_poses} == {"a", "b"} and len(held_poses) == 4
+    assert split_by_pose(groups, 0.2, seed=0) == (kept, held)
+    assert split_by_pose(groups, 0.0) == (sorted(kept + held), [])
