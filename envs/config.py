@@ -1,0 +1,130 @@
+"""Configuration of the peg-in-hole scene (one dataclass, validated on construction)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+CAMERAS = ("third_view", "wrist")
+SENSORS = ("left", "right")
+OPTICS = ("polynomial", "three_light")
+
+
+def _check_range(name: str, value, low: float = -math.inf, high: float = math.inf) -> tuple[float, float]:
+    try:
+        lo, hi = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a (low, high) pair of numbers, got {value!r}") from None
+    if not (low <= lo <= hi <= high) or not (math.isfinite(lo) and math.isfinite(hi)):
+        raise ValueError(f"{name} must satisfy {low} <= low <= high <= {high}, got {value!r}")
+    return lo, hi
+
+
+def _check_size(name: str, value) -> tuple[int, int]:
+    try:
+        h, w = (int(v) for v in value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a (height, width) pair of ints, got {value!r}") from None
+    if h < 8 or w < 8 or h > 2048 or w > 2048:
+        raise ValueError(f"{name} must be (height, width) in pixels, each in [8, 2048], got {value!r}")
+    return h, w
+
+
+@dataclass
+class PegInHoleConfig:
+    """Peg-in-hole scene settings. Lengths in the names' units; angles in rad; forces in N.
+
+    cameras: RGB cameras rendered into the observation, a subset of ("third_view", "wrist");
+        empty = none rendered (fast physics-only runs).
+    camera_size: (height, width) of every camera image in pixels.
+    tactile: render one tactile image per finger ("left", "right") into the observation.
+    tactile_size: (height, width) of the tactile images; the pad keeps the GelSight Mini's physical
+        size, so fewer pixels means a coarser pitch.
+    tactile_optics: the sensor model's optics, "polynomial" (Taxim lookup) or "three_light".
+    ray_stride: tactile rays are cast every ``ray_stride`` pixels and the gap to the peg is
+        interpolated bilinearly (exact for the smooth peg surface to ~1e-3 mm at stride 2).
+    hole_diameter_mm: diameter of the receptacle's hole (30 = the paper; 26 = a tight variant);
+        the peg is Ø25 mm.
+    hole_depth_mm: depth of the hole from rim to floor (paper: 40).
+    control_hz: rate of ``step`` calls; physics runs at 500 Hz (timestep 2 ms in the MJCF), so
+        500 / control_hz substeps per step (must divide evenly).
+    max_steps: an episode is truncated after this many control steps.
+    grip_force_range_n: grip force (per finger, N) drawn uniformly per episode: the finger servos
+        are force-limited at this value, so it sets how hard the gels are pressed.
+    peg_xy_range_m: ((x_low, x_high), (y_low, y_high)) where the peg stands at reset.
+    peg_yaw_range_rad: (low, high) of the peg's yaw at reset (the stripe shows it).
+    hole_xy_range_m: ((x_low, x_high), (y_low, y_high)) of the hole's centre at reset.
+    workspace_low / workspace_high: bounds of the end-effector target (x, y, z, yaw); targets
+        outside are clipped and flagged in ``info["clipped"]``.
+    success_depth_mm: the peg counts as inserted when its bottom is this far below the rim and
+        its axis is inside the hole.
+    tactile_noise: add the sensor model's pixel noise (seeded per episode and step).
+    """
+
+    cameras: tuple[str, ...] = CAMERAS
+    camera_size: tuple[int, int] = (96, 128)
+    tactile: bool = True
+    tactile_size: tuple[int, int] = (120, 160)
+    tactile_optics: str = "polynomial"
+    ray_stride: int = 2
+    hole_diameter_mm: float = 30.0
+    hole_depth_mm: float = 40.0
+    control_hz: float = 10.0
+    max_steps: int = 120
+    grip_force_range_n: tuple[float, float] = (3.0, 9.0)
+    peg_xy_range_m: tuple[tuple[float, float], tuple[float, float]] = ((-0.09, -0.03), (-0.06, 0.06))
+    peg_yaw_range_rad: tuple[float, float] = (-math.pi / 2, math.pi / 2)
+    hole_xy_range_m: tuple[tuple[float, float], tuple[float, float]] = ((0.04, 0.10), (-0.06, 0.06))
+    workspace_low: tuple[float, float, float, float] = (-0.16, -0.14, 0.012, -math.pi / 2)
+    workspace_high: tuple[float, float, float, float] = (0.16, 0.14, 0.25, math.pi / 2)
+    success_depth_mm: float = 30.0
+    tactile_noise: bool = True
+    ring_segments: int = field(default=16, repr=False)
+
+    def __post_init__(self):
+        self.cameras = tuple(self.cameras)
+        for cam in self.cameras:
+            if cam not in CAMERAS:
+                raise ValueError(f"cameras: unknown camera {cam!r}, expected a subset of {CAMERAS}")
+        if len(set(self.cameras)) != len(self.cameras):
+            raise ValueError(f"cameras must not repeat a name, got {self.cameras}")
+        self.camera_size = _check_size("camera_size", self.camera_size)
+        self.tactile_size = _check_size("tactile_size", self.tactile_size)
+        if self.tactile_optics not in OPTICS:
+            raise ValueError(f"tactile_optics must be one of {OPTICS}, got {self.tactile_optics!r}")
+        if not isinstance(self.ray_stride, int) or not 1 <= self.ray_stride <= 8:
+            raise ValueError(f"ray_stride must be an int in [1, 8], got {self.ray_stride!r}")
+        if not 25.5 <= float(self.hole_diameter_mm) <= 60.0:
+            raise ValueError(
+                f"hole_diameter_mm must be in [25.5, 60] (the peg is 25 mm), got {self.hole_diameter_mm!r}")
+        if not 10.0 <= float(self.hole_depth_mm) <= 60.0:
+            raise ValueError(f"hole_depth_mm must be in [10, 60], got {self.hole_depth_mm!r}")
+        substeps = 500.0 / float(self.control_hz)
+        if float(self.control_hz) <= 0 or abs(substeps - round(substeps)) > 1e-9:
+            raise ValueError(f"control_hz must divide the 500 Hz physics rate evenly, got {self.control_hz!r}")
+        if not isinstance(self.max_steps, int) or self.max_steps < 1:
+            raise ValueError(f"max_steps must be a positive int, got {self.max_steps!r}")
+        # grip above ~15 N would no longer saturate the finger servo on the Ø25 mm peg
+        self.grip_force_range_n = _check_range("grip_force_range_n", self.grip_force_range_n, 0.5, 15.0)
+        self.peg_xy_range_m = tuple(_check_range(f"peg_xy_range_m[{i}]", r, -0.15, 0.15)
+                                    for i, r in enumerate(self.peg_xy_range_m))
+        self.hole_xy_range_m = tuple(_check_range(f"hole_xy_range_m[{i}]", r, -0.15, 0.15)
+                                     for i, r in enumerate(self.hole_xy_range_m))
+        if len(self.peg_xy_range_m) != 2 or len(self.hole_xy_range_m) != 2:
+            raise ValueError("peg_xy_range_m and hole_xy_range_m must be ((x_low, x_high), (y_low, y_high))")
+        self.peg_yaw_range_rad = _check_range("peg_yaw_range_rad", self.peg_yaw_range_rad, -math.pi, math.pi)
+        low = tuple(float(v) for v in self.workspace_low)
+        high = tuple(float(v) for v in self.workspace_high)
+        if len(low) != 4 or len(high) != 4 or not all(a < b for a, b in zip(low, high)):
+            raise ValueError(
+                "workspace_low / workspace_high must be 4 numbers (x, y, z, yaw) with low < high, "
+                f"got {self.workspace_low!r} / {self.workspace_high!r}")
+        self.workspace_low, self.workspace_high = low, high
+        if not 1.0 <= float(self.success_depth_mm) <= float(self.hole_depth_mm):
+            raise ValueError(
+                f"success_depth_mm must be in [1, hole_depth_mm={self.hole_depth_mm}], got {self.success_depth_mm!r}")
+
+    @property
+    def substeps(self) -> int:
+        """Physics steps per control step."""
+        return int(round(500.0 / float(self.control_hz)))

@@ -1,0 +1,289 @@
+"""``PegInHoleEnv``: Gymnasium-style MuJoCo peg-in-hole scene with tactile fingers.
+
+Action (5,): absolute end-effector target [x, y, z, yaw] (m, rad; TCP between the gel centres,
+world frame) and a gripper command in [0, 1] (0 = open, 1 = closed): the action space of the robot
+adapters. Within one control step the servo target moves linearly from the previous target to the
+new one (the robot's own interpolation), then holds.
+
+Observation dict:
+    qpos            float32 (5,): TCP [x, y, z, yaw] and gripper closure in [0, 1]
+    images/<cam>    uint8 (H, W, 3) for each configured camera
+    tactile/<s>     uint8 (H, W, 3) for s in ("left", "right") when ``config.tactile``
+    force/<s>       float32 (3,): [Fx, Fy, Fz] N on each gel in its sensor frame (Fz > 0 pressing)
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+
+os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must precede the first mujoco import
+os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
+import mujoco  # noqa: E402
+
+from envs.config import SENSORS, PegInHoleConfig  # noqa: E402
+from envs.scene import build_model, rim_height_m  # noqa: E402
+from envs.tactile_rig import PadRays, pad_force  # noqa: E402
+
+PEG_RADIUS_M = 0.0125
+PEG_HALF_LENGTH_M = 0.04
+FINGER_OPEN_M = 0.03  # gel surface distance from the TCP plane, gripper command 0
+FINGER_CLOSED_M = 0.004  # servo target at command 1 (inside the peg: the grip force saturates)
+PEG_GROUP = 1  # geom group of the peg: the only group the tactile rays see
+HOME = (0.0, 0.0, 0.15, 0.0)
+
+
+class PegInHoleEnv:
+    """MuJoCo peg-in-hole scene. See the module docstring for the action and observation spaces.
+
+    Episode randomisation (seeded by ``reset(seed=...)``): peg position and yaw, hole position,
+    grip force (``config.grip_force_range_n``); the in-hand offset comes from where the policy
+    grasps. ``info`` holds ``success``, ``clipped`` (the target was outside the workspace or the
+    gripper command outside [0, 1]), ``grip_force_n``, ``insertion_mm`` and ``max_penetration_mm``
+    (deepest peg contact with the receptacle or table).
+    """
+
+    action_dim = 5
+    qpos_dim = 5
+
+    def __init__(self, config: PegInHoleConfig | None = None):
+        self.config = config or PegInHoleConfig()
+        cfg = self.config
+        self.model = build_model(cfg.hole_diameter_mm, cfg.hole_depth_mm, cfg.ring_segments, cfg.camera_size)
+        self.data = mujoco.MjData(self.model)
+        m = self.model
+        self._jnt = {n: m.joint(n).qposadr[0] for n in
+                     ("hand_x", "hand_y", "hand_z", "hand_yaw", "left_finger", "right_finger")}
+        self._dof = {n: m.joint(n).dofadr[0] for n in self._jnt}
+        self._act = {m.actuator(i).name: i for i in range(m.nu)}
+        self._peg_body = m.body("peg").id
+        self._peg_qpos = m.joint("peg").qposadr[0]
+        self._peg_geom = m.geom("peg").id
+        self._receptacle = m.body("receptacle").id
+        self._gel = {s: m.geom(f"{s}_gel").id for s in SENSORS}
+        # index -1 (no peg contact) maps to the appended False
+        self._static_mask = np.append(np.isin(m.geom_bodyid, (0, self._receptacle)), False)
+        self._low = np.array(cfg.workspace_low)
+        self._high = np.array(cfg.workspace_high)
+        self._renderer = None
+        if cfg.cameras:
+            self._renderer = mujoco.Renderer(m, cfg.camera_size[0], cfg.camera_size[1])
+        self._sensors: dict = {}
+        self._rays: dict[str, PadRays] = {}
+        if cfg.tactile:
+            from controltac_il.tactile import SensorSpec, TactileSensor
+
+            spec = SensorSpec.gelsight_mini().scaled(*cfg.tactile_size)
+            for k, s in enumerate(SENSORS):
+                self._sensors[s] = TactileSensor(spec, optics=cfg.tactile_optics, seed=k)
+                self._rays[s] = PadRays(m, self.data, f"{s}_sensor", PEG_GROUP, cfg.tactile_size,
+                                        spec.pad_size_mm, cfg.ray_stride)
+        self._rng = np.random.default_rng()
+        self._episode_seed = 0
+        self.hole_xy = np.zeros(2)
+        self.grip_force_n = 0.0
+        self._target = np.array([*HOME, 0.0])
+        self._steps = 0
+        self._warnings = 0
+
+    # ------------------------------------------------------------------ episode
+    def reset(self, seed: int | None = None) -> tuple[dict, dict]:
+        """Start an episode; returns (observation, info). ``seed`` fixes every random draw."""
+        if seed is not None:
+            self._rng = np.random.default_rng(seed)
+            self._episode_seed = int(seed)
+        else:
+            self._episode_seed = int(self._rng.integers(2**31))
+        cfg, m, d = self.config, self.model, self.data
+        rng = self._rng
+        peg_xy = np.array([rng.uniform(*cfg.peg_xy_range_m[0]), rng.uniform(*cfg.peg_xy_range_m[1])])
+        peg_yaw = rng.uniform(*cfg.peg_yaw_range_rad)
+        self.hole_xy = np.array([rng.uniform(*cfg.hole_xy_range_m[0]), rng.uniform(*cfg.hole_xy_range_m[1])])
+        self.grip_force_n = float(rng.uniform(*cfg.grip_force_range_n))
+        mujoco.mj_resetData(m, d)
+        m.body_pos[self._receptacle] = [*self.hole_xy, 0.0]
+        for s in SENSORS:
+            m.actuator_forcerange[self._act[f"{s}_finger"]] = [-self.grip_force_n, self.grip_force_n]
+        q = self._peg_qpos
+        d.qpos[q:q + 3] = [*peg_xy, PEG_HALF_LENGTH_M]
+        d.qpos[q + 3:q + 7] = [math.cos(peg_yaw / 2), 0.0, 0.0, math.sin(peg_yaw / 2)]
+        for name, value in zip(("hand_x", "hand_y", "hand_z", "hand_yaw"), HOME):
+            d.qpos[self._jnt[name]] = value
+        d.qpos[self._jnt["left_finger"]] = d.qpos[self._jnt["right_finger"]] = FINGER_OPEN_M
+        self._target = np.array([*HOME, 0.0])
+        self._apply_ctrl(self._target)
+        mujoco.mj_forward(m, d)
+        for _ in range(cfg.substeps):  # let the peg settle on the table
+            mujoco.mj_step(m, d)
+        self._steps = 0
+        self._warnings = self._warning_count()
+        info = {"success": False, "clipped": False, "grip_force_n": self.grip_force_n,
+                "insertion_mm": self.insertion_mm(), "max_penetration_mm": 0.0, "episode_seed": self._episode_seed}
+        return self._observe(), info
+
+    def step(self, action) -> tuple[dict, float, bool, bool, dict]:
+        """Apply one control step; returns (observation, reward, terminated, truncated, info).
+
+        Raises ValueError on an action that is not 5 finite numbers. Targets outside the workspace
+        and gripper commands outside [0, 1] are clipped and flagged in ``info["clipped"]``.
+        """
+        target, clipped = self.check_action(action)
+        m, d = self.model, self.data
+        start = self._target.copy()
+        n = self.config.substeps
+        max_pen = 0.0
+        for k in range(1, n + 1):
+            self._apply_ctrl(start + (target - start) * (k / n))
+            mujoco.mj_step(m, d)
+            max_pen = max(max_pen, self._peg_static_penetration())
+        self._target = target
+        self._steps += 1
+        if not np.isfinite(d.qpos).all() or self._warning_count() > self._warnings:
+            raise RuntimeError(f"simulation became unstable at step {self._steps} (MuJoCo warnings: "
+                               f"{[(w.number, w.lastinfo) for w in d.warning if w.number]})")
+        success = self.is_success()
+        info = {"success": success, "clipped": clipped, "grip_force_n": self.grip_force_n,
+                "insertion_mm": self.insertion_mm(), "max_penetration_mm": max_pen * 1000.0,
+                "episode_seed": self._episode_seed}
+        truncated = self._steps >= self.config.max_steps and not success
+        return self._observe(), float(success), success, truncated, info
+
+    def check_action(self, action) -> tuple[np.ndarray, bool]:
+        """Validate an action; returns (clipped float64 (5,), whether anything was clipped)."""
+        try:
+            a = np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"action must be 5 numbers [x, y, z, yaw, gripper], got {action!r}") from None
+        if a.shape != (self.action_dim,):
+            raise ValueError(f"action must have shape (5,) = [x, y, z, yaw, gripper], got shape {a.shape}")
+        if not np.isfinite(a).all():
+            raise ValueError(f"action must be finite, got {a.tolist()}")
+        out = a.copy()
+        out[:4] = np.clip(a[:4], self._low, self._high)
+        out[4] = min(max(a[4], 0.0), 1.0)
+        return out, bool((out != a).any())
+
+    def close(self) -> None:
+        """Free the renderer (the GL context)."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    # ------------------------------------------------------------------ state
+    def tcp_pose(self) -> np.ndarray:
+        """float64 (4,) current TCP [x, y, z, yaw] (m, rad)."""
+        return np.array([self.data.qpos[self._jnt[n]] for n in ("hand_x", "hand_y", "hand_z", "hand_yaw")])
+
+    def gripper_closure(self) -> float:
+        """Mean finger closure in [0, 1] (0 = fully open)."""
+        q = 0.5 * (self.data.qpos[self._jnt["left_finger"]] + self.data.qpos[self._jnt["right_finger"]])
+        return float(np.clip((FINGER_OPEN_M - q) / (FINGER_OPEN_M - FINGER_CLOSED_M), 0.0, 1.0))
+
+    def peg_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """Peg centre position (3,) m and rotation matrix (3, 3), world frame (privileged)."""
+        return self.data.xpos[self._peg_body].copy(), self.data.xmat[self._peg_body].reshape(3, 3).copy()
+
+    def peg_bottom(self) -> np.ndarray:
+        """World position (3,) of the centre of the peg's bottom face."""
+        pos, rot = self.peg_pose()
+        return pos - rot[:, 2] * PEG_HALF_LENGTH_M
+
+    def insertion_mm(self) -> float:
+        """How far the peg's bottom is below the rim (mm; negative above it)."""
+        return (rim_height_m(self.config.hole_depth_mm) - self.peg_bottom()[2]) * 1000.0
+
+    def is_success(self) -> bool:
+        """Peg bottom at least ``success_depth_mm`` below the rim, inside the hole's radius."""
+        bottom = self.peg_bottom()
+        inside = np.linalg.norm(bottom[:2] - self.hole_xy) < self.config.hole_diameter_mm / 2000.0
+        return bool(inside and self.insertion_mm() >= self.config.success_depth_mm)
+
+    def pad_forces(self) -> dict[str, np.ndarray]:
+        """float32 (3,) [Fx, Fy, Fz] N on each gel, sensor frame."""
+        out = {}
+        for s in SENSORS:
+            rot = self.data.site_xmat[self.model.site(f"{s}_sensor").id].reshape(3, 3)
+            out[s] = pad_force(self.model, self.data, self._gel[s], rot).astype(np.float32)
+        return out
+
+    def pad_in_contact(self, sensor: str) -> bool:
+        """Whether the peg touches the given gel."""
+        g = self.data.contact.geom
+        pair = ((g[:, 0] == self._gel[sensor]) & (g[:, 1] == self._peg_geom)) | (
+            (g[:, 1] == self._gel[sensor]) & (g[:, 0] == self._peg_geom))
+        return bool(pair.any())
+
+    # ------------------------------------------------------------------ rendering
+    def render_camera(self, camera: str) -> np.ndarray:
+        """uint8 (H, W, 3) RGB image of a configured camera."""
+        if self._renderer is None:
+            raise ValueError("no cameras configured (PegInHoleConfig.cameras is empty)")
+        self._renderer.update_scene(self.data, camera=camera)
+        return self._renderer.render()
+
+    def penetration_mm(self, sensor: str) -> np.ndarray:
+        """float32 (H, W) peg penetration into a gel (mm); zeros without contact (no rays cast)."""
+        if sensor not in self._rays:
+            raise ValueError(f"tactile is off or unknown sensor {sensor!r}; expected one of {SENSORS}")
+        if not self.pad_in_contact(sensor):
+            return np.zeros(self.config.tactile_size, np.float32)
+        return self._rays[sensor].penetration_mm()
+
+    def render_tactile(self, sensor: str, force: np.ndarray | None = None) -> np.ndarray:
+        """uint8 (H, W, 3) tactile image of one finger (sensor model optics over its background)."""
+        pen = self.penetration_mm(sensor)
+        if force is None:
+            force = self.pad_forces()[sensor]
+        shear = (float(force[0]), float(force[1])) if pen.any() else (0.0, 0.0)
+        return self._sensors[sensor].render_penetration(pen, shear=shear, noise_seed=self._noise_seed(sensor))
+
+    def tactile_background(self, sensor: str) -> np.ndarray:
+        """uint8 (H, W, 3) no-contact image of a sensor (zero penetration, no noise)."""
+        if sensor not in self._sensors:
+            raise ValueError(f"tactile is off or unknown sensor {sensor!r}; expected one of {SENSORS}")
+        return self._sensors[sensor].background.copy()
+
+    def _noise_seed(self, sensor: str) -> int | None:
+        if not self.config.tactile_noise:
+            return None
+        return (self._episode_seed * 1_000_003 + self._steps * 7 + SENSORS.index(sensor)) % (2**63)
+
+    # ------------------------------------------------------------------ internals
+    def _observe(self) -> dict:
+        obs = {"qpos": np.array([*self.tcp_pose(), self.gripper_closure()], dtype=np.float32)}
+        for cam in self.config.cameras:
+            obs[f"images/{cam}"] = self.render_camera(cam)
+        forces = self.pad_forces()
+        for s in SENSORS:
+            if self.config.tactile:
+                obs[f"tactile/{s}"] = self.render_tactile(s, forces[s])
+            obs[f"force/{s}"] = forces[s]
+        return obs
+
+    def _apply_ctrl(self, target: np.ndarray) -> None:
+        d = self.data
+        for k, name in enumerate(("hand_x", "hand_y", "hand_z", "hand_yaw")):
+            d.ctrl[self._act[name]] = target[k]
+        finger = FINGER_OPEN_M - target[4] * (FINGER_OPEN_M - FINGER_CLOSED_M)
+        d.ctrl[self._act["left_finger"]] = d.ctrl[self._act["right_finger"]] = finger
+
+    def _peg_static_penetration(self) -> float:
+        """Deepest penetration (m) of the peg into the table or receptacle right now."""
+        con = self.data.contact
+        if len(con.dist) == 0:
+            return 0.0
+        g = con.geom
+        other = np.where(g[:, 0] == self._peg_geom, g[:, 1], np.where(g[:, 1] == self._peg_geom, g[:, 0], -1))
+        hit = self._static_mask[other] & (other >= 0)
+        return float(max(0.0, (-con.dist[hit]).max(initial=0.0)))
+
+    def _warning_count(self) -> int:
+        return int(sum(w.number for w in self.data.warning))
