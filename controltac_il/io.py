@@ -19,11 +19,12 @@ from typing import Iterator
 def atomic_path(dest: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
     """Yield a temporary file path beside ``dest``; rename it onto ``dest`` on success.
 
+    The temporary name ends with ``suffix`` (e.g. ".png") for writers that infer the format from it.
     On an exception the temporary file is removed and ``dest`` is untouched.
     """
     dest = Path(dest)
     dest.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=suffix + ".tmp", dir=dest.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=".tmp" + suffix, dir=dest.parent)
     os.close(fd)
     tmp_path = Path(tmp)
     try:

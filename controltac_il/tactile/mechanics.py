@@ -15,6 +15,7 @@ that decays away from the contact over the gel thickness.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -95,6 +96,13 @@ def gel_surface(pen_mm: np.ndarray, spec: SensorSpec) -> np.ndarray:
     return spec.conformity * pen_mm.astype(np.float32) + (1.0 - spec.conformity) * smooth
 
 
+@lru_cache(maxsize=8)
+def _pixel_grid(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    rows, cols = np.indices((height, width), dtype=np.float32)
+    rows.flags.writeable = cols.flags.writeable = False
+    return rows, cols
+
+
 def apply_shear(surface_mm: np.ndarray, contact: np.ndarray, shear_n: tuple[float, float], spec: SensorSpec) -> np.ndarray:
     """Shift the gel surface laterally by shear (Fx, Fy) N around the contact ``contact`` (bool (H, W)).
 
@@ -109,5 +117,5 @@ def apply_shear(surface_mm: np.ndarray, contact: np.ndarray, shear_n: tuple[floa
     w = np.maximum(w / max(float(w.max()), 1e-6), contact.astype(np.float32))
     dx_px = spec.shear_compliance_mm_per_n * fx / spec.mm_per_px * w
     dy_px = -spec.shear_compliance_mm_per_n * fy / spec.mm_per_px * w  # y up = rows decreasing
-    rows, cols = np.indices(surface_mm.shape, dtype=np.float32)
+    rows, cols = _pixel_grid(*surface_mm.shape)
     return cv2.remap(surface_mm, cols - dx_px, rows - dy_px, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)

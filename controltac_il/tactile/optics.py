@@ -63,8 +63,8 @@ class ThreeLightOptics:
         gx, gy = surface_gradients(height_mm, spec)
         # the surface bulges towards the camera: normal ∝ (−gx, −gy, 1)
         inv = 1.0 / np.sqrt(1.0 + gx * gx + gy * gy)
-        dn = np.stack([-gx * inv, -gy * inv, inv - 1.0], axis=-1)  # n − e_z
-        return spec.optics_gain * (dn @ self.lights.T)
+        dn = cv2.merge([-gx * inv, -gy * inv, inv - 1.0])  # n − e_z, (H, W, 3)
+        return cv2.transform(dn, spec.optics_gain * self.lights)  # per pixel: lights @ dn
 
 
 class PolynomialOptics:
@@ -135,4 +135,4 @@ def add_noise(image: np.ndarray, std: float, rng: np.random.Generator) -> np.nda
     """Additive Gaussian sensor noise of ``std`` grey levels (float image in, float image out)."""
     if std <= 0:
         return image
-    return image + rng.normal(0.0, std, size=image.shape).astype(np.float32)
+    return image + np.float32(std) * rng.standard_normal(size=image.shape, dtype=np.float32)
