@@ -182,12 +182,12 @@ def train(act_config: ACTConfig, train_config: TrainConfig, train_set: Dataset, 
         step += 1
         samples += batch["observation.qpos"].shape[0] * world
         if rank == 0:
-            row = {"step": step, **{k: round(float(v), 5) for k, v in out.items()}}
-            if step % 10 == 0 or step == 1:
+            row = {"step": step, **{k: round(float(v.detach()), 5) for k, v in out.items()}}
+            last = step == train_config.steps
+            if step % 10 == 0 or step == 1 or last:
                 log["train"].append(row)
             bar.update(1)
             bar.set_postfix(loss=f"{row['loss']:.3f}", l1=f"{row['l1']:.3f}", kl=f"{row['kl']:.3f}")
-            last = step == train_config.steps
             if val_loader is not None and (step % train_config.val_every == 0 or last):
                 val = evaluate(model, val_loader, train_config.max_val_batches)
                 log["val"].append({"step": step, **{k: round(v, 5) for k, v in val.items()}})
@@ -219,3 +219,28 @@ def resolve_checkpoint(path: str | Path) -> Path:
         if (path / sub / "config.json").is_file():
             return path / sub
     raise CheckpointError(f"no ACT checkpoint at {path} (expected config.json there or in best/ or last/)")
+
+
+def train_on_folder(dataset: str | Path, out_dir: str | Path, *, preset: str = "cpu", train_config: TrainConfig,
+                    val_fraction: float = 0.1, augment=None, resume: bool = False, stats_path=None,
+                    progress: bool = True, **act_overrides) -> dict:
+    """Train ACT on a folder of episodes; the ACT config's data fields come from the episodes.
+
+    augment: optional callable ``train_set -> train_set`` (e.g. ForceAugment over the training split);
+        validation always stays on the recorded episodes.
+    act_overrides: ACTConfig fields to change from the preset (e.g. chunk_size).
+    """
+    from policies.act.data import check_compatible, load_training_data  # noqa: PLC0415 (h5py only when used)
+
+    chunk = act_overrides.get("chunk_size", ACTConfig.from_preset(preset).chunk_size)
+    data = load_training_data(dataset, chunk, val_fraction, train_config.seed, stats_path)
+    act_config = ACTConfig.from_preset(preset, camera_names=data.spec.camera_names,
+                                       tactile_names=data.spec.tactile_names, state_dim=data.spec.state_dim,
+                                       action_dim=data.spec.action_dim, **act_overrides)
+    check_compatible(act_config, data.spec, where=str(dataset))
+    train_set = augment(data.train) if augment is not None else data.train
+    meta = {"dataset": str(Path(dataset).resolve()), "episodes": data.n_episodes, "val_episodes": data.val_episodes,
+            "train_frames": len(train_set), "augment": getattr(augment, "description", None)}
+    summary = train(act_config, train_config, train_set, data.val, out_dir, stats=data.stats,
+                    backgrounds=data.backgrounds, resume=resume, meta=meta, progress=progress)
+    return {**summary, **meta}

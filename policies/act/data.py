@@ -1,0 +1,86 @@
+"""From a folder of episodes to ACT's training and validation sets (split by episode).
+
+The ACT config's data fields (cameras, tactile sensors, state and action sizes) are read from the
+episodes; a checkpoint used with other data is checked against them with a clear error.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from torch.utils.data import Dataset, Subset
+
+from controltac_il.datasets import EpisodeDataset
+from policies.act.configuration_act import ACTConfig
+
+
+@dataclass
+class DataSpec:
+    """What the episodes hold: camera and tactile names, qpos size D and action size A."""
+
+    camera_names: tuple[str, ...]
+    tactile_names: tuple[str, ...]
+    state_dim: int
+    action_dim: int
+
+    @classmethod
+    def of(cls, ds: EpisodeDataset) -> "DataSpec":
+        return cls(tuple(ds.cameras), tuple(ds.tactile_sensors), int(ds.stats["qpos"]["mean"].shape[0]),
+                   int(ds.stats["action"]["mean"].shape[0]))
+
+
+def check_compatible(config: ACTConfig, spec: DataSpec, where: str = "dataset") -> None:
+    """Raise ValueError when data described by ``spec`` lacks what ``config`` expects."""
+    missing = [f"images/{c}" for c in config.camera_names if c not in spec.camera_names]
+    missing += [f"tactile/{s}" for s in config.tactile_names if s not in spec.tactile_names]
+    if missing:
+        raise ValueError(f"{where} is missing {missing} that the checkpoint expects (it has cameras "
+                         f"{list(spec.camera_names)}, tactile sensors {list(spec.tactile_names)})")
+    if spec.action_dim != config.action_dim:
+        raise ValueError(f"{where} has actions of dimension {spec.action_dim}, the checkpoint expects "
+                         f"{config.action_dim}")
+    if spec.state_dim != config.state_dim:
+        raise ValueError(f"{where} has qpos of dimension {spec.state_dim}, the checkpoint expects {config.state_dim}")
+
+
+def split_by_episode(ds: EpisodeDataset, val_fraction: float, seed: int = 0) -> tuple[list[int], list[int]]:
+    """Frame indices of (train, validation) with whole episodes held out; no validation for 1 episode."""
+    if not 0.0 <= val_fraction < 1.0:
+        raise ValueError(f"val_fraction must be in [0, 1), got {val_fraction!r}")
+    episodes, _ = ds.frame_table()
+    ids = np.unique(episodes)
+    n_val = int(round(val_fraction * len(ids))) if len(ids) > 1 else 0
+    if val_fraction > 0 and len(ids) > 1:
+        n_val = max(n_val, 1)
+    val_ids = set(np.random.default_rng(seed).permutation(ids)[:n_val].tolist())
+    is_val = np.isin(episodes, list(val_ids))
+    return np.flatnonzero(~is_val).tolist(), np.flatnonzero(is_val).tolist()
+
+
+@dataclass
+class TrainingData:
+    """Everything the training loop needs from a dataset folder."""
+
+    train: Dataset
+    val: Dataset | None
+    spec: DataSpec
+    stats: dict
+    backgrounds: dict[str, np.ndarray]
+    n_episodes: int
+    val_episodes: int
+
+
+def load_training_data(root: str | Path, chunk_size: int, val_fraction: float = 0.1, seed: int = 0,
+                       stats_path: str | Path | None = None) -> TrainingData:
+    """Open ``root`` as an :class:`EpisodeDataset` and split it by episode."""
+    ds = EpisodeDataset(root, chunk_size=chunk_size, stats_path=stats_path)
+    train_idx, val_idx = split_by_episode(ds, val_fraction, seed)
+    episodes, _ = ds.frame_table()
+    stats = {k: {m: np.asarray(v).astype(float).tolist() for m, v in d.items()} for k, d in ds.stats.items()}
+    backgrounds = {s: np.asarray(ds.backgrounds[(0, s)]) for s in ds.tactile_sensors}
+    return TrainingData(
+        train=Subset(ds, train_idx), val=Subset(ds, val_idx) if val_idx else None, spec=DataSpec.of(ds),
+        stats=stats, backgrounds=backgrounds, n_episodes=len(np.unique(episodes)),
+        val_episodes=len(np.unique(episodes[val_idx])) if val_idx else 0)

@@ -1,0 +1,122 @@
+"""ACT training: the loss goes down, checkpoints and --resume, episode split, dataset checks, torchrun."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from act_fixtures import SyntheticACTDataset, tiny_config
+from controltac_il.datasets import Episode, write_episode
+from policies.act import ACTConfig, CheckpointError, load_checkpoint
+from policies.act.data import DataSpec, check_compatible, load_training_data
+from policies.act.training import TrainConfig, evaluate, resolve_checkpoint, train, train_on_folder
+
+REPO = Path(__file__).resolve().parents[1]
+TINY = dict(camera_size=(24, 32), tactile_size=(24, 32), dim_model=32, n_heads=2, dim_feedforward=64,
+            n_encoder_layers=1, n_vae_encoder_layers=1, latent_dim=4, chunk_size=4)
+
+
+def test_training_lowers_the_validation_error(tmp_path):
+    torch.manual_seed(0)
+    ds, val = SyntheticACTDataset(64, seed=0), SyntheticACTDataset(16, seed=1)
+    cfg = tiny_config(kl_weight=1.0)
+    summary = train(cfg, TrainConfig(steps=100, batch_size=8, val_every=100, warmup_steps=10), ds, val,
+                    tmp_path / "run", stats=ds.stats(), progress=False)
+    log = json.loads((tmp_path / "run" / "train_log.json").read_text())
+    first, last = log["log"]["train"][0], log["log"]["train"][-1]
+    assert last["l1"] < 0.5 * first["l1"], (first, last)
+    untrained = __import__("policies.act.modeling_act", fromlist=["ACT"]).ACT(cfg)
+    untrained.set_stats(ds.stats())
+    loader = torch.utils.data.DataLoader(val, batch_size=16)
+    trained, _, meta = load_checkpoint(tmp_path / "run" / "best")
+    assert evaluate(trained, loader, 5)["val_l1"] < 0.7 * evaluate(untrained, loader, 5)["val_l1"]
+    assert meta["best_val_l1"] == summary["best_val_l1"] and summary["steps"] == 100
+
+
+def test_resume_continues_from_last_and_refuses_another_config(tmp_path):
+    ds = SyntheticACTDataset(16)
+    cfg = tiny_config()
+    train(cfg, TrainConfig(steps=3, batch_size=8, save_every=3), ds, None, tmp_path, stats=ds.stats(),
+          progress=False)
+    _, _, meta = load_checkpoint(tmp_path / "last")
+    assert meta["step"] == 3 and (tmp_path / "last" / "optimizer.safetensors").is_file()
+    assert resolve_checkpoint(tmp_path) == tmp_path / "last"  # no validation set -> no best
+    summary = train(cfg, TrainConfig(steps=5, batch_size=8), ds, None, tmp_path, stats=ds.stats(),
+                    resume=True, progress=False)
+    assert summary["steps"] == 5 and load_checkpoint(tmp_path / "last")[2]["step"] == 5
+    assert [r["step"] for r in load_checkpoint(tmp_path / "last")[2]["log"]["train"]] == [1, 3, 5]
+    with pytest.raises(CheckpointError, match="different ACT config"):
+        train(tiny_config(dim_model=64), TrainConfig(steps=6), ds, None, tmp_path, stats=ds.stats(), resume=True,
+              progress=False)
+    with pytest.raises(CheckpointError, match="no checkpoint"):
+        train(cfg, TrainConfig(steps=6), ds, None, tmp_path / "fresh", stats=ds.stats(), resume=True)
+
+
+def test_train_config_validation():
+    with pytest.raises(ValueError, match="steps"):
+        TrainConfig(steps=0)
+    with pytest.raises(ValueError, match="batch_size"):
+        TrainConfig(batch_size=-1)
+
+
+def write_tiny_episodes(root: Path, n: int = 3, T: int = 10, cameras=("third_view", "wrist"),
+                        sensors=("left", "right"), action_dim: int = 5) -> Path:
+    rng = np.random.default_rng(0)
+    for i in range(n):
+        write_episode(root / f"episode_{i}.hdf5", Episode(
+            qpos=rng.normal(size=(T, 5)), action=rng.normal(size=(T, action_dim)),
+            images={c: rng.integers(0, 255, (T, 24, 32, 3), dtype=np.uint8) for c in cameras},
+            tactile={s: rng.integers(0, 255, (T, 24, 32, 3), dtype=np.uint8) for s in sensors},
+            tactile_background={s: np.full((24, 32, 3), 100, np.uint8) for s in sensors}, sim=True))
+    return root
+
+
+def test_split_is_by_episode_and_config_comes_from_the_data(tmp_path):
+    root = write_tiny_episodes(tmp_path / "demos", n=5)
+    data = load_training_data(root, chunk_size=4, val_fraction=0.2, stats_path=tmp_path / "stats.json")
+    assert data.n_episodes == 5 and data.val_episodes == 1
+    train_eps = {data.train[i]["episode_index"] for i in range(len(data.train))}
+    val_eps = {data.val[i]["episode_index"] for i in range(len(data.val))}
+    assert not train_eps & val_eps and len(train_eps | val_eps) == 5
+    assert data.spec == DataSpec(("third_view", "wrist"), ("left", "right"), 5, 5)
+    assert np.array_equal(data.backgrounds["left"], np.full((24, 32, 3), 100, np.uint8))
+
+
+def test_checkpoint_is_checked_against_the_data(tmp_path):
+    cfg = ACTConfig(camera_names=("third_view", "wrist"), tactile_names=("left", "right"))
+    check_compatible(cfg, DataSpec(("third_view", "wrist"), ("left", "right"), 5, 5))
+    with pytest.raises(ValueError, match=r"images/wrist"):
+        check_compatible(cfg, DataSpec(("third_view",), ("left", "right"), 5, 5))
+    with pytest.raises(ValueError, match=r"tactile/right"):
+        check_compatible(cfg, DataSpec(("third_view", "wrist"), ("left",), 5, 5))
+    with pytest.raises(ValueError, match="actions of dimension 7"):
+        check_compatible(cfg, DataSpec(("third_view", "wrist"), ("left", "right"), 5, 7))
+
+
+def test_train_on_folder_end_to_end(tmp_path):
+    root = write_tiny_episodes(tmp_path / "demos", n=3)
+    summary = train_on_folder(root, tmp_path / "run", preset="cpu", train_config=TrainConfig(steps=4, batch_size=4,
+                              val_every=2), val_fraction=0.34, stats_path=tmp_path / "stats.json", progress=False,
+                              **TINY)
+    assert summary["steps"] == 4 and summary["episodes"] == 3 and summary["val_episodes"] == 1
+    model, backgrounds, meta = load_checkpoint(resolve_checkpoint(tmp_path / "run"))
+    assert model.config.camera_names == ("third_view", "wrist") and set(backgrounds) == {"left", "right"}
+    assert not any(p.name.endswith(".json") for p in root.iterdir())  # the user's data folder is untouched
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="torchrun smoke test runs on Linux")
+def test_torchrun_two_process_gloo_smoke(tmp_path):
+    root = write_tiny_episodes(tmp_path / "demos", n=4)
+    env = dict(os.environ, CONTROLTAC_CACHE=str(tmp_path / "cache"), OMP_NUM_THREADS="1")
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
+           str(REPO / "train_act.py"), "--dataset", str(root), "--out", str(tmp_path / "run"), "--steps", "3",
+           "--batch-size", "2", "--chunk-size", "4", "--val-every", "3", "--threads", "1"]
+    proc = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=240)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    _, _, meta = load_checkpoint(tmp_path / "run" / "last")
+    assert meta["world_size"] == 2 and meta["step"] == 3
