@@ -171,3 +171,14 @@ def test_inputs_are_not_modified(quiet_sensor):
     quiet_sensor.render_penetration(pen, shear=(0.5, 0.5))
     np.testing.assert_array_equal(pen, before)
     assert set(TRAIN_OBJECTS).isdisjoint(HELDOUT_OBJECTS) and len(INDENTERS) == 12
+
+
+def test_sensor_instances_differ_in_background_and_stiffness():
+    mini = TactileSensor(QUIET)
+    digit = TactileSensor(dataclasses.replace(QUIET, background="digit"))
+    assert digit.background.shape == mini.background.shape
+    assert np.abs(digit.background.astype(int) - mini.background).mean() > 10
+    soft = TactileSensor(dataclasses.replace(QUIET, foundation_modulus=0.2))
+    assert soft.press("big_sphere", force=(0, 0, 5)).depth_mm > mini.press("big_sphere", force=(0, 0, 5)).depth_mm
+    with pytest.raises(ValueError, match="background"):
+        TactileSensor(dataclasses.replace(QUIET, background="/nonexistent.png"))

@@ -119,9 +119,15 @@ def vignette(spec: SensorSpec) -> np.ndarray:
     return (1.0 - spec.vignetting * r2 / 0.5)[..., None]
 
 
+BACKGROUNDS = {
+    "gelsight_mini": ASSETS / "background_gelsight_mini.png",  # real GelSight Mini frame (NormalFlow, MIT)
+    "digit": ASSETS / "background_digit.jpg",  # real DIGIT frame (TACTO, MIT): another sensor's look
+}
+
+
 def load_background(spec: SensorSpec) -> np.ndarray:
     """The sensor's no-contact frame, uint8 RGB (H, W, 3) resized to the spec's resolution."""
-    path = ASSETS / "background_gelsight_mini.png" if spec.background == "gelsight_mini" else Path(spec.background)
+    path = BACKGROUNDS.get(spec.background, Path(spec.background))
     bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if bgr is None:
         raise ValueError(f"SensorSpec.background: cannot read an image from {path}")

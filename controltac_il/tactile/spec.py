@@ -28,7 +28,7 @@ class SensorSpec:
         tint_depth_mm: gel displacement at which the tint reaches 63 % of ``contact_tint``.
         vignetting: strength of the radial fall-off of the optical response at the corners, in [0, 1).
         noise_std: standard deviation of additive sensor noise in grey levels.
-        background: name of a background asset ("gelsight_mini") or a path to an RGB image.
+        background: a shipped background ("gelsight_mini", "digit") or a path to an RGB image.
     """
 
     height: int = 240
