@@ -14,6 +14,7 @@ Observation dict:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 
@@ -72,14 +73,20 @@ class PegInHoleEnv:
             self._renderer = mujoco.Renderer(m, cfg.camera_size[0], cfg.camera_size[1])
         self._sensors: dict = {}
         self._rays: dict[str, PadRays] = {}
+        self._backgrounds: dict[str, np.ndarray] = {}
         if cfg.tactile:
             from controltac_il.tactile import SensorSpec, TactileSensor
 
             spec = SensorSpec.gelsight_mini().scaled(*cfg.tactile_size)
+            flat = np.zeros(cfg.tactile_size, np.float32)
             for k, s in enumerate(SENSORS):
                 self._sensors[s] = TactileSensor(spec, optics=cfg.tactile_optics, seed=k)
                 self._rays[s] = PadRays(m, self.data, f"{s}_sensor", PEG_GROUP, cfg.tactile_size,
                                         spec.pad_size_mm, cfg.ray_stride)
+                # no-contact frame = the optics over a flat gel without noise (the optics' flat-gel
+                # response is not exactly the raw background for every optics model)
+                quiet = TactileSensor(dataclasses.replace(spec, noise_std=0.0), optics=cfg.tactile_optics)
+                self._backgrounds[s] = quiet.render_penetration(flat)
         self._rng = np.random.default_rng()
         self._episode_seed = 0
         self.hole_xy = np.zeros(2)
@@ -197,14 +204,15 @@ class PegInHoleEnv:
         return pos - rot[:, 2] * PEG_HALF_LENGTH_M
 
     def insertion_mm(self) -> float:
-        """How far the peg's bottom is below the rim (mm; negative above it)."""
-        return (rim_height_m(self.config.hole_depth_mm) - self.peg_bottom()[2]) * 1000.0
+        """How far the peg's bottom is below the rim (mm) while it is inside the hole's radius; else 0."""
+        bottom = self.peg_bottom()
+        if np.linalg.norm(bottom[:2] - self.hole_xy) >= self.config.hole_diameter_mm / 2000.0:
+            return 0.0
+        return max(0.0, (rim_height_m(self.config.hole_depth_mm) - bottom[2]) * 1000.0)
 
     def is_success(self) -> bool:
         """Peg bottom at least ``success_depth_mm`` below the rim, inside the hole's radius."""
-        bottom = self.peg_bottom()
-        inside = np.linalg.norm(bottom[:2] - self.hole_xy) < self.config.hole_diameter_mm / 2000.0
-        return bool(inside and self.insertion_mm() >= self.config.success_depth_mm)
+        return self.insertion_mm() >= self.config.success_depth_mm
 
     def pad_forces(self) -> dict[str, np.ndarray]:
         """float32 (3,) [Fx, Fy, Fz] N on each gel, sensor frame."""
@@ -246,10 +254,10 @@ class PegInHoleEnv:
         return self._sensors[sensor].render_penetration(pen, shear=shear, noise_seed=self._noise_seed(sensor))
 
     def tactile_background(self, sensor: str) -> np.ndarray:
-        """uint8 (H, W, 3) no-contact image of a sensor (zero penetration, no noise)."""
-        if sensor not in self._sensors:
+        """uint8 (H, W, 3) no-contact image of a sensor (zero penetration rendered without noise)."""
+        if sensor not in self._backgrounds:
             raise ValueError(f"tactile is off or unknown sensor {sensor!r}; expected one of {SENSORS}")
-        return self._sensors[sensor].background.copy()
+        return self._backgrounds[sensor].copy()
 
     def _noise_seed(self, sensor: str) -> int | None:
         if not self.config.tactile_noise:

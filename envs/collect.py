@@ -1,0 +1,151 @@
+"""Record scripted-expert demonstrations of the peg-in-hole scene as ACT HDF5 episodes.
+
+    python -m envs.collect --episodes 50 --out data/sim_peg
+
+writes ``episode_0.hdf5`` ... ``episode_49.hdf5`` (``controltac_il.datasets.episodes`` layout):
+third-view and wrist RGB, one tactile stream per finger with its no-contact background, per-pad
+force labels [Fx, Fy, Fz] N (sensor frame), qpos [x, y, z, yaw, gripper] and the commanded action.
+Frame t holds the observation before action t (ACT's convention). An episode ends ``hold_steps``
+frames after the peg is inserted; failed attempts are skipped (or kept with ``--keep-failures``),
+so the folder holds exactly ``--episodes`` files. Episode ``i``'s attributes record the scene seed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
+
+from envs.config import CAMERAS, SENSORS, PegInHoleConfig  # noqa: E402
+from envs.expert import ExpertConfig, ScriptedExpert  # noqa: E402
+from envs.peg_in_hole import PegInHoleEnv  # noqa: E402
+
+
+def record_episode(env: PegInHoleEnv, expert: ScriptedExpert, seed: int, hold_steps: int = 3):
+    """Run the expert for one episode; returns (Episode, success)."""
+    from controltac_il.datasets.episodes import Episode
+
+    obs, info = env.reset(seed=seed)
+    expert.reset(seed + 7919)  # the expert's noise stream, distinct from the scene's draws
+    frames: list[dict] = []
+    actions: list[np.ndarray] = []
+    success_at = None
+    for t in range(env.config.max_steps):
+        action = expert.act()
+        frames.append(obs)
+        actions.append(action)
+        obs, _, terminated, truncated, info = env.step(action)
+        if success_at is None and info["success"]:
+            success_at = t
+        if success_at is not None and t - success_at >= hold_steps:
+            break
+        if truncated:
+            break
+    cfg = env.config
+    tactile = {s: np.stack([f[f"tactile/{s}"] for f in frames]) for s in SENSORS} if cfg.tactile else {}
+    episode = Episode(
+        qpos=np.stack([f["qpos"] for f in frames]),
+        action=np.stack(actions),
+        images={c: np.stack([f[f"images/{c}"] for f in frames]) for c in cfg.cameras},
+        tactile=tactile,
+        tactile_background={s: env.tactile_background(s) for s in tactile},
+        force={s: np.stack([f[f"force/{s}"] for f in frames]) for s in SENSORS},
+        sim=True,
+        attrs={
+            "task": "peg_in_hole",
+            "seed": int(seed),
+            "success": bool(success_at is not None),
+            "control_hz": float(cfg.control_hz),
+            "grip_force_n": float(env.grip_force_n),
+            "hole_xy_m": np.asarray(env.hole_xy, dtype=np.float64),
+            "hole_diameter_mm": float(cfg.hole_diameter_mm),
+            "action_space": "tcp x y z (m), yaw (rad), gripper [0 open, 1 closed]",
+            "qpos_space": "tcp x y z (m), yaw (rad), gripper closure [0, 1]",
+        },
+    )
+    return episode, success_at is not None
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(
+        prog="python -m envs.collect",
+        description="Record scripted peg-in-hole demonstrations (cameras, tactile, forces) as ACT HDF5 "
+                    "episodes episode_<i>.hdf5 in --out.",
+    )
+    p.add_argument("--episodes", type=int, default=50, help="number of episode files to write (default 50)")
+    p.add_argument("--out", type=Path, required=True, help="output folder (created; existing episode files are overwritten)")
+    p.add_argument("--seed", type=int, default=0, help="first scene seed; later episodes use the next seeds (default 0)")
+    p.add_argument("--cameras", nargs="*", default=list(CAMERAS), choices=CAMERAS,
+                   help="cameras to record (default: third_view wrist; none: no images)")
+    p.add_argument("--camera-size", type=int, nargs=2, default=(96, 128), metavar=("H", "W"),
+                   help="camera image size in pixels (default 96 128)")
+    p.add_argument("--tactile-size", type=int, nargs=2, default=(120, 160), metavar=("H", "W"),
+                   help="tactile image size in pixels, GelSight Mini aspect 3:4 (default 120 160)")
+    p.add_argument("--optics", default="polynomial", choices=("polynomial", "three_light"),
+                   help="tactile optics model (default polynomial)")
+    p.add_argument("--hole-diameter", type=float, default=30.0, help="hole diameter in mm (30 = paper, default)")
+    p.add_argument("--hold-steps", type=int, default=3, help="frames recorded after the insertion succeeds (default 3)")
+    p.add_argument("--keep-failures", action="store_true", help="also write episodes where the expert failed")
+    p.add_argument("--max-attempts", type=int, default=None,
+                   help="give up after this many attempts (default: 2 x episodes + 10)")
+    p.add_argument("--compression", default=None, choices=("gzip", "lzf"), help="HDF5 image compression (default none)")
+    args = p.parse_args(argv)
+    if args.episodes < 1:
+        p.error("--episodes must be >= 1")
+    if args.hold_steps < 0:
+        p.error("--hold-steps must be >= 0")
+    return args
+
+
+def main(argv=None) -> int:
+    from tqdm import tqdm
+
+    from controltac_il.datasets.episodes import write_episode
+    from controltac_il.io import write_json
+
+    args = parse_args(argv)
+    try:
+        config = PegInHoleConfig(cameras=tuple(args.cameras), camera_size=tuple(args.camera_size),
+                                 tactile_size=tuple(args.tactile_size), tactile_optics=args.optics,
+                                 hole_diameter_mm=args.hole_diameter)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    max_attempts = args.max_attempts or 2 * args.episodes + 10
+    args.out.mkdir(parents=True, exist_ok=True)
+    written, attempts, failures = 0, 0, []
+    with PegInHoleEnv(config) as env:
+        expert = ScriptedExpert(env, ExpertConfig())
+        with tqdm(total=args.episodes, desc="episodes", unit="ep") as bar:
+            while written < args.episodes and attempts < max_attempts:
+                seed = args.seed + attempts
+                attempts += 1
+                episode, ok = record_episode(env, expert, seed, args.hold_steps)
+                if not ok:
+                    failures.append(seed)
+                    if not args.keep_failures:
+                        bar.set_postfix(failed=len(failures))
+                        continue
+                write_episode(args.out / f"episode_{written}.hdf5", episode, compression=args.compression)
+                written += 1
+                bar.update(1)
+    write_json(args.out / "collect_info.json", {
+        "episodes": written, "attempts": attempts, "failed_seeds": failures,
+        "config": {k: v for k, v in vars(config).items()}, "expert": vars(ExpertConfig()),
+    })
+    print(f"wrote {written} episodes to {args.out} ({attempts} attempts, {len(failures)} expert failures)")
+    if written < args.episodes:
+        print(f"error: only {written} of {args.episodes} episodes succeeded within {max_attempts} attempts", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,146 @@
+"""Scripted peg-in-hole expert with injected noise (privileged: it reads the peg and hole poses).
+
+Phases (control steps at 10 Hz): approach above the peg, descend, close, lift, carry the peg over
+the hole, align, insert, hold. Each phase interpolates the target linearly from where the previous
+one ended to its goal; goals that depend on the scene (where the peg sits in the hand) are computed
+when the phase starts, and while aligning and inserting the horizontal target is re-aimed every
+step at the peg's actual bottom, so the expert corrects the in-hand offset and swing it got.
+
+Noise, drawn from the episode's generator: per-episode in-hand offset (grasp point along the gel,
+grasp depth below the peg's top) and per-step Gaussian target noise, smaller near the hole.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from envs.peg_in_hole import PEG_HALF_LENGTH_M, PegInHoleEnv
+from envs.scene import BASE_THICKNESS_M, rim_height_m
+
+
+@dataclass
+class ExpertConfig:
+    """Scripted expert settings.
+
+    free_noise_mm: std of the per-step target noise (x, y, z) while moving in free space (mm).
+    fine_noise_mm: std of the per-step target noise while aligning and inserting (mm); must stay
+        well under the radial clearance (2.5 mm for the Ø30 mm hole).
+    yaw_noise_rad: std of the per-step yaw noise (rad).
+    grasp_offset_mm: (low, high) of the grasp point's offset along the gel from the peg axis (mm).
+    grasp_depth_mm: (low, high) of the TCP's depth below the peg's top face (mm); the gel is 15.2 mm
+        tall, so >= 8 keeps it fully on the peg.
+    clearance_mm: height of the peg's bottom above the rim while carrying (mm).
+    floor_gap_mm: the insertion stops with the peg's bottom this far above the hole's floor (mm).
+    """
+
+    free_noise_mm: float = 1.0
+    fine_noise_mm: float = 0.25
+    yaw_noise_rad: float = 0.01
+    grasp_offset_mm: tuple[float, float] = (-3.0, 3.0)
+    grasp_depth_mm: tuple[float, float] = (14.0, 22.0)
+    clearance_mm: float = 25.0
+    floor_gap_mm: float = 3.0
+
+    def __post_init__(self):
+        for name in ("free_noise_mm", "fine_noise_mm", "yaw_noise_rad", "clearance_mm", "floor_gap_mm"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ValueError(f"ExpertConfig.{name} must be a finite number >= 0, got {v!r}")
+        for name, lo_min, hi_max in (("grasp_offset_mm", -8.0, 8.0), ("grasp_depth_mm", 8.0, 40.0)):
+            lo, hi = getattr(self, name)
+            if not lo_min <= lo <= hi <= hi_max:
+                raise ValueError(f"ExpertConfig.{name} must be (low, high) within [{lo_min}, {hi_max}], got {(lo, hi)}")
+
+
+# (phase, control steps)
+PHASES = (("approach", 12), ("descend", 8), ("close", 5), ("lift", 8), ("carry", 14), ("align", 6),
+          ("insert", 14), ("hold", 5))
+
+
+def wrap_half_turn(yaw: float) -> float:
+    """Yaw wrapped to [-pi/2, pi/2): a parallel gripper is symmetric under a half turn."""
+    return (yaw + math.pi / 2) % math.pi - math.pi / 2
+
+
+class ScriptedExpert:
+    """Drives a ``PegInHoleEnv`` through one episode; call ``reset`` after each ``env.reset``.
+
+    ``act()`` returns the next action (5,) float32; after the last phase it keeps holding.
+    """
+
+    def __init__(self, env: PegInHoleEnv, config: ExpertConfig | None = None):
+        self.env = env
+        self.config = config or ExpertConfig()
+        self._rng = np.random.default_rng()
+
+    def reset(self, seed: int) -> None:
+        """Start a new plan for the current episode; ``seed`` draws the expert's noise."""
+        cfg = self.config
+        self._rng = np.random.default_rng(seed)
+        self._offset = self._rng.uniform(*cfg.grasp_offset_mm) / 1000.0
+        self._depth = self._rng.uniform(*cfg.grasp_depth_mm) / 1000.0
+        self._phase = 0
+        self._k = 0
+        pose = self.env.tcp_pose()
+        self._start = np.array([*pose, 0.0])
+        self._goal = self._goal_for(PHASES[0][0])
+        self._last = self._start.copy()
+
+    @property
+    def phase(self) -> str:
+        """Name of the current phase ("done" after the plan)."""
+        return PHASES[self._phase][0] if self._phase < len(PHASES) else "done"
+
+    def act(self) -> np.ndarray:
+        """Next action [x, y, z, yaw, gripper] (float32 (5,))."""
+        if self._phase >= len(PHASES):
+            return self._last.astype(np.float32)
+        name, n = PHASES[self._phase]
+        self._k += 1
+        target = self._start + (self._goal - self._start) * (self._k / n)
+        fine = name in ("align", "insert", "hold")
+        if fine:
+            # closed loop on the peg: it swings a little in the soft grip while carried, so re-aim
+            # the TCP every step to put the peg's current bottom centre over the hole
+            held = self.env.peg_bottom()[:2] - self.env.tcp_pose()[:2]
+            target[:2] = self.env.hole_xy - held
+        sigma = (self.config.fine_noise_mm if fine else self.config.free_noise_mm) / 1000.0
+        noisy = target.copy()
+        noisy[:3] += self._rng.normal(0.0, sigma, 3)
+        noisy[3] += self._rng.normal(0.0, self.config.yaw_noise_rad)
+        if self._k >= n:
+            self._phase += 1
+            self._k = 0
+            self._start = target
+            if self._phase < len(PHASES):
+                self._goal = self._goal_for(PHASES[self._phase][0])
+        self._last = noisy
+        return noisy.astype(np.float32)
+
+    def _goal_for(self, name: str) -> np.ndarray:
+        env, s = self.env, self._start
+        pos, rot = env.peg_pose()
+        if name in ("approach", "descend"):
+            yaw = wrap_half_turn(math.atan2(rot[1, 0], rot[0, 0]))
+            xy = pos[:2] + self._offset * np.array([math.cos(yaw), math.sin(yaw)])
+            top = pos[2] + PEG_HALF_LENGTH_M
+            z = top - self._depth + (0.05 if name == "approach" else 0.0)
+            return np.array([*xy, z, yaw, 0.0])
+        if name == "close":
+            return np.array([*s[:4], 1.0])
+        if name == "lift":
+            bottom = env.peg_bottom()
+            rise = rim_height_m(env.config.hole_depth_mm) + self.config.clearance_mm / 1000.0 - bottom[2]
+            return np.array([*s[:2], s[2] + rise, s[3], 1.0])
+        if name in ("carry", "align"):
+            # move the TCP so the peg's bottom centre (as held now) lands over the hole's centre
+            held = env.peg_bottom()[:2] - env.tcp_pose()[:2]
+            return np.array([*(env.hole_xy - held), s[2], s[3], 1.0])
+        if name == "insert":
+            floor = BASE_THICKNESS_M + self.config.floor_gap_mm / 1000.0
+            drop = env.peg_bottom()[2] - floor
+            return np.array([*s[:2], s[2] - drop, s[3], 1.0])
+        return s.copy()  # hold
