@@ -1,0 +1,100 @@
+"""Training data of the generator: sensor-model residuals at the model size, pose groups, force pairs.
+
+Pairs are formed between images of the same contact pose (the paper's rule): reference i and target
+j of one (object, pose_id) group, ΔF = F_j - F_i. A small share of pairs are no-contact frames
+(the bare sensor with fresh noise) with a random ΔF: a reference without contact must stay without
+contact whatever force is asked for.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm.auto import tqdm
+
+from controltac_il.generator.config import FZ_RANGE, SHEAR_MAX
+
+# ΔF range of the random no-contact pairs, per component (N): the validated range's span.
+NO_CONTACT_DELTA = np.array([2 * SHEAR_MAX, 2 * SHEAR_MAX, FZ_RANGE[1] - FZ_RANGE[0]], dtype=np.float32)
+
+
+@dataclass
+class PairData:
+    """residuals: uint8 (N, H, W, 3) at the model size; forces: float32 (N, 3) N;
+    groups: index arrays of images sharing a contact pose; no_contact: indices of no-contact frames."""
+
+    residuals: np.ndarray
+    forces: np.ndarray
+    groups: list[np.ndarray]
+    no_contact: np.ndarray
+
+    def __post_init__(self):
+        if self.residuals.dtype != np.uint8 or self.residuals.ndim != 4 or self.residuals.shape[-1] != 3:
+            raise ValueError(f"residuals must be uint8 (N, H, W, 3), got {self.residuals.dtype} {self.residuals.shape}")
+        if self.forces.shape != (len(self.residuals), 3):
+            raise ValueError(f"forces must be ({len(self.residuals)}, 3), got {self.forces.shape}")
+        if not self.groups:
+            raise ValueError("at least one pose group is needed to form pairs")
+
+
+def resize_residual(residual: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Resize a uint8 residual (H, W, 3) to ``size`` = (H, W) (area when shrinking, linear when growing)."""
+    h, w = size
+    if residual.shape[:2] == (h, w):
+        return residual
+    shrink = residual.shape[0] > h or residual.shape[1] > w
+    return cv2.resize(residual, (w, h), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
+
+
+def no_contact_residuals(meta: dict, count: int, seed: int) -> np.ndarray:
+    """``count`` residuals of the bare sensor (the dataset's spec and optics) with fresh noise, uint8."""
+    from controltac_il.tactile import SensorSpec, TactileSensor, to_residual
+
+    spec = SensorSpec(**meta["spec"]) if "spec" in meta else SensorSpec.gelsight_mini()
+    sensor = TactileSensor(spec, optics=meta.get("optics", "three_light"))
+    zero = np.zeros((spec.height, spec.width), np.float32)
+    rng = np.random.default_rng([seed, 7919])
+    return np.stack([to_residual(sensor.render_penetration(zero, noise_seed=int(s)), sensor.background)
+                     for s in rng.integers(0, 2**31, size=count)])
+
+
+def load_pair_data(root: str | Path, image_size: tuple[int, int], no_contact_frames: int = 32, seed: int = 0,
+                   progress: bool = True) -> PairData:
+    """Read a ``write_dataset`` folder into memory at ``image_size`` plus ``no_contact_frames`` bare frames."""
+    from controltac_il.tactile.dataset import load_dataset
+
+    ds = load_dataset(root)
+    res = [resize_residual(ds.residual(i), image_size)
+           for i in tqdm(range(len(ds)), desc="loading residuals", unit="img", disable=not progress)]
+    forces = ds.forces()
+    groups = [np.asarray(g, dtype=np.int64) for g in ds.pose_groups().values() if len(g) >= 1]
+    nc = np.zeros((0,), np.int64)
+    if no_contact_frames > 0:
+        extra = [resize_residual(r, image_size) for r in no_contact_residuals(ds.meta, no_contact_frames, seed)]
+        nc = np.arange(len(res), len(res) + len(extra))
+        res.extend(extra)
+        forces = np.concatenate([forces, np.zeros((len(extra), 3), np.float32)])
+    return PairData(np.stack(res), forces.astype(np.float32), groups, nc)
+
+
+def sample_pairs(data: PairData, batch: int, rng: np.random.Generator, no_contact_prob: float = 0.05):
+    """(ref_idx, tgt_idx, delta_force float32 (batch, 3)): pairs within a random pose group; with
+    probability ``no_contact_prob`` a no-contact pair with a random ΔF instead."""
+    gi = rng.integers(0, len(data.groups), size=batch)
+    ref = np.empty(batch, np.int64)
+    tgt = np.empty(batch, np.int64)
+    for k, g in enumerate(gi):
+        members = data.groups[g]
+        ref[k], tgt[k] = members[rng.integers(0, len(members), size=2)]
+    delta = data.forces[tgt] - data.forces[ref]
+    if len(data.no_contact) and no_contact_prob > 0:
+        nc = rng.random(batch) < no_contact_prob
+        m = int(nc.sum())
+        if m:
+            ref[nc] = rng.choice(data.no_contact, size=m)
+            tgt[nc] = rng.choice(data.no_contact, size=m)
+            delta[nc] = rng.uniform(-1, 1, size=(m, 3)).astype(np.float32) * NO_CONTACT_DELTA
+    return ref, tgt, delta.astype(np.float32)
