@@ -92,6 +92,6 @@ def test_config_rejects_unknown_and_bad_fields(tmp_path):
     with pytest.raises(ValueError, match="input_width"):
         EstimatorConfig(input_width=4)
     with pytest.raises(ValueError, match="widths"):
-        EstimatorConfig(widths=(8, 8))
+        EstimatorConfig(widths=(8, 0))
     cfg = EstimatorConfig(widths=[8, 8, 16, 16])
     assert EstimatorConfig.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg

@@ -16,8 +16,8 @@ class EstimatorConfig:
         input_height, input_width: pixel size the network sees; residuals of any other size are
             resized to it (area-averaged when shrinking), so one checkpoint reads 240x320 GelSight
             frames and the generator's 128x160 frames alike (same physical pad).
-        widths: output channels of the four stride-2 stages (each stage: a stride-2 conv and a
-            stride-1 conv, 3x3, BatchNorm, ReLU).
+        widths: output channels of the stride-2 stages, one entry per stage (each stage: a stride-2
+            conv and a stride-1 conv, 3x3, BatchNorm, ReLU); the input shrinks by 2**len(widths).
         hidden: width of the hidden layer of the regression head.
         residual_offset, residual_scale: a residual pixel r (0-255, 127 = no change) enters the
             network as (r - residual_offset) / residual_scale.
@@ -45,8 +45,8 @@ class EstimatorConfig:
             v = getattr(self, name)
             if not isinstance(v, int) or v < 16:
                 raise ValueError(f"EstimatorConfig.{name} must be an int >= 16 (pixels), got {v!r}")
-        if len(self.widths) != 4 or any(w < 1 for w in self.widths):
-            raise ValueError(f"EstimatorConfig.widths must be 4 positive ints (channels per stage), got {self.widths!r}")
+        if not 1 <= len(self.widths) <= 6 or any(w < 1 for w in self.widths):
+            raise ValueError(f"EstimatorConfig.widths must be 1 to 6 positive ints (channels per stage), got {self.widths!r}")
         if self.hidden < 1:
             raise ValueError(f"EstimatorConfig.hidden must be a positive int, got {self.hidden!r}")
         if not self.residual_scale > 0:

@@ -17,7 +17,7 @@ def _conv(cin: int, cout: int, stride: int) -> nn.Sequential:
 
 
 class ForceCNN(nn.Module):
-    """Four stride-2 stages, then mean- and max-pooled features into a two-layer head.
+    """Stride-2 conv stages (``config.widths``), then mean- and max-pooled features into a two-layer head.
 
     Global pooling keeps the reading independent of where the contact sits on the pad; the max
     pool keeps small, sharp contacts from being averaged away.
