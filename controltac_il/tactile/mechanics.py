@@ -88,12 +88,25 @@ def solve_depth(relief: np.ndarray, force_n: float, spec: SensorSpec, max_depth_
     return DepthSolution(float(depth), force_at(depth), iterations + 1 + info.function_calls)
 
 
+def smooth(field: np.ndarray, sigma_px: float, border: int = cv2.BORDER_REPLICATE) -> np.ndarray:
+    """Gaussian smoothing of a 2-D float field; wide kernels run on a subsampled grid (the result is
+    smooth on that scale anyway), so the cost stays flat as sigma grows."""
+    field = field.astype(np.float32, copy=False)
+    factor = int(min(8, sigma_px // 3))
+    if factor < 2:
+        return cv2.GaussianBlur(field, (0, 0), sigmaX=sigma_px, borderType=border)
+    h, w = field.shape
+    small = cv2.resize(field, (max(1, w // factor), max(1, h // factor)), interpolation=cv2.INTER_AREA)
+    small = cv2.GaussianBlur(small, (0, 0), sigmaX=sigma_px / factor, borderType=border)
+    return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
+
+
 def gel_surface(pen_mm: np.ndarray, spec: SensorSpec) -> np.ndarray:
     """Gel surface displacement (mm, into the sensor) for a penetration map: imprint blended with its
     elastic smoothing. float32 (H, W)."""
     sigma_px = spec.smoothing_mm / spec.mm_per_px
-    smooth = cv2.GaussianBlur(pen_mm.astype(np.float32), (0, 0), sigmaX=sigma_px, borderType=cv2.BORDER_REPLICATE)
-    return spec.conformity * pen_mm.astype(np.float32) + (1.0 - spec.conformity) * smooth
+    pen = pen_mm.astype(np.float32, copy=False)
+    return spec.conformity * pen + (1.0 - spec.conformity) * smooth(pen, sigma_px)
 
 
 @lru_cache(maxsize=8)
@@ -113,7 +126,7 @@ def apply_shear(surface_mm: np.ndarray, contact: np.ndarray, shear_n: tuple[floa
     if (fx == 0.0 and fy == 0.0) or not contact.any():
         return surface_mm
     sigma_px = spec.gel_thickness_mm / spec.mm_per_px / 2
-    w = cv2.GaussianBlur(contact.astype(np.float32), (0, 0), sigmaX=sigma_px, borderType=cv2.BORDER_CONSTANT)
+    w = smooth(contact.astype(np.float32), sigma_px, border=cv2.BORDER_CONSTANT)
     w = np.maximum(w / max(float(w.max()), 1e-6), contact.astype(np.float32))
     dx_px = spec.shear_compliance_mm_per_n * fx / spec.mm_per_px * w
     dy_px = -spec.shear_compliance_mm_per_n * fy / spec.mm_per_px * w  # y up = rows decreasing
