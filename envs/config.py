@@ -38,8 +38,8 @@ class PegInHoleConfig:
         empty = none rendered (fast physics-only runs).
     camera_size: (height, width) of every camera image in pixels.
     tactile: render one tactile image per finger ("left", "right") into the observation.
-    tactile_size: (height, width) of the tactile images; the pad keeps the GelSight Mini's physical
-        size, so fewer pixels means a coarser pitch.
+    tactile_size: (height, width) of the tactile images, aspect 3:4; the pad keeps the GelSight
+        Mini's physical size, so fewer pixels means a coarser pitch.
     tactile_optics: the sensor model's optics, "polynomial" (Taxim lookup) or "three_light".
     ray_stride: tactile rays are cast every ``ray_stride`` pixels and the gap to the peg is
         interpolated bilinearly (exact for the smooth peg surface to ~1e-3 mm at stride 2).
@@ -90,6 +90,10 @@ class PegInHoleConfig:
             raise ValueError(f"cameras must not repeat a name, got {self.cameras}")
         self.camera_size = _check_size("camera_size", self.camera_size)
         self.tactile_size = _check_size("tactile_size", self.tactile_size)
+        if abs(self.tactile_size[0] / self.tactile_size[1] - 0.75) > 0.015:
+            raise ValueError(
+                f"tactile_size must keep the GelSight Mini pad's 3:4 (height:width) aspect, e.g. (120, 160), "
+                f"got {self.tactile_size}")
         if self.tactile_optics not in OPTICS:
             raise ValueError(f"tactile_optics must be one of {OPTICS}, got {self.tactile_optics!r}")
         if not isinstance(self.ray_stride, int) or not 1 <= self.ray_stride <= 8:

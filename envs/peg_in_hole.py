@@ -79,13 +79,14 @@ class PegInHoleEnv:
 
             spec = SensorSpec.gelsight_mini().scaled(*cfg.tactile_size)
             flat = np.zeros(cfg.tactile_size, np.float32)
+            quiet_spec = dataclasses.replace(spec, noise_std=0.0)
             for k, s in enumerate(SENSORS):
-                self._sensors[s] = TactileSensor(spec, optics=cfg.tactile_optics, seed=k)
+                quiet = TactileSensor(quiet_spec, optics=cfg.tactile_optics)
+                self._sensors[s] = TactileSensor(spec, optics=cfg.tactile_optics, seed=k) if cfg.tactile_noise else quiet
                 self._rays[s] = PadRays(m, self.data, f"{s}_sensor", PEG_GROUP, cfg.tactile_size,
                                         spec.pad_size_mm, cfg.ray_stride)
                 # no-contact frame = the optics over a flat gel without noise (the optics' flat-gel
                 # response is not exactly the raw background for every optics model)
-                quiet = TactileSensor(dataclasses.replace(spec, noise_std=0.0), optics=cfg.tactile_optics)
                 self._backgrounds[s] = quiet.render_penetration(flat)
         self._rng = np.random.default_rng()
         self._episode_seed = 0

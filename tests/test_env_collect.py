@@ -1,0 +1,67 @@
+"""The demonstration recorder: files that the episode reader and the ACT dataset load."""
+
+import json
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import numpy as np
+import pytest
+
+from controltac_il.datasets.episodes import episode_paths, read_episode
+from envs import collect
+
+
+def test_recorded_episodes_load_with_the_episode_reader(tmp_path):
+    out = tmp_path / "demos"
+    rc = collect.main(["--episodes", "2", "--out", str(out), "--camera-size", "48", "64",
+                       "--tactile-size", "60", "80", "--seed", "10"])
+    assert rc == 0
+    paths = episode_paths(out)
+    assert [p.name for p in paths] == ["episode_0.hdf5", "episode_1.hdf5"]
+    info = json.loads((out / "collect_info.json").read_text())
+    assert info["episodes"] == 2 and info["attempts"] == 2 + len(info["failed_seeds"])
+    seeds = []
+    for p in paths:
+        ep = read_episode(p)
+        T = len(ep)
+        assert ep.sim and ep.attrs["success"] and ep.attrs["task"] == "peg_in_hole"
+        seeds.append(int(ep.attrs["seed"]))
+        assert ep.qpos.shape == (T, 5) and ep.action.shape == (T, 5)
+        assert set(ep.images) == {"third_view", "wrist"}
+        assert ep.images["wrist"].shape == (T, 48, 64, 3)
+        assert set(ep.tactile) == set(ep.tactile_background) == set(ep.force) == {"left", "right"}
+        assert ep.tactile["left"].shape == (T, 60, 80, 3)
+        assert ep.tactile_background["right"].shape == (60, 80, 3)
+        # force labels: zero before the grasp, the episode's grip force while holding
+        fz = ep.force["left"][:, 2]
+        assert fz[0] == 0.0
+        assert fz[-1] == pytest.approx(float(ep.attrs["grip_force_n"]), rel=0.1)
+        # frames in contact differ from the no-contact background far more than frames without
+        res = np.abs(ep.tactile["left"].astype(int) - ep.tactile_background["left"]).mean(axis=(1, 2, 3))
+        assert res[fz > 1.0].min() > res[fz == 0.0].max()
+        # frame t holds the observation before action t: the gripper closes after it is commanded
+        closing = int(np.argmax(ep.action[:, 4] > 0.0))
+        assert ep.qpos[closing, 4] < 0.02 and ep.qpos[closing + 1, 4] > 0.02 and ep.qpos[-1, 4] > 0.5
+        assert ep.action[:, 4].min() >= 0.0 and ep.action[:, 4].max() <= 1.0
+    assert seeds[0] >= 10 and seeds[1] > seeds[0]
+
+
+def test_recorded_episodes_feed_the_act_dataset(tmp_path):
+    from controltac_il.datasets.act_dataset import EpisodeDataset
+
+    out = tmp_path / "demos"
+    assert collect.main(["--episodes", "1", "--out", str(out), "--cameras", "wrist", "--camera-size", "48", "64",
+                         "--tactile-size", "60", "80"]) == 0
+    ds = EpisodeDataset(out, chunk_size=20, stats_path=tmp_path / "stats.json")
+    item = ds[0]
+    assert item["observation.qpos"].shape == (5,)
+    assert item["action"].shape == (20, 5)
+    assert tuple(item["observation.tactile.left"].shape) == (3, 60, 80)
+    assert tuple(item["observation.images.wrist"].shape) == (3, 48, 64)
+
+
+def test_bad_arguments_exit_with_usage_error(tmp_path):
+    with pytest.raises(SystemExit):
+        collect.main(["--episodes", "0", "--out", str(tmp_path)])
+    assert collect.main(["--episodes", "1", "--out", str(tmp_path), "--tactile-size", "60", "60"]) == 2

@@ -1,0 +1,143 @@
+"""Peg-in-hole scene: physics stability, the jammed peg, bad input, the expert."""
+
+import math
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import numpy as np
+import pytest
+
+from envs.config import PegInHoleConfig
+from envs.expert import ExpertConfig, ScriptedExpert, wrap_half_turn
+from envs.peg_in_hole import PegInHoleEnv
+
+
+@pytest.fixture(scope="module")
+def physics_env():
+    env = PegInHoleEnv(PegInHoleConfig(cameras=(), tactile=False))
+    yield env
+    env.close()
+
+
+def test_random_actions_stay_finite_without_warnings(physics_env):
+    env = physics_env
+    rng = np.random.default_rng(0)
+    low = np.array([*env.config.workspace_low, 0.0]) - 0.05
+    high = np.array([*env.config.workspace_high, 1.0]) + 0.05
+    env.reset(seed=1)
+    for _ in range(1000):
+        obs, reward, terminated, truncated, info = env.step(rng.uniform(low, high))
+        assert np.isfinite(obs["qpos"]).all()
+        assert all(np.isfinite(obs[f"force/{s}"]).all() for s in ("left", "right"))
+        if terminated or truncated:
+            env.reset(seed=int(rng.integers(1000)))
+    assert np.isfinite(env.data.qpos).all() and np.isfinite(env.data.qvel).all()
+    assert sum(w.number for w in env.data.warning) == 0
+
+
+def test_expert_inserts_peg_and_reports_success(physics_env):
+    env = physics_env
+    expert = ScriptedExpert(env)
+    for seed in (0, 1):
+        obs, info = env.reset(seed=seed)
+        assert not info["success"] and info["insertion_mm"] == 0.0
+        expert.reset(seed)
+        for _ in range(env.config.max_steps):
+            obs, reward, terminated, truncated, info = env.step(expert.act())
+            if terminated or truncated:
+                break
+        assert terminated and info["success"] and reward == 1.0
+        assert info["insertion_mm"] >= env.config.success_depth_mm
+        # the peg really is in the hole: its bottom within the hole's radius of the hole's centre
+        assert np.linalg.norm(env.peg_bottom()[:2] - env.hole_xy) < env.config.hole_diameter_mm / 2000
+        # the held peg is squeezed with the episode's grip force
+        assert obs["force/left"][2] == pytest.approx(info["grip_force_n"], rel=0.05)
+
+
+def test_jammed_peg_keeps_penetration_bounded(physics_env):
+    env = physics_env
+    expert = ScriptedExpert(env)
+    env.reset(seed=3)
+    expert.reset(3)
+    while expert.phase != "align":
+        env.step(expert.act())
+    z, yaw = env.tcp_pose()[2:]
+    held = env.peg_bottom()[:2] - env.tcp_pose()[:2]
+    over_rim = env.hole_xy + np.array([0.015, 0.0]) - held  # peg axis on the rim circle
+    for _ in range(10):
+        env.step([*over_rim, z, yaw, 1.0])
+    rim = env.config.hole_depth_mm / 1000 + 0.008
+    worst = 0.0
+    for _ in range(30):  # drive far below the rim: the servo pushes with its 40 N limit
+        obs, _, terminated, _, info = env.step([*over_rim, 0.0, yaw, 1.0])
+        worst = max(worst, info["max_penetration_mm"])
+        assert info["clipped"]  # z = 0 is below the workspace
+        assert not terminated
+    assert 0.0 < worst < 3.0
+    assert env.peg_bottom()[2] > rim - 0.003  # the peg sits on the rim, it did not pass through it
+    assert np.isfinite(env.data.qpos).all()
+
+
+@pytest.mark.parametrize("action", [np.zeros(4), np.zeros(6), np.zeros((1, 5)), "abc", [0, 0, 0.1, 0, None]])
+def test_bad_action_shape_is_an_error(physics_env, action):
+    physics_env.reset(seed=0)
+    with pytest.raises(ValueError, match="action"):
+        physics_env.step(action)
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf])
+def test_non_finite_action_is_an_error(physics_env, bad):
+    physics_env.reset(seed=0)
+    with pytest.raises(ValueError, match="finite"):
+        physics_env.step([0.0, 0.0, 0.1, bad, 0.0])
+
+
+def test_out_of_workspace_target_is_clipped_and_flagged(physics_env):
+    env = physics_env
+    env.reset(seed=0)
+    _, _, _, _, info = env.step([0.0, 0.0, 0.15, 0.0, 0.0])
+    assert not info["clipped"]
+    for _ in range(5):
+        _, _, _, _, info = env.step([1.0, 0.0, 0.15, 0.0, 2.0])
+        assert info["clipped"]
+    high_x = env.config.workspace_high[0]
+    assert env.tcp_pose()[0] == pytest.approx(high_x, abs=2e-3)  # it went to the bound, not beyond
+    clipped, flag = env.check_action([0.0, -9.0, 0.1, 9.0, -1.0])
+    assert flag and clipped.tolist() == [0.0, env.config.workspace_low[1], 0.1, env.config.workspace_high[3], 0.0]
+
+
+def test_reset_is_deterministic_and_randomises_the_scene(physics_env):
+    env = physics_env
+    _, a = env.reset(seed=5)
+    peg_a, hole_a = env.peg_pose()[0], env.hole_xy.copy()
+    _, b = env.reset(seed=5)
+    assert np.array_equal(env.peg_pose()[0], peg_a) and np.array_equal(env.hole_xy, hole_a)
+    assert a["grip_force_n"] == b["grip_force_n"]
+    _, c = env.reset(seed=6)
+    assert not np.array_equal(env.hole_xy, hole_a) and c["grip_force_n"] != a["grip_force_n"]
+    lo, hi = env.config.grip_force_range_n
+    assert lo <= c["grip_force_n"] <= hi
+
+
+@pytest.mark.parametrize("kwargs, field", [
+    ({"cameras": ("top",)}, "cameras"),
+    ({"camera_size": (96,)}, "camera_size"),
+    ({"tactile_size": (60, 60)}, "tactile_size"),
+    ({"control_hz": 7.0}, "control_hz"),
+    ({"hole_diameter_mm": 24.0}, "hole_diameter_mm"),
+    ({"grip_force_range_n": (5.0, 2.0)}, "grip_force_range_n"),
+    ({"tactile_optics": "phong"}, "tactile_optics"),
+    ({"workspace_low": (0, 0, 0)}, "workspace_low"),
+])
+def test_config_rejects_bad_fields(kwargs, field):
+    with pytest.raises(ValueError, match=field):
+        PegInHoleConfig(**kwargs)
+
+
+def test_expert_config_and_yaw_wrap():
+    with pytest.raises(ValueError, match="grasp_depth_mm"):
+        ExpertConfig(grasp_depth_mm=(2.0, 5.0))
+    assert wrap_half_turn(math.pi * 0.75) == pytest.approx(-math.pi / 4)
+    assert wrap_half_turn(-math.pi * 0.75) == pytest.approx(math.pi / 4)
+    assert wrap_half_turn(0.3) == pytest.approx(0.3)
