@@ -1,0 +1,108 @@
+"""Universal Robots arm through ur-rtde.
+
+Targets are streamed with ``servoL`` (lookahead time and gain from the config; each command is active
+for one control period); the TCP pose comes from ``RTDEReceiveInterface.getActualTCPPose`` (m, rotation
+vector). Every cycle checks the connection, the control script, protective and emergency stops and the
+safety mode, and raises :class:`ArmFault` naming what it found. ``stop`` calls ``servoStop``; ``close``
+calls ``stopScript`` and disconnects (so on exit: servoStop, then stopScript).
+
+Tests replace the two RTDE interfaces at the SDK boundary (``control`` / ``receive`` arguments): they
+need a robot or URSim, which cannot run here.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from hardware.interfaces import Arm, ArmFault, ArmState, Clock, WallClock
+from hardware.pose import tool_rotation, yaw_of
+
+SAFETY_MODES = {1: "normal", 2: "reduced", 3: "protective stop", 4: "recovery", 5: "safeguard stop",
+                6: "system emergency stop", 7: "robot emergency stop", 8: "violation", 9: "fault",
+                10: "validate joint id", 11: "undefined safety mode", 12: "automatic mode safeguard stop",
+                13: "system three-position enabling stop"}
+MOVING_SAFETY_MODES = (1, 2)
+
+
+class URArm(Arm):
+    """UR arm streamed with servoL.
+
+    ip: controller address. tool_rotvec: tool orientation at yaw 0 as a rotation vector (default
+    pointing down: (pi, 0, 0)). period_s: how long each servoL target is active (the control period).
+    lookahead_time: servoL smoothing, 0.03-0.2 s. gain: servoL proportional gain, 100-2000.
+    speed / acceleration: passed to servoL (unused by the controller in servo mode) and servoStop.
+    control / receive: RTDEControlInterface / RTDEReceiveInterface (created from ``ip`` when None).
+    """
+
+    def __init__(self, ip: str, tool_rotvec=(np.pi, 0.0, 0.0), period_s: float = 0.1, lookahead_time: float = 0.1,
+                 gain: float = 300.0, speed: float = 0.25, acceleration: float = 1.2, control=None, receive=None,
+                 clock: Clock | None = None):
+        if not 0.03 <= lookahead_time <= 0.2:
+            raise ValueError(f"lookahead_time must be in [0.03, 0.2] s, got {lookahead_time}")
+        if not 100 <= gain <= 2000:
+            raise ValueError(f"gain must be in [100, 2000], got {gain}")
+        if not period_s > 0:
+            raise ValueError(f"period_s must be positive, got {period_s}")
+        self.ip, self.period_s, self.lookahead_time, self.gain = ip, period_s, lookahead_time, gain
+        self.speed, self.acceleration = speed, acceleration
+        self.r0 = Rotation.from_rotvec(np.asarray(tool_rotvec, dtype=float))
+        self.control, self.receive = control, receive
+        self.clock = clock or WallClock()
+
+    def _fault(self, msg: str) -> ArmFault:
+        return ArmFault(f"UR {self.ip}: {msg}")
+
+    def connect(self) -> None:
+        if self.receive is None:
+            import rtde_receive
+
+            self.receive = rtde_receive.RTDEReceiveInterface(self.ip)
+        if self.control is None:
+            import rtde_control
+
+            self.control = rtde_control.RTDEControlInterface(self.ip)
+        self.check()
+
+    def check(self) -> None:
+        """Raise ArmFault on a lost connection, a stopped script, a protective / emergency stop or a safety mode that cannot move."""
+        if self.receive is None or self.control is None:
+            raise self._fault("not connected (call connect())")
+        if not self.receive.isConnected() or not self.control.isConnected():
+            raise self._fault("RTDE connection lost")
+        if self.receive.isEmergencyStopped():
+            raise self._fault("emergency stop is active")
+        if self.receive.isProtectiveStopped():
+            raise self._fault("protective stop (collision or limit); unlock it on the teach pendant")
+        mode = self.receive.getSafetyMode()
+        if mode not in MOVING_SAFETY_MODES:
+            raise self._fault(f"safety mode {mode} ({SAFETY_MODES.get(mode, 'unknown')})")
+        if not self.control.isProgramRunning():
+            raise self._fault("the RTDE control script is not running (stopped from the pendant?)")
+
+    def state(self) -> ArmState:
+        self.check()
+        x, y, z, rx, ry, rz = self.receive.getActualTCPPose()
+        yaw = yaw_of(Rotation.from_rotvec([rx, ry, rz]), self.r0)
+        return ArmState(np.array([x, y, z, yaw]), self.clock.now())
+
+    def servo(self, target) -> None:
+        self.check()
+        x, y, z, yaw = (float(v) for v in target)
+        pose = [x, y, z, *tool_rotation(yaw, self.r0).as_rotvec().tolist()]
+        ok = self.control.servoL(pose, self.speed, self.acceleration, self.period_s, self.lookahead_time, self.gain)
+        if ok is False:
+            raise self._fault(f"servoL rejected the target {np.round(pose, 4).tolist()}")
+
+    def stop(self) -> None:
+        """servoStop: decelerate and leave servo mode."""
+        if self.control is not None:
+            self.control.servoStop(self.acceleration * 4)
+
+    def close(self) -> None:
+        """stopScript and disconnect both interfaces."""
+        if self.control is not None:
+            self.control.stopScript()
+            self.control.disconnect()
+        if self.receive is not None:
+            self.receive.disconnect()

@@ -1,0 +1,152 @@
+"""UFACTORY xArm (5/6/7) and its gripper through xarm-python-sdk.
+
+The arm is streamed in servo mode (mode 1, ``set_servo_cartesian``: the controller executes only the
+newest target). Error and warning codes are read every cycle (``get_err_warn_code``); an error code,
+a non-zero API return code or a lost connection raises :class:`ArmFault` naming the code and its
+meaning (the SDK's own code table). On connect, errors and warnings are cleared and motion enabled;
+``stop`` puts the arm in the stop state (4), and ``close`` disconnects.
+
+Tests replace ``XArmAPI`` at the SDK boundary (the ``api`` argument): its controller needs a real arm
+or UFACTORY's simulator, which cannot run here.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from hardware.interfaces import Arm, ArmFault, ArmState, Clock, Gripper, GripperState, HardwareError, WallClock
+from hardware.pose import tool_rotation, yaw_of
+
+MODE_SERVO = 1
+STATE_MOTION, STATE_STOP = 0, 4
+
+
+def _describe(code: int, kind: str) -> str:
+    try:
+        from xarm.core.config.x_code import ControllerError, ControllerWarn
+
+        title = (ControllerError if kind == "error" else ControllerWarn)(code, status=0).title
+        return title.get("en", "") if isinstance(title, dict) else str(title)
+    except Exception:  # noqa: BLE001 - the description is a courtesy; the code is what matters
+        return ""
+
+
+class XArm(Arm):
+    """xArm arm streamed in servo mode.
+
+    ip: controller address. tool_rpy: (roll, pitch) of the tool at yaw 0, rad (default pointing down:
+    (pi, 0)). api: an ``xarm.wrapper.XArmAPI`` (created from ``ip`` on connect when None).
+    stop_on_warning: treat controller warnings as faults too (default: report them in ArmState only).
+    """
+
+    def __init__(self, ip: str, tool_rpy: tuple[float, float] = (np.pi, 0.0), api=None,
+                 stop_on_warning: bool = False, clock: Clock | None = None):
+        self.ip, self.api, self.stop_on_warning = ip, api, stop_on_warning
+        self.r0 = Rotation.from_euler("xyz", [tool_rpy[0], tool_rpy[1], 0.0])
+        self.clock = clock or WallClock()
+        self._codes = (0, 0)
+
+    def _fault(self, msg: str) -> ArmFault:
+        return ArmFault(f"xArm {self.ip}: {msg}")
+
+    def _ok(self, code: int, what: str) -> None:
+        if code != 0:
+            raise self._fault(f"{what} returned API code {code}")
+
+    def connect(self) -> None:
+        if self.api is None:
+            from xarm.wrapper import XArmAPI
+
+            self.api = XArmAPI(self.ip, is_radian=True)
+        if not self.api.connected:
+            raise self._fault("not connected (check the IP and the network)")
+        self.api.clean_error()
+        self.api.clean_warn()
+        self._ok(self.api.motion_enable(enable=True), "motion_enable")
+        self._ok(self.api.set_mode(MODE_SERVO), "set_mode(1)")
+        self._ok(self.api.set_state(STATE_MOTION), "set_state(0)")
+        self.check()
+
+    def check(self) -> tuple[int, int]:
+        """Read (error, warning) codes; raise ArmFault on an error (or a warning with stop_on_warning)."""
+        if self.api is None or not self.api.connected:
+            raise self._fault("connection lost")
+        code, (err, warn) = self.api.get_err_warn_code()
+        self._ok(code, "get_err_warn_code")
+        if err:
+            raise self._fault(f"controller error code {err} ({_describe(err, 'error')}); clear it on the controller")
+        if warn and self.stop_on_warning:
+            raise self._fault(f"controller warning code {warn} ({_describe(warn, 'warn')})")
+        self._codes = (err, warn)
+        return self._codes
+
+    def state(self) -> ArmState:
+        err, warn = self.check()
+        code, pose = self.api.get_position(is_radian=True)
+        self._ok(code, "get_position")
+        x, y, z, roll, pitch, yaw = pose
+        r = Rotation.from_euler("xyz", [roll, pitch, yaw])
+        return ArmState(np.array([x / 1000, y / 1000, z / 1000, yaw_of(r, self.r0)]), self.clock.now(), err, warn)
+
+    def servo(self, target) -> None:
+        self.check()
+        x, y, z, yaw = (float(v) for v in target)
+        roll, pitch, yaw_x = tool_rotation(yaw, self.r0).as_euler("xyz")
+        code = self.api.set_servo_cartesian([x * 1000, y * 1000, z * 1000, roll, pitch, yaw_x], is_radian=True)
+        self._ok(code, "set_servo_cartesian")
+
+    def stop(self) -> None:
+        """Stop state (4): the controller drops the servo target and halts."""
+        if self.api is not None:
+            self.api.set_state(STATE_STOP)
+
+    def close(self) -> None:
+        if self.api is not None:
+            self.api.disconnect()
+
+
+class XArmGripper(Gripper):
+    """The xArm gripper, on the same SDK connection as the arm (pass ``arm``; connect the arm first).
+
+    open_position / closed_position: SDK gripper units (850 open, 0 closed by default). speed: pulse/s.
+    """
+
+    def __init__(self, arm: XArm, open_position: float = 850.0, closed_position: float = 0.0,
+                 speed: float = 5000.0, clock: Clock | None = None):
+        if open_position == closed_position:
+            raise ValueError("open_position and closed_position must differ (gripper units)")
+        self.arm, self.open_position, self.closed_position, self.speed = arm, open_position, closed_position, speed
+        self.clock = clock or WallClock()
+
+    def _api(self):
+        if self.arm.api is None:
+            raise HardwareError(f"xArm gripper {self.arm.ip}: connect the arm first")
+        return self.arm.api
+
+    def _check(self, code: int, what: str) -> None:
+        if code != 0:
+            _, err = self._api().get_gripper_err_code()
+            raise HardwareError(f"xArm gripper {self.arm.ip}: {what} returned API code {code} (gripper error {err})")
+
+    def connect(self) -> None:
+        api = self._api()
+        api.clean_gripper_error()
+        self._check(api.set_gripper_mode(0), "set_gripper_mode(0)")
+        self._check(api.set_gripper_enable(True), "set_gripper_enable")
+        self._check(api.set_gripper_speed(self.speed), "set_gripper_speed")
+
+    def command(self, closing: float) -> None:
+        if not 0.0 <= closing <= 1.0:
+            raise ValueError(f"gripper command must be in [0, 1] (0 open, 1 closed), got {closing}")
+        pos = self.open_position + closing * (self.closed_position - self.open_position)
+        self._check(self._api().set_gripper_position(pos, wait=False), "set_gripper_position")
+
+    def state(self) -> GripperState:
+        code, pos = self._api().get_gripper_position()
+        self._check(code, "get_gripper_position")
+        frac = (pos - self.open_position) / (self.closed_position - self.open_position)
+        return GripperState(float(np.clip(frac, 0.0, 1.0)), self.clock.now())
+
+    def stop(self) -> None:
+        """Nothing to send: the gripper holds its last target (a gripped object stays)."""
