@@ -119,7 +119,7 @@ class ACTConfig:
                         n_heads=8, dim_feedforward=3200, n_encoder_layers=4, n_decoder_layers=1,
                         n_vae_encoder_layers=4, latent_dim=32, lr=1e-5, lr_backbone=1e-5)
         elif preset == "cpu":
-            base = dict(backbone="small_cnn", camera_size=(72, 96), tactile_size=(60, 80), dim_model=128,
+            base = dict(backbone="small_cnn", camera_size=(60, 80), tactile_size=(48, 64), dim_model=128,
                         n_heads=4, dim_feedforward=512, n_encoder_layers=2, n_decoder_layers=1,
                         n_vae_encoder_layers=2, latent_dim=16, dropout=0.1, lr=3e-4, lr_backbone=3e-4)
         else:

@@ -1,0 +1,76 @@
+"""Deploy a trained ACT: checks before motion, evaluation in the MuJoCo scene, runs on a robot.
+
+Everything goes through ``hardware.control_loop.ControlLoop`` (10 Hz, temporal ensembling, safety
+filter, stop on fault): in simulation with the MuJoCo-backed devices of ``envs.sim_robot`` and a
+virtual clock (inference "sync", deterministic), on a robot with the adapters named in a setup YAML.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from policies.act.checkpoint import CheckpointError
+from policies.act.policy import ACTPolicy
+from policies.act.training import resolve_checkpoint
+
+
+def load_policy(checkpoint: str | Path | ACTPolicy, device: str = "cpu") -> ACTPolicy:
+    """An :class:`ACTPolicy` from a checkpoint folder or a training output folder (best, else last)."""
+    if isinstance(checkpoint, ACTPolicy):
+        return checkpoint
+    return ACTPolicy.from_pretrained(resolve_checkpoint(checkpoint), device=device)
+
+
+def check_setup(policy: ACTPolicy, cameras, tactile, action_dim: int = 5, state_dim: int = 5) -> None:
+    """Raise ValueError (before anything moves) when the robot set-up lacks what the policy expects."""
+    cfg = policy.config
+    missing = [f"camera {c!r}" for c in cfg.camera_names if c not in cameras]
+    missing += [f"tactile sensor {s!r}" for s in cfg.tactile_names if s not in tactile]
+    if missing:
+        raise ValueError(f"the set-up has no {', '.join(missing)} that the checkpoint expects "
+                         f"(set-up: cameras {sorted(cameras)}, tactile {sorted(tactile)})")
+    if cfg.action_dim != action_dim:
+        raise ValueError(f"the checkpoint predicts actions of dimension {cfg.action_dim}; the robot takes {action_dim} "
+                         f"([x, y, z, yaw, gripper])")
+    if cfg.state_dim != state_dim:
+        raise ValueError(f"the checkpoint reads qpos of dimension {cfg.state_dim}; the robot gives {state_dim}")
+
+
+def evaluate_in_sim(checkpoint, episodes: int = 50, seed: int = 100_000,
+                    grip_force_range: tuple[float, float] | None = None, env_overrides: dict | None = None,
+                    progress: bool = True) -> dict:
+    """Success rate of the policy over ``episodes`` seeded scene episodes (seeds seed .. seed+episodes-1).
+
+    grip_force_range: per-finger grip force range (N) of the test episodes; None = the scene default
+        (the range the demos were collected with). env_overrides: other PegInHoleConfig fields.
+    Returns successes, episodes, success_rate, wilson95, per-episode outcomes and loop statistics.
+    """
+    from controltac_il.pipeline import wilson_interval
+    from envs.config import PegInHoleConfig
+    from envs.sim_robot import run_policy_episode
+
+    policy = load_policy(checkpoint)
+    cfg = policy.config
+    overrides = dict(env_overrides or {})
+    if grip_force_range is not None:
+        overrides["grip_force_range_n"] = tuple(grip_force_range)
+    env_config = replace(PegInHoleConfig(), **overrides)
+    check_setup(policy, env_config.cameras, ("left", "right") if env_config.tactile else ())
+    outcomes, inference_ms = [], []
+    for i in tqdm(range(episodes), desc="evaluate", disable=not progress, dynamic_ncols=True):
+        result = run_policy_episode(policy, env_config, seed=seed + i, chunk_size=cfg.chunk_size,
+                                    ensemble_k=cfg.temporal_ensemble_coeff)
+        outcomes.append({"seed": seed + i, "success": bool(result["success"]), "steps": int(result["steps"])})
+        inference_ms.extend(result.get("inference_ms", []))
+    k = sum(o["success"] for o in outcomes)
+    lo, hi = wilson_interval(k, episodes)
+    return {"successes": k, "episodes": episodes, "success_rate": k / episodes if episodes else 0.0,
+            "wilson95": [lo, hi], "grip_force_range_n": list(env_config.grip_force_range_n),
+            "inference_ms_p50": float(np.median(inference_ms)) if inference_ms else None, "outcomes": outcomes}
+
+
+__all__ = ["load_policy", "check_setup", "evaluate_in_sim", "CheckpointError"]
