@@ -1,0 +1,230 @@
+"""Generator building blocks on random tensors: configs, autoencoder, DiT, DDIM sampler, checkpoints, train states."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from controltac_il.generator.autoencoder import TactileAutoencoder
+from controltac_il.generator.checkpoint import (
+    AE_FILE,
+    CONFIG_FILE,
+    DIT_FILE,
+    checkpoint_hash,
+    load_checkpoint,
+    save_checkpoint,
+)
+from controltac_il.generator.config import AutoencoderConfig, DiffusionConfig, DiTConfig, GeneratorConfig
+from controltac_il.generator.dit import ForceDiT
+from controltac_il.generator.pipeline import ForceGenerator, residual_to_unit, unit_to_residual
+from controltac_il.generator.sampler import ddim_sample, make_scheduler, seeded_noise
+from controltac_il.generator.train import load_state, lr_at, save_state
+
+SMALL_AE = AutoencoderConfig(image_size=(32, 40), channels=(8, 8, 8), stem_channels=4, latent_channels=4)
+SMALL_DIT = DiTConfig(in_channels=4, patch_size=1, hidden_size=16, depth=1, num_heads=2)
+
+
+def small_config(**kw) -> GeneratorConfig:
+    return GeneratorConfig(autoencoder=SMALL_AE, dit=SMALL_DIT, diffusion=DiffusionConfig(default_steps=3), **kw)
+
+
+def randomised(module: torch.nn.Module, seed: int = 0) -> torch.nn.Module:
+    """Give every parameter random values (zero-initialised gates would hide the conditioning)."""
+    g = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for p in module.parameters():
+            p.copy_(torch.randn(p.shape, generator=g) * 0.2)
+    return module
+
+
+# -- configs ---------------------------------------------------------------------------------
+
+def test_config_round_trip_through_json():
+    cfg = small_config(latent_scale=(1.0, 2.0, 3.0, 4.0), anchor_to_reference=True)
+    again = GeneratorConfig.from_dict(json.loads(json.dumps(cfg.to_dict())))
+    assert again == cfg
+    assert again.autoencoder.latent_size == (4, 5)
+
+
+@pytest.mark.parametrize("kwargs, field", [
+    (dict(image_size=(30, 40)), "image_size"),
+    (dict(channels=()), "channels"),
+    (dict(latent_channels=0), "latent_channels"),
+    (dict(stem_channels=2.5), "stem_channels"),
+])
+def test_autoencoder_config_rejects_bad_fields(kwargs, field):
+    with pytest.raises(ValueError, match=field):
+        AutoencoderConfig(**kwargs)
+
+
+def test_dit_and_generator_config_reject_bad_fields():
+    with pytest.raises(ValueError, match="num_heads"):
+        DiTConfig(hidden_size=30, num_heads=4)
+    with pytest.raises(ValueError, match="force_scale"):
+        DiTConfig(force_scale=(1.0, 0.0, 1.0))
+    with pytest.raises(ValueError, match="prediction_type"):
+        DiffusionConfig(prediction_type="v")
+    with pytest.raises(ValueError, match="in_channels"):
+        GeneratorConfig(autoencoder=SMALL_AE, dit=DiTConfig(in_channels=8, patch_size=1))
+    with pytest.raises(ValueError, match="patch_size"):
+        GeneratorConfig(autoencoder=SMALL_AE, dit=DiTConfig(in_channels=4, patch_size=2))
+    with pytest.raises(ValueError, match="delta_scale"):
+        small_config(delta_scale=(1.0, 1.0))
+    with pytest.raises(ValueError, match="unknown fields"):
+        GeneratorConfig.from_dict({**small_config().to_dict(), "extra": 1})
+
+
+# -- networks ----------------------------------------------------------------------------------
+
+def test_autoencoder_shapes_and_compression_factor():
+    ae = TactileAutoencoder(AutoencoderConfig())
+    x = torch.randn(2, 3, 128, 160)
+    z = ae.encode(x)
+    assert z.shape == (2, 8, 16, 20)
+    assert ae.decode(z).shape == x.shape
+
+
+def test_dit_starts_as_zero_predictor_and_uses_force():
+    dit = ForceDiT(SMALL_DIT)
+    x = torch.randn(3, 4, 4, 5)
+    out = dit(x, x, torch.tensor([0, 10, 999]), torch.zeros(3, 3))
+    assert out.shape == x.shape and torch.count_nonzero(out) == 0  # adaLN-Zero / zero final layer
+    randomised(dit)
+    a = dit(x, x, torch.full((3,), 500), torch.zeros(3, 3))
+    b = dit(x, x, torch.full((3,), 500), torch.tensor([[0.0, 0.0, 5.0]] * 3))
+    c = dit(x, torch.zeros_like(x), torch.full((3,), 500), torch.zeros(3, 3))
+    assert not torch.allclose(a, b) and not torch.allclose(a, c)  # ΔF and the reference latent both condition
+
+
+def test_residual_scaling_round_trip():
+    r = torch.randint(0, 256, (2, 8, 8, 3), dtype=torch.uint8)
+    x = residual_to_unit(r)
+    assert x.shape == (2, 3, 8, 8) and float(residual_to_unit(torch.full((1, 1, 1, 3), 127, dtype=torch.uint8)).abs().max()) == 0
+    assert torch.equal(unit_to_residual(x), r)
+
+
+# -- sampler -----------------------------------------------------------------------------------
+
+def test_seeded_noise_rows_depend_only_on_their_seed():
+    a = seeded_noise([3, 4, 3], (2, 2))
+    assert torch.equal(a[0], a[2]) and not torch.equal(a[0], a[1])
+    assert torch.equal(seeded_noise([4], (2, 2))[0], a[1])
+
+
+@pytest.mark.parametrize("prediction_type", ["epsilon", "sample"])
+def test_ddim_any_step_count_is_deterministic_and_finite(prediction_type):
+    dit = randomised(ForceDiT(SMALL_DIT)).eval()
+    sched = make_scheduler(DiffusionConfig(prediction_type=prediction_type))
+    z = torch.randn(2, 4, 4, 5)
+    noise = seeded_noise([0, 1], (4, 4, 5))
+    for steps in (1, 2, 7):
+        a = ddim_sample(dit, sched, z, torch.ones(2, 3), noise, steps)
+        b = ddim_sample(dit, sched, z, torch.ones(2, 3), noise, steps)
+        assert torch.isfinite(a).all() and torch.equal(a, b)
+        assert len(sched.timesteps) == steps and int(sched.timesteps[0]) == 999
+
+
+def test_one_step_sample_prediction_returns_the_prediction():
+    """With x0-prediction and one DDIM step the sampler must return the model's x0 exactly (alpha_prev = 1)."""
+    dit = randomised(ForceDiT(SMALL_DIT)).eval()
+    sched = make_scheduler(DiffusionConfig(prediction_type="sample"))
+    z, noise, f = torch.randn(2, 4, 4, 5), torch.randn(2, 4, 4, 5), torch.randn(2, 3)
+    out = ddim_sample(dit, sched, z, f, noise, 1)
+    with torch.no_grad():
+        direct = dit(noise, z, torch.full((2,), 999), f)
+    torch.testing.assert_close(out, direct, rtol=1e-5, atol=1e-5)
+
+
+# -- checkpoints ---------------------------------------------------------------------------------
+
+def make_checkpoint(tmp_path, **cfg_kw):
+    cfg = small_config(**cfg_kw)
+    ae = randomised(TactileAutoencoder(cfg.autoencoder), 1)
+    dit = randomised(ForceDiT(cfg.dit), 2)
+    path = save_checkpoint(tmp_path / "ckpt", cfg, ae, dit, dtype=torch.float16, model_card={"note": "test"})
+    return path, cfg, ae, dit
+
+
+def test_checkpoint_round_trip_fp16(tmp_path):
+    path, cfg, ae, dit = make_checkpoint(tmp_path)
+    cfg2, ae2, dit2 = load_checkpoint(path)
+    assert cfg2 == cfg
+    for a, b in zip(ae.state_dict().values(), ae2.state_dict().values()):
+        torch.testing.assert_close(b, a.half().float())
+    assert all(v.dtype == torch.float32 for v in dit2.state_dict().values())
+    h = checkpoint_hash(path)
+    assert len(h) == 16 and h == checkpoint_hash(path)
+    (path / CONFIG_FILE).write_text((path / CONFIG_FILE).read_text().replace('"default_steps": 3', '"default_steps": 4'))
+    assert checkpoint_hash(path) != h
+
+
+def test_checkpoint_config_mismatch_is_a_clear_error(tmp_path):
+    path, cfg, _, _ = make_checkpoint(tmp_path)
+    d = cfg.to_dict()
+    d["dit"]["hidden_size"] = 32
+    (path / CONFIG_FILE).write_text(json.dumps(d))
+    with pytest.raises(ValueError, match="shape mismatch.*hidden|does not match"):
+        load_checkpoint(path)
+    d["dit"]["hidden_size"] = 16
+    d["dit"]["depth"] = 2
+    (path / CONFIG_FILE).write_text(json.dumps(d))
+    with pytest.raises(ValueError, match="missing"):
+        load_checkpoint(path)
+
+
+def test_checkpoint_refuses_pickles_and_missing_files(tmp_path):
+    path, _, _, dit = make_checkpoint(tmp_path)
+    torch.save(dit.state_dict(), path / DIT_FILE)  # a pickle under the safetensors name
+    with pytest.raises(Exception) as e:
+        load_checkpoint(path)
+    assert not isinstance(e.value, (AttributeError, TypeError))
+    (path / AE_FILE).unlink()
+    with pytest.raises(FileNotFoundError, match="autoencoder"):
+        load_checkpoint(path)
+    with pytest.raises(FileNotFoundError, match="not found"):
+        ForceGenerator.from_pretrained(tmp_path / "nowhere")
+
+
+def test_generator_on_a_small_random_checkpoint(tmp_path):
+    """The API's plumbing (resizing, batching, seeds, anchoring) on a tiny random model."""
+    path, _, _, _ = make_checkpoint(tmp_path, anchor_to_reference=True)
+    gen = ForceGenerator.from_pretrained(path)
+    ref = np.random.default_rng(0).integers(100, 150, size=(5, 30, 40, 3)).astype(np.uint8)
+    df = np.tile([[0.0, 0.0, 2.0]], (5, 1))
+    out = gen.generate(ref, df, steps=2, seed=1, batch_size=2)
+    assert out.shape == ref.shape and out.dtype == np.uint8
+    np.testing.assert_array_equal(out[3], gen.generate(ref[3:4], df[3:4], steps=2, seed=1)[0])
+    per_sample = gen.generate(ref, df, steps=2, seed=[7, 8, 9, 10, 11])
+    np.testing.assert_array_equal(per_sample[2], gen.generate(ref[2:3], df[2:3], steps=2, seed=9)[0])
+
+
+# -- training states -------------------------------------------------------------------------------
+
+def test_train_state_round_trip_restores_optimizer(tmp_path):
+    torch.manual_seed(0)
+    m = torch.nn.Linear(3, 2)
+    opt = torch.optim.AdamW(m.parameters(), lr=1e-2)
+    for _ in range(3):
+        opt.zero_grad()
+        m(torch.randn(4, 3)).square().mean().backward()
+        opt.step()
+    save_state(tmp_path / "s", {"m": m}, opt, {"step": 3})
+    m2 = torch.nn.Linear(3, 2)
+    opt2 = torch.optim.AdamW(m2.parameters(), lr=1.0)
+    meta = load_state(tmp_path / "s", {"m": m2}, opt2)
+    assert meta["step"] == 3 and opt2.param_groups[0]["lr"] == pytest.approx(1e-2)
+    x = torch.randn(4, 3)
+    for mod, o in ((m, opt), (m2, opt2)):
+        o.zero_grad()
+        mod(x).square().mean().backward()
+        o.step()
+    for a, b in zip(m.parameters(), m2.parameters()):
+        torch.testing.assert_close(a, b)
+
+
+def test_lr_schedule_warms_up_then_decays_to_floor():
+    lrs = [lr_at(s, 100, 1e-3, 10, 0.1) for s in range(100)]
+    assert lrs[0] == pytest.approx(1e-4) and lrs[9] == pytest.approx(1e-3)
+    assert all(a >= b for a, b in zip(lrs[9:], lrs[10:]))
+    assert lr_at(100, 100, 1e-3, 10, 0.1) == pytest.approx(1e-4)
