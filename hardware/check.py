@@ -1,0 +1,61 @@
+"""Check a setup file, and optionally the devices it names, without moving anything.
+
+    python -m hardware.check hardware/configs/xarm7_gelsight.yaml            # validate the file
+    python -m hardware.check my_setup.yaml --connect --seconds 3             # connect, read, report
+
+With --connect: connects the arm and gripper, starts every camera and GelSight (capturing the
+backgrounds, so keep the gels untouched), then prints the arm pose, the gripper position and each
+sensor's frame rate and newest-frame age; the arm is stopped and everything closed at the end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import numpy as np
+from tqdm import tqdm
+
+from hardware.config import ConfigError, load_setup, open_setup
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    p.add_argument("config", help="setup YAML file (see hardware/configs/)")
+    p.add_argument("--connect", action="store_true", help="also connect the devices and read them (no motion)")
+    p.add_argument("--seconds", type=float, default=2.0, help="how long to watch the sensors with --connect (s)")
+    args = p.parse_args(argv)
+    try:
+        cfg = load_setup(args.config)
+    except ConfigError as exc:
+        print(f"invalid setup: {exc}", file=sys.stderr)
+        return 2
+    print(f"{args.config}: valid setup {cfg.name!r}: robot {cfg.robot.type}, gripper {cfg.gripper.type}, "
+          f"cameras {sorted(cfg.cameras)}, tactile {sorted(cfg.tactile)}, {cfg.control.rate_hz} Hz")
+    if not args.connect:
+        return 0
+    with open_setup(cfg) as setup:
+        print(f"arm pose [x, y, z, yaw]: {np.round(setup.arm.state().pose, 4).tolist()}")
+        if setup.gripper is not None:
+            print(f"gripper closing: {setup.gripper.state().position:.3f}")
+        sources = {**{f"images/{k}": v for k, v in setup.cameras.items()},
+                   **{f"tactile/{k}": v for k, v in setup.tactile.items()}}
+        first = {k: s.latest() for k, s in sources.items()}
+        end = time.monotonic() + args.seconds
+        with tqdm(total=args.seconds, desc="watching sensors", unit="s") as bar:
+            while (left := end - time.monotonic()) > 0:
+                time.sleep(min(0.1, left))
+                bar.n = round(args.seconds - max(left, 0), 1)
+                bar.refresh()
+        for k, s in sources.items():
+            last = s.latest()
+            fps = (last.index - first[k].index) / max(last.timestamp - first[k].timestamp, 1e-9)
+            age = time.monotonic() - last.timestamp
+            print(f"{k}: {last.image.shape[1]}x{last.image.shape[0]} at {fps:.1f} fps, newest frame {age * 1e3:.0f} ms old")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
