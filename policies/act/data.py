@@ -59,6 +59,15 @@ def split_by_episode(ds: EpisodeDataset, val_fraction: float, seed: int = 0) -> 
     return np.flatnonzero(~is_val).tolist(), np.flatnonzero(is_val).tolist()
 
 
+class EpisodeSubset(Subset):
+    """A Subset of an EpisodeDataset that keeps ``frame_table()`` (ForceAugment reads it, no image loads)."""
+
+    def frame_table(self) -> tuple[np.ndarray, np.ndarray]:
+        episodes, frames = self.dataset.frame_table()
+        idx = np.asarray(self.indices, dtype=np.int64)
+        return episodes[idx], frames[idx]
+
+
 @dataclass
 class TrainingData:
     """Everything the training loop needs from a dataset folder."""
@@ -81,6 +90,6 @@ def load_training_data(root: str | Path, chunk_size: int, val_fraction: float = 
     stats = {k: {m: np.asarray(v).astype(float).tolist() for m, v in d.items()} for k, d in ds.stats.items()}
     backgrounds = {s: np.asarray(ds.backgrounds[(0, s)]) for s in ds.tactile_sensors}
     return TrainingData(
-        train=Subset(ds, train_idx), val=Subset(ds, val_idx) if val_idx else None, spec=DataSpec.of(ds),
+        train=EpisodeSubset(ds, train_idx), val=EpisodeSubset(ds, val_idx) if val_idx else None, spec=DataSpec.of(ds),
         stats=stats, backgrounds=backgrounds, n_episodes=len(np.unique(episodes)),
         val_episodes=len(np.unique(episodes[val_idx])) if val_idx else 0)

@@ -73,4 +73,27 @@ def evaluate_in_sim(checkpoint, episodes: int = 50, seed: int = 100_000,
             "inference_ms_p50": float(np.median(inference_ms)) if inference_ms else None, "outcomes": outcomes}
 
 
-__all__ = ["load_policy", "check_setup", "evaluate_in_sim", "CheckpointError"]
+def deploy_on_robot(kind: str, checkpoint, setup_yaml: str | Path, max_steps: int | None = None) -> dict:
+    """Run the policy on the robot described by ``setup_yaml`` (``hardware/configs/*.yaml``).
+
+    The checkpoint and the set-up are checked against each other before any device is connected;
+    the loop stops the arm on Ctrl-C, a fault, a stale frame or a late policy. Returns the loop's
+    deadline statistics.
+    """
+    from hardware.config import load_setup, open_setup
+    from hardware.control_loop import ControlLoop
+
+    setup_cfg = load_setup(setup_yaml)
+    if setup_cfg.robot.type != kind:
+        raise ValueError(f"--robot {kind}, but {setup_yaml} describes robot.type {setup_cfg.robot.type!r}")
+    policy = load_policy(checkpoint)
+    check_setup(policy, setup_cfg.cameras, setup_cfg.tactile)
+    control = replace(setup_cfg.control, chunk_size=policy.config.chunk_size)
+    with open_setup(setup_cfg) as setup:
+        loop = ControlLoop(setup.arm, policy, gripper=setup.gripper, cameras=setup.cameras, tactile=setup.tactile,
+                           limits=setup.limits, config=control)
+        stats = loop.run(max_steps=max_steps)
+    return stats.summary()
+
+
+__all__ = ["load_policy", "check_setup", "evaluate_in_sim", "deploy_on_robot", "CheckpointError"]

@@ -1,0 +1,170 @@
+"""ACT benchmark: inference latency per chunk, training throughput, and the paper's IL experiment in sim.
+
+    python -m benchmarks.act --out act.json            # full: 50 demos, real vs ForceAugment 1/2/4
+    python -m benchmarks.act --quick --out act.json    # CI: tiny sizes, real vs ForceAugment 1
+
+Experiment (ControlTac, imitation learning): train the cpu-preset ACT on the same demos with real data
+only and with 1, 2 and 4 ForceAugment copies, then deploy each through the control loop in the MuJoCo
+scene on seeded episodes, once at the demos' grip-force range and once with the grip force shifted
+outside it. Success rates come with Wilson 95 % intervals. Results are written after every stage, so
+an interrupted run still reports what finished (``"status"`` per row).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from benchmarks.common import base_parser, median_time, print_table, write_results
+
+VARIANTS = {"real": 0, "fa1": 1, "fa2": 2, "fa4": 4}
+
+
+def _observation(cameras=("third_view", "wrist"), camera_hw=(96, 128), tactile_hw=(120, 160), seed=0) -> dict:
+    rng = np.random.default_rng(seed)
+    obs = {"qpos": rng.normal(size=5).astype(np.float32)}
+    for c in cameras:
+        obs[f"images/{c}"] = rng.integers(0, 256, (*camera_hw, 3), dtype=np.uint8)
+    for s in ("left", "right"):
+        obs[f"tactile/{s}"] = rng.integers(0, 256, (*tactile_hw, 3), dtype=np.uint8)
+        obs[f"tactile_background/{s}"] = rng.integers(0, 256, (*tactile_hw, 3), dtype=np.uint8)
+    return obs
+
+
+def latency(quick: bool) -> list[dict]:
+    """Median wall time of ``predict_chunk`` (batch 1, scene-sized frames) per preset, on this CPU."""
+    from policies.act import ACT, ACTConfig, ACTPolicy
+
+    rows = []
+    for preset, repeats in (("cpu", 10 if quick else 30), ("gpu", 2 if quick else 5)):
+        torch.manual_seed(0)
+        model = ACT(ACTConfig.from_preset(preset))
+        policy = ACTPolicy(model)
+        obs = _observation()
+        t = median_time(lambda: policy.predict_chunk(obs), repeats=repeats, warmup=2)
+        rows.append({"preset": preset, "params_M": sum(p.numel() for p in model.parameters()) / 1e6,
+                     "chunk": model.config.chunk_size, "ms_per_chunk": t * 1e3,
+                     "target_ms": 30.0 if preset == "cpu" else None,
+                     "threads": torch.get_num_threads()})
+    return rows
+
+
+def training_throughput(demos: Path, quick: bool) -> dict:
+    """Samples/s of one cpu-preset training step (forward + backward + AdamW) on real demo batches."""
+    from torch.utils.data import DataLoader
+
+    from controltac_il.datasets import EpisodeDataset
+    from policies.act import ACT, ACTConfig
+
+    ds = EpisodeDataset(demos, chunk_size=20)
+    cfg = ACTConfig.from_preset("cpu", camera_names=tuple(ds.cameras), tactile_names=tuple(ds.tactile_sensors))
+    model = ACT(cfg)
+    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr)
+    batch = next(iter(DataLoader(ds, batch_size=16, shuffle=True, generator=torch.Generator().manual_seed(0))))
+
+    def step():
+        loss = model(batch)["loss"]
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+
+    t = median_time(step, repeats=3 if quick else 10, warmup=1)
+    return {"preset": "cpu", "batch_size": 16, "s_per_step": t, "samples_per_s": 16 / t,
+            "threads": torch.get_num_threads()}
+
+
+def _trained(run: Path, steps: int) -> bool:
+    try:
+        return json.loads((run / "last" / "config.json").read_text())["meta"]["step"] >= steps
+    except (OSError, KeyError, json.JSONDecodeError):
+        return False
+
+
+def main(argv=None) -> dict:
+    p = base_parser(__doc__.split("\n\n")[0])
+    p.add_argument("--demos", type=int, default=50, help="demos collected in the scene (default 50, the paper's)")
+    p.add_argument("--steps", type=int, default=1500, help="training steps per variant (default 1500)")
+    p.add_argument("--batch-size", type=int, default=16, help="training batch size (default 16)")
+    p.add_argument("--eval-episodes", type=int, default=50, help="seeded evaluation episodes per setting (default 50)")
+    p.add_argument("--variants", default="real,fa1,fa2,fa4", help="comma list of real, fa1, fa2, fa4")
+    p.add_argument("--shifted-grip", type=float, nargs=2, default=(10.0, 12.0), metavar=("LOW", "HIGH"),
+                   help="test grip force range outside the demos' (3-9 N) (default 10 12)")
+    p.add_argument("--runs", type=Path, default=Path("runs/benchmark_act"),
+                   help="folder for the trained policies (reused when already trained to --steps)")
+    p.add_argument("--generator", default=None, help="generator checkpoint for ForceAugment (default shipped)")
+    p.add_argument("--skip-experiment", action="store_true", help="only latency and throughput")
+    args = p.parse_args(argv)
+    if args.quick:
+        args.demos, args.steps, args.eval_episodes = 3, 20, 2
+        args.variants = "real,fa1"
+    torch.set_num_threads(1)
+    variants = [v.strip() for v in args.variants.split(",") if v.strip()]
+    unknown = [v for v in variants if v not in VARIANTS]
+    if unknown:
+        p.error(f"--variants: unknown {unknown}; choose from {list(VARIANTS)}")
+
+    from controltac_il.pipeline import default_demos, make_augment
+
+    results: dict = {"settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}}
+
+    def save():
+        write_results(args.out, results) if args.out else None
+
+    results["latency"] = latency(args.quick)
+    print_table(results["latency"], ["preset", "params_M", "chunk", "ms_per_chunk", "target_ms", "threads"],
+                "ACT inference latency per chunk (batch 1, 96x128 cameras, 120x160 tactile)")
+    t = time.perf_counter()
+    demos = default_demos(args.demos, seed=0)
+    results["collect_s"] = time.perf_counter() - t
+    results["training_throughput"] = training_throughput(demos, args.quick)
+    print_table([results["training_throughput"]], ["preset", "batch_size", "s_per_step", "samples_per_s", "threads"],
+                "ACT training throughput")
+    save()
+    if args.skip_experiment:
+        return results
+
+    from policies.act.deploy import evaluate_in_sim
+    from policies.act.training import TrainConfig, train_on_folder
+
+    rows = results["experiment"] = []
+    max_copies = max(VARIANTS[v] for v in variants)
+    settings = (("nominal", None), ("shifted", tuple(args.shifted_grip)))
+    for v in variants:
+        run = args.runs / v
+        copies = VARIANTS[v]
+        row = {"variant": v, "copies": copies, "status": "training"}
+        rows.append(row)
+        t = time.perf_counter()
+        if not _trained(run, args.steps):
+            augment = make_augment(copies, args.generator, seed=0, max_copies=max_copies) if copies else None
+            summary = train_on_folder(demos, run, preset="cpu", augment=augment, train_config=TrainConfig(
+                steps=args.steps, batch_size=args.batch_size, val_every=max(args.steps // 3, 1), seed=0),
+                resume=(run / "last").is_dir())
+            row.update(train_frames=summary["train_frames"], best_val_l1=summary["best_val_l1"],
+                       samples_per_s=summary["samples_per_s"])
+        row["train_s"] = time.perf_counter() - t
+        for name, grip in settings:
+            row["status"] = f"evaluating {name}"
+            save()
+            t = time.perf_counter()
+            res = evaluate_in_sim(run, episodes=args.eval_episodes, seed=100_000, grip_force_range=grip)
+            row[f"{name}_success"] = res["success_rate"]
+            row[f"{name}_wilson95"] = [round(x, 3) for x in res["wilson95"]]
+            row[f"{name}_n"] = res["episodes"]
+            row[f"{name}_grip_n"] = res["grip_force_range_n"]
+            row[f"{name}_eval_s"] = time.perf_counter() - t
+        row["status"] = "done"
+        save()
+    print_table(rows, ["variant", "copies", "nominal_success", "nominal_wilson95", "shifted_success",
+                       "shifted_wilson95", "best_val_l1", "train_s"],
+                f"Peg-in-hole success, {args.demos} demos, {args.eval_episodes} seeded episodes per setting")
+    save()
+    return results
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,67 @@
+"""Deployment: checks before motion, Wilson interval, the deploy CLI's errors."""
+
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from act_fixtures import tiny_config
+from controltac_il.pipeline import wilson_interval
+from policies.act import ACT, ACTPolicy, save_checkpoint
+from policies.act.deploy import check_setup, deploy_on_robot, load_policy
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_wilson_interval_matches_hand_computation():
+    # 36 of 50: p = 0.72, z = 1.96 -> centre (0.72 + 1.96^2/100) / (1 + 1.96^2/50), half width below
+    z, n, p = 1.959963984540054, 50, 0.72
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    lo, hi = wilson_interval(36, 50)
+    assert lo == pytest.approx(centre - half) and hi == pytest.approx(centre + half)
+    assert lo == pytest.approx(0.5833, abs=1e-3) and hi == pytest.approx(0.8253, abs=1e-3)
+    assert wilson_interval(0, 10)[0] == 0.0 and wilson_interval(10, 10)[1] == pytest.approx(1.0)
+    assert wilson_interval(0, 0) == (0.0, 1.0)
+    with pytest.raises(ValueError, match="successes"):
+        wilson_interval(11, 10)
+
+
+@pytest.fixture()
+def checkpoint(tmp_path):
+    torch.manual_seed(0)
+    return save_checkpoint(tmp_path / "ckpt", ACT(tiny_config()))
+
+
+def test_check_setup_names_what_is_missing(checkpoint):
+    policy = load_policy(checkpoint)
+    check_setup(policy, ["third_view", "wrist"], ["left", "right"])
+    with pytest.raises(ValueError, match="camera 'wrist'"):
+        check_setup(policy, ["third_view"], ["left", "right"])
+    with pytest.raises(ValueError, match="tactile sensor 'right'"):
+        check_setup(policy, ["third_view", "wrist"], ["left"])
+    with pytest.raises(ValueError, match="dimension 5; the robot takes 7"):
+        check_setup(policy, ["third_view", "wrist"], ["left", "right"], action_dim=7)
+    assert isinstance(load_policy(policy), ACTPolicy)
+
+
+def test_robot_deploy_refuses_a_setup_without_a_camera_before_connecting(checkpoint, tmp_path):
+    setup = tmp_path / "setup.yaml"
+    # 192.0.2.1 is TEST-NET-1: nothing answers there, so reaching the connection would hang or fail
+    setup.write_text("robot: {type: xarm, ip: 192.0.2.1}\ngripper: {type: none}\n"
+                     "cameras: {third_view: {device: /dev/video0}}\n"
+                     "tactile: {left: {device: /dev/video2}, right: {device: /dev/video3}}\n")
+    with pytest.raises(ValueError, match="camera 'wrist'"):
+        deploy_on_robot("xarm", checkpoint, setup)
+    with pytest.raises(ValueError, match="robot.type 'xarm'"):
+        deploy_on_robot("ur", checkpoint, setup)
+
+
+def test_deploy_cli_reports_a_corrupted_checkpoint(checkpoint):
+    (checkpoint / "model.safetensors").write_bytes(b"garbage")
+    proc = subprocess.run([sys.executable, str(REPO / "deploy_policy.py"), "--robot", "sim", "--checkpoint",
+                           str(checkpoint), "--episodes", "1"], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "corrupted" in proc.stderr, proc.stderr[-2000:]
