@@ -64,8 +64,13 @@ class PegInHoleEnv:
         self._peg_geom = m.geom("peg").id
         self._receptacle = m.body("receptacle").id
         self._gel = {s: m.geom(f"{s}_gel").id for s in SENSORS}
-        # index -1 (no peg contact) maps to the appended False
-        self._static_mask = np.append(np.isin(m.geom_bodyid, (0, self._receptacle)), False)
+        # lookup table over geom pairs (g1 * ngeom + g2): True for peg vs table / receptacle
+        static = np.flatnonzero(np.isin(m.geom_bodyid, (0, self._receptacle)))
+        self._peg_static_pair = np.zeros(m.ngeom * m.ngeom, bool)
+        self._peg_static_pair[self._peg_geom * m.ngeom + static] = True
+        self._peg_static_pair[static * m.ngeom + self._peg_geom] = True
+        self._pose_act = [self._act[n] for n in ("hand_x", "hand_y", "hand_z", "hand_yaw")]
+        self._finger_act = [self._act[f"{s}_finger"] for s in SENSORS]
         self._low = np.array(cfg.workspace_low)
         self._high = np.array(cfg.workspace_high)
         self._renderer = None
@@ -121,7 +126,7 @@ class PegInHoleEnv:
             d.qpos[self._jnt[name]] = value
         d.qpos[self._jnt["left_finger"]] = d.qpos[self._jnt["right_finger"]] = FINGER_OPEN_M
         self._target = np.array([*HOME, 0.0])
-        self._apply_ctrl(self._target)
+        d.ctrl[:] = self._ctrl_vector(self._target)
         mujoco.mj_forward(m, d)
         for _ in range(cfg.substeps):  # let the peg settle on the table
             mujoco.mj_step(m, d)
@@ -139,11 +144,13 @@ class PegInHoleEnv:
         """
         target, clipped = self.check_action(action)
         m, d = self.model, self.data
-        start = self._target.copy()
         n = self.config.substeps
+        # the servo targets are affine in the action, so interpolating controls interpolates targets
+        c0, c1 = self._ctrl_vector(self._target), self._ctrl_vector(target)
+        ctrls = c0 + (c1 - c0) * (np.arange(1, n + 1) / n)[:, None]
         max_pen = 0.0
-        for k in range(1, n + 1):
-            self._apply_ctrl(start + (target - start) * (k / n))
+        for k in range(n):
+            d.ctrl[:] = ctrls[k]
             mujoco.mj_step(m, d)
             max_pen = max(max_pen, self._peg_static_penetration())
         self._target = target
@@ -277,22 +284,21 @@ class PegInHoleEnv:
             obs[f"force/{s}"] = forces[s]
         return obs
 
-    def _apply_ctrl(self, target: np.ndarray) -> None:
-        d = self.data
-        for k, name in enumerate(("hand_x", "hand_y", "hand_z", "hand_yaw")):
-            d.ctrl[self._act[name]] = target[k]
-        finger = FINGER_OPEN_M - target[4] * (FINGER_OPEN_M - FINGER_CLOSED_M)
-        d.ctrl[self._act["left_finger"]] = d.ctrl[self._act["right_finger"]] = finger
+    def _ctrl_vector(self, target: np.ndarray) -> np.ndarray:
+        """Actuator controls (nu,) for an action [x, y, z, yaw, gripper]."""
+        ctrl = np.empty(self.model.nu)
+        ctrl[self._pose_act] = target[:4]
+        ctrl[self._finger_act] = FINGER_OPEN_M - target[4] * (FINGER_OPEN_M - FINGER_CLOSED_M)
+        return ctrl
 
     def _peg_static_penetration(self) -> float:
         """Deepest penetration (m) of the peg into the table or receptacle right now."""
-        con = self.data.contact
-        if len(con.dist) == 0:
+        if self.data.ncon == 0:
             return 0.0
+        con = self.data.contact
         g = con.geom
-        other = np.where(g[:, 0] == self._peg_geom, g[:, 1], np.where(g[:, 1] == self._peg_geom, g[:, 0], -1))
-        hit = self._static_mask[other] & (other >= 0)
-        return float(max(0.0, (-con.dist[hit]).max(initial=0.0)))
+        hit = self._peg_static_pair[g[:, 0] * self.model.ngeom + g[:, 1]]
+        return float(-con.dist[hit].min()) if hit.any() else 0.0
 
     def _warning_count(self) -> int:
         return int(sum(w.number for w in self.data.warning))
