@@ -83,6 +83,9 @@ def test_split_is_by_episode_and_config_comes_from_the_data(tmp_path):
     train_eps = {data.train[i]["episode_index"] for i in range(len(data.train))}
     val_eps = {data.val[i]["episode_index"] for i in range(len(data.val))}
     assert not train_eps & val_eps and len(train_eps | val_eps) == 5
+    episodes, frames = data.train.frame_table()  # what ForceAugment reads instead of loading images
+    assert [(int(e), int(f)) for e, f in zip(episodes, frames)] == [
+        (data.train[i]["episode_index"], data.train[i]["frame_index"]) for i in range(len(data.train))]
     assert data.spec == DataSpec(("third_view", "wrist"), ("left", "right"), 5, 5)
     assert np.array_equal(data.backgrounds["left"], np.full((24, 32, 3), 100, np.uint8))
 
