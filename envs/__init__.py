@@ -1,1 +1,15 @@
-"""envs package."""
+"""MuJoCo peg-in-hole scene for smoke tests: tactile fingers, cameras, scripted expert, recorder.
+
+Modules (one job each)::
+
+    config.py       PegInHoleConfig: what is rendered, sizes, randomisation ranges, workspace
+    scene.py        builds the MJCF (assets/peg_in_hole.xml) plus the receptacle sized from the config
+    tactile_rig.py  pinhole ray casting (mj_multiRay) -> penetration map; pad contact forces
+    peg_in_hole.py  PegInHoleEnv: reset(seed) / step(action) Gymnasium-style
+    expert.py       ScriptedExpert: approach, grasp, lift, carry, align, insert, with injected noise
+    collect.py      python -m envs.collect --episodes 50 --out DIR  (ACT HDF5 episodes)
+    sim_robot.py    the scene behind hardware.interfaces (Arm, Gripper, FrameSource) for ControlLoop
+
+Importing ``envs.peg_in_hole`` sets ``MUJOCO_GL=egl`` (headless) unless already set; set it yourself
+before importing ``mujoco`` anywhere else in the process.
+"""
