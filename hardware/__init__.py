@@ -1,1 +1,13 @@
-"""hardware package."""
+"""Robot side of controltac-il: device interfaces, adapters, safety and the shared control loop.
+
+Modules (one job each):
+    interfaces    Arm / Gripper / FrameSource / Clock contracts and their small dataclasses
+    safety        workspace box, largest step per period, gripper limits, watchdog
+    control_loop  the 10 Hz loop (async inference, temporal ensembling, deadline stats, stop on fault)
+    xarm, ur      UFACTORY xArm (+ gripper) and Universal Robots arms
+    dynamixel, robotiq   serial grippers (Protocol 2.0; Modbus RTU)
+    cameras       OpenCV cameras and the GelSight Mini reader
+    config, check one YAML file per setup, validated; ``python -m hardware.check setup.yaml``
+    fakes, fake_serial   in-memory devices and pty-served serial devices for tests and benchmarks
+Vendor SDKs are imported by their adapters only, so ``import hardware`` needs none of them.
+"""

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,7 +32,8 @@ class RobotConfig:
     """type: "xarm", "ur" or "sim" (the MuJoCo scene; built by the deploy script, not here).
     ip: controller address (xarm, ur). tool_rpy: xArm tool (roll, pitch) at yaw 0, rad.
     tool_rotvec: UR tool orientation at yaw 0 as a rotation vector. lookahead_time, gain: UR servoL
-    settings. stop_on_warning: xArm controller warnings stop the run too."""
+    settings. stream_hz: rate of the interpolated xArm servo points between two control targets.
+    stop_on_warning: xArm controller warnings stop the run too."""
 
     type: str
     ip: str | None = None
@@ -39,6 +41,7 @@ class RobotConfig:
     tool_rotvec: list[float] = field(default_factory=lambda: [float(np.pi), 0.0, 0.0])
     lookahead_time: float = 0.1
     gain: float = 300.0
+    stream_hz: float = 100.0
     stop_on_warning: bool = False
 
     def __post_init__(self):
@@ -54,6 +57,8 @@ class RobotConfig:
             raise ValueError(f"lookahead_time: expected 0.03 to 0.2 s, got {self.lookahead_time}")
         if not 100 <= self.gain <= 2000:
             raise ValueError(f"gain: expected 100 to 2000, got {self.gain}")
+        if not 10 <= self.stream_hz <= 250:
+            raise ValueError(f"stream_hz: expected 10 to 250 Hz, got {self.stream_hz}")
 
 
 @dataclass
@@ -144,7 +149,7 @@ class SetupConfig:
 # -- parsing with field paths in the errors ----------------------------------------------------------
 
 def _is_optional(tp) -> bool:
-    return typing.get_origin(tp) in (typing.Union, __import__("types").UnionType) and type(None) in typing.get_args(tp)
+    return typing.get_origin(tp) in (typing.Union, types.UnionType) and type(None) in typing.get_args(tp)
 
 
 def _convert(value, tp, path: str):
@@ -154,7 +159,7 @@ def _convert(value, tp, path: str):
         if _is_optional(tp):
             return None
         raise ConfigError(f"{path}: a value is required")
-    if origin in (typing.Union, __import__("types").UnionType):
+    if origin in (typing.Union, types.UnionType):
         expected = []
         for arg in (a for a in args if a is not type(None)):
             try:
@@ -246,7 +251,8 @@ def build_arm(cfg: SetupConfig) -> Arm:
     if r.type == "xarm":
         from hardware.xarm import XArm
 
-        return XArm(r.ip, tool_rpy=tuple(r.tool_rpy), stop_on_warning=r.stop_on_warning)
+        return XArm(r.ip, tool_rpy=tuple(r.tool_rpy), period_s=cfg.control.period_s,
+                    stream_hz=max(r.stream_hz, cfg.control.rate_hz), stop_on_warning=r.stop_on_warning)
     if r.type == "ur":
         from hardware.ur import URArm
 

@@ -402,4 +402,6 @@ class ControlLoop:
             if self.gripper is not None:
                 self.gripper.command(float(target[4]))
             self._last_grip = float(target[4])
+            if watchdog.tripped is not None:  # tripped while the command was in flight: stop again, now
+                raise WatchdogTimeout(watchdog.tripped)
         watchdog.feed("command", self.clock.now())

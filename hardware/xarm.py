@@ -1,10 +1,14 @@
 """UFACTORY xArm (5/6/7) and its gripper through xarm-python-sdk.
 
-The arm is streamed in servo mode (mode 1, ``set_servo_cartesian``: the controller executes only the
-newest target). Error and warning codes are read every cycle (``get_err_warn_code``); an error code,
-a non-zero API return code or a lost connection raises :class:`ArmFault` naming the code and its
-meaning (the SDK's own code table). On connect, errors and warnings are cleared and motion enabled;
-``stop`` puts the arm in the stop state (4), and ``close`` disconnects.
+The arm is driven in servo mode (mode 1, ``set_servo_cartesian``). In that mode the controller runs to
+each point at full speed, so UFACTORY asks for small steps at a high rate; the adapter therefore
+turns every 10 Hz target into a straight segment from the previous target and streams points along
+it at ``stream_hz`` (100 Hz by default) from its own thread, arriving at the target after one control
+period. Error and warning codes are read every cycle (``get_err_warn_code``); an error code, a
+non-zero API return code (also from the streaming thread) or a lost connection raises
+:class:`ArmFault` naming the code and its meaning (the SDK's code table). On connect, errors and
+warnings are cleared and motion enabled; ``stop`` halts the stream and puts the arm in the stop state
+(4); after a stop, ``servo`` refuses until ``connect`` is called again; ``close`` disconnects.
 
 Tests replace ``XArmAPI`` at the SDK boundary (the ``api`` argument): its controller needs a real arm
 or UFACTORY's simulator, which cannot run here.
@@ -12,11 +16,15 @@ or UFACTORY's simulator, which cannot run here.
 
 from __future__ import annotations
 
+import threading
+import time
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from hardware.interfaces import Arm, ArmFault, ArmState, Clock, Gripper, GripperState, HardwareError, WallClock
 from hardware.pose import tool_rotation, yaw_of
+from hardware.safety import wrap_angle
 
 MODE_SERVO = 1
 STATE_MOTION, STATE_STOP = 0, 4
@@ -33,19 +41,32 @@ def _describe(code: int, kind: str) -> str:
 
 
 class XArm(Arm):
-    """xArm arm streamed in servo mode.
+    """xArm arm in servo mode.
 
     ip: controller address. tool_rpy: (roll, pitch) of the tool at yaw 0, rad (default pointing down:
-    (pi, 0)). api: an ``xarm.wrapper.XArmAPI`` (created from ``ip`` on connect when None).
+    (pi, 0)). period_s: control period; each target is reached this long after ``servo``.
+    stream_hz: rate of the interpolated points (None: send each target as it comes, one point per
+    ``servo``). api: an ``xarm.wrapper.XArmAPI`` (created from ``ip`` on connect when None).
     stop_on_warning: treat controller warnings as faults too (default: report them in ArmState only).
     """
 
-    def __init__(self, ip: str, tool_rpy: tuple[float, float] = (np.pi, 0.0), api=None,
-                 stop_on_warning: bool = False, clock: Clock | None = None):
+    def __init__(self, ip: str, tool_rpy: tuple[float, float] = (np.pi, 0.0), period_s: float = 0.1,
+                 stream_hz: float | None = 100.0, api=None, stop_on_warning: bool = False,
+                 clock: Clock | None = None):
+        if not period_s > 0:
+            raise ValueError(f"period_s must be positive, got {period_s}")
+        if stream_hz is not None and not stream_hz * period_s >= 1:
+            raise ValueError(f"stream_hz must be at least the control rate 1/period_s, got {stream_hz}")
         self.ip, self.api, self.stop_on_warning = ip, api, stop_on_warning
+        self.period_s, self.stream_hz = period_s, stream_hz
         self.r0 = Rotation.from_euler("xyz", [tool_rpy[0], tool_rpy[1], 0.0])
         self.clock = clock or WallClock()
-        self._codes = (0, 0)
+        self._lock = threading.Lock()
+        self._segment: tuple[np.ndarray, np.ndarray, float] | None = None  # start, end [x,y,z,yaw], t0
+        self._stream_error: str | None = None
+        self._stopped = False
+        self._stream_stop = threading.Event()
+        self._streamer: threading.Thread | None = None
 
     def _fault(self, msg: str) -> ArmFault:
         return ArmFault(f"xArm {self.ip}: {msg}")
@@ -66,20 +87,28 @@ class XArm(Arm):
         self._ok(self.api.motion_enable(enable=True), "motion_enable")
         self._ok(self.api.set_mode(MODE_SERVO), "set_mode(1)")
         self._ok(self.api.set_state(STATE_MOTION), "set_state(0)")
+        with self._lock:
+            self._segment, self._stream_error, self._stopped = None, None, False
         self.check()
+        if self.stream_hz is not None and self._streamer is None:
+            self._stream_stop.clear()
+            self._streamer = threading.Thread(target=self._stream, name=f"xarm-stream-{self.ip}", daemon=True)
+            self._streamer.start()
 
     def check(self) -> tuple[int, int]:
-        """Read (error, warning) codes; raise ArmFault on an error (or a warning with stop_on_warning)."""
+        """Read (error, warning) codes; raise ArmFault on an error (or a warning with stop_on_warning),
+        on a failed streamed point, or when the connection is gone."""
         if self.api is None or not self.api.connected:
             raise self._fault("connection lost")
+        if self._stream_error is not None:
+            raise self._fault(self._stream_error)
         code, (err, warn) = self.api.get_err_warn_code()
         self._ok(code, "get_err_warn_code")
         if err:
             raise self._fault(f"controller error code {err} ({_describe(err, 'error')}); clear it on the controller")
         if warn and self.stop_on_warning:
             raise self._fault(f"controller warning code {warn} ({_describe(warn, 'warn')})")
-        self._codes = (err, warn)
-        return self._codes
+        return err, warn
 
     def state(self) -> ArmState:
         err, warn = self.check()
@@ -89,19 +118,59 @@ class XArm(Arm):
         r = Rotation.from_euler("xyz", [roll, pitch, yaw])
         return ArmState(np.array([x / 1000, y / 1000, z / 1000, yaw_of(r, self.r0)]), self.clock.now(), err, warn)
 
-    def servo(self, target) -> None:
-        self.check()
-        x, y, z, yaw = (float(v) for v in target)
+    def _send(self, pose4: np.ndarray) -> int:
+        x, y, z, yaw = (float(v) for v in pose4)
         roll, pitch, yaw_x = tool_rotation(yaw, self.r0).as_euler("xyz")
-        code = self.api.set_servo_cartesian([x * 1000, y * 1000, z * 1000, roll, pitch, yaw_x], is_radian=True)
-        self._ok(code, "set_servo_cartesian")
+        return self.api.set_servo_cartesian([x * 1000, y * 1000, z * 1000, roll, pitch, yaw_x], is_radian=True)
+
+    def servo(self, target) -> None:
+        if self._stopped:
+            raise self._fault("stopped; call connect() to enable motion again")
+        self.check()
+        target = np.asarray(target, dtype=np.float64)
+        if self.stream_hz is None:
+            self._ok(self._send(target), "set_servo_cartesian")
+            return
+        with self._lock:
+            if self._segment is None:  # first target: start from where the arm is
+                start = self.state().pose
+            else:  # from wherever the current segment has got to
+                s, e, t0 = self._segment
+                start = s + min(1.0, (time.monotonic() - t0) / self.period_s) * self._delta(s, e)
+            self._segment = (start, target, time.monotonic())
+
+    @staticmethod
+    def _delta(s: np.ndarray, e: np.ndarray) -> np.ndarray:
+        d = e - s
+        d[3] = float(wrap_angle(d[3]))  # yaw the short way round
+        return d
+
+    def _stream(self) -> None:
+        dt = 1.0 / self.stream_hz
+        next_t = time.monotonic()
+        while not self._stream_stop.is_set():
+            with self._lock:
+                seg = None if self._stopped else self._segment
+                if seg is not None:
+                    s, e, t0 = seg
+                    alpha = min(1.0, (time.monotonic() - t0) / self.period_s)
+                    code = self._send(s + alpha * self._delta(s, e))
+                    if code != 0 and self._stream_error is None:
+                        self._stream_error = f"set_servo_cartesian returned API code {code} while streaming"
+            next_t = max(next_t + dt, time.monotonic())
+            self._stream_stop.wait(max(0.0, next_t - time.monotonic()))
 
     def stop(self) -> None:
-        """Stop state (4): the controller drops the servo target and halts."""
+        """Halt the point stream, then the stop state (4): the controller drops the servo target and halts."""
+        self._stopped = True  # no lock: the stream may be blocked inside a send; it checks this before each point
         if self.api is not None:
             self.api.set_state(STATE_STOP)
 
     def close(self) -> None:
+        self._stream_stop.set()
+        if self._streamer is not None and self._streamer is not threading.current_thread():
+            self._streamer.join(timeout=1.0)
+            self._streamer = None
         if self.api is not None:
             self.api.disconnect()
 

@@ -3,6 +3,7 @@ arm or the vendor simulator, which cannot run here): command sequences, unit and
 conversion, error codes checked every cycle, stop order on exit, and a fault inside the control loop."""
 
 import math
+import time
 
 import numpy as np
 import pytest
@@ -70,7 +71,7 @@ def test_xarm_connect_clears_errors_enables_motion_and_servo_mode():
 
 def test_xarm_units_and_yaw_round_trip():
     api = StubXArmAPI()
-    arm = XArm("ip", api=api)
+    arm = XArm("ip", api=api, stream_hz=None)
     arm.connect()
     arm.servo(np.array([0.3, -0.1, 0.25, 0.5]))
     sent = api.calls[-1][1][0]
@@ -83,7 +84,7 @@ def test_xarm_units_and_yaw_round_trip():
 
 def test_xarm_tilted_tool_keeps_its_tilt_while_yawing():
     api = StubXArmAPI()
-    arm = XArm("ip", tool_rpy=(math.pi, 0.3), api=api)
+    arm = XArm("ip", tool_rpy=(math.pi, 0.3), api=api, stream_hz=None)
     arm.connect()
     arm.servo([0.4, 0.0, 0.2, -1.0])
     assert arm.state().pose[3] == pytest.approx(-1.0)
@@ -106,7 +107,7 @@ def test_xarm_error_code_names_the_error():
 
 def test_xarm_warning_policy_and_api_codes():
     api = StubXArmAPI()
-    arm = XArm("ip", api=api)
+    arm = XArm("ip", api=api, stream_hz=None)
     arm.connect()
     api.warn = 11
     assert arm.state().warning_code == 11  # reported, not fatal by default
@@ -128,7 +129,7 @@ def test_xarm_fault_mid_run_stops_the_arm_in_the_loop():
         def predict_chunk(self, obs):
             return np.tile(np.r_[obs["qpos"][:4] + [0.001, 0, 0, 0], 0.0], (10, 1))
 
-    with XArm("ip", api=api) as arm:
+    with XArm("ip", api=api, stream_hz=None) as arm:
         loop = ControlLoop(arm, Hold(), config=ControlLoopConfig(inference="sync", chunk_size=10),
                            clock=VirtualClock(), limits=SafetyLimits())
         with pytest.raises(ArmFault, match="error code 22"):
@@ -137,6 +138,51 @@ def test_xarm_fault_mid_run_stops_the_arm_in_the_loop():
     assert n.count("set_servo_cartesian") == 4
     last_servo = len(n) - 1 - n[::-1].index("set_servo_cartesian")
     assert n[last_servo + 1:] == ["set_state", "set_state", "disconnect"]  # loop's stop, exit's stop, close
+
+
+def _streamed(api):
+    return [np.array(c[1][0]) for c in list(api.calls) if c[0] == "set_servo_cartesian"]
+
+
+def test_xarm_streams_small_steps_along_the_segment_and_arrives_in_one_period():
+    api = StubXArmAPI()
+    with XArm("ip", api=api, period_s=0.5, stream_hz=20) as arm:
+        arm.servo([0.45, 0.02, 0.2, 0.0])  # 5.4 cm from the measured (0.4, 0, 0.2)
+        time.sleep(0.8)
+        points = _streamed(api)
+    start, end = np.array([400.0, 0.0, 200.0]), np.array([450.0, 20.0, 200.0])
+    alphas = [float(np.dot(p[:3] - start, end - start) / np.dot(end - start, end - start)) for p in points]
+    for p, a in zip(points, alphas):
+        np.testing.assert_allclose(p[:3], start + a * (end - start), atol=1e-6)  # on the straight segment
+    assert alphas == sorted(alphas) and alphas[-1] == pytest.approx(1.0)
+    assert sum(0.0 < a < 1.0 for a in alphas) >= 2  # intermediate points, not one jump
+
+
+def test_xarm_stop_halts_the_stream_and_refuses_more_targets():
+    api = StubXArmAPI()
+    arm = XArm("ip", api=api, period_s=0.2, stream_hz=50)
+    arm.connect()
+    arm.servo([0.5, 0.0, 0.2, 0.0])
+    time.sleep(0.05)
+    arm.stop()
+    n = len(_streamed(api))
+    time.sleep(0.1)
+    assert len(_streamed(api)) == n and names(api.calls)[-1] == "set_state"
+    with pytest.raises(ArmFault, match="stopped; call connect"):
+        arm.servo([0.5, 0.0, 0.2, 0.0])
+    arm.connect()  # re-enables motion
+    arm.servo([0.5, 0.0, 0.2, 0.0])
+    arm.close()
+
+
+def test_xarm_streaming_error_code_surfaces_on_the_next_cycle():
+    api = StubXArmAPI()
+    with XArm("ip", api=api, period_s=0.2, stream_hz=50) as arm:
+        api.servo_code = 9
+        arm.servo([0.41, 0.0, 0.2, 0.0])
+        time.sleep(0.1)
+        with pytest.raises(ArmFault, match="set_servo_cartesian returned API code 9 while streaming"):
+            arm.state()
 
 
 def test_xarm_gripper_maps_closing_to_sdk_units():

@@ -104,3 +104,16 @@ def test_devices_built_from_a_file(tmp_path):
         _, tactile = build_frame_sources(cfg)
         with tactile["left"] as gs:
             assert isinstance(gs, GelSightMini) and gs.background.shape == (60, 80, 3)
+
+
+def test_build_arm_from_the_file_settings():
+    from hardware.config import build_arm
+    from hardware.ur import URArm
+    from hardware.xarm import XArm
+
+    arm = build_arm(parse_setup({"robot": {"type": "xarm", "ip": "1.2.3.4", "stream_hz": 150}, "control": {"rate_hz": 20}}))
+    assert isinstance(arm, XArm) and (arm.ip, arm.period_s, arm.stream_hz) == ("1.2.3.4", 0.05, 150)
+    ur = build_arm(parse_setup({"robot": {"type": "ur", "ip": "h", "lookahead_time": 0.05, "gain": 600}}))
+    assert isinstance(ur, URArm) and (ur.period_s, ur.lookahead_time, ur.gain) == (0.1, 0.05, 600)
+    with pytest.raises(ConfigError, match="'sim' is the MuJoCo scene"):
+        build_arm(parse_setup({"robot": {"type": "sim"}}))
