@@ -84,7 +84,8 @@ class FakeGripper(Gripper):
 
 
 class SyntheticFrameSource(FrameSource):
-    """Frames (H, W, 3) of a slowly moving coloured blob, stamped with ``clock.now()`` at each ``latest``.
+    """Frames (H, W, 3) of a coloured blob circling the image (16 pre-rendered positions), stamped
+    with ``clock.now()`` at each ``latest``.
 
     ``freeze()`` keeps returning the last frame with its old timestamp (a stalled sensor);
     ``unplug()`` makes ``latest`` raise SensorError.
@@ -99,17 +100,13 @@ class SyntheticFrameSource(FrameSource):
         self._lock = threading.Lock()
         h, w = self.shape
         yy, xx = np.mgrid[0:h, 0:w]
-        self._grid = (yy, xx)
+        self._frames = []
+        for k in range(16):
+            cx, cy = w / 2 + 0.3 * w * np.cos(2 * np.pi * k / 16), h / 2 + 0.3 * h * np.sin(2 * np.pi * k / 16)
+            img = np.full((h, w, 3), 100, np.uint8)
+            img[..., 0] += (80 * ((xx - cx) ** 2 + (yy - cy) ** 2 < (min(h, w) / 6) ** 2)).astype(np.uint8)
+            self._frames.append(img)
         self.background = np.full((h, w, 3), 100, np.uint8) if background else None
-
-    def _render(self, i: int) -> np.ndarray:
-        h, w = self.shape
-        yy, xx = self._grid
-        cx, cy = w / 2 + 0.3 * w * np.cos(i / 10), h / 2
-        blob = ((xx - cx) ** 2 + (yy - cy) ** 2 < (min(h, w) / 6) ** 2).astype(np.uint8)
-        img = np.full((h, w, 3), 100, np.uint8)
-        img[..., 0] += 80 * blob
-        return img
 
     def latest(self) -> Frame:
         with self._lock:
@@ -118,11 +115,11 @@ class SyntheticFrameSource(FrameSource):
             if self._frozen is not None:
                 return self._frozen
             self._index += 1
-            return Frame(self._render(self._index), self.clock.now(), self._index)
+            return Frame(self._frames[self._index % 16], self.clock.now(), self._index)
 
     def freeze(self) -> None:
         with self._lock:
-            self._frozen = Frame(self._render(self._index), self.clock.now(), self._index)
+            self._frozen = Frame(self._frames[self._index % 16], self.clock.now(), self._index)
 
     def unplug(self) -> None:
         with self._lock:
