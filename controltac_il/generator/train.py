@@ -61,6 +61,7 @@ class TrainConfig:
     stage: "all", "autoencoder" or "denoiser" (the latter needs a trained autoencoder).
     autoencoder_from: run folder or checkpoint whose trained autoencoder is reused (skips stage 1).
     image_size: (H, W) of the model; dataset images are resized to it.
+    ae_channels, latent_channels: autoencoder stage widths (f = 2**len) and latent channels.
     dit_preset: "small" (default teacher), "tiny" (faster variant) or "base".
     prediction_type: "epsilon" (paper) or "sample"; default_steps: DDIM steps stored as the default.
     ae_steps, ae_batch, ae_lr, ae_crop: autoencoder optimisation (crop (H, W) of the training patches).
@@ -78,6 +79,8 @@ class TrainConfig:
     stage: str = "all"
     autoencoder_from: str | None = None
     image_size: tuple[int, int] = (128, 160)
+    ae_channels: tuple[int, ...] = (16, 48, 96)
+    latent_channels: int = 8
     dit_preset: str = "small"
     prediction_type: str = "epsilon"
     default_steps: int = 10
@@ -101,6 +104,8 @@ class TrainConfig:
     def __post_init__(self):
         self.image_size = tuple(self.image_size)
         self.ae_crop = tuple(self.ae_crop)
+        self.ae_channels = tuple(self.ae_channels)
+        AutoencoderConfig(image_size=self.image_size, channels=self.ae_channels, latent_channels=self.latent_channels)
         if self.stage not in STAGES:
             raise ValueError(f"stage must be one of {STAGES}, got {self.stage!r}")
         if self.dit_preset not in DIT_PRESETS:
@@ -222,7 +227,7 @@ def crop_batch(data: PairData, rng: np.random.Generator, batch: int, crop: tuple
 
 def train_autoencoder(cfg: TrainConfig, data: PairData, out: Path, rank: int, world: int) -> tuple[TactileAutoencoder, dict]:
     torch.manual_seed(cfg.seed)
-    ae_cfg = AutoencoderConfig(image_size=cfg.image_size)
+    ae_cfg = AutoencoderConfig(image_size=cfg.image_size, channels=cfg.ae_channels, latent_channels=cfg.latent_channels)
     ae = TactileAutoencoder(ae_cfg)
     opt = torch.optim.AdamW(ae.parameters(), lr=cfg.ae_lr, weight_decay=0.0)
     stem = out / "autoencoder_state"
@@ -462,6 +467,8 @@ def parse_args(argv=None) -> TrainConfig:
     p.add_argument("--autoencoder-from", default=None, help="reuse the autoencoder of this run or checkpoint folder")
     p.add_argument("--resume", action="store_true", help="continue from the states in --out (without it, --out must not hold states)")
     p.add_argument("--image-size", type=int, nargs=2, default=d["image_size"].default, metavar=("H", "W"))
+    p.add_argument("--ae-channels", type=int, nargs="+", default=d["ae_channels"].default, help="autoencoder stage widths")
+    p.add_argument("--latent-channels", type=int, default=d["latent_channels"].default, help="autoencoder latent channels")
     p.add_argument("--dit-preset", choices=sorted(DIT_PRESETS), default="small", help="DiT size (default: small)")
     p.add_argument("--prediction-type", choices=("epsilon", "sample"), default="epsilon", help="what the DiT predicts")
     p.add_argument("--default-steps", type=int, default=d["default_steps"].default, help="DDIM steps stored as the default")

@@ -1,0 +1,248 @@
+"""Speed against error of the force-control generator, on seen poses and unseen objects.
+
+    python -m benchmarks.generator --out gen.json [--quick] [--sheet gen.png]
+
+Evaluation data: sensor-model datasets rendered like the training set (120×160, three-light optics,
+target and reference Fz in [1, 10] N, |Fx|, |Fy| <= 1 N) with other seeds: "seen" = held-out contact
+poses of the six training objects, "unseen" = the held-out objects. Pairs are (reference, target)
+images of one contact pose; the metric compares the predicted image (residual + background) with the
+rendered target: MSE on 0-255 RGB and SSIM (``controltac_il.metrics``), mean ± SD over pairs.
+
+Methods: reference copy; physics re-render (``controltac_il.tactile.inverse``); the default generator
+at DDIM steps 1, 2, 5, 10, 20, 50; the faster variant at its steps. For each: images/s at batch 1 and
+batch 32 (median of repeats, this process's torch threads) and the peak resident memory of a fresh
+process generating one batch of 32.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import resource
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from benchmarks.common import base_parser, median_time, print_table, write_results
+from controltac_il.generator import ForceGenerator
+from controltac_il.generator.pipeline import CHECKPOINT_ROOT
+from controltac_il.io import atomic_path, write_json
+from controltac_il.metrics import mse, ssim
+from controltac_il.tactile import HELDOUT_OBJECTS, TRAIN_OBJECTS, SensorSpec, TactileSensor, from_residual
+from controltac_il.tactile.dataset import load_dataset, write_dataset
+from controltac_il.tactile.inverse import rerender
+
+RENDER_SIZE = (120, 160)
+SPLITS = {"seen": (TRAIN_OBJECTS, 1001), "unseen": (HELDOUT_OBJECTS, 1002)}
+STEPS = (1, 2, 5, 10, 20, 50)
+
+
+def eval_pairs(cache: Path, split: str, poses: int, forces: int, max_pairs: int, seed: int = 0):
+    """(residual refs, residual targets, ref forces, target forces, background) of one split."""
+    objects, data_seed = SPLITS[split]
+    root = cache / f"{split}_p{poses}_f{forces}_s{data_seed}"
+    if not (root / "manifest.csv").is_file():
+        write_dataset(root, objects, poses_per_object=poses, forces_per_pose=forces, seed=data_seed,
+                      spec=SensorSpec.gelsight_mini().scaled(*RENDER_SIZE), fz_range=(1.0, 10.0), progress=False)
+    ds = load_dataset(root)
+    pairs = [(i, j) for g in ds.pose_groups().values() for i in g for j in g if i != j]
+    rng = np.random.default_rng(seed)
+    pick = rng.choice(len(pairs), size=min(max_pairs, len(pairs)), replace=False)
+    pairs = [pairs[k] for k in sorted(pick)]
+    f = ds.forces()
+    refs = np.stack([ds.residual(i) for i, _ in pairs])
+    tgts = np.stack([ds.residual(j) for _, j in pairs])
+    return refs, tgts, f[[i for i, _ in pairs]], f[[j for _, j in pairs]], ds.background
+
+
+def quality(pred_res: np.ndarray, tgt_res: np.ndarray, background: np.ndarray) -> dict:
+    """Mean ± SD of MSE and SSIM of predicted vs target images (residual + background)."""
+    pred = np.stack([from_residual(r, background) for r in pred_res])
+    tgt = np.stack([from_residual(r, background) for r in tgt_res])
+    m, s = mse(pred, tgt), ssim(pred, tgt)
+    return {"mse": float(m.mean()), "mse_sd": float(m.std()), "ssim": float(s.mean()), "ssim_sd": float(s.std()), "n": int(len(m))}
+
+
+def _peak_worker(method: str, ckpt: str | None, steps: int | None, threads: int, q) -> None:
+    torch.set_num_threads(threads)
+    ref = np.full((32, *RENDER_SIZE, 3), 127, np.uint8)
+    df = np.tile([[0.0, 0.0, 2.0]], (32, 1))
+    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    if method == "generator":
+        gen = ForceGenerator.from_pretrained(ckpt)
+        base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        gen.generate(ref, df, steps=steps, batch_size=32)
+    else:
+        sensor = TactileSensor(SensorSpec.gelsight_mini().scaled(*RENDER_SIZE))
+        base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        for r in ref:
+            rerender(sensor, r, (0, 0, 3.0), (0, 0, 5.0))
+    q.put((resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, base / 1024))
+
+
+def peak_memory_mb(method: str, ckpt: str | None = None, steps: int | None = None, threads: int = 1) -> dict:
+    """Peak RSS (MB) of a fresh process doing one batch of 32, and its growth over the loaded state."""
+    ctx = mp.get_context("spawn")
+    q = ctx.Queue()
+    p = ctx.Process(target=_peak_worker, args=(method, ckpt, steps, threads, q))
+    p.start()
+    peak, base = q.get(timeout=600)
+    p.join()
+    return {"peak_rss_mb": round(peak, 1), "batch_growth_mb": round(peak - base, 1)}
+
+
+def throughput(fn_batch, refs: np.ndarray, repeats: int) -> dict:
+    """Images/s at batch 1 and batch 32 (median wall time of ``repeats`` calls)."""
+    one = refs[:1]
+    b32 = np.concatenate([refs] * (32 // len(refs) + 1))[:32]
+    t1 = median_time(lambda: fn_batch(one), repeats=repeats, warmup=1)
+    t32 = median_time(lambda: fn_batch(b32), repeats=max(1, repeats // 2), warmup=1)
+    return {"img_per_s_b1": 1.0 / t1, "img_per_s_b32": 32.0 / t32}
+
+
+def error_map(pred: np.ndarray, tgt: np.ndarray) -> np.ndarray:
+    """|pred - target| (max over channels) ×4, as a colour map (uint8 RGB)."""
+    d = np.abs(pred.astype(np.int16) - tgt.astype(np.int16)).max(-1)
+    jet = cv2.applyColorMap(np.clip(d * 4, 0, 255).astype(np.uint8), cv2.COLORMAP_JET)
+    return cv2.cvtColor(jet, cv2.COLOR_BGR2RGB)
+
+
+def save_sheet(path: Path, rows: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]], background: dict) -> None:
+    """PNG: one row per case, columns reference | target | generated | error map (images, 2× size)."""
+    tiles = []
+    for split, ref, tgt, gen in rows:
+        bg = background[split]
+        imgs = [from_residual(ref, bg), from_residual(tgt, bg), from_residual(gen, bg), error_map(gen, tgt)]
+        row = np.concatenate([cv2.resize(im, (im.shape[1] * 2, im.shape[0] * 2), interpolation=cv2.INTER_NEAREST) for im in imgs], 1)
+        cv2.putText(row, split, (4, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1)
+        tiles.append(row)
+    header = np.zeros((24, tiles[0].shape[1], 3), np.uint8)
+    w = tiles[0].shape[1] // 4
+    for k, name in enumerate(("reference", "target", "generated", "|error| x4")):
+        cv2.putText(header, name, (k * w + 6, 17), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1)
+    sheet = np.concatenate([header, *tiles], 0)
+    with atomic_path(path, suffix=".png") as tmp:
+        cv2.imwrite(str(tmp), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
+
+
+def main(argv=None) -> dict:
+    p = base_parser(__doc__.splitlines()[0])
+    p.add_argument("--checkpoint", default="default", help="default generator (shipped name or folder)")
+    p.add_argument("--fast", default="fast", help="faster variant (shipped name or folder; '' to skip)")
+    p.add_argument("--sheet", type=Path, default=None, help="PNG sheet path (default: beside --out)")
+    p.add_argument("--cache", type=Path, default=Path("/tmp/controltac_generator_bench"), help="evaluation data cache")
+    p.add_argument("--threads", type=int, default=torch.get_num_threads(), help="torch threads")
+    p.add_argument("--pairs", type=int, default=None, help="pairs per split (default 96, quick 12)")
+    p.add_argument("--update-model-card", action="store_true", help="write the figures into the checkpoints' model_card.json")
+    a = p.parse_args(argv)
+    torch.set_num_threads(a.threads)
+    quick = a.quick
+    n_pairs = a.pairs or (12 if quick else 96)
+    steps_grid = (1, 2, 10) if quick else STEPS
+    repeats = 2 if quick else 5
+
+    data = {s: eval_pairs(a.cache, s, poses=2 if quick else 8, forces=4 if quick else 6, max_pairs=n_pairs) for s in SPLITS}
+    gens = {"default": ForceGenerator.from_pretrained(a.checkpoint)}
+    if a.fast:
+        gens["fast"] = ForceGenerator.from_pretrained(a.fast)
+
+    methods: list[tuple[str, str, int | None]] = [("reference copy", "copy", None), ("physics re-render", "rerender", None)]
+    methods += [(f"default DDIM-{s}", "default", s) for s in steps_grid]
+    if "fast" in gens:
+        fs = gens["fast"].config.default_steps
+        methods += [(f"fast DDIM-{s}", "fast", s) for s in sorted({1, fs, 2 * fs})]
+    sensor = TactileSensor(SensorSpec.gelsight_mini().scaled(*RENDER_SIZE))
+
+    def predictor(kind: str, steps: int | None):
+        if kind == "copy":
+            return lambda refs, rf, tf: refs.copy()
+        if kind == "rerender":
+            return lambda refs, rf, tf: np.stack([rerender(sensor, r, a_, b_, noise_seed=k)
+                                                 for k, (r, a_, b_) in enumerate(zip(refs, rf, tf))])
+        g = gens[kind]
+        return lambda refs, rf, tf: g.generate(refs, tf - rf, steps=steps, seed=0, batch_size=32)
+
+    rows, per_method = [], {}
+    for name, kind, steps in tqdm(methods, desc="methods", unit="method"):
+        fn = predictor(kind, steps)
+        entry = {"method": name, "kind": kind, "steps": steps}
+        preds = {}
+        for split, (refs, tgts, rf, tf, bg) in data.items():
+            t0 = time.perf_counter()
+            preds[split] = fn(refs, rf, tf)
+            q = quality(preds[split], tgts, bg)
+            entry[split] = {**q, "wall_s": time.perf_counter() - t0}
+        refs, _, rf, tf, _ = data["unseen"]
+        entry.update(throughput(lambda r: fn(r, rf[:len(r)] if len(r) <= len(rf) else np.resize(rf, (len(r), 3)),
+                                             tf[:len(r)] if len(r) <= len(tf) else np.resize(tf, (len(r), 3))),
+                                refs, 1 if kind == "rerender" else repeats))
+        if kind == "copy":
+            entry.update(peak_rss_mb=None, batch_growth_mb=0.0)
+        elif not quick or kind == "default" and steps == gens["default"].config.default_steps:
+            ck = None if kind == "rerender" else (a.checkpoint if kind == "default" else a.fast)
+            entry.update(peak_memory_mb("generator" if ck else "rerender", ck, steps, a.threads))
+        per_method[name] = (entry, preds)
+        rows.append({"method": name, "seen MSE": f"{entry['seen']['mse']:.1f} ± {entry['seen']['mse_sd']:.1f}",
+                     "seen SSIM": f"{entry['seen']['ssim']:.3f} ± {entry['seen']['ssim_sd']:.3f}",
+                     "unseen MSE": f"{entry['unseen']['mse']:.1f} ± {entry['unseen']['mse_sd']:.1f}",
+                     "unseen SSIM": f"{entry['unseen']['ssim']:.3f} ± {entry['unseen']['ssim_sd']:.3f}",
+                     "img/s b1": entry["img_per_s_b1"], "img/s b32": entry["img_per_s_b32"],
+                     "peak MB": entry.get("peak_rss_mb")})
+    print_table(rows, list(rows[0]), title=f"generator speed vs error ({'quick' if quick else 'full'}, "
+                                            f"{n_pairs} pairs/split, {a.threads} torch threads)")
+
+    default_name = f"default DDIM-{gens['default'].config.default_steps}"
+    copy, dflt = per_method["reference copy"][0], per_method.get(default_name, (None,))[0]
+    targets = None
+    if dflt is not None:
+        targets = {
+            "default_setting": default_name,
+            "unseen_mse_ratio_to_copy": dflt["unseen"]["mse"] / copy["unseen"]["mse"],
+            "unseen_mse_at_most_quarter_of_copy": dflt["unseen"]["mse"] <= 0.25 * copy["unseen"]["mse"],
+            "unseen_ssim_above_copy": dflt["unseen"]["ssim"] > copy["unseen"]["ssim"],
+            "default_img_per_s_b32": dflt["img_per_s_b32"],
+            "default_at_least_10_img_per_s": dflt["img_per_s_b32"] >= 10.0,
+        }
+        print("\ntargets:", json.dumps(targets, indent=1))
+
+    if a.sheet or a.out:
+        sheet = a.sheet or a.out.with_suffix(".png")
+        name = default_name if default_name in per_method else next(n for n in per_method if n.startswith("default"))
+        cases = []
+        for split in ("unseen", "seen"):
+            refs, tgts, rf, tf, _ = data[split]
+            order = np.argsort(-(tf[:, 2] - rf[:, 2]))  # largest force increase first
+            for k in list(order[:2]) + list(order[-1:]):
+                cases.append((split, refs[k], tgts[k], per_method[name][1][split][k]))
+        save_sheet(sheet, cases, {s: d[4] for s, d in data.items()})
+        print(f"wrote {sheet}")
+
+    results = {
+        "settings": {"quick": quick, "pairs_per_split": n_pairs, "render_size": list(RENDER_SIZE),
+                     "model_size": list(gens["default"].config.image_size), "threads": a.threads,
+                     "checkpoints": {k: {"path": str(v if isinstance(v, str) else v), "hash": gens[k].checkpoint_hash}
+                                     for k, v in (("default", a.checkpoint), ("fast", a.fast)) if k in gens}},
+        "methods": [per_method[n][0] for n in per_method],
+        "targets": targets,
+    }
+    doc = write_results(a.out, results)
+    if a.update_model_card:
+        for key in gens:
+            ck = Path(a.checkpoint if key == "default" else a.fast)
+            folder = CHECKPOINT_ROOT / ck if not ck.is_dir() else ck
+            card_path = folder / "model_card.json"
+            card = json.loads(card_path.read_text()) if card_path.is_file() else {}
+            card["benchmark"] = {"command": "python -m benchmarks.generator" + (" --quick" if quick else ""),
+                                 "machine": doc["machine"], "settings": results["settings"], "targets": targets,
+                                 "methods": [m for m in results["methods"] if m["kind"] in ("copy", "rerender", key)]}
+            write_json(card_path, card)
+            print(f"updated {card_path}")
+    return doc
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,80 @@
+"""Training CLI on a tiny real sensor-model dataset: stages, resume, reuse of an autoencoder, torchrun."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from controltac_il.generator import ForceGenerator
+from controltac_il.generator.data import load_pair_data, sample_pairs
+from controltac_il.generator.train import main, parse_args
+from controltac_il.tactile import TRAIN_OBJECTS, SensorSpec
+from controltac_il.tactile.dataset import write_dataset
+
+TINY = ["--ae-steps", "3", "--dit-steps", "3", "--ae-batch", "2", "--dit-batch", "4", "--ae-crop", "32", "40",
+        "--checkpoint-every", "2", "--warmup-steps", "1", "--no-contact-frames", "2", "--threads", "1"]
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    root = tmp_path_factory.mktemp("gen") / "data"
+    write_dataset(root, TRAIN_OBJECTS[:2], poses_per_object=2, forces_per_pose=3, seed=0,
+                  spec=SensorSpec.gelsight_mini().scaled(60, 80), progress=False)
+    return root
+
+
+def test_pairs_stay_within_a_contact_pose(dataset):
+    data = load_pair_data(dataset, (64, 80), no_contact_frames=2, progress=False)
+    assert data.residuals.shape == (12 + 2, 64, 80, 3)
+    group_of = {int(i): g for g, idx in enumerate(data.groups) for i in idx}
+    ref, tgt, df = sample_pairs(data, 200, np.random.default_rng(0), no_contact_prob=0.2)
+    contact = ~np.isin(ref, data.no_contact)
+    assert all(group_of[r] == group_of[t] for r, t in zip(ref[contact], tgt[contact]))
+    np.testing.assert_allclose(df[contact], data.forces[tgt[contact]] - data.forces[ref[contact]], rtol=1e-6)
+    assert np.isin(tgt[~contact], data.no_contact).all() and (~contact).sum() > 10
+
+
+def test_train_resume_and_reuse_autoencoder(dataset, tmp_path):
+    run = tmp_path / "run"
+    main(["--data", str(dataset), "--out", str(run), "--image-size", "64", "80", *TINY])
+    final = run / "final"
+    card = json.loads((final / "model_card.json").read_text())
+    assert card["denoiser"]["steps"] == 3 and card["data"]["images"] == 12 and card["data"]["seed"] == 0
+    gen = ForceGenerator.from_pretrained(final)
+    assert gen.generate(np.full((1, 60, 80, 3), 127, np.uint8), [[0, 0, 1]], steps=1).shape == (1, 60, 80, 3)
+
+    with pytest.raises(SystemExit):  # states present: refuses to start over silently
+        parse_args(["--data", str(dataset), "--out", str(run), "--image-size", "64", "80", *TINY])
+    more = [a if a != "3" else "5" for a in TINY]
+    main(["--data", str(dataset), "--out", str(run), "--image-size", "64", "80", "--resume", *more])
+    assert json.loads((run / "denoiser_state.json").read_text())["step"] == 5
+    assert json.loads((run / "autoencoder_state.json").read_text())["step"] == 5
+
+    fast = tmp_path / "fast"
+    main(["--data", str(dataset), "--out", str(fast), "--image-size", "64", "80", "--autoencoder-from", str(run),
+          "--stage", "denoiser", "--dit-preset", "tiny", "--prediction-type", "sample", "--default-steps", "2", *TINY])
+    g2 = ForceGenerator.from_pretrained(fast / "final")
+    assert g2.config.diffusion.prediction_type == "sample" and g2.config.dit.depth == 2
+    assert not (fast / "autoencoder_state.json").exists()
+
+
+def test_bad_training_arguments(dataset, tmp_path):
+    with pytest.raises(ValueError, match="ae_crop"):
+        main(["--data", str(dataset), "--out", str(tmp_path / "x"), "--ae-crop", "200", "40"])
+    with pytest.raises(ValueError, match="stage 'denoiser'"):
+        main(["--data", str(dataset), "--out", str(tmp_path / "y"), "--stage", "denoiser"])
+
+
+@pytest.mark.slow
+def test_torchrun_two_processes_gloo(dataset, tmp_path):
+    run = tmp_path / "ddp"
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2",
+           "-m", "controltac_il.generator.train", "--data", str(dataset), "--out", str(run), "--image-size", "64", "80", *TINY]
+    subprocess.run(cmd, check=True, env=env, cwd=Path(__file__).resolve().parents[1], timeout=600)
+    card = json.loads((run / "final" / "model_card.json").read_text())
+    assert card["world_size"] == 2 and card["denoiser"]["steps"] == 3
