@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -93,6 +94,7 @@ class PegInHoleEnv:
                 # no-contact frame = the optics over a flat gel without noise (the optics' flat-gel
                 # response is not exactly the raw background for every optics model)
                 self._backgrounds[s] = quiet.render_penetration(flat)
+        self._pool = ThreadPoolExecutor(len(SENSORS), thread_name_prefix="tactile") if cfg.tactile else None
         self._rng = np.random.default_rng()
         self._episode_seed = 0
         self.hole_xy = np.zeros(2)
@@ -181,10 +183,13 @@ class PegInHoleEnv:
         return out, bool((out != a).any())
 
     def close(self) -> None:
-        """Free the renderer (the GL context)."""
+        """Free the renderer (the GL context) and the tactile worker threads."""
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
 
     def __enter__(self):
         return self
@@ -274,13 +279,21 @@ class PegInHoleEnv:
 
     # ------------------------------------------------------------------ internals
     def _observe(self) -> dict:
+        """Observation of the current state. The tactile optics of both pads run in worker threads
+        while the cameras render (ray casting, forces and GL stay on this thread: they use mjData)."""
         obs = {"qpos": np.array([*self.tcp_pose(), self.gripper_closure()], dtype=np.float32)}
+        forces = self.pad_forces()
+        pending = {}
+        if self.config.tactile:
+            for s in SENSORS:
+                pen = self.penetration_mm(s)
+                shear = (float(forces[s][0]), float(forces[s][1])) if pen.any() else (0.0, 0.0)
+                pending[s] = self._pool.submit(self._sensors[s].render_penetration, pen, shear, self._noise_seed(s))
         for cam in self.config.cameras:
             obs[f"images/{cam}"] = self.render_camera(cam)
-        forces = self.pad_forces()
         for s in SENSORS:
-            if self.config.tactile:
-                obs[f"tactile/{s}"] = self.render_tactile(s, forces[s])
+            if s in pending:
+                obs[f"tactile/{s}"] = pending[s].result()
             obs[f"force/{s}"] = forces[s]
         return obs
 
