@@ -318,9 +318,8 @@ class ControlLoop:
             for step in steps:
                 start = clock.now()
                 stats.cycle_starts.append(start)
-                if step > 0:
-                    obs, state = self._observe(watchdog)
-                    safety.check_state(state.pose)
+                obs, state = self._observe(watchdog)  # fresh at step 0 too: the warm-up may have taken seconds
+                safety.check_state(state.pose)
                 watchdog.check(start)
                 if worker is not None:
                     self._poll_worker(worker, step, obs, start)

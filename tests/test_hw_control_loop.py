@@ -295,3 +295,16 @@ def test_bad_max_steps():
     loop, _, _ = make(VirtualClock(), RampPolicy())
     with pytest.raises(ValueError, match="max_steps"):
         loop.run(max_steps=0)
+
+
+def test_slow_first_inference_does_not_trip_the_watchdog():
+    # the first chunk (model warm-up) takes 0.4 s, twice the 0.2 s frame-age limit: the loop observes afresh
+    class SlowFirst(RampPolicy):
+        def predict_chunk(self, obs):
+            if self.calls == 0:
+                time.sleep(0.4)
+            return super().predict_chunk(obs)
+
+    loop, arm, log = make(WallClock(), SlowFirst(), inference="async")
+    stats = loop.run(max_steps=3)
+    assert stats.steps == 3 and len(commands(log)) == 3
