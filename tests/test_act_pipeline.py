@@ -1,0 +1,75 @@
+"""Deployment in the MuJoCo scene through the control loop, and the end-to-end pipeline."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from controltac_il.pipeline import PipelineConfig, run_pipeline, wilson_interval
+from policies.act import ACT, ACTConfig, ACTPolicy
+from policies.act.deploy import SimScene, evaluate_in_sim, run_sim_episode
+
+SCENE_SMALL = dict(camera_size=(32, 40), tactile_size=(24, 32), max_steps=4)
+
+
+def _policy(cameras=("third_view", "wrist")):
+    torch.manual_seed(0)
+    cfg = ACTConfig.from_preset("cpu", camera_names=cameras, dim_model=32, n_heads=2, dim_feedforward=64,
+                                n_encoder_layers=1, n_vae_encoder_layers=1, camera_size=(24, 32),
+                                tactile_size=(24, 32))
+    model = ACT(cfg)
+    # start from the scene's home pose, gripper open: the untrained policy barely moves
+    model.set_stats({"qpos": {"mean": [0.0] * 5, "std": [1.0] * 5},
+                     "action": {"mean": [0.0, 0.0, 0.15, 0.0, 0.0], "std": [1e-3] * 5}})
+    return ACTPolicy(model)
+
+
+def test_seeded_sim_episodes_run_through_the_control_loop():
+    result = evaluate_in_sim(_policy(), episodes=2, seed=7, env_overrides=SCENE_SMALL, progress=False)
+    assert [o["seed"] for o in result["outcomes"]] == [7, 8]
+    assert all(o["steps"] == 4 and o["error"] is None and not o["success"] for o in result["outcomes"])
+    assert result["successes"] == 0 and result["wilson95"] == pytest.approx(list(wilson_interval(0, 2)))
+    assert result["grip_force_range_n"] == [3.0, 9.0] and result["inference_ms_p50"] > 0
+    shifted = evaluate_in_sim(_policy(), episodes=1, seed=7, grip_force_range=(10.0, 12.0),
+                              env_overrides=SCENE_SMALL, progress=False)
+    assert shifted["grip_force_range_n"] == [10.0, 12.0]
+
+
+def test_sim_scene_steps_once_per_cycle_and_is_deterministic():
+    from envs.config import PegInHoleConfig
+    from envs.peg_in_hole import PegInHoleEnv
+    from hardware.interfaces import VirtualClock
+
+    with PegInHoleEnv(PegInHoleConfig(**SCENE_SMALL)) as env:
+        scene = SimScene(env, VirtualClock())
+        poses = []
+        for _ in range(2):
+            start = scene.index
+            r = run_sim_episode(_policy(), scene, seed=3)
+            poses.append(env.tcp_pose())
+            assert r["steps"] == 4 and scene.index - start == 1 + 4  # the reset, then one step per cycle
+        assert np.array_equal(poses[0], poses[1])
+        assert set(scene.tactile) == {"left", "right"} and scene.tactile["left"].background.shape == (24, 32, 3)
+
+
+def test_a_policy_for_other_cameras_is_refused_before_the_scene_starts():
+    with pytest.raises(ValueError, match="camera 'top'"):
+        evaluate_in_sim(_policy(cameras=("top", "wrist")), episodes=1, env_overrides=SCENE_SMALL, progress=False)
+
+
+def test_pipeline_config_validation():
+    with pytest.raises(ValueError, match="copies"):
+        PipelineConfig(copies=10)
+    with pytest.raises(ValueError, match="demos"):
+        PipelineConfig(demos=0)
+
+
+@pytest.mark.slow
+def test_tiny_pipeline_end_to_end(tmp_path, monkeypatch):
+    monkeypatch.setenv("CONTROLTAC_CACHE", str(tmp_path / "cache"))
+    report = run_pipeline(tmp_path / "out", PipelineConfig(demos=2, copies=0, steps=4, batch_size=4,
+                                                           eval_episodes=1), progress=False)
+    assert report["training"]["steps"] == 4 and report["evaluation"]["episodes"] == 1
+    assert set(report["seconds"]) == {"collect", "train", "deploy", "total"}
+    assert json.loads((tmp_path / "out" / "pipeline.json").read_text())["evaluation"]["episodes"] == 1
