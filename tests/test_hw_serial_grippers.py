@@ -193,3 +193,35 @@ def test_robotiq_activation_timeout():
 def test_robotiq_bad_config(kwargs, field):
     with pytest.raises(ValueError, match=field):
         RobotiqGripper("/dev/null", **kwargs)
+
+
+@pytest.mark.parametrize("kind", ["robotiq", "dynamixel"])
+def test_garbage_on_the_gripper_line_mid_run_stops_the_arm(kind):
+    import numpy as np
+
+    from hardware.control_loop import ControlLoop, ControlLoopConfig
+    from hardware.fakes import FakeArm
+    from hardware.interfaces import VirtualClock
+
+    class Close:
+        def predict_chunk(self, obs):
+            return np.tile(np.r_[obs["qpos"][:4], 1.0], (5, 1))
+
+    device = FakeRobotiq2F85() if kind == "robotiq" else FakeDynamixelServo()
+    client = RobotiqGripper if kind == "robotiq" else DynamixelGripper
+    log = []
+    with device as dev, client(dev.port) as gripper:
+        loop = ControlLoop(FakeArm(log=log), Close(), gripper=gripper, clock=VirtualClock(),
+                           config=ControlLoopConfig(inference="sync", chunk_size=5))
+
+        def inject(step, obs, target):
+            if step == 2:
+                dev.garbage_replies = 10
+            return False
+
+        expected = "reply CRC mismatch .*garbage on the serial line" if kind == "robotiq" else "status packet"
+        with pytest.raises(HardwareError, match=expected):
+            loop.run(max_steps=10, on_step=inject)
+        dev.garbage_replies = 0  # let the gripper's own stop on exit through
+    events = [e for e, _ in log]
+    assert events.count("servo") == 3 and events[-1] == "arm-stop"
