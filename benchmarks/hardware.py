@@ -16,6 +16,7 @@
 
 from __future__ import annotations
 
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -130,7 +131,9 @@ def main(argv=None) -> dict:
     print_table(rows, ["measure", "p50_ms", "p99_ms", "max_ms", "n"], title="hardware path timings (ms)")
     print(f"\ncontrol loop: {loop['steps']} cycles at 10 Hz, {loop['deadline_misses']} missed deadlines; "
           f"GelSight file source delivered {gel['delivered_fps']:.1f} fps (file at 25)")
-    return write_results(args.out, {"benchmark": "hardware", "quick": args.quick, "control_loop": loop,
+    load = os.getloadavg()[0]
+    print(f"machine load (1 min average) during the run: {load:.1f} on {os.cpu_count()} cores")
+    return write_results(args.out, {"benchmark": "hardware", "quick": args.quick, "load_avg_1m": load, "control_loop": loop,
                                     "gelsight": gel, "serial": ser, "table": rows})
 
 
