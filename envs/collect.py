@@ -13,7 +13,6 @@ so the folder holds exactly ``--episodes`` files. Episode ``i``'s attributes rec
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 from pathlib import Path
@@ -80,7 +79,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                     "episodes episode_<i>.hdf5 in --out.",
     )
     p.add_argument("--episodes", type=int, default=50, help="number of episode files to write (default 50)")
-    p.add_argument("--out", type=Path, required=True, help="output folder (created; existing episode files are overwritten)")
+    p.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace episode files already in --out (default: refuse to touch them)")
     p.add_argument("--seed", type=int, default=0, help="first scene seed; later episodes use the next seeds (default 0)")
     p.add_argument("--cameras", nargs="*", default=list(CAMERAS), choices=CAMERAS,
                    help="cameras to record (default: third_view wrist; none: no images)")
@@ -107,7 +108,7 @@ def parse_args(argv=None) -> argparse.Namespace:
 def main(argv=None) -> int:
     from tqdm import tqdm
 
-    from controltac_il.datasets.episodes import write_episode
+    from controltac_il.datasets.episodes import episode_index, episode_paths, write_episode
     from controltac_il.io import write_json
 
     args = parse_args(argv)
@@ -119,6 +120,11 @@ def main(argv=None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     max_attempts = args.max_attempts or 2 * args.episodes + 10
+    existing = episode_paths(args.out) if args.out.is_dir() else []
+    if existing and not args.overwrite:
+        print(f"error: {args.out} already holds {len(existing)} episode files; pass --overwrite to replace them",
+              file=sys.stderr)
+        return 2
     args.out.mkdir(parents=True, exist_ok=True)
     written, attempts, failures = 0, 0, []
     with PegInHoleEnv(config) as env:
@@ -136,6 +142,9 @@ def main(argv=None) -> int:
                 write_episode(args.out / f"episode_{written}.hdf5", episode, compression=args.compression)
                 written += 1
                 bar.update(1)
+    for old in existing:  # --overwrite: the folder holds exactly the new episodes
+        if episode_index(old) >= written:
+            old.unlink()
     write_json(args.out / "collect_info.json", {
         "episodes": written, "attempts": attempts, "failed_seeds": failures,
         "config": {k: v for k, v in vars(config).items()}, "expert": vars(ExpertConfig()),

@@ -59,6 +59,8 @@ class PegInHoleConfig:
     success_depth_mm: the peg counts as inserted when its bottom is this far below the rim and
         its axis is inside the hole.
     tactile_noise: add the sensor model's pixel noise (seeded per episode and step).
+    ring_segments: number of wall boxes around the hole (the hole is a regular polygon of this many
+        sides inscribed around the circle; 16 keeps the corners within 0.3 mm of it).
     """
 
     cameras: tuple[str, ...] = CAMERAS
@@ -124,6 +126,8 @@ class PegInHoleConfig:
                 "workspace_low / workspace_high must be 4 numbers (x, y, z, yaw) with low < high, "
                 f"got {self.workspace_low!r} / {self.workspace_high!r}")
         self.workspace_low, self.workspace_high = low, high
+        if not isinstance(self.ring_segments, int) or not 8 <= self.ring_segments <= 64:
+            raise ValueError(f"ring_segments must be an int in [8, 64], got {self.ring_segments!r}")
         if not 1.0 <= float(self.success_depth_mm) <= float(self.hole_depth_mm):
             raise ValueError(
                 f"success_depth_mm must be in [1, hole_depth_mm={self.hole_depth_mm}], got {self.success_depth_mm!r}")

@@ -61,6 +61,19 @@ def test_recorded_episodes_feed_the_act_dataset(tmp_path):
     assert tuple(item["observation.images.wrist"].shape) == (3, 48, 64)
 
 
+def test_existing_episodes_are_kept_unless_overwrite(tmp_path):
+    out = tmp_path / "demos"
+    out.mkdir()
+    for i in range(3):  # a larger earlier collection
+        (out / f"episode_{i}.hdf5").write_bytes(b"old")
+    args = ["--episodes", "1", "--out", str(out), "--cameras", "--camera-size", "48", "64", "--tactile-size", "60", "80"]
+    assert collect.main(args) == 2
+    assert (out / "episode_0.hdf5").read_bytes() == b"old"
+    assert collect.main(args + ["--overwrite"]) == 0
+    assert [p.name for p in episode_paths(out)] == ["episode_0.hdf5"]
+    assert len(read_episode(out / "episode_0.hdf5")) > 10
+
+
 def test_bad_arguments_exit_with_usage_error(tmp_path):
     with pytest.raises(SystemExit):
         collect.main(["--episodes", "0", "--out", str(tmp_path)])
