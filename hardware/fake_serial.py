@@ -147,12 +147,11 @@ class FakeDynamixelServo(PtyDevice):
         pos, goal = self._get_i32(132), self._get_i32(116)
         step = int(np.clip(goal - pos, -self.speed_ticks_s * dt, self.speed_ticks_s * dt))
         new = pos + step
-        blocked = False
         if self.object_at is not None and (pos <= self.object_at < new or new < self.object_at <= pos):
-            new, blocked = self.object_at, True
+            new = self.object_at  # the fingers meet the object
         self._set_i32(132, new)
-        current = int.from_bytes(self.table[102:104], "little", signed=True) if blocked or (
-            self.object_at is not None and new == self.object_at and goal != new) else 0
+        squeezing = self.object_at is not None and new == self.object_at and goal != new
+        current = int.from_bytes(self.table[102:104], "little", signed=True) if squeezing else 0
         self.table[126:128] = current.to_bytes(2, "little", signed=True)
 
     def _status(self, error: int, params: bytes = b"") -> bytes:
