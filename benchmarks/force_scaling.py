@@ -37,7 +37,7 @@ import torch
 from benchmarks.common import base_parser, print_table, write_results
 from controltac_il.estimators import EstimatorConfig, ForceEstimator, TrainConfig, fit
 from controltac_il.estimators.data import estimate_noise_std, load_arrays, no_contact_residuals
-from controltac_il.io import atomic_path
+from controltac_il.io import atomic_path, write_json
 from controltac_il.metrics import force_mae
 
 
@@ -173,10 +173,24 @@ def generate_frames(work: Path, x: np.ndarray, f: np.ndarray, refs: np.ndarray, 
 
 # ---------------------------------------------------------------------------- training rows
 def train_row(name: str, kind: str, x: np.ndarray, f: np.ndarray, test, empty: np.ndarray, empty_test: np.ndarray,
-              setup: ScalingSetup, progress: bool) -> tuple[dict, ForceEstimator]:
+              setup: ScalingSetup, progress: bool, cache_dir: Path | None = None) -> tuple[dict, ForceEstimator]:
     """Train on (x, f) + the no-contact frames ``empty`` with every seed; evaluate on ``test`` and
-    on the held-out no-contact frames ``empty_test`` (mean |F| read, N)."""
+    on the held-out no-contact frames ``empty_test`` (mean |F| read, N).
+
+    With ``cache_dir``, the row and its last estimator are stored under a key of the training
+    settings and the exact data, and reused by a later run (the real rows need no generator).
+    """
     xt, ft = test
+    key = None
+    if cache_dir is not None:
+        h = hashlib.sha256()
+        for a in (x, f, empty, xt, ft, empty_test):
+            h.update(np.ascontiguousarray(a).tobytes())
+        train_keys = ("input_size", "steps", "batch_size", "lr", "seeds")
+        h.update(json.dumps([name, {k: asdict(setup)[k] for k in train_keys}]).encode())
+        key = cache_dir / f"row_{h.hexdigest()[:16]}"
+        if (key / "row.json").is_file():
+            return json.loads((key / "row.json").read_text()), ForceEstimator.from_pretrained(key)
     cfg = EstimatorConfig(input_height=setup.input_size[0], input_width=setup.input_size[1])
     xs = np.concatenate([x, empty])
     fs = np.concatenate([f, np.zeros((len(empty), 3), np.float32)])
@@ -196,13 +210,16 @@ def train_row(name: str, kind: str, x: np.ndarray, f: np.ndarray, test, empty: n
         zero.append(float(np.abs(est.predict(empty_test)).mean()))
     err = np.concatenate(per_frame)
     row = {
-        "row": name, "kind": kind, "train_images": int(len(x)),
+        "row": name, "kind": kind, "train_images": int(len(x)), "test_images": int(len(xt)),
         "mae_n": float(err.mean()), "sd_n": float(err.std()),
         "mae_fx": float(np.mean([a[0] for a in axes])), "mae_fy": float(np.mean([a[1] for a in axes])),
         "mae_fz": float(np.mean([a[2] for a in axes])),
         "seed_sd_n": float(np.std(seed_mae)) if len(seed_mae) > 1 else None,
         "no_contact_abs_n": float(np.mean(zero)), "train_seconds": float(np.median(secs)),
     }
+    if key is not None:
+        est.save(key)
+        write_json(key / "row.json", row)
     return row, est
 
 
@@ -271,8 +288,7 @@ def main(argv=None) -> dict:
 
     def add(name, kind, xs, fs):
         print(f"\n== {name}: {len(xs)} training images", flush=True)
-        row, est = train_row(name, kind, xs, fs, test, empty, empty_test, setup, progress)
-        row["test_images"] = int(len(xt))
+        row, est = train_row(name, kind, xs, fs, test, empty, empty_test, setup, progress, cache_dir=work)
         rows.append(row)
         print(f"   test MAE {row['mae_n']:.3f} ± {row['sd_n']:.3f} N", flush=True)
         return est
