@@ -3,7 +3,6 @@ and fault injection (policy raises, late policy, stale frame, arm error, hung ar
 stopped before the exception reaches the caller, nothing is commanded after the fault, and the error
 says what happened."""
 
-import math
 import signal
 import threading
 import time
