@@ -89,8 +89,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="camera image size in pixels (default 96 128)")
     p.add_argument("--tactile-size", type=int, nargs=2, default=(120, 160), metavar=("H", "W"),
                    help="tactile image size in pixels, GelSight Mini aspect 3:4 (default 120 160)")
-    p.add_argument("--optics", default="polynomial", choices=("polynomial", "three_light"),
-                   help="tactile optics model (default polynomial)")
+    p.add_argument("--optics", default="three_light", choices=("three_light", "polynomial"),
+                   help="tactile optics model (default three_light, as the generator's training data)")
     p.add_argument("--hole-diameter", type=float, default=30.0, help="hole diameter in mm (30 = paper, default)")
     p.add_argument("--hold-steps", type=int, default=3, help="frames recorded after the insertion succeeds (default 3)")
     p.add_argument("--keep-failures", action="store_true", help="also write episodes where the expert failed")

@@ -40,7 +40,8 @@ class PegInHoleConfig:
     tactile: render one tactile image per finger ("left", "right") into the observation.
     tactile_size: (height, width) of the tactile images, aspect 3:4; the pad keeps the GelSight
         Mini's physical size, so fewer pixels means a coarser pitch.
-    tactile_optics: the sensor model's optics, "polynomial" (Taxim lookup) or "three_light".
+    tactile_optics: the sensor model's optics, "three_light" (default: the optics the generator's
+        training data and the sensor model default to) or "polynomial" (Taxim lookup).
     ray_stride: tactile rays are cast every ``ray_stride`` pixels and the gap to the peg is
         interpolated bilinearly (exact for the smooth peg surface to ~1e-3 mm at stride 2).
     hole_diameter_mm: diameter of the receptacle's hole (30 = the paper; 26 = a tight variant);
@@ -67,7 +68,7 @@ class PegInHoleConfig:
     camera_size: tuple[int, int] = (96, 128)
     tactile: bool = True
     tactile_size: tuple[int, int] = (120, 160)
-    tactile_optics: str = "polynomial"
+    tactile_optics: str = "three_light"
     ray_stride: int = 2
     hole_diameter_mm: float = 30.0
     hole_depth_mm: float = 40.0

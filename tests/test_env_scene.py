@@ -141,3 +141,18 @@ def test_expert_config_and_yaw_wrap():
     assert wrap_half_turn(math.pi * 0.75) == pytest.approx(-math.pi / 4)
     assert wrap_half_turn(-math.pi * 0.75) == pytest.approx(math.pi / 4)
     assert wrap_half_turn(0.3) == pytest.approx(0.3)
+
+
+@pytest.mark.slow
+def test_benchmark_quick_run_writes_results(tmp_path):
+    import json
+
+    from benchmarks import env as bench
+
+    out = tmp_path / "env.json"
+    bench.main(["--quick", "--seeds", "2", "--out", str(out)])
+    doc = json.loads(out.read_text())
+    assert doc["machine"]["cores"] >= 1
+    assert [r["setting"] for r in doc["step_timing"]] == list(bench.SETTINGS)
+    assert all(r["ms_per_step"] > 0 and r["steps"] > 0 for r in doc["step_timing"])
+    assert doc["expert"][0]["episodes"] == 2 and doc["expert"][0]["successes"] == 2
