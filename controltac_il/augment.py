@@ -14,11 +14,11 @@ the virtual trajectory is the same in every worker, epoch, process and sampling 
 Items are the wrapped items, with only the regenerated tactile images (and their force labels, set
 to the target force) replaced, plus ``augment.*`` fields saying what was done::
 
-    augment.copy                 int64        copy index (0 = real)
-    augment.offset               float32      the copy's normal-force offset, N (0 for copy 0)
-    augment.jitter               float32      the frame's jitter, N (0 for copy 0)
+    augment.copy                 int          copy index (0 = real)
+    augment.offset               float        the copy's normal-force offset, N (0 for copy 0)
+    augment.jitter               float        the frame's jitter, N (0 for copy 0)
     augment.augmented            bool         some tactile image of the item was regenerated
-    augment.status.<key>         int64        STATUS code for that tactile key (see STATUS)
+    augment.status.<key>         int          STATUS code for that tactile key (see STATUS)
     augment.reference_force.<key> float32 (3,) reference force N (NaN when not known or not needed)
     augment.target_force.<key>    float32 (3,) force the returned image shows (NaN when not known)
 
@@ -45,6 +45,7 @@ import torch
 from torch.utils.data import Dataset
 from tqdm import tqdm
 
+from controltac_il.datasets.act_dataset import EpisodeDataset
 from controltac_il.datasets.background import estimate_background
 from controltac_il.io import atomic_dir, write_json
 from controltac_il.tactile.residual import contact_mask, from_residual, to_residual
@@ -59,6 +60,7 @@ BUILD = ("now", "require", "manual")
 STATUS = {"real": 0, "no_contact": 1, "regenerated": 2, "clamped": 3, "skipped": 4}
 _STATUS_NAME = {v: k for k, v in STATUS.items()}
 _OPEN_CHUNKS = 64  # cached chunk readers per process
+_NAN3 = torch.full((3,), float("nan"))
 
 
 class StaleCacheError(ValueError):
@@ -189,13 +191,25 @@ def _to_hwc_uint8(value, key: str) -> np.ndarray:
 
 
 def _like(image: np.ndarray, original):
-    """uint8 (H, W, 3) -> the original's container, layout and dtype."""
+    """uint8 (H, W, 3) -> the original's container, layout and dtype (None: uint8 (3, H, W) tensor view)."""
+    if original is None:
+        return torch.from_numpy(image).permute(2, 0, 1)
     chw = original.shape[0] == 3 and original.shape[-1] != 3
-    arr = image.transpose(2, 0, 1) if chw else image
     if isinstance(original, torch.Tensor):
-        out = torch.from_numpy(np.ascontiguousarray(arr))
+        out = torch.from_numpy(image)
+        out = out.permute(2, 0, 1) if chw else out
         return out if original.dtype == torch.uint8 else (out.to(original.dtype) / 255.0)
+    arr = image.transpose(2, 0, 1) if chw else image
     return arr if original.dtype == np.uint8 else (arr.astype(original.dtype) / 255.0)
+
+
+def _force_tensor(force) -> torch.Tensor:
+    """float32 (3,) tensor of a force (tensor, array or list); NaN when ``force`` is None."""
+    if force is None:
+        return _NAN3.clone()
+    if isinstance(force, torch.Tensor):
+        return force.clone() if force.dtype == torch.float32 else force.float()
+    return torch.from_numpy(np.array(force, np.float32))
 
 
 def _default_cache_root() -> Path:
@@ -209,6 +223,32 @@ def _force_key(key: str) -> str:
 
 def _background_key(key: str) -> str:
     return key.replace("tactile", "tactile_background", 1)
+
+
+class _FrameFile:
+    """Random row reads of a uint8 ``.npy`` stack (n, H, W, 3) with one ``pread`` per row (no page faults
+    of a memory map, no HDF5 overhead): as cheap as reading a frame of the source episode."""
+
+    def __init__(self, path: Path):
+        with open(path, "rb") as f:
+            version = np.lib.format.read_magic(f)
+            read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            shape, fortran, dtype = read_header(f)
+            self.offset = f.tell()
+        if dtype != np.uint8 or fortran or len(shape) != 4:
+            raise ValueError(f"{path}: expected a C-ordered uint8 (n, H, W, 3) array, got {dtype} {shape}")
+        self.shape = shape
+        self.row_bytes = int(np.prod(shape[1:]))
+        self.fd = os.open(path, os.O_RDONLY)
+
+    def read(self, row: int) -> np.ndarray:
+        out = np.empty(self.shape[1:], np.uint8)
+        if os.preadv(self.fd, [out], self.offset + row * self.row_bytes) != self.row_bytes:
+            raise ValueError(f"cache file truncated at row {row}")
+        return out
+
+    def close(self) -> None:
+        os.close(self.fd)
 
 
 class _EpisodeFrames:
@@ -266,6 +306,7 @@ class ForceAugment(Dataset):
         self._estimator = estimator
         self._chunks: OrderedDict = OrderedDict()
         self._pid = os.getpid()
+        self._frames = None  # (episode, frame) per index, when known without reading items
         if self.config.mode == "online":
             missing = [k for k in self.tactile_keys if _background_key(k) not in probe]
             if missing:
@@ -275,6 +316,8 @@ class ForceAugment(Dataset):
             self.cache_dir = None
         else:
             self.cache_dir = Path(self.config.cache_dir) if self.config.cache_dir else self._default_cache_dir()
+            if isinstance(dataset, EpisodeDataset):
+                self._frames = dataset.frame_table()
             self._check_manifest()
             if build not in BUILD:
                 raise ValueError(f"build: expected one of {BUILD}, got {build!r}")
@@ -370,6 +413,11 @@ class ForceAugment(Dataset):
         if not -n <= index < n:
             raise IndexError(f"index {index} out of range for {n} items")
         copy, base = divmod(int(index) % n, self.n_base)
+        if copy and self._frames is not None:  # the project's dataset: do not read frames about to be replaced
+            episode, frame = int(self._frames[0][base]), int(self._frames[1][base])
+            entry = self._chunk(episode, copy)[0].get(frame)
+            regenerated = [k for k, e in zip(self.tactile_keys, entry[2]) if e[1] >= 0] if entry else []
+            return self._from_cache(self.dataset.item(base, skip_keys=regenerated), episode, copy, frame)
         item = dict(self.dataset[base])
         if copy == 0:
             return self._annotate(item, 0, 0.0, 0.0, {k: (STATUS["real"], None, None) for k in self.tactile_keys})
@@ -388,31 +436,35 @@ class ForceAugment(Dataset):
             raise ValueError(f"dataset: episode_index and frame_index must be >= 0, got {e}, {t}")
         return e, t
 
-    def _annotate(self, item: dict, copy: int, offset: float, jitter: float, per_key: dict) -> dict:
-        """per_key: key -> (status, reference (3,) or None, target (3,) or None)."""
-        nan3 = np.full(3, np.nan, np.float32)
-        item["augment.copy"] = torch.tensor(copy, dtype=torch.int64)
-        item["augment.offset"] = torch.tensor(offset, dtype=torch.float32)
-        item["augment.jitter"] = torch.tensor(jitter, dtype=torch.float32)
+    def _annotate(self, item: dict, copy: int, offset: float, jitter: float, per_key: dict, has_row=False) -> dict:
+        """per_key: key -> (status, reference (3,) or None, target (3,) or None), or with ``has_row``
+        (status, row, reference, target). Scalars stay Python numbers (collated once per batch).
+        """
         augmented = False
-        for k, (status, ref, target) in per_key.items():
-            augmented |= status in (STATUS["regenerated"], STATUS["clamped"])
+        item["augment.copy"], item["augment.offset"], item["augment.jitter"] = copy, offset, jitter
+        for k, rec in per_key.items():
+            status, ref, target = (rec[0], rec[2], rec[3]) if has_row else rec
+            regenerated = status in (STATUS["regenerated"], STATUS["clamped"])
+            augmented |= regenerated
             if ref is None and self.labelled[k]:
-                ref = np.asarray(item[_force_key(k)], np.float32)
-            shown = target if status in (STATUS["regenerated"], STATUS["clamped"]) else ref
-            item[f"augment.status.{k}"] = torch.tensor(status, dtype=torch.int64)
-            item[f"augment.reference_force.{k}"] = torch.from_numpy(np.asarray(ref if ref is not None else nan3, np.float32).copy())
-            item[f"augment.target_force.{k}"] = torch.from_numpy(np.asarray(shown if shown is not None else nan3, np.float32).copy())
-        item["augment.augmented"] = torch.tensor(augmented)
+                ref = item[_force_key(k)]
+            shown = target if regenerated else ref
+            item[f"augment.status.{k}"] = status
+            item[f"augment.reference_force.{k}"] = _force_tensor(ref)
+            item[f"augment.target_force.{k}"] = _force_tensor(shown)
+        item["augment.augmented"] = augmented
         return item
 
     def _replace(self, item: dict, key: str, image: np.ndarray, target) -> None:
-        item[key] = _like(image, item[key])
+        item[key] = _like(image, item.get(key))
         fk = _force_key(key)
         if fk in item:
             orig = item[fk]
-            t = np.asarray(target, np.float32)
-            item[fk] = torch.from_numpy(t.copy()).to(orig.dtype) if isinstance(orig, torch.Tensor) else t.astype(np.asarray(orig).dtype)
+            t = target.numpy() if isinstance(target, torch.Tensor) else np.asarray(target)
+            if isinstance(orig, torch.Tensor):
+                item[fk] = torch.from_numpy(t.astype(np.float32)).to(orig.dtype)
+            else:
+                item[fk] = t.astype(np.asarray(orig).dtype)
 
     # --- online mode ----------------------------------------------------------------------------
     def _online(self, item: dict, episode: int, copy: int, frame: int) -> dict:
@@ -547,45 +599,61 @@ class ForceAugment(Dataset):
             residuals[k], backgrounds[k], contact[k], reference[k] = res, bg, touch, ref
         return _EpisodeFrames(residuals, backgrounds, contact, reference, source)
 
-    def _write_chunk(self, episode: int, copy: int, ep: _EpisodeFrames) -> int:
+    def _plan_chunk(self, episode: int, copy: int, ep: _EpisodeFrames) -> list[dict]:
+        """Provenance records of one chunk (every frame x tactile key), before generation.
+
+        A record to generate has ``row`` >= 0: its position in the chunk's image array of its key.
+        """
         cfg = self.config
         frames = [t for t, _ in self._episode_cache[episode]]
         offset = copy_offset(cfg.seed, episode, copy, cfg.offset_range)
-        jitters = [frame_jitter(cfg.seed, episode, copy, t, cfg.jitter) for t in frames]
-        records, images, generated = [], {}, 0
+        records = []
         for j, k in enumerate(self.tactile_keys):
-            todo_rows, refs, targets, seeds = [], [], [], []
-            recs = []
-            for row, t in enumerate(frames):
+            rows = 0
+            for i, t in enumerate(frames):
                 rec = {"episode": episode, "copy": copy, "frame": t, "key": k, "offset": offset,
-                       "jitter": jitters[row], "reference_force": None, "target_force": None, "row": -1,
-                       "status": "no_contact", "generator_hash": str(self.generator.checkpoint_hash),
-                       "steps": self.steps, "noise_seed": None, "background": ep.background_source[k]}
-                if ep.contact[k][row]:
-                    ref = ep.reference[k][row]
-                    target, status = resolve_target(ref, offset + jitters[row], cfg.out_of_range)
+                       "jitter": frame_jitter(cfg.seed, episode, copy, t, cfg.jitter), "reference_force": None,
+                       "target_force": None, "status": "no_contact", "row": -1, "noise_seed": None,
+                       "generator_hash": str(self.generator.checkpoint_hash), "steps": self.steps,
+                       "background": ep.background_source[k]}
+                if ep.contact[k][i]:
+                    ref = ep.reference[k][i]
+                    target, status = resolve_target(ref, offset + rec["jitter"], cfg.out_of_range)
                     rec.update(reference_force=ref.tolist(), target_force=target.tolist(), status=_STATUS_NAME[status])
                     if status != STATUS["skipped"]:
-                        rec["row"] = len(todo_rows)
-                        rec["noise_seed"] = noise_seed(cfg.seed, episode, copy, t, j)
-                        todo_rows.append(row)
-                        refs.append(ref)
-                        targets.append(target)
-                        seeds.append(rec["noise_seed"])
-                recs.append(rec)
-            h, w = ep.residuals[k].shape[1:3]
-            out = np.empty((len(todo_rows), h, w, 3), np.uint8)
-            if todo_rows:
-                res = self._generate(ep.residuals[k][todo_rows], np.asarray(refs), np.asarray(targets), seeds)
-                out[:] = from_residual(res, ep.backgrounds[k])
-            images[j] = out
-            generated += len(todo_rows)
-            records.extend(recs)
+                        rec.update(row=rows, noise_seed=noise_seed(cfg.seed, episode, copy, t, j))
+                        rows += 1
+                records.append(rec)
+        return records
+
+    def _write_chunk(self, episode: int, copy: int, ep: _EpisodeFrames) -> int:
+        records = self._plan_chunk(episode, copy, ep)
+        position = {t: i for i, (t, _) in enumerate(self._episode_cache[episode])}
+        todo = [r for r in records if r["row"] >= 0]  # every key of the chunk in one generator call
+        if todo:
+            refs = np.stack([ep.residuals[r["key"]][position[r["frame"]]] for r in todo])
+            out = self._generate(refs, np.asarray([r["reference_force"] for r in todo]),
+                                 np.asarray([r["target_force"] for r in todo]), [r["noise_seed"] for r in todo])
         with atomic_dir(self._chunk_dir(episode, copy)) as tmp:
-            for j, arr in images.items():
-                np.save(tmp / f"tactile_{j}.npy", arr)
+            for j, k in enumerate(self.tactile_keys):
+                mine = [i for i, r in enumerate(todo) if r["key"] == k]
+                h, w = ep.residuals[k].shape[1:3]
+                images = from_residual(out[mine], ep.backgrounds[k]) if mine else np.empty((0, h, w, 3), np.uint8)
+                np.save(tmp / f"tactile_{j}.npy", images)
             (tmp / "provenance.json").write_text(json.dumps({"episode": episode, "copy": copy, "frames": records}) + "\n")
-        return generated
+        return len(todo)
+
+    def plan(self, progress: bool = False) -> list[dict]:
+        """Provenance records of every augmented frame without generating (reads the whole dataset once).
+
+        Lets a user count contact / clamped / skipped frames before building, or in online mode.
+        """
+        out = []
+        for e in tqdm(self._episode_ids(), desc="planning", disable=not progress, file=sys.stderr):
+            ep = self._load_episode(e)
+            for k in range(1, self.config.copies + 1):
+                out.extend(self._plan_chunk(e, k, ep))
+        return out
 
     def _wait_complete(self, poll_s: float = 2.0) -> None:
         """Under torchrun, wait until the other ranks have written their chunks."""
@@ -617,27 +685,32 @@ class ForceAugment(Dataset):
             doc = json.loads((d / "provenance.json").read_text())
         except FileNotFoundError as exc:
             raise ValueError(f"cache {self.cache_dir}: no chunk for episode {episode} copy {copy}") from exc
-        index = {(r["frame"], r["key"]): r for r in doc["frames"]}
-        arrays = [np.load(d / f"tactile_{j}.npy", mmap_mode="r") for j in range(len(self.tactile_keys))]
-        self._chunks[key] = hit = (index, arrays)
+        # frame -> (offset, jitter, per key (status, row, reference tensor|None, target tensor|None))
+        frames: dict = {}
+        position = {k: j for j, k in enumerate(self.tactile_keys)}
+        for r in doc["frames"]:
+            entry = frames.setdefault(r["frame"], (r["offset"], r["jitter"], [None] * len(position)))
+            entry[2][position[r["key"]]] = (
+                STATUS[r["status"]], r["row"],
+                None if r["reference_force"] is None else torch.tensor(r["reference_force"], dtype=torch.float32),
+                None if r["target_force"] is None else torch.tensor(r["target_force"], dtype=torch.float32))
+        files = [_FrameFile(d / f"tactile_{j}.npy") for j in range(len(self.tactile_keys))]
+        self._chunks[key] = hit = (frames, files, doc["frames"])
         if len(self._chunks) > _OPEN_CHUNKS:
-            self._chunks.popitem(last=False)
+            for f in self._chunks.popitem(last=False)[1][1]:
+                f.close()
         return hit
 
     def _from_cache(self, item: dict, episode: int, copy: int, frame: int) -> dict:
-        index, arrays = self._chunk(episode, copy)
-        per_key, rec = {}, None
-        for j, k in enumerate(self.tactile_keys):
-            rec = index.get((frame, k))
-            if rec is None:
-                raise ValueError(f"cache {self.cache_dir}: episode {episode} copy {copy} has no frame {frame}")
-            status = STATUS[rec["status"]]
-            ref = None if rec["reference_force"] is None else np.asarray(rec["reference_force"])
-            target = None if rec["target_force"] is None else np.asarray(rec["target_force"])
-            if rec["row"] >= 0:
-                self._replace(item, k, np.array(arrays[j][rec["row"]]), target)
-            per_key[k] = (status, ref, target)
-        return self._annotate(item, copy, rec["offset"], rec["jitter"], per_key)
+        frames, files, _ = self._chunk(episode, copy)
+        entry = frames.get(frame)
+        if entry is None:
+            raise ValueError(f"cache {self.cache_dir}: episode {episode} copy {copy} has no frame {frame}")
+        offset, jitter, per_key = entry
+        for j, (k, (status, row, ref, target)) in enumerate(zip(self.tactile_keys, per_key)):
+            if row >= 0:
+                self._replace(item, k, files[j].read(row), target)
+        return self._annotate(item, copy, offset, jitter, dict(zip(self.tactile_keys, per_key)), has_row=True)
 
     def provenance(self) -> list[dict]:
         """Every augmented frame's record (cache mode): episode, copy, frame, key, offset, jitter,
@@ -646,13 +719,16 @@ class ForceAugment(Dataset):
             raise ValueError("provenance: only in mode='cache'")
         out = []
         for e, k in self.chunk_list():
-            out.extend(self._chunk(e, k)[0].values())
+            out.extend(self._chunk(e, k)[2])
         return out
 
     def summary(self) -> dict:
-        """Counts over the augmented copies (cache mode): frames, no_contact, regenerated, clamped, skipped."""
+        """Counts over the augmented copies: tactile frames, no_contact, regenerated, clamped, skipped.
+
+        From the cache's provenance in cache mode; from ``plan()`` (one pass over the data) online.
+        """
+        recs = self.provenance() if self.config.mode == "cache" else self.plan()
         counts = {name: 0 for name in ("no_contact", "regenerated", "clamped", "skipped")}
-        recs = self.provenance()
         for r in recs:
             counts[r["status"]] += 1
         total = len(recs)
@@ -661,8 +737,6 @@ class ForceAugment(Dataset):
 
 
 def main(argv=None) -> int:
-    from controltac_il.datasets import EpisodeDataset
-
     p = argparse.ArgumentParser(
         prog="python -m controltac_il.augment",
         description="Build a ForceAugment cache: generate every augmented tactile frame of a folder of ACT "

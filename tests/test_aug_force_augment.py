@@ -90,7 +90,7 @@ def test_length_copy0_and_untouched_fields(data, gen, tmp_path):
     assert len(a) == 4 * n
     for i in range(len(a)):
         item, src = a[i], data[i % n]
-        assert int(item["augment.copy"]) == i // n
+        assert item["augment.copy"] == i // n
         for k in ("observation.qpos", "action", "action_is_pad", "observation.images.wrist",
                   "observation.tactile_background.left"):
             assert torch.equal(item[k], src[k]), k  # byte-identical to the source
@@ -163,6 +163,7 @@ def test_skip_keeps_real_frames_and_counts(data, gen, tmp_path):
     assert sc["skipped"] == 0 and ss["clamped"] == 0
     assert sc["clamped"] == ss["skipped"] > 0  # same draws: every clamped target is a skipped one
     assert sc["regenerated"] == ss["regenerated"] and sc["no_contact"] == ss["no_contact"] == 4 * 8
+    assert ForceAugment(data, gen, copies=4, seed=1, mode="online", out_of_range="skip").summary() == ss
     for r in skip.provenance():
         if r["status"] == "skipped":
             assert r["row"] == -1 and not 1.0 <= r["target_force"][2] <= 10.0

@@ -94,7 +94,7 @@ class EpisodeDataset(Dataset):
         self.backgrounds = self._fill_backgrounds(backgrounds)
         self.stats_path = Path(stats_path) if stats_path is not None else self._default_stats_path()
         self.stats = self._load_or_compute_stats()
-        self._files: dict[int, h5py.File] = {}
+        self._files: dict[int, dict] = {}
         self._pid = None
 
     @staticmethod
@@ -183,13 +183,19 @@ class EpisodeDataset(Dataset):
         fr = np.concatenate([np.arange(n, dtype=np.int64) for n in self.lengths])
         return ep, fr
 
-    def _file(self, n: int) -> h5py.File:
+    def _handles(self, n: int) -> dict:
+        """Open h5py datasets of episode ``n`` (file opened read-only once per process)."""
         if self._pid != os.getpid():  # handles do not survive fork: reopen in each worker
             self._files, self._pid = {}, os.getpid()
-        f = self._files.get(n)
-        if f is None:
-            f = self._files[n] = h5py.File(self.paths[n], "r")
-        return f
+        h = self._files.get(n)
+        if h is None:
+            f = h5py.File(self.paths[n], "r")
+            h = {"file": f, "action": f["action"], "qpos": f["observations/qpos"]}
+            h.update({f"images.{c}": f[f"observations/images/{c}"] for c in self.cameras})
+            h.update({f"tactile.{s}": f[f"observations/tactile/{s}"] for s in self.tactile_sensors})
+            h.update({f"force.{s}": f[f"observations/force/{s}"] for s in self.force_sensors})
+            self._files[n] = h
+        return h
 
     def __getstate__(self):
         state = self.__dict__.copy()
@@ -197,11 +203,15 @@ class EpisodeDataset(Dataset):
         return state
 
     def __getitem__(self, index: int) -> dict:
+        return self.item(index)
+
+    def item(self, index: int, skip_keys=()) -> dict:
+        """Item ``index``; keys in ``skip_keys`` (e.g. a tactile image about to be replaced) are not read."""
         n, t = self.locate(int(index))
-        f = self._file(n)
+        h = self._handles(n)
         T = int(self.lengths[n])
         stop = min(t + self.chunk_size, T)
-        chunk = f["action"][t:stop]
+        chunk = h["action"][t:stop]
         pad = self.chunk_size - len(chunk)
         if pad:
             chunk = np.concatenate([chunk, np.repeat(chunk[-1:], pad, axis=0)])
@@ -210,15 +220,16 @@ class EpisodeDataset(Dataset):
         item = {
             "episode_index": self.episode_ids[n],
             "frame_index": t,
-            "observation.qpos": torch.from_numpy(f["observations/qpos"][t]),
+            "observation.qpos": torch.from_numpy(h["qpos"][t]),
         }
         for cam in self.cameras:
-            item[f"observation.images.{cam}"] = torch.from_numpy(f[f"observations/images/{cam}"][t]).permute(2, 0, 1)
+            item[f"observation.images.{cam}"] = torch.from_numpy(h[f"images.{cam}"][t]).permute(2, 0, 1)
         for s in self.tactile_sensors:
-            item[f"observation.tactile.{s}"] = torch.from_numpy(f[f"observations/tactile/{s}"][t]).permute(2, 0, 1)
+            if f"observation.tactile.{s}" not in skip_keys:
+                item[f"observation.tactile.{s}"] = torch.from_numpy(h[f"tactile.{s}"][t]).permute(2, 0, 1)
             item[f"observation.tactile_background.{s}"] = torch.from_numpy(self.backgrounds[(n, s)]).permute(2, 0, 1)
         for s in self.force_sensors:
-            item[f"observation.force.{s}"] = torch.from_numpy(f[f"observations/force/{s}"][t])
+            item[f"observation.force.{s}"] = torch.from_numpy(h[f"force.{s}"][t])
         item["action"] = torch.from_numpy(np.ascontiguousarray(chunk, dtype=np.float32))
         item["action_is_pad"] = torch.from_numpy(is_pad)
         return item
