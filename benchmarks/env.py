@@ -82,7 +82,7 @@ def time_parts(repeats: int) -> list[dict]:
             ("camera third_view 96x128", lambda: env.render_camera("third_view")),
             ("camera wrist 96x128", lambda: env.render_camera("wrist")),
             ("tactile rays (1 pad)", lambda: env.penetration_mm("left")),
-            ("tactile optics (1 pad)", lambda: env._sensors["left"].render_penetration(
+            ("tactile optics (1 pad)", lambda: env.tactile_sensor("left").render_penetration(
                 env.penetration_mm("left"), shear=(0.1, -0.2), noise_seed=1)),
             ("tactile total (1 pad)", lambda: env.render_tactile("left")),
             ("pad forces (2 pads)", env.pad_forces),

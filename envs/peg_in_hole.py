@@ -266,6 +266,18 @@ class PegInHoleEnv:
         shear = (float(force[0]), float(force[1])) if pen.any() else (0.0, 0.0)
         return self._sensors[sensor].render_penetration(pen, shear=shear, noise_seed=self._noise_seed(sensor))
 
+    def tactile_sensor(self, sensor: str):
+        """The ``TactileSensor`` (sensor model) rendering one finger's images."""
+        if sensor not in self._sensors:
+            raise ValueError(f"tactile is off or unknown sensor {sensor!r}; expected one of {SENSORS}")
+        return self._sensors[sensor]
+
+    def pad_rays(self, sensor: str) -> PadRays:
+        """The ray caster of one finger's gel."""
+        if sensor not in self._rays:
+            raise ValueError(f"tactile is off or unknown sensor {sensor!r}; expected one of {SENSORS}")
+        return self._rays[sensor]
+
     def tactile_background(self, sensor: str) -> np.ndarray:
         """uint8 (H, W, 3) no-contact image of a sensor (zero penetration rendered without noise)."""
         if sensor not in self._backgrounds:

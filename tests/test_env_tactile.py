@@ -79,12 +79,12 @@ def test_tactile_intensity_and_force_grow_with_grip_force(env):
 def test_penetration_strip_matches_the_peg_geometry(env):
     grasp(env, 6.0, lift=False)
     for s in ("left", "right"):
-        rays = env._rays[s]
+        rays = env.pad_rays(s)
         pen = env.penetration_mm(s)
         rot = rays.rotation
         site = env.data.site_xpos[rays.site_id]
         axis = rot.T @ (env.peg_pose()[0] - site) * 1000.0  # peg centre in the sensor frame, mm
-        pitch = env._sensors[s].spec.mm_per_px
+        pitch = env.tactile_sensor(s).spec.mm_per_px
         h, w = SIZE
         # the imprint is a vertical strip centred on the peg's axis, as deep as the peg's overlap
         cols = (np.arange(w) + 0.5 - w / 2) * pitch
@@ -102,8 +102,8 @@ def test_penetration_strip_matches_the_peg_geometry(env):
 
 def test_ray_stride_interpolation_matches_full_resolution(env):
     grasp(env, 6.0)
-    full = PadRays(env.model, env.data, "left_sensor", 1, SIZE, env._sensors["left"].spec.pad_size_mm, stride=1)
-    coarse = PadRays(env.model, env.data, "left_sensor", 1, SIZE, env._sensors["left"].spec.pad_size_mm, stride=2)
+    full = PadRays(env.model, env.data, "left_sensor", 1, SIZE, env.tactile_sensor("left").spec.pad_size_mm, stride=1)
+    coarse = PadRays(env.model, env.data, "left_sensor", 1, SIZE, env.tactile_sensor("left").spec.pad_size_mm, stride=2)
     a, b = full.penetration_mm(), coarse.penetration_mm()
     assert a.max() > 0.1
     assert np.abs(a - b).max() < 0.01
