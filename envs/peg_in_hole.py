@@ -221,7 +221,7 @@ class PegInHoleEnv:
         bottom = self.peg_bottom()
         if np.linalg.norm(bottom[:2] - self.hole_xy) >= self.config.hole_diameter_mm / 2000.0:
             return 0.0
-        return max(0.0, (rim_height_m(self.config.hole_depth_mm) - bottom[2]) * 1000.0)
+        return float(max(0.0, (rim_height_m(self.config.hole_depth_mm) - bottom[2]) * 1000.0))
 
     def is_success(self) -> bool:
         """Peg bottom at least ``success_depth_mm`` below the rim, inside the hole's radius."""
