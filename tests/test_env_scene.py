@@ -156,3 +156,36 @@ def test_benchmark_quick_run_writes_results(tmp_path):
     assert [r["setting"] for r in doc["step_timing"]] == list(bench.SETTINGS)
     assert all(r["ms_per_step"] > 0 and r["steps"] > 0 for r in doc["step_timing"])
     assert doc["expert"][0]["episodes"] == 2 and doc["expert"][0]["successes"] == 2
+
+
+def test_only_requested_streams_are_rendered():
+    with PegInHoleEnv(PegInHoleConfig(cameras=("wrist",), camera_size=(48, 64), tactile=False)) as env:
+        obs, _ = env.reset(seed=2)
+        assert set(obs) == {"qpos", "images/wrist", "force/left", "force/right"}
+        wrist = obs["images/wrist"]
+        assert wrist.shape == (48, 64, 3) and wrist.dtype == np.uint8
+        with pytest.raises(ValueError, match="sensor"):
+            env.tactile_background("left")
+        # the blue peg is in view once the hand hovers above it, and the image follows the scene
+        x, y = env.peg_pose()[0][:2]
+        for _ in range(8):
+            obs, *_ = env.step([x - 0.03, y, 0.14, 0.0, 0.0])
+        img = obs["images/wrist"].astype(int)
+        blue = (img[..., 2] > img[..., 0] + 60).mean()
+        assert blue > 0.01
+        assert not np.array_equal(obs["images/wrist"], wrist)
+
+
+def test_receptacle_tube_mesh_faces_outward():
+    from envs.scene import tube_mesh
+
+    r_in, r_out, z0, z1 = 0.015, 0.027, 0.008, 0.048
+    vertices, faces = tube_mesh(r_in, r_out, z0, z1, 24)
+    assert vertices.shape == (96, 3) and faces.shape == (192, 3)
+    tri = vertices[faces]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    centre = tri.mean(axis=1)
+    radial = np.linalg.norm(centre[:, :2], axis=1)
+    # from the tube's material core (mid radius, mid height) towards each face
+    core = np.column_stack([centre[:, :2] * ((r_in + r_out) / 2 / radial)[:, None], np.full(len(faces), (z0 + z1) / 2)])
+    assert (np.einsum("ij,ij->i", normal, centre - core) > 0).all()
