@@ -132,12 +132,24 @@ def main(argv=None) -> dict:
 
     rows = results["experiment"] = []
     max_copies = max(VARIANTS[v] for v in variants)
+    generator_problem = None
+    if max_copies:
+        try:
+            from controltac_il.generator import ForceGenerator
+
+            ForceGenerator.from_pretrained(args.generator)
+        except (OSError, ValueError, ImportError) as exc:
+            generator_problem = f"{type(exc).__name__}: {exc}"
+            print(f"ForceAugment variants skipped, no generator: {generator_problem}")
     settings = (("nominal", None), ("shifted", tuple(args.shifted_grip)))
     for v in variants:
         run = args.runs / v
         copies = VARIANTS[v]
         row = {"variant": v, "copies": copies, "status": "training"}
         rows.append(row)
+        if copies and generator_problem:
+            row["status"] = f"skipped (no generator: {generator_problem})"
+            continue
         t = time.perf_counter()
         if not _trained(run, args.steps):
             augment = make_augment(copies, args.generator, seed=0, max_copies=max_copies) if copies else None
