@@ -2,6 +2,7 @@
 
     python -m benchmarks.force_scaling --out force_scaling.json          # full run (tens of minutes)
     python -m benchmarks.force_scaling --quick --out /tmp/fs_quick.json  # CI-sized smoke run
+    python -m benchmarks.force_scaling --rows real third+copy            # rows that need no generator
 
 "Real" means sensor-model ground truth. Every training set is made from one real training set of
 P contact poses per object with K forces each; the test set is other poses (another seed), the same
@@ -41,6 +42,9 @@ from controltac_il.io import atomic_path, write_json
 from controltac_il.metrics import force_mae
 
 
+ROW_KINDS = ("real", "third+copy", "generated", "third+generated", "full+generated")
+
+
 @dataclass
 class ScalingSetup:
     """Sizes and seeds of the experiment.
@@ -69,7 +73,7 @@ class ScalingSetup:
     test_seed: int = 1000
     image_size: tuple[int, int] = (128, 160)
     input_size: tuple[int, int] = (64, 80)
-    steps: int = 1500
+    steps: int = 1200
     batch_size: int = 64
     lr: float = 2e-3
     no_contact: int = 100
@@ -257,11 +261,15 @@ def main(argv=None) -> dict:
                    help="cache of the sensor-model datasets and generated frames (default: a folder in /tmp)")
     p.add_argument("--generator", default=None, help="generator checkpoint folder (default: the shipped one)")
     p.add_argument("--plot", type=Path, default=None, help="PNG of MAE vs training-set size (default: --out with .png)")
-    p.add_argument("--steps", type=int, default=None, help="estimator updates per row (default 1500; quick 40)")
+    p.add_argument("--steps", type=int, default=None, help="estimator updates per row (default 1200; quick 40)")
     p.add_argument("--gen-steps", type=int, default=None, help="generator DDIM steps (default: the generator's default)")
     p.add_argument("--seeds", type=int, nargs="+", default=None, help="training seeds (default 0)")
     p.add_argument("--poses", type=int, default=None, help="training poses per object (default 60)")
-    p.add_argument("--no-generator", action="store_true", help="run only the real rows (a) and the copy control")
+    p.add_argument("--rows", nargs="+", choices=ROW_KINDS + ("generation",), default=list(ROW_KINDS), metavar="KIND",
+                   help="row kinds to run (default all): real = (a), third+copy = control, generated = (b), "
+                        "third+generated = (c), full+generated = (d); 'generation' only makes the generated "
+                        "frames. Rows are cached in --work-dir, so separate processes can run rows in parallel "
+                        "and a last full run assembles the table")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     args = p.parse_args(argv)
@@ -287,6 +295,8 @@ def main(argv=None) -> dict:
     rows = []
 
     def add(name, kind, xs, fs):
+        if kind not in args.rows:
+            return None
         print(f"\n== {name}: {len(xs)} training images", flush=True)
         row, est = train_row(name, kind, xs, fs, test, empty, empty_test, setup, progress, cache_dir=work)
         rows.append(row)
@@ -308,7 +318,8 @@ def main(argv=None) -> dict:
     add(f"control: real {setup.reference_keep}/{K} + copies", "third+copy",
         np.concatenate([x[third], x[refs]]), np.concatenate([f[third], copy_f]))
 
-    if not args.no_generator:
+    gen_kinds = {"generated", "third+generated", "full+generated", "generation"}
+    if gen_kinds & set(args.rows):
         g, g_labels, info = generate_frames(work, x, f, refs, targets, setup, args.generator, progress)
         results["generation"] = info
         add("(b) generated only", "generated", g, g_labels)
