@@ -65,11 +65,8 @@ class PegInHoleEnv:
         self._peg_geom = m.geom("peg").id
         self._receptacle = m.body("receptacle").id
         self._gel = {s: m.geom(f"{s}_gel").id for s in SENSORS}
-        # lookup table over geom pairs (g1 * ngeom + g2): True for peg vs table / receptacle
-        static = np.flatnonzero(np.isin(m.geom_bodyid, (0, self._receptacle)))
-        self._peg_static_pair = np.zeros(m.ngeom * m.ngeom, bool)
-        self._peg_static_pair[self._peg_geom * m.ngeom + static] = True
-        self._peg_static_pair[static * m.ngeom + self._peg_geom] = True
+        # contact sensors (MJCF): [found, dist] of the peg's deepest contact with receptacle / table
+        self._contact_dist = [m.sensor_adr[m.sensor(n).id] + 1 for n in ("peg_receptacle", "peg_table")]
         self._pose_act = [self._act[n] for n in ("hand_x", "hand_y", "hand_z", "hand_yaw")]
         self._finger_act = [self._act[f"{s}_finger"] for s in SENSORS]
         self._low = np.array(cfg.workspace_low)
@@ -317,13 +314,9 @@ class PegInHoleEnv:
         return ctrl
 
     def _peg_static_penetration(self) -> float:
-        """Deepest penetration (m) of the peg into the table or receptacle right now."""
-        if self.data.ncon == 0:
-            return 0.0
-        con = self.data.contact
-        g = con.geom
-        hit = self._peg_static_pair[g[:, 0] * self.model.ngeom + g[:, 1]]
-        return float(-con.dist[hit].min()) if hit.any() else 0.0
+        """Deepest penetration (m) of the peg into the table or receptacle (contact sensors; 0 = none)."""
+        sd = self.data.sensordata
+        return -min(sd[self._contact_dist[0]], sd[self._contact_dist[1]], 0.0)
 
     def _warning_count(self) -> int:
-        return int(sum(w.number for w in self.data.warning))
+        return int(self.data.warning.number.sum())

@@ -27,7 +27,7 @@ def build_model(
     ring_segments: int = 16,
     render_size: tuple[int, int] = (96, 128),
 ) -> mujoco.MjModel:
-    """Compile the scene with a receptacle body ``receptacle`` at the origin (moved per episode).
+    """Compile the scene, filling the MJCF's ``receptacle`` body (at the origin; moved per episode).
 
     hole_diameter_mm: diameter of the inscribed circle of the wall polygon (mm).
     hole_depth_mm: from the rim to the floor (mm).
@@ -36,7 +36,7 @@ def build_model(
     spec = mujoco.MjSpec.from_file(str(ASSET))
     r = hole_diameter_mm / 2000.0
     depth = hole_depth_mm / 1000.0
-    body = spec.worldbody.add_body(name="receptacle", pos=[0.0, 0.0, 0.0])
+    body = spec.body("receptacle")
     outer = r + WALL_THICKNESS_M
     static = spec.find_default("static")
     body.add_geom(
