@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from torch.utils.data import Dataset
+from torch.utils.data import Dataset, Subset
 from tqdm import tqdm
 
 from controltac_il.datasets.act_dataset import EpisodeDataset
@@ -225,6 +225,19 @@ def _background_key(key: str) -> str:
     return key.replace("tactile", "tactile_background", 1)
 
 
+def _episode_source(dataset) -> tuple[EpisodeDataset | None, np.ndarray | None]:
+    """The EpisodeDataset behind ``dataset`` (itself or a ``Subset`` of one) and the subset's indices.
+
+    Those are read directly, skipping the tactile frames the cache replaces.
+    """
+    if isinstance(dataset, EpisodeDataset):
+        return dataset, None
+    if isinstance(dataset, Subset) and isinstance(dataset.dataset, EpisodeDataset) and callable(
+            getattr(dataset, "frame_table", None)):
+        return dataset.dataset, np.asarray(dataset.indices, np.int64)
+    return None, None
+
+
 class _FrameFile:
     """Random row reads of a uint8 ``.npy`` stack (n, H, W, 3) with one ``pread`` per row (no page faults
     of a memory map, no HDF5 overhead): as cheap as reading a frame of the source episode."""
@@ -307,6 +320,7 @@ class ForceAugment(Dataset):
         self._chunks: OrderedDict = OrderedDict()
         self._pid = os.getpid()
         self._frames = None  # (episode, frame) per index, when known without reading items
+        self._source, self._source_index = None, None  # EpisodeDataset read directly (cache mode)
         if self.config.mode == "online":
             missing = [k for k in self.tactile_keys if _background_key(k) not in probe]
             if missing:
@@ -316,7 +330,8 @@ class ForceAugment(Dataset):
             self.cache_dir = None
         else:
             self.cache_dir = Path(self.config.cache_dir) if self.config.cache_dir else self._default_cache_dir()
-            if isinstance(dataset, EpisodeDataset):
+            self._source, self._source_index = _episode_source(dataset)
+            if self._source is not None:
                 self._frames = dataset.frame_table()
             self._check_manifest()
             if build not in BUILD:
@@ -373,9 +388,12 @@ class ForceAugment(Dataset):
         cfg["reference_force"] = {k: ("labels" if v else "estimator") for k, v in self.labelled.items()}
         if not all(self.labelled.values()):
             cfg["estimator_hash"] = str(getattr(self.estimator, "checkpoint_hash", None))
-        fp = getattr(self.dataset, "fingerprint", None)
+        source, index = _episode_source(self.dataset)
+        fp = getattr(source if source is not None else self.dataset, "fingerprint", None)
         data = dict(fp()) if callable(fp) else {}
         data.pop("root", None)
+        if index is not None:
+            data["subset_sha256"] = hashlib.sha256(np.asarray(index, np.int64).tobytes()).hexdigest()[:16]
         cfg["data"] = {"type": type(self.dataset).__name__, "length": self.n_base, **data}
         return json.loads(json.dumps(cfg))
 
@@ -417,7 +435,8 @@ class ForceAugment(Dataset):
             episode, frame = int(self._frames[0][base]), int(self._frames[1][base])
             entry = self._chunk(episode, copy)[0].get(frame)
             regenerated = [k for k, e in zip(self.tactile_keys, entry[2]) if e[1] >= 0] if entry else []
-            return self._from_cache(self.dataset.item(base, skip_keys=regenerated), episode, copy, frame)
+            src = base if self._source_index is None else int(self._source_index[base])
+            return self._from_cache(self._source.item(src, skip_keys=regenerated), episode, copy, frame)
         item = dict(self.dataset[base])
         if copy == 0:
             return self._annotate(item, 0, 0.0, 0.0, {k: (STATUS["real"], None, None) for k in self.tactile_keys})

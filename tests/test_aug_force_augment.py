@@ -359,3 +359,38 @@ def test_items_without_indices_or_background(gen, tmp_path):
         ForceAugment(LeRobotLike(eps, with_index=False), gen, copies=1, cache_dir=tmp_path / "c")
     with pytest.raises(ValueError, match="online mode needs the no-contact background"):
         ForceAugment(LeRobotLike(eps), gen, copies=1, mode="online")
+
+
+class FramedSubset(torch.utils.data.Subset):
+    """Like the ACT trainer's episode split: a Subset that keeps frame_table()."""
+
+    def frame_table(self):
+        e, f = self.dataset.frame_table()
+        return e[self.indices], f[self.indices]
+
+
+class Opaque(Dataset):
+    """The same items through a plain dataset (ForceAugment's generic read path)."""
+
+    def __init__(self, ds):
+        self.ds = ds
+
+    def __len__(self):
+        return len(self.ds)
+
+    def __getitem__(self, i):
+        return self.ds[i]
+
+
+def test_subset_direct_reads_equal_generic_reads(data, gen, tmp_path):
+    sub = FramedSubset(data, list(range(12, 20)))  # episode 1 only
+    fast = aug(sub, gen, tmp_path, "fast", copies=2)
+    slow = aug(Opaque(sub), gen, tmp_path, "slow", copies=2)
+    assert fast._source is data and slow._source is None
+    assert len(fast) == 3 * 8 and fast.summary() == slow.summary()
+    assert fast.settings()["data"]["subset_sha256"]
+    for i in range(len(fast)):
+        x, y = fast[i], slow[i]
+        assert x.keys() == y.keys()
+        for k in x:
+            assert torch.equal(x[k], y[k]) if isinstance(x[k], torch.Tensor) else x[k] == y[k], k
