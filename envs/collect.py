@@ -91,6 +91,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="tactile image size in pixels, GelSight Mini aspect 3:4 (default 120 160)")
     p.add_argument("--optics", default="three_light", choices=("three_light", "polynomial"),
                    help="tactile optics model (default three_light, as the generator's training data)")
+    p.add_argument("--no-tactile", action="store_true", help="record no tactile images (forces are still recorded)")
+    p.add_argument("--grip-force", type=float, nargs=2, default=(3.0, 9.0), metavar=("LOW", "HIGH"),
+                   help="per-finger grip force range in N, drawn per episode (default 3 9)")
     p.add_argument("--hole-diameter", type=float, default=30.0, help="hole diameter in mm (30 = paper, default)")
     p.add_argument("--hold-steps", type=int, default=3, help="frames recorded after the insertion succeeds (default 3)")
     p.add_argument("--keep-failures", action="store_true", help="also write episodes where the expert failed")
@@ -114,7 +117,8 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     try:
         config = PegInHoleConfig(cameras=tuple(args.cameras), camera_size=tuple(args.camera_size),
-                                 tactile_size=tuple(args.tactile_size), tactile_optics=args.optics,
+                                 tactile=not args.no_tactile, tactile_size=tuple(args.tactile_size),
+                                 tactile_optics=args.optics, grip_force_range_n=tuple(args.grip_force),
                                  hole_diameter_mm=args.hole_diameter)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -78,3 +78,14 @@ def test_bad_arguments_exit_with_usage_error(tmp_path):
     with pytest.raises(SystemExit):
         collect.main(["--episodes", "0", "--out", str(tmp_path)])
     assert collect.main(["--episodes", "1", "--out", str(tmp_path), "--tactile-size", "60", "60"]) == 2
+    assert collect.main(["--episodes", "1", "--out", str(tmp_path), "--grip-force", "9", "3"]) == 2
+
+
+def test_grip_force_range_and_no_tactile(tmp_path):
+    out = tmp_path / "demos"
+    assert collect.main(["--episodes", "1", "--out", str(out), "--cameras", "--no-tactile",
+                         "--grip-force", "7.5", "7.5"]) == 0
+    ep = read_episode(out / "episode_0.hdf5")
+    assert ep.tactile == {} and ep.tactile_background == {} and ep.images == {}
+    assert float(ep.attrs["grip_force_n"]) == 7.5
+    assert ep.force["right"][-1, 2] == pytest.approx(7.5, rel=0.03)
