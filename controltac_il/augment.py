@@ -1,8 +1,8 @@
 """ForceAugment: force-controlled tactile augmentation of an imitation-learning dataset.
 
     from controltac_il.augment import ForceAugment
-    dataset = ForceAugment(EpisodeDataset("demos/"), copies=4, cache_dir="cache/")
-    loader = DataLoader(dataset, batch_size=8, shuffle=True, num_workers=2)   # train as before
+    from controltac_il.datasets import EpisodeDataset
+    dataset = ForceAugment(EpisodeDataset("demos/"), copies=4, cache_dir="cache/")  # then train as before
 
 Index ``i`` of the wrapper is copy ``i // N`` of item ``i % N`` of the wrapped dataset (N items).
 Copy 0 is the real data. Copy k >= 1 of episode e is a virtual trajectory: one normal-force offset

@@ -394,3 +394,13 @@ def test_subset_direct_reads_equal_generic_reads(data, gen, tmp_path):
         assert x.keys() == y.keys()
         for k in x:
             assert torch.equal(x[k], y[k]) if isinstance(x[k], torch.Tensor) else x[k] == y[k], k
+
+
+def test_zero_copies_is_the_real_data(data, gen, tmp_path):
+    a = aug(data, gen, tmp_path, copies=0)
+    assert len(a) == len(data) and a.chunk_list() == [] and a.summary()["tactile_frames"] == 0
+    item = a[3]
+    assert item["augment.copy"] == 0 and item["augment.augmented"] is False
+    assert torch.equal(item["observation.tactile.left"], data[3]["observation.tactile.left"])
+    with pytest.raises(IndexError):
+        a[len(a)]
