@@ -65,6 +65,7 @@ class PegInHoleEnv:
         self._peg_geom = m.geom("peg").id
         self._receptacle = m.body("receptacle").id
         self._gel = {s: m.geom(f"{s}_gel").id for s in SENSORS}
+        self._sensor_site = {s: m.site(f"{s}_sensor").id for s in SENSORS}
         # contact sensors (MJCF): [found, dist] of the peg's deepest contact with receptacle / table
         self._contact_dist = [m.sensor_adr[m.sensor(n).id] + 1 for n in ("peg_receptacle", "peg_table")]
         self._pose_act = [self._act[n] for n in ("hand_x", "hand_y", "hand_z", "hand_yaw")]
@@ -228,7 +229,7 @@ class PegInHoleEnv:
         """float32 (3,) [Fx, Fy, Fz] N on each gel, sensor frame."""
         out = {}
         for s in SENSORS:
-            rot = self.data.site_xmat[self.model.site(f"{s}_sensor").id].reshape(3, 3)
+            rot = self.data.site_xmat[self._sensor_site[s]].reshape(3, 3)
             out[s] = pad_force(self.model, self.data, self._gel[s], rot).astype(np.float32)
         return out
 
