@@ -27,13 +27,14 @@ import mujoco  # noqa: E402
 
 from envs.config import SENSORS, PegInHoleConfig  # noqa: E402
 from envs.scene import build_model, rim_height_m  # noqa: E402
-from envs.tactile_rig import PadRays, pad_force  # noqa: E402
+from envs.tactile_rig import PadRays, group_mask, pad_force  # noqa: E402
 
 PEG_RADIUS_M = 0.0125
 PEG_HALF_LENGTH_M = 0.04
 FINGER_OPEN_M = 0.03  # gel surface distance from the TCP plane, gripper command 0
 FINGER_CLOSED_M = 0.004  # servo target at command 1 (inside the peg: the grip force saturates)
-PEG_GROUP = 1  # geom group of the peg: the only group the tactile rays see
+PEG_RAYS = group_mask(1)  # the peg's geom group
+WORLD_RAYS = group_mask(0, 3)  # table, hole floor, gripper (0) and the receptacle's collision walls (3)
 HOME = (0.0, 0.0, 0.15, 0.0)
 
 
@@ -66,6 +67,7 @@ class PegInHoleEnv:
         self._receptacle = m.body("receptacle").id
         self._gel = {s: m.geom(f"{s}_gel").id for s in SENSORS}
         self._sensor_site = {s: m.site(f"{s}_sensor").id for s in SENSORS}
+        self._finger_body = {s: m.body(f"{s}_finger").id for s in SENSORS}
         # contact sensors (MJCF): [found, dist] of the peg's deepest contact with receptacle / table
         self._contact_dist = [m.sensor_adr[m.sensor(n).id] + 1 for n in ("peg_receptacle", "peg_table")]
         self._pose_act = [self._act[n] for n in ("hand_x", "hand_y", "hand_z", "hand_yaw")]
@@ -87,8 +89,8 @@ class PegInHoleEnv:
             for k, s in enumerate(SENSORS):
                 quiet = TactileSensor(quiet_spec, optics=cfg.tactile_optics)
                 self._sensors[s] = TactileSensor(spec, optics=cfg.tactile_optics, seed=k) if cfg.tactile_noise else quiet
-                self._rays[s] = PadRays(m, self.data, f"{s}_sensor", PEG_GROUP, cfg.tactile_size,
-                                        spec.pad_size_mm, cfg.ray_stride)
+                self._rays[s] = PadRays(m, self.data, f"{s}_sensor", cfg.tactile_size, spec.pad_size_mm,
+                                        cfg.ray_stride)
                 # no-contact frame = the optics over a flat gel without noise (the optics' flat-gel
                 # response is not exactly the raw background for every optics model)
                 self._backgrounds[s] = quiet.render_penetration(flat)
@@ -235,10 +237,15 @@ class PegInHoleEnv:
 
     def pad_in_contact(self, sensor: str) -> bool:
         """Whether the peg touches the given gel."""
+        return self._gel_contacts(sensor)[0]
+
+    def _gel_contacts(self, sensor: str) -> tuple[bool, bool]:
+        """(the peg touches the gel, anything else touches it)."""
         g = self.data.contact.geom
-        pair = ((g[:, 0] == self._gel[sensor]) & (g[:, 1] == self._peg_geom)) | (
-            (g[:, 1] == self._gel[sensor]) & (g[:, 0] == self._peg_geom))
-        return bool(pair.any())
+        gel = self._gel[sensor]
+        other = np.where(g[:, 0] == gel, g[:, 1], np.where(g[:, 1] == gel, g[:, 0], -1))
+        other = other[other >= 0]
+        return bool((other == self._peg_geom).any()), bool((other != self._peg_geom).any())
 
     # ------------------------------------------------------------------ rendering
     def render_camera(self, camera: str) -> np.ndarray:
@@ -249,12 +256,22 @@ class PegInHoleEnv:
         return self._renderer.render()
 
     def penetration_mm(self, sensor: str) -> np.ndarray:
-        """float32 (H, W) peg penetration into a gel (mm); zeros without contact (no rays cast)."""
+        """float32 (H, W) penetration into a gel (mm); zeros without contact (no rays cast).
+
+        Rays see the peg when it touches the gel, and the static world (table, receptacle) and the
+        other finger only when one of them touches it (rare; it keeps image and force label consistent).
+        """
         if sensor not in self._rays:
             raise ValueError(f"tactile is off or unknown sensor {sensor!r}; expected one of {SENSORS}")
-        if not self.pad_in_contact(sensor):
-            return np.zeros(self.config.tactile_size, np.float32)
-        return self._rays[sensor].penetration_mm()
+        peg, other = self._gel_contacts(sensor)
+        pen = np.zeros(self.config.tactile_size, np.float32)
+        if peg:
+            pen = self._rays[sensor].penetration_mm(PEG_RAYS)
+        if other:
+            world = self._rays[sensor].penetration_mm(WORLD_RAYS, include_static=True,
+                                                      exclude_body=self._finger_body[sensor])
+            np.maximum(pen, world, out=pen)
+        return pen
 
     def render_tactile(self, sensor: str, force: np.ndarray | None = None) -> np.ndarray:
         """uint8 (H, W, 3) tactile image of one finger (sensor model optics over its background)."""

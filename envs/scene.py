@@ -45,8 +45,9 @@ def build_model(
         solref=static.geom.solref, solimp=static.geom.solimp, friction=static.geom.friction,
         rgba=[0.45, 0.35, 0.28, 1.0],
     )
-    # half length of each wall so neighbouring boxes overlap at the corners (no gaps)
-    half_len = (r + WALL_THICKNESS_M) * math.tan(math.pi / ring_segments) + 1e-3
+    # half length so neighbouring boxes meet exactly at the outer polygon's vertices (a clean outer
+    # 16-gon) and overlap towards the hole (no gaps in the inner polygon the peg slides along)
+    half_len = (r + WALL_THICKNESS_M) * math.tan(math.pi / ring_segments)
     for k in range(ring_segments):
         a = 2 * math.pi * k / ring_segments
         c = r + WALL_THICKNESS_M / 2

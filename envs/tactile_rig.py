@@ -1,11 +1,12 @@
 """Penetration maps of the peg into each gel, by ray casting from a pinhole behind the gel.
 
 For every pixel of the sensor a ray goes from a pinhole ``pinhole_depth_mm`` behind the gel
-surface (inside the finger) through the pixel's point on the undeformed gel surface. Only the peg
-is hit (``mj_multiRay`` restricted to its geom group). With ``s`` the distance from the pinhole to
-the surface along the ray and ``h`` the distance to the peg, the peg lies ``(s - h) * D / s`` mm
-inside the gel along the surface normal (``D`` the pinhole depth): the penetration map the sensor
-model's optics turn into an image.
+surface (inside the finger) through the pixel's point on the undeformed gel surface. The rays see
+only the geom groups asked for (``mj_multiRay``'s group mask: the peg's group, or the static world's
+when the gel touches it). With ``s`` the distance from the pinhole to the surface along the ray and
+``h`` the distance to the hit, the object lies ``(s - h) * D / s`` mm inside the gel along the
+surface normal (``D`` the pinhole depth): the penetration map the sensor model's optics turn into
+an image.
 
 Sensor frame (MJCF sites ``<name>_sensor``, origin at the gel surface centre): x along image
 columns (right), y up the image rows, z into the sensor.
@@ -17,7 +18,14 @@ import cv2
 import mujoco
 import numpy as np
 
-MISS_MM = -10.0  # gap assigned to a ray that misses the peg (far outside the gel)
+MISS_MM = -10.0  # gap assigned to a ray that hits nothing (far outside the gel)
+
+
+def group_mask(*groups: int) -> np.ndarray:
+    """``mj_multiRay`` geom-group mask (6,) uint8 that lets rays see only ``groups``."""
+    mask = np.zeros(6, np.uint8)
+    mask[list(groups)] = 1
+    return mask
 
 
 class PadRays:
@@ -25,14 +33,13 @@ class PadRays:
 
     model, data: the MuJoCo model and its data (read at call time).
     site: name of the pad's sensor-frame site.
-    target_group: geom group holding the peg (the only group rays see).
     size: (H, W) of the penetration map in pixels.
     pad_mm: (height, width) of the gel's sensing area in mm.
     stride: rays every ``stride`` pixels; the gap is upsampled bilinearly.
     pinhole_depth_mm: distance of the pinhole behind the gel surface.
     """
 
-    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, site: str, target_group: int,
+    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, site: str,
                  size: tuple[int, int], pad_mm: tuple[float, float], stride: int = 2,
                  pinhole_depth_mm: float = 20.0):
         self.model, self.data = model, data
@@ -51,8 +58,6 @@ class PadRays:
         self._surface_mm = np.linalg.norm(local, axis=1)  # pinhole -> undeformed surface, per ray
         self._dirs_local = local / self._surface_mm[:, None]
         self._coarse = (hc, wc)
-        self._group = np.zeros(6, np.uint8)
-        self._group[target_group] = 1
         n = hc * wc
         self._geomid = np.zeros(n, np.int32)
         self._dist = np.zeros(n, np.float64)
@@ -63,15 +68,19 @@ class PadRays:
         """(3, 3) world-from-sensor rotation of the pad."""
         return self.data.site_xmat[self.site_id].reshape(3, 3)
 
-    def penetration_mm(self) -> np.ndarray:
-        """float32 (H, W) depth of the peg inside the gel along its normal (mm, >= 0)."""
+    def penetration_mm(self, groups: np.ndarray, include_static: bool = False, exclude_body: int = -1) -> np.ndarray:
+        """float32 (H, W) depth of what the rays hit inside the gel, along its normal (mm, >= 0).
+
+        groups: ``group_mask(...)`` of the geom groups the rays see. include_static: also hit geoms of
+        static bodies (table, receptacle). exclude_body: a body the rays pass through (the finger).
+        """
         rot = self.rotation
         origin = self.data.site_xpos[self.site_id] + rot[:, 2] * (self.depth_mm / 1000.0)
         np.matmul(self._dirs_local, rot.T, out=self._vec)
         n = self._vec.shape[0]
         cutoff = (self._surface_mm.max() + 5.0) / 1000.0
-        mujoco.mj_multiRay(self.model, self.data, origin, self._vec.reshape(-1), self._group, False, -1,
-                           self._geomid, self._dist, None, n, cutoff)
+        mujoco.mj_multiRay(self.model, self.data, origin, self._vec.reshape(-1), groups, include_static,
+                           exclude_body, self._geomid, self._dist, None, n, cutoff)
         hit = self._geomid >= 0
         gap = np.where(hit, (self._surface_mm - self._dist * 1000.0) * self.depth_mm / self._surface_mm, MISS_MM)
         gap = gap.reshape(self._coarse).astype(np.float32)

@@ -9,7 +9,8 @@ import pytest
 
 from controltac_il.tactile import to_residual
 from envs.config import PegInHoleConfig
-from envs.peg_in_hole import PEG_RADIUS_M, PegInHoleEnv
+from envs.peg_in_hole import PEG_RADIUS_M, PEG_RAYS, PegInHoleEnv
+from envs.scene import WALL_THICKNESS_M
 from envs.tactile_rig import PadRays
 
 SIZE = (60, 80)  # small tactile images keep the tests fast; the pad's physical size is unchanged
@@ -102,9 +103,10 @@ def test_penetration_strip_matches_the_peg_geometry(env):
 
 def test_ray_stride_interpolation_matches_full_resolution(env):
     grasp(env, 6.0)
-    full = PadRays(env.model, env.data, "left_sensor", 1, SIZE, env.tactile_sensor("left").spec.pad_size_mm, stride=1)
-    coarse = PadRays(env.model, env.data, "left_sensor", 1, SIZE, env.tactile_sensor("left").spec.pad_size_mm, stride=2)
-    a, b = full.penetration_mm(), coarse.penetration_mm()
+    pad_mm = env.tactile_sensor("left").spec.pad_size_mm
+    full = PadRays(env.model, env.data, "left_sensor", SIZE, pad_mm, stride=1)
+    coarse = PadRays(env.model, env.data, "left_sensor", SIZE, pad_mm, stride=2)
+    a, b = full.penetration_mm(PEG_RAYS), coarse.penetration_mm(PEG_RAYS)
     assert a.max() > 0.1
     assert np.abs(a - b).max() < 0.01
 
@@ -137,3 +139,26 @@ def test_episodes_are_reproducible_from_the_seed(env):
             np.testing.assert_array_equal(a[key], b[key], err_msg=key)
     # the noise differs from frame to frame (seeded per step, not frozen)
     assert not np.array_equal(runs[0][0]["tactile/left"], runs[0][1]["tactile/left"])
+
+
+def test_gel_pressed_on_the_receptacle_shows_in_image_and_force(env):
+    """Squeezing the receptacle (no peg): rays see the static walls, so image and force label agree."""
+    env.config.grip_force_range_n = (6.0, 6.0)
+    obs, _ = env.reset(seed=0)
+    hx, hy = env.hole_xy
+    for a in [[hx, hy, 0.10, 0.0, 0.0]] * 8 + [[hx, hy, 0.03, 0.0, 0.0]] * 6 + [[hx, hy, 0.03, 0.0, 1.0]] * 6:
+        obs, *_ = env.step(a)
+    for s in ("left", "right"):
+        assert not env.pad_in_contact(s)  # the peg is elsewhere
+        assert obs[f"force/{s}"][2] == pytest.approx(6.0, rel=0.05)
+        pen = env.penetration_mm(s)
+        assert 0.0 < pen.max() < 1.0
+        # a flat wall face: the imprint is a vertical band over the gel's full height, as wide as the
+        # face of the receptacle's outer 16-gon (2 (r + wall) tan(pi / 16))
+        assert (pen.max(axis=1) > 0).all()
+        pitch = env.tactile_sensor(s).spec.mm_per_px
+        touched = np.flatnonzero(pen.max(axis=0) > 0)
+        face_mm = 2 * (env.config.hole_diameter_mm / 2 + WALL_THICKNESS_M * 1000) * np.tan(np.pi / 16)
+        assert (touched.max() - touched.min() + 1) * pitch == pytest.approx(face_mm, abs=2 * pitch)
+        res = to_residual(obs[f"tactile/{s}"], env.tactile_background(s)).astype(np.float64)
+        assert np.abs(res - 127).mean() > 1.0
