@@ -264,6 +264,8 @@ def main(argv=None) -> dict:
     p.add_argument("--steps", type=int, default=None, help="estimator updates per row (default 1200; quick 40)")
     p.add_argument("--gen-steps", type=int, default=None, help="generator DDIM steps (default: the generator's default)")
     p.add_argument("--seeds", type=int, nargs="+", default=None, help="training seeds (default 0)")
+    p.add_argument("--keep", type=int, nargs="+", default=None,
+                   help="k values of the real subsets (a), images kept per pose (default 1 3 6 9)")
     p.add_argument("--poses", type=int, default=None, help="training poses per object (default 60)")
     p.add_argument("--rows", nargs="+", choices=ROW_KINDS + ("generation",), default=list(ROW_KINDS), metavar="KIND",
                    help="row kinds to run (default all): real = (a), third+copy = control, generated = (b), "
@@ -277,6 +279,7 @@ def main(argv=None) -> dict:
         torch.set_num_threads(args.threads)
     setup = ScalingSetup.quick() if args.quick else ScalingSetup()
     over = {k: v for k, v in (("steps", args.steps), ("gen_steps", args.gen_steps), ("poses_per_object", args.poses),
+                              ("keep", tuple(args.keep) if args.keep else None),
                               ("seeds", tuple(args.seeds) if args.seeds else None)) if v is not None}
     setup = ScalingSetup(**{**asdict(setup), **over})
     progress = not args.no_progress
