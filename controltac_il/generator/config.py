@@ -116,19 +116,19 @@ class DiTConfig:
             raise ValueError(f"force_scale must be three positive numbers (N), got {self.force_scale!r}")
 
     @classmethod
-    def small(cls, in_channels: int = 8) -> "DiTConfig":
+    def small(cls, in_channels: int = 8, patch_size: int = 2) -> "DiTConfig":
         """DiT-S (this project's default teacher): 128 wide, 4 blocks."""
-        return cls(in_channels=in_channels, hidden_size=128, depth=4, num_heads=4)
+        return cls(in_channels=in_channels, patch_size=patch_size, hidden_size=128, depth=4, num_heads=4)
 
     @classmethod
-    def tiny(cls, in_channels: int = 8) -> "DiTConfig":
+    def tiny(cls, in_channels: int = 8, patch_size: int = 2) -> "DiTConfig":
         """DiT-T (faster variant): 96 wide, 2 blocks."""
-        return cls(in_channels=in_channels, hidden_size=96, depth=2, num_heads=4)
+        return cls(in_channels=in_channels, patch_size=patch_size, hidden_size=96, depth=2, num_heads=4)
 
     @classmethod
-    def base(cls, in_channels: int = 8) -> "DiTConfig":
+    def base(cls, in_channels: int = 8, patch_size: int = 2) -> "DiTConfig":
         """DiT-B: 256 wide, 8 blocks (too slow for the 2-core CPU target; for GPUs)."""
-        return cls(in_channels=in_channels, hidden_size=256, depth=8, num_heads=8)
+        return cls(in_channels=in_channels, patch_size=patch_size, hidden_size=256, depth=8, num_heads=8)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

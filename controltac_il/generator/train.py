@@ -62,9 +62,10 @@ class TrainConfig:
     autoencoder_from: run folder or checkpoint whose trained autoencoder is reused (skips stage 1).
     image_size: (H, W) of the model; dataset images are resized to it.
     ae_channels, latent_channels: autoencoder stage widths (f = 2**len) and latent channels.
-    dit_preset: "small" (default teacher), "tiny" (faster variant) or "base".
+    dit_preset: "small" (default teacher), "tiny" (faster variant) or "base"; dit_patch: latent pixels per token side.
     prediction_type: "epsilon" (paper) or "sample"; default_steps: DDIM steps stored as the default.
     ae_steps, ae_batch, ae_lr, ae_crop: autoencoder optimisation (crop (H, W) of the training patches).
+    ae_contact_weight: extra loss weight on contact pixels of the autoencoder's targets.
     dit_steps, dit_batch, dit_lr: DiT optimisation (global batch, split across processes).
     min_lr_ratio: cosine decay floor as a fraction of the peak LR; warmup_steps: linear warm-up.
     ema_decay: EMA of the DiT weights (the shipped weights).
@@ -82,12 +83,14 @@ class TrainConfig:
     ae_channels: tuple[int, ...] = (16, 48, 96)
     latent_channels: int = 8
     dit_preset: str = "small"
+    dit_patch: int = 2
     prediction_type: str = "epsilon"
     default_steps: int = 10
     ae_steps: int = 1500
     ae_batch: int = 32
     ae_lr: float = 2e-3
     ae_crop: tuple[int, int] = (64, 80)
+    ae_contact_weight: float = 4.0
     dit_steps: int = 4000
     dit_batch: int = 128
     dit_lr: float = 5e-4
@@ -198,24 +201,34 @@ def set_lr(opt: torch.optim.Optimizer, lr: float) -> None:
 
 # -- stage 1: autoencoder ----------------------------------------------------------------------
 
-def autoencoder_loss(recon: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """L1 + MSE + L1 of the image gradients (keeps contact edges sharp)."""
-    def grads(x):
-        return x[..., 1:, :] - x[..., :-1, :], x[..., :, 1:] - x[..., :, :-1]
+CONTACT_LEVEL = 12.0 / 128  # residual magnitude (unit scale) above which a pixel counts as contact
 
-    (ry, rx), (ty, tx) = grads(recon), grads(target)
-    return (F.l1_loss(recon, target) + F.mse_loss(recon, target)
-            + 0.5 * (F.l1_loss(ry, ty) + F.l1_loss(rx, tx)))
+
+def autoencoder_loss(recon: torch.Tensor, target: torch.Tensor, contact_weight: float = 0.0) -> torch.Tensor:
+    """L1 + MSE + L1 of the image gradients (keeps contact edges sharp), per pixel weighted by
+    ``1 + contact_weight`` where the target shows contact (contacts are a small share of the pad)."""
+    w = 1.0 + contact_weight * (target.abs().amax(dim=1, keepdim=True) > CONTACT_LEVEL).float()
+    d = recon - target
+    dy, dx = d[..., 1:, :] - d[..., :-1, :], d[..., :, 1:] - d[..., :, :-1]
+    return ((w * (d.abs() + d * d)).mean()
+            + 0.5 * ((w[..., 1:, :] * dy.abs()).mean() + (w[..., :, 1:] * dx.abs()).mean()))
 
 
 def crop_batch(data: PairData, rng: np.random.Generator, batch: int, crop: tuple[int, int]) -> torch.Tensor:
-    """Random crops (with random flips) of random residuals, float (B, 3, ch, cw) in [-1, 1]."""
+    """Random crops (with random flips) of random residuals, float (B, 3, ch, cw) in [-1, 1]; half of
+    them centred on a contact pixel."""
     idx = rng.integers(0, len(data.residuals), size=batch)
     H, W = data.residuals.shape[1:3]
     ch, cw = crop
     out = np.empty((batch, ch, cw, 3), np.uint8)
     for k, i in enumerate(idx):
         y, x = rng.integers(0, H - ch + 1), rng.integers(0, W - cw + 1)
+        if rng.random() < 0.5:  # half the crops centred on a contact pixel (contacts cover little of the pad)
+            ys, xs = np.nonzero(np.abs(data.residuals[i].astype(np.int16) - 127).max(-1) > 12)
+            if len(ys):
+                j = rng.integers(0, len(ys))
+                y = int(np.clip(ys[j] - ch // 2, 0, H - ch))
+                x = int(np.clip(xs[j] - cw // 2, 0, W - cw))
         c = data.residuals[i, y:y + ch, x:x + cw]
         if rng.random() < 0.5:
             c = c[:, ::-1]
@@ -243,7 +256,7 @@ def train_autoencoder(cfg: TrainConfig, data: PairData, out: Path, rank: int, wo
         rng = np.random.default_rng([cfg.seed, 1, rank, step])
         x = crop_batch(data, rng, per_rank, cfg.ae_crop)
         set_lr(opt, lr_at(step, cfg.ae_steps, cfg.ae_lr, cfg.warmup_steps, cfg.min_lr_ratio))
-        loss = autoencoder_loss(model(x), x)
+        loss = autoencoder_loss(model(x), x, cfg.ae_contact_weight)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(ae.parameters(), 1.0)
@@ -403,7 +416,7 @@ def run(cfg: TrainConfig) -> Path:
     c = ae.config.latent_channels
     gcfg = GeneratorConfig(
         autoencoder=ae.config,
-        dit=DIT_PRESETS[cfg.dit_preset](in_channels=c),
+        dit=DIT_PRESETS[cfg.dit_preset](in_channels=c, patch_size=cfg.dit_patch),
         diffusion=DiffusionConfig(prediction_type=cfg.prediction_type, default_steps=cfg.default_steps),
         latent_scale=lat, delta_scale=dsc, anchor_to_reference=cfg.anchor_to_reference,
     )
@@ -472,10 +485,10 @@ def parse_args(argv=None) -> TrainConfig:
     p.add_argument("--dit-preset", choices=sorted(DIT_PRESETS), default="small", help="DiT size (default: small)")
     p.add_argument("--prediction-type", choices=("epsilon", "sample"), default="epsilon", help="what the DiT predicts")
     p.add_argument("--default-steps", type=int, default=d["default_steps"].default, help="DDIM steps stored as the default")
-    for name in ("ae_steps", "ae_batch", "dit_steps", "dit_batch", "warmup_steps", "checkpoint_every", "seed",
+    for name in ("dit_patch", "ae_steps", "ae_batch", "dit_steps", "dit_batch", "warmup_steps", "checkpoint_every", "seed",
                  "no_contact_frames", "threads"):
         p.add_argument("--" + name.replace("_", "-"), type=int, default=d[name].default)
-    for name in ("ae_lr", "dit_lr", "min_lr_ratio", "ema_decay", "no_contact_prob"):
+    for name in ("ae_lr", "ae_contact_weight", "dit_lr", "min_lr_ratio", "ema_decay", "no_contact_prob"):
         p.add_argument("--" + name.replace("_", "-"), type=float, default=d[name].default)
     p.add_argument("--ae-crop", type=int, nargs=2, default=d["ae_crop"].default, metavar=("H", "W"))
     p.add_argument("--anchor-to-reference", action="store_true", help="output = reference + decoded change")
