@@ -59,7 +59,6 @@ class PegInHoleEnv:
         m = self.model
         self._jnt = {n: m.joint(n).qposadr[0] for n in
                      ("hand_x", "hand_y", "hand_z", "hand_yaw", "left_finger", "right_finger")}
-        self._dof = {n: m.joint(n).dofadr[0] for n in self._jnt}
         self._act = {m.actuator(i).name: i for i in range(m.nu)}
         self._peg_body = m.body("peg").id
         self._peg_qpos = m.joint("peg").qposadr[0]
