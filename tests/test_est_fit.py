@@ -114,3 +114,30 @@ def test_split_by_pose_keeps_poses_whole_and_covers_every_object():
     assert {k[0] for k in held_poses} == {"a", "b"} and len(held_poses) == 4
     assert split_by_pose(groups, 0.2, seed=0) == (kept, held)
     assert split_by_pose(groups, 0.0) == (sorted(kept + held), [])
+
+
+def test_train_cli_writes_checkpoint_and_resumes(tmp_path, capsys):
+    import json
+
+    from controltac_il.estimators import ForceEstimator
+    from controltac_il.estimators.train import main
+    from controltac_il.tactile import SensorSpec
+    from controltac_il.tactile.dataset import write_dataset
+
+    data = write_dataset(tmp_path / "data", objects=("big_sphere", "cross"), poses_per_object=3, forces_per_pose=3,
+                         seed=0, spec=SensorSpec.gelsight_mini().scaled(60, 80), progress=False)
+    out = tmp_path / "est"
+    common = ["--data", str(data), "--out", str(out), "--input-size", "32", "40", "--batch-size", "4",
+              "--checkpoint-every", "2", "--val-fraction", "0.3"]
+    assert main(common + ["--steps", "4"]) == 0
+    assert "validation MAE" in capsys.readouterr().out
+    state = json.loads((tmp_path / "est.train_state" / "state.json").read_text())
+    assert state["step"] == 4 and state["history"][-1]["step"] == 4
+    assert main(common + ["--steps", "6", "--resume"]) == 0
+    state = json.loads((tmp_path / "est.train_state" / "state.json").read_text())
+    assert state["step"] == 6
+    est = ForceEstimator.from_pretrained(out)
+    assert (est.config.input_height, est.config.input_width) == (32, 40)
+    assert "Validation" in (out / "README.md").read_text()
+    with pytest.raises(ValueError, match="manifest.csv"):
+        main(["--data", str(tmp_path / "nothing"), "--out", str(tmp_path / "x")])
