@@ -43,7 +43,9 @@ class PegInHoleConfig:
     tactile_optics: the sensor model's optics, "three_light" (default: the optics the generator's
         training data and the sensor model default to) or "polynomial" (Taxim lookup).
     ray_stride: tactile rays are cast every ``ray_stride`` pixels and the gap to the peg is
-        interpolated bilinearly (exact for the smooth peg surface to ~1e-3 mm at stride 2).
+        interpolated bilinearly: on the smooth peg surface at 120x160 the map is within 0.0006 /
+        0.0016 / 0.003 mm of one ray per pixel at stride 2 / 3 / 4 (same contact mask), at 1/3, 1/8,
+        1/18 of the cost.
     hole_diameter_mm: diameter of the receptacle's hole (30 = the paper; 26 = a tight variant);
         the peg is Ø25 mm.
     hole_depth_mm: depth of the hole from rim to floor (paper: 40).
@@ -69,7 +71,7 @@ class PegInHoleConfig:
     tactile: bool = True
     tactile_size: tuple[int, int] = (120, 160)
     tactile_optics: str = "three_light"
-    ray_stride: int = 2
+    ray_stride: int = 3
     hole_diameter_mm: float = 30.0
     hole_depth_mm: float = 40.0
     control_hz: float = 10.0
