@@ -1,7 +1,6 @@
 """Deployment: checks before motion, Wilson interval, the deploy CLI's errors."""
 
 import math
-import subprocess
 import sys
 from pathlib import Path
 
@@ -14,6 +13,7 @@ from policies.act import ACT, ACTPolicy, save_checkpoint
 from policies.act.deploy import check_setup, deploy_on_robot, load_policy
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))  # deploy_policy.py lives at the repository root
 
 
 def test_wilson_interval_matches_hand_computation():
@@ -60,8 +60,11 @@ def test_robot_deploy_refuses_a_setup_without_a_camera_before_connecting(checkpo
         deploy_on_robot("ur", checkpoint, setup)
 
 
-def test_deploy_cli_reports_a_corrupted_checkpoint(checkpoint):
+def test_deploy_cli_reports_a_corrupted_checkpoint(checkpoint, capsys):
+    import deploy_policy
+
     (checkpoint / "model.safetensors").write_bytes(b"garbage")
-    proc = subprocess.run([sys.executable, str(REPO / "deploy_policy.py"), "--robot", "sim", "--checkpoint",
-                           str(checkpoint), "--episodes", "1"], cwd=REPO, capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 2 and "corrupted" in proc.stderr, proc.stderr[-2000:]
+    assert deploy_policy.main(["--robot", "sim", "--checkpoint", str(checkpoint), "--episodes", "1"]) == 2
+    assert "corrupted" in capsys.readouterr().err
+    assert deploy_policy.main(["--robot", "xarm", "--checkpoint", str(checkpoint)]) == 2  # no --config
+    assert "--config" in capsys.readouterr().err
