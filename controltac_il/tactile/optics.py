@@ -137,8 +137,25 @@ def load_background(spec: SensorSpec) -> np.ndarray:
     return rgb
 
 
+def _gaussian_levels() -> np.ndarray:
+    """256 equiprobable quantiles of the unit normal, rescaled to unit variance exactly."""
+    from scipy.stats import norm
+
+    q = norm.ppf((np.arange(256) + 0.5) / 256).astype(np.float32)
+    return q / q.std()
+
+
+_GAUSS_LEVELS = _gaussian_levels()
+
+
 def add_noise(image: np.ndarray, std: float, rng: np.random.Generator) -> np.ndarray:
-    """Additive Gaussian sensor noise of ``std`` grey levels (float image in, float image out)."""
+    """Additive Gaussian sensor noise of ``std`` grey levels (float image in, float image out).
+
+    Samples one random byte per value and maps it to one of 256 equiprobable normal quantiles: a
+    Gaussian quantised far below the image's own 1-grey-level quantisation, about 10× cheaper than
+    ``standard_normal`` (benchmarks.sensor), which matters in the 10 Hz scene.
+    """
     if std <= 0:
         return image
-    return image + np.float32(std) * rng.standard_normal(size=image.shape, dtype=np.float32)
+    idx = np.frombuffer(rng.bytes(image.size), dtype=np.uint8).reshape(image.shape)
+    return image + np.float32(std) * _GAUSS_LEVELS[idx]
