@@ -13,6 +13,8 @@ an interrupted run still reports what finished (``"status"`` per row).
 from __future__ import annotations
 
 import json
+import os
+import statistics
 import time
 from pathlib import Path
 
@@ -35,8 +37,21 @@ def _observation(cameras=("third_view", "wrist"), camera_hw=(96, 128), tactile_h
     return obs
 
 
+def median_cpu_time(fn, repeats: int, warmup: int = 1) -> float:
+    """Median CPU time (s) this process spends in ``fn()``: unlike wall time, not inflated when other
+    processes share the cores (the wall time is reported beside it with the load average)."""
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeats):
+        t0 = time.process_time()
+        fn()
+        times.append(time.process_time() - t0)
+    return statistics.median(times)
+
+
 def latency(quick: bool) -> list[dict]:
-    """Median wall time of ``predict_chunk`` (batch 1, scene-sized frames) per preset, on this CPU."""
+    """Median wall and CPU time of ``predict_chunk`` (batch 1, scene-sized frames) per preset."""
     from policies.act import ACT, ACTConfig, ACTPolicy
 
     rows = []
@@ -46,8 +61,9 @@ def latency(quick: bool) -> list[dict]:
         policy = ACTPolicy(model)
         obs = _observation()
         t = median_time(lambda: policy.predict_chunk(obs), repeats=repeats, warmup=2)
+        cpu = median_cpu_time(lambda: policy.predict_chunk(obs), repeats=repeats)
         rows.append({"preset": preset, "params_M": sum(p.numel() for p in model.parameters()) / 1e6,
-                     "chunk": model.config.chunk_size, "ms_per_chunk": t * 1e3,
+                     "chunk": model.config.chunk_size, "ms_per_chunk": t * 1e3, "cpu_ms_per_chunk": cpu * 1e3,
                      "target_ms": 30.0 if preset == "cpu" else None,
                      "threads": torch.get_num_threads()})
     return rows
@@ -73,8 +89,9 @@ def training_throughput(demos: Path, quick: bool) -> dict:
         opt.step()
 
     t = median_time(step, repeats=3 if quick else 10, warmup=1)
+    cpu = median_cpu_time(step, repeats=3 if quick else 10)
     return {"preset": "cpu", "batch_size": 16, "s_per_step": t, "samples_per_s": 16 / t,
-            "threads": torch.get_num_threads()}
+            "cpu_s_per_step": cpu, "samples_per_cpu_s": 16 / cpu, "threads": torch.get_num_threads()}
 
 
 def _trained(run: Path, steps: int) -> bool:
@@ -114,14 +131,17 @@ def main(argv=None) -> dict:
     def save():
         write_results(args.out, results) if args.out else None
 
+    results["load_average_1m_at_start"] = os.getloadavg()[0]
     results["latency"] = latency(args.quick)
-    print_table(results["latency"], ["preset", "params_M", "chunk", "ms_per_chunk", "target_ms", "threads"],
+    print_table(results["latency"], ["preset", "params_M", "chunk", "ms_per_chunk", "cpu_ms_per_chunk", "target_ms",
+                                     "threads"],
                 "ACT inference latency per chunk (batch 1, 96x128 cameras, 120x160 tactile)")
     t = time.perf_counter()
     demos = default_demos(args.demos, seed=0)
     results["collect_s"] = time.perf_counter() - t
     results["training_throughput"] = training_throughput(demos, args.quick)
-    print_table([results["training_throughput"]], ["preset", "batch_size", "s_per_step", "samples_per_s", "threads"],
+    print_table([results["training_throughput"]], ["preset", "batch_size", "s_per_step", "samples_per_s",
+                                                   "cpu_s_per_step", "samples_per_cpu_s", "threads"],
                 "ACT training throughput")
     save()
     if args.skip_experiment:
