@@ -12,15 +12,17 @@ Every draw (offset, jitter, generator noise) is a pure function of (seed, episod
 the virtual trajectory is the same in every worker, epoch, process and sampling order.
 
 Items are the wrapped items, with only the regenerated tactile images (and their force labels, set
-to the target force) replaced, plus ``augment.*`` fields saying what was done::
+to the target force) replaced, plus one float32 tensor ``augment`` (K, 10) saying what was done, one
+row per tactile key (order of ``ForceAugment.tactile_keys``), columns ``AUGMENT_FIELDS``::
 
-    augment.copy                 int          copy index (0 = real)
-    augment.offset               float        the copy's normal-force offset, N (0 for copy 0)
-    augment.jitter               float        the frame's jitter, N (0 for copy 0)
-    augment.augmented            bool         some tactile image of the item was regenerated
-    augment.status.<key>         int          STATUS code for that tactile key (see STATUS)
-    augment.reference_force.<key> float32 (3,) reference force N (NaN when not known or not needed)
-    augment.target_force.<key>    float32 (3,) force the returned image shows (NaN when not known)
+    copy, offset, jitter          copy index (0 = real), the copy's normal-force offset and the frame's
+                                  jitter, N (0 for copy 0)
+    status                        STATUS code of that key's image (real, no_contact, regenerated, ...)
+    ref_fx, ref_fy, ref_fz        reference force, N (NaN where not known or not needed)
+    target_fx, target_fy, target_fz  force the returned image shows, N (NaN where not known)
+
+One tensor rather than ten keeps the DataLoader fast (every tensor of a batch crosses between
+processes on its own). ``ForceAugment.info(item_or_batch)`` names the columns for logging.
 
 ``mode="cache"`` generates every augmented frame once (batched) into ``cache_dir`` and reads it back;
 ``mode="online"`` generates on access. ``python -m controltac_il.augment --help`` builds a cache.
@@ -60,7 +62,8 @@ BUILD = ("now", "require", "manual")
 STATUS = {"real": 0, "no_contact": 1, "regenerated": 2, "clamped": 3, "skipped": 4}
 _STATUS_NAME = {v: k for k, v in STATUS.items()}
 _OPEN_CHUNKS = 64  # cached chunk readers per process
-_NAN3 = torch.full((3,), float("nan"))
+AUGMENT_FIELDS = ("copy", "offset", "jitter", "status", "ref_fx", "ref_fy", "ref_fz",
+                  "target_fx", "target_fy", "target_fz")
 
 
 class StaleCacheError(ValueError):
@@ -201,15 +204,6 @@ def _like(image: np.ndarray, original):
         return out if original.dtype == torch.uint8 else (out.to(original.dtype) / 255.0)
     arr = image.transpose(2, 0, 1) if chw else image
     return arr if original.dtype == np.uint8 else (arr.astype(original.dtype) / 255.0)
-
-
-def _force_tensor(force) -> torch.Tensor:
-    """float32 (3,) tensor of a force (tensor, array or list); NaN when ``force`` is None."""
-    if force is None:
-        return _NAN3.clone()
-    if isinstance(force, torch.Tensor):
-        return force.clone() if force.dtype == torch.float32 else force.float()
-    return torch.from_numpy(np.array(force, np.float32))
 
 
 def _default_cache_root() -> Path:
@@ -456,23 +450,36 @@ class ForceAugment(Dataset):
         return e, t
 
     def _annotate(self, item: dict, copy: int, offset: float, jitter: float, per_key: dict, has_row=False) -> dict:
-        """per_key: key -> (status, reference (3,) or None, target (3,) or None), or with ``has_row``
-        (status, row, reference, target). Scalars stay Python numbers (collated once per batch).
-        """
-        augmented = False
-        item["augment.copy"], item["augment.offset"], item["augment.jitter"] = copy, offset, jitter
-        for k, rec in per_key.items():
+        """Add ``augment`` (K, 10). per_key: key -> (status, reference (3,) or None, target (3,) or None),
+        or with ``has_row`` (status, row, reference, target)."""
+        rows = np.full((len(per_key), len(AUGMENT_FIELDS)), np.nan, np.float32)
+        rows[:, :3] = copy, offset, jitter
+        for i, (k, rec) in enumerate(per_key.items()):
             status, ref, target = (rec[0], rec[2], rec[3]) if has_row else rec
-            regenerated = status in (STATUS["regenerated"], STATUS["clamped"])
-            augmented |= regenerated
             if ref is None and self.labelled[k]:
                 ref = item[_force_key(k)]
-            shown = target if regenerated else ref
-            item[f"augment.status.{k}"] = status
-            item[f"augment.reference_force.{k}"] = _force_tensor(ref)
-            item[f"augment.target_force.{k}"] = _force_tensor(shown)
-        item["augment.augmented"] = augmented
+            rows[i, 3] = status
+            if ref is not None:
+                rows[i, 4:7] = ref
+            shown = target if status in (STATUS["regenerated"], STATUS["clamped"]) else ref
+            if shown is not None:
+                rows[i, 7:10] = shown
+        item["augment"] = torch.from_numpy(rows)
         return item
+
+    def info(self, item: dict) -> dict:
+        """Named columns of ``item["augment"]`` (an item's (K, 10) or a batch's (B, K, 10)), for logging:
+        copy, offset, jitter, augmented (any key regenerated), and per tactile key ``status.<key>``,
+        ``reference_force.<key>`` (..., 3), ``target_force.<key>`` (..., 3)."""
+        a = item["augment"]
+        status = a[..., 3].long()
+        out = {"copy": a[..., 0, 0].long(), "offset": a[..., 0, 1], "jitter": a[..., 0, 2],
+               "augmented": ((status == STATUS["regenerated"]) | (status == STATUS["clamped"])).any(-1)}
+        for i, k in enumerate(self.tactile_keys):
+            out[f"status.{k}"] = status[..., i]
+            out[f"reference_force.{k}"] = a[..., i, 4:7]
+            out[f"target_force.{k}"] = a[..., i, 7:10]
+        return out
 
     def _replace(self, item: dict, key: str, image: np.ndarray, target) -> None:
         item[key] = _like(image, item.get(key))
@@ -704,15 +711,15 @@ class ForceAugment(Dataset):
             doc = json.loads((d / "provenance.json").read_text())
         except FileNotFoundError as exc:
             raise ValueError(f"cache {self.cache_dir}: no chunk for episode {episode} copy {copy}") from exc
-        # frame -> (offset, jitter, per key (status, row, reference tensor|None, target tensor|None))
+        # frame -> (offset, jitter, per key (status, row, reference (3,)|None, target (3,)|None))
         frames: dict = {}
         position = {k: j for j, k in enumerate(self.tactile_keys)}
         for r in doc["frames"]:
             entry = frames.setdefault(r["frame"], (r["offset"], r["jitter"], [None] * len(position)))
             entry[2][position[r["key"]]] = (
                 STATUS[r["status"]], r["row"],
-                None if r["reference_force"] is None else torch.tensor(r["reference_force"], dtype=torch.float32),
-                None if r["target_force"] is None else torch.tensor(r["target_force"], dtype=torch.float32))
+                None if r["reference_force"] is None else np.asarray(r["reference_force"], np.float32),
+                None if r["target_force"] is None else np.asarray(r["target_force"], np.float32))
         files = [_FrameFile(d / f"tactile_{j}.npy") for j in range(len(self.tactile_keys))]
         self._chunks[key] = hit = (frames, files, doc["frames"])
         if len(self._chunks) > _OPEN_CHUNKS:
