@@ -6,7 +6,6 @@ checkpoint's quality; the episodes are synthetic (flat background + a pressed bl
 
 import hashlib
 import os
-import shutil
 
 import numpy as np
 import pytest
