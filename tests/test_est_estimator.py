@@ -95,3 +95,21 @@ def test_config_rejects_unknown_and_bad_fields(tmp_path):
         EstimatorConfig(widths=(8, 0))
     cfg = EstimatorConfig(widths=[8, 8, 16, 16])
     assert EstimatorConfig.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
+
+
+def test_contact_gate_zeroes_frames_without_visible_contact(est):
+    flat = np.full((1, 120, 160, 3), 127, np.uint8)
+    noisy = np.clip(np.rint(np.random.default_rng(4).normal(127, 1.5, (1, 120, 160, 3))), 0, 255).astype(np.uint8)
+    touch = flat.copy()
+    touch[0, 50:58, 70:80] = [150, 120, 110]  # 80 px = 0.4 % of the frame, 23 grey levels
+    out = est.predict(np.concatenate([flat, noisy, touch]))
+    assert (out[:2] == 0).all()
+    raw = est.predict(np.concatenate([flat, noisy, touch]), gate=False)
+    np.testing.assert_array_equal(out[2], raw[2])
+    assert est.contact_visible(np.concatenate([flat, noisy, touch])).tolist() == [False, False, True]
+    ungated = ForceEstimator(EstimatorConfig(contact_threshold=None), model=est.model)
+    assert ungated.contact_visible(flat).tolist() == [True]
+    with pytest.raises(ValueError, match="contact_threshold"):
+        EstimatorConfig(contact_threshold=0.0)
+    with pytest.raises(ValueError, match="min_contact_fraction"):
+        EstimatorConfig(min_contact_fraction=1.5)

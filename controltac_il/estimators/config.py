@@ -22,6 +22,10 @@ class EstimatorConfig:
         residual_offset, residual_scale: a residual pixel r (0-255, 127 = no change) enters the
             network as (r - residual_offset) / residual_scale.
         force_mean, force_std: [Fx, Fy, Fz] in N; the network predicts (F - mean) / std.
+        contact_threshold, min_contact_fraction: contact gate of ``predict``: a frame with fewer than
+            ``min_contact_fraction`` of its pixels deviating by more than ``contact_threshold`` grey
+            levels from 127 (any channel) shows no contact and reads exactly [0, 0, 0] N.
+            ``contact_threshold=None`` turns the gate off. Sensor noise is ~1-2 grey levels.
         input_kind: "residual" (background-subtracted with the 127 offset); recorded so a
             checkpoint says what it reads.
     """
@@ -34,6 +38,8 @@ class EstimatorConfig:
     residual_scale: float = 32.0
     force_mean: tuple[float, float, float] = (0.0, 0.0, 0.0)
     force_std: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    contact_threshold: float | None = 8.0
+    min_contact_fraction: float = 2e-4
     input_kind: str = "residual"
     extra: dict = field(default_factory=dict)
 
@@ -55,6 +61,10 @@ class EstimatorConfig:
             raise ValueError("EstimatorConfig.force_mean and force_std must each have 3 values [Fx, Fy, Fz] in N")
         if any(not s > 0 for s in self.force_std):
             raise ValueError(f"EstimatorConfig.force_std must be > 0 per axis (N), got {self.force_std!r}")
+        if self.contact_threshold is not None and not 0 < self.contact_threshold < 128:
+            raise ValueError(f"EstimatorConfig.contact_threshold must be in (0, 128) grey levels or None, got {self.contact_threshold!r}")
+        if not 0 <= self.min_contact_fraction < 1:
+            raise ValueError(f"EstimatorConfig.min_contact_fraction must be in [0, 1), got {self.min_contact_fraction!r}")
         if self.input_kind != "residual":
             raise ValueError(f"EstimatorConfig.input_kind must be 'residual', got {self.input_kind!r}")
 

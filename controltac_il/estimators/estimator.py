@@ -77,11 +77,24 @@ class ForceEstimator:
     def denormalise_forces(self, outputs: torch.Tensor) -> torch.Tensor:
         return outputs * self._std + self._mean
 
+    def contact_visible(self, residuals: np.ndarray) -> np.ndarray:
+        """bool (N,): whether each residual (N, H, W, 3) shows contact by the config's gate."""
+        thr = self.config.contact_threshold
+        if thr is None:
+            return np.ones(len(residuals), dtype=bool)
+        out = np.empty(len(residuals), dtype=bool)
+        for i, r in enumerate(residuals):
+            magnitude = np.abs(r.astype(np.float32) - self.config.residual_offset).max(axis=-1)
+            out[i] = (magnitude > thr).mean() >= self.config.min_contact_fraction
+        return out
+
     @torch.no_grad()
-    def predict(self, residuals, batch_size: int = 256) -> np.ndarray:
+    def predict(self, residuals, batch_size: int = 256, gate: bool = True) -> np.ndarray:
         """Forces [Fx, Fy, Fz] in N, sensor frame, float32 (N, 3) for residuals (N, H, W, 3).
 
-        Any H, W is resized to the network's input size (same physical pad assumed).
+        Any H, W is resized to the network's input size (same physical pad assumed). With
+        ``gate``, frames without visible contact (see ``EstimatorConfig.contact_threshold``) read
+        exactly 0 N; ``gate=False`` returns the raw network reading for every frame.
         """
         residuals = validate_residuals(residuals)
         self.model.eval()
@@ -89,7 +102,10 @@ class ForceEstimator:
         for i in range(0, len(residuals), batch_size):
             x = preprocess(residuals[i : i + batch_size], self.config).to(self.device)
             out.append(self.denormalise_forces(self.model(x)).cpu())
-        return torch.cat(out).numpy().astype(np.float32)
+        forces = torch.cat(out).numpy().astype(np.float32)
+        if gate:
+            forces[~self.contact_visible(residuals)] = 0.0
+        return forces
 
     # ---- checkpoints (safetensors + JSON, atomic, no pickle)
     def save(self, path: str | Path, card: str | None = None) -> Path:

@@ -96,7 +96,8 @@ def main(argv=None) -> int:
         print(f"step {h['step']}: validation MAE Fx {h['val_mae'][0]:.3f} N, Fy {h['val_mae'][1]:.3f} N, "
               f"Fz {h['val_mae'][2]:.3f} N (mean {h['val_mae_mean']:.3f} N)")
     empty = np.full((1, *size, 3), 127, np.uint8)
-    print(f"no-contact frame reads {np.round(est.predict(empty)[0], 3).tolist()} N")
+    print(f"no-contact frame: raw network reading {np.round(est.predict(empty, gate=False)[0], 3).tolist()} N "
+          "(predict() gates it to 0)")
     print(f"wrote {args.out}")
     return 0
 
