@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import sys
 from pathlib import Path
 
 
@@ -40,10 +42,19 @@ def parse_args(argv=None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
-def main(argv=None) -> dict:
+def main(argv=None) -> int:
     args = parse_args(argv)
-    import os
+    try:
+        summary = run(args)
+    except (ValueError, FileNotFoundError) as exc:  # bad options, data or checkpoint: CheckpointError is a ValueError
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if os.environ.get("RANK", "0") == "0":
+        print(json.dumps(summary, indent=2))
+    return 0
 
+
+def run(args: argparse.Namespace) -> dict:
     import torch
 
     from policies.act.training import TrainConfig, train_on_folder
@@ -58,13 +69,10 @@ def main(argv=None) -> dict:
         augment = make_augment(args.copies, args.generator, seed=args.seed) if args.augment == "force" else None
     train_config = TrainConfig(steps=args.steps, batch_size=args.batch_size, val_every=args.val_every,
                                num_workers=args.workers, seed=args.seed)
-    summary = train_on_folder(dataset, args.out, preset=args.preset, train_config=train_config,
-                              val_fraction=args.val_fraction, augment=augment, resume=args.resume,
-                              chunk_size=args.chunk_size)
-    if os.environ.get("RANK", "0") == "0":
-        print(json.dumps(summary, indent=2))
-    return summary
+    return train_on_folder(dataset, args.out, preset=args.preset, train_config=train_config,
+                           val_fraction=args.val_fraction, augment=augment, resume=args.resume,
+                           chunk_size=args.chunk_size)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

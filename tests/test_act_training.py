@@ -112,6 +112,20 @@ def test_train_on_folder_end_to_end(tmp_path):
     assert not any(p.name.endswith(".json") for p in root.iterdir())  # the user's data folder is untouched
 
 
+def test_train_cli_reports_bad_input(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("CONTROLTAC_CACHE", str(tmp_path / "cache"))  # normalisation stats go there
+    sys.path.insert(0, str(REPO))  # train_act.py lives at the repository root
+    import train_act
+
+    assert train_act.main(["--dataset", str(tmp_path / "nowhere"), "--out", str(tmp_path / "run")]) == 2
+    assert "not found" in capsys.readouterr().err
+    root = write_tiny_episodes(tmp_path / "demos", n=2)
+    assert train_act.main(["--dataset", str(root), "--out", str(tmp_path / "run"), "--steps", "0"]) == 2
+    assert "steps" in capsys.readouterr().err
+    assert train_act.main(["--dataset", str(root), "--out", str(tmp_path / "run"), "--resume"]) == 2
+    assert "no checkpoint" in capsys.readouterr().err
+
+
 @pytest.mark.skipif(sys.platform != "linux", reason="torchrun smoke test runs on Linux")
 def test_torchrun_two_process_gloo_smoke(tmp_path):
     root = write_tiny_episodes(tmp_path / "demos", n=4)
