@@ -7,8 +7,9 @@ from controltac_il.estimators import EstimatorConfig, TrainConfig, fit
 from controltac_il.estimators.data import (
     estimate_noise_std,
     no_contact_residuals,
+    native_no_contact,
+    pixel_noise_std,
     split_by_pose,
-    with_no_contact,
 )
 
 TINY = EstimatorConfig(input_height=32, input_width=40, widths=(8, 8, 16, 16), hidden=32)
@@ -92,15 +93,30 @@ def test_train_config_validation_and_schedule():
     assert all(t.lr_at(s) >= t.lr_at(s + 1) for s in range(10, 99))
 
 
-def test_no_contact_frames_match_noise_and_label_zero():
+def test_no_contact_frames_and_noise_estimates():
     empty = no_contact_residuals(50, 40, 50, noise_std=2.0, seed=0)
     assert empty.dtype == np.uint8 and empty.shape == (50, 40, 50, 3)
     assert estimate_noise_std(empty) == pytest.approx(2.0, rel=0.1)
-    x, f = blobs(30, 5)
-    x2, f2 = with_no_contact(x, f, 0.25, seed=0)
-    assert len(x2) == 40 and (f2[30:] == 0).all() and (x2[:30] == x).all()
-    with pytest.raises(ValueError, match="fraction"):
-        with_no_contact(x, f, 1.0)
+    assert pixel_noise_std(empty) == pytest.approx(2.0, rel=0.1)
+    x, _ = blobs(30, 5)  # noise 1.5 plus contact blobs: the neighbour-difference estimate ignores the blobs
+    assert pixel_noise_std(x) == pytest.approx(1.5, rel=0.15)
+    with pytest.raises(ValueError, match="noise_std"):
+        no_contact_residuals(2, 8, 8, noise_std=-1.0)
+
+
+def test_native_no_contact_matches_the_bare_sensor(tmp_path):
+    from controltac_il.tactile import SensorSpec
+    from controltac_il.tactile.dataset import load_dataset, write_dataset
+
+    spec = SensorSpec.gelsight_mini().scaled(60, 80)
+    ds = load_dataset(write_dataset(tmp_path / "d", objects=("big_sphere",), poses_per_object=1, forces_per_pose=2,
+                                    seed=0, spec=spec, progress=False))
+    empty = native_no_contact(ds, 4, size=(30, 40), seed=1)
+    assert empty.shape == (4, 30, 40, 3) and empty.dtype == np.uint8
+    # the bare sensor's noise (spec.noise_std at 60x80), averaged down 2x2 by the resize
+    assert np.std(empty.astype(np.float32) - 127) == pytest.approx(spec.noise_std / 2, rel=0.25)
+    assert not np.array_equal(empty[0], empty[1])
+    assert native_no_contact(ds, 0, size=(30, 40)).shape == (0, 30, 40, 3)
 
 
 def test_split_by_pose_keeps_poses_whole_and_covers_every_object():

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from controltac_il.estimators.config import EstimatorConfig
-from controltac_il.estimators.data import load_arrays, split_by_pose, with_no_contact
+from controltac_il.estimators.data import load_arrays, native_no_contact, split_by_pose
 from controltac_il.estimators.fit import TrainConfig, fit
 
 
@@ -77,7 +77,11 @@ def main(argv=None) -> int:
         train_idx, val_idx = split_by_pose(ds.pose_groups(), args.val_fraction, seed=args.seed)
         val_ds = ds
     x, f = load_arrays(ds, train_idx, size=size, progress=True)
-    x, f = with_no_contact(x, f, args.no_contact_fraction, seed=args.seed)
+    if not 0 <= args.no_contact_fraction < 1:
+        raise ValueError(f"--no-contact-fraction must be in [0, 1), got {args.no_contact_fraction}")
+    n_empty = int(round(len(x) * args.no_contact_fraction / (1 - args.no_contact_fraction)))
+    x = np.concatenate([x, native_no_contact(ds, n_empty, size, seed=args.seed)])
+    f = np.concatenate([f, np.zeros((n_empty, 3), np.float32)])
     val = load_arrays(val_ds, val_idx, size=size, progress=True) if (val_idx is None or val_idx) else None
     train = TrainConfig(steps=args.steps, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
                         checkpoint_every=args.checkpoint_every, eval_every=args.checkpoint_every)
