@@ -60,7 +60,9 @@ class ScalingSetup:
         image_size: (H, W) the real frames are resized to (the generator's size).
         steps, batch_size, lr: estimator training budget, the same for every row.
         input_size: (h, w) the estimator sees.
-        no_contact: no-contact frames added to every training set (label 0 N).
+        no_contact: no-contact frames added to every training set (label 0 N): 127 + Gaussian noise
+            of ``estimate_noise_std`` of the real training frames (recorded as noise_std_grey; ≈ 2
+            grey levels, noisier than the bare sensor), the same frames for every row.
         seeds: training seeds; with more than one, rows also report the SD across seeds.
         gen_steps: DDIM steps of the generator (None = its default).
     """
