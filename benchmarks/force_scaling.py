@@ -248,7 +248,7 @@ def plot(rows: list[dict], dest: Path, setup: ScalingSetup) -> None:
             ax.errorbar([r["train_images"]], [r["mae_n"]], yerr=[r["sd_n"] / np.sqrt(r["test_images"])],
                         marker=m, color=c, linestyle="none", label=lab)
     ax.set_xlabel("training images (excluding no-contact frames)")
-    ax.set_ylabel("test force MAE (N), mean over Fx, Fy, Fz")
+    ax.set_ylabel("test force MAE (N), mean over Fx, Fy, Fz\n(bars: ± SEM over test frames)", fontsize=9)
     ax.set_title(f"Force estimation vs training data (sensor model, {setup.steps} updates each)", fontsize=9)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
