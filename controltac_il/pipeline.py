@@ -10,6 +10,7 @@ kept under the cache folder ($CONTROLTAC_CACHE or ~/.cache/controltac_il) and re
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -43,14 +44,32 @@ def cache_root() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "controltac_il"
 
 
+def scene_fingerprint() -> str:
+    """Short hash of everything that shapes a recorded demo: the scene's MJCF, its code and the expert."""
+    import envs
+
+    h = hashlib.sha1()
+    root = Path(envs.__file__).resolve().parent
+    for path in sorted([*root.glob("*.py"), *root.glob("assets/*")]):
+        h.update(path.name.encode())
+        h.update(path.read_bytes())
+    from controltac_il.tactile import optics, sensor
+
+    for module in (optics, sensor):
+        h.update(Path(module.__file__).read_bytes())
+    return h.hexdigest()[:10]
+
+
 def default_demos(episodes: int = 20, seed: int = 0, root: str | Path | None = None) -> Path:
     """Folder of ``episodes`` scripted-expert peg-in-hole demos (collected once, then reused).
 
-    Written atomically: an interrupted collection leaves no half folder behind.
+    The cache folder is keyed by the scene's fingerprint, so demos recorded by an older scene are
+    never reused. Written atomically: an interrupted collection leaves no half folder behind.
     """
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
-    folder = Path(root) if root is not None else cache_root() / "demos" / f"peg_in_hole-n{episodes}-seed{seed}"
+    name = f"peg_in_hole-n{episodes}-seed{seed}-{scene_fingerprint()}"
+    folder = Path(root) if root is not None else cache_root() / "demos" / name
     info = folder / "collect_info.json"
     if info.is_file():
         try:
