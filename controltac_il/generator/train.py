@@ -338,10 +338,13 @@ def train_denoiser(cfg: TrainConfig, gcfg: GeneratorConfig, z: torch.Tensor, dat
     ema.load_state_dict(dit.state_dict())
     opt = torch.optim.AdamW(dit.parameters(), lr=cfg.dit_lr, weight_decay=0.0)
     stem = out / "denoiser_state"
-    step, wall = 0, 0.0
+    step, wall, history = 0, 0.0, []
     if stem.with_suffix(".json").is_file():
         meta = load_state(stem, {"denoiser": dit, "ema": ema}, opt)
-        step, wall = meta["step"], meta["wall_s"]
+        step, wall, history = meta["step"], meta["wall_s"], meta.get("history", [])
+    # one entry per (re)start: resumed runs may change the step budget or the prediction target
+    history = history + [{"from_step": step, "dit_steps": cfg.dit_steps, "prediction_type": gcfg.diffusion.prediction_type,
+                          "lr": cfg.dit_lr, "batch": cfg.dit_batch}]
     model = wrap(dit, world)
     sched = make_scheduler(gcfg.diffusion)
     c = gcfg.autoencoder.latent_channels
@@ -374,7 +377,8 @@ def train_denoiser(cfg: TrainConfig, gcfg: GeneratorConfig, z: torch.Tensor, dat
         bar.set_postfix(loss=f"{loss_ema:.4f}")
         if rank == 0 and (step % cfg.checkpoint_every == 0 or step == cfg.dit_steps):
             save_state(stem, {"denoiser": dit, "ema": ema}, opt,
-                       {"step": step, "wall_s": wall + time.perf_counter() - t0, "loss": loss_ema, "config": gcfg.to_dict()})
+                       {"step": step, "wall_s": wall + time.perf_counter() - t0, "loss": loss_ema, "config": gcfg.to_dict(),
+                        "history": history})
     bar.close()
     barrier(world)
     if stem.with_suffix(".json").is_file():
@@ -435,7 +439,7 @@ def run(cfg: TrainConfig) -> Path:
                             "from": ae_meta.get("from")},
             "denoiser": {"preset": cfg.dit_preset, "steps": dit_meta["step"], "wall_s": dit_meta["wall_s"],
                          "final_loss": dit_meta.get("loss"), "batch": cfg.dit_batch, "lr": cfg.dit_lr,
-                         "parameters": sum(p.numel() for p in dit.parameters())},
+                         "parameters": sum(p.numel() for p in dit.parameters()), "history": dit_meta.get("history")},
             "autoencoder_parameters": sum(p.numel() for p in ae.parameters()),
             "world_size": world,
             "total_wall_s": time.perf_counter() - t_start,

@@ -1,0 +1,228 @@
+"""The shipped generator checkpoints through the public API: numerical behaviour, range policy, bad input."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+import torch
+from safetensors import safe_open
+
+from controltac_il.generator import ForceGenerator
+from controltac_il.generator.checkpoint import CARD_FILE, CONFIG_FILE, DIT_FILE, WEIGHT_FILES
+from controltac_il.generator.pipeline import CHECKPOINT_ROOT
+from controltac_il.metrics import mse
+from controltac_il.tactile import SensorSpec, TactileSensor, contact_mask, from_residual, to_residual
+
+STEPS = 2  # cheap sampling where the test is about plumbing, not quality
+
+
+@pytest.fixture(scope="module")
+def gen():
+    return ForceGenerator.from_pretrained()
+
+
+@pytest.fixture(scope="module")
+def sensor():
+    return TactileSensor(SensorSpec.gelsight_mini().scaled(120, 160))
+
+
+@pytest.fixture(scope="module")
+def contacts(sensor):
+    """Reference residuals at Fz = 4 N and the true residuals of the same poses at 7 N."""
+    cases = [("big_sphere", (0.4, -0.3, 0.2)), ("cross", (-0.5, 0.2, 0.9)), ("usb_c", (0.0, 0.5, 1.3))]
+    ref = np.stack([sensor.press(o, p, (0.0, 0.0, 4.0), noise_seed=1).residual for o, p in cases])
+    up = np.stack([sensor.press(o, p, (0.0, 0.0, 7.0), noise_seed=2).residual for o, p in cases])
+    return ref, up
+
+
+def magnitude(res: np.ndarray) -> np.ndarray:
+    return np.abs(res.astype(np.float64) - 127).mean(axis=(-3, -2, -1))
+
+
+# -- shipped files --------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("name", ["default", "fast"])
+def test_shipped_checkpoint_is_small_fp16_with_a_model_card(name):
+    folder = CHECKPOINT_ROOT / name
+    total = sum(f.stat().st_size for f in folder.iterdir() if f.is_file())
+    assert total < 25 * 2**20
+    for w in WEIGHT_FILES:
+        with safe_open(str(folder / w), framework="pt") as f:
+            assert {f.get_tensor(k).dtype for k in f.keys()} == {torch.float16}
+    card = json.loads((folder / CARD_FILE).read_text())
+    assert card["data"]["seed"] is not None and card["data"]["images"] > 0
+    assert card["denoiser"]["steps"] > 0 and card["denoiser"]["wall_s"] > 0
+
+
+# -- numerical behaviour ------------------------------------------------------------------------
+
+def test_zero_force_change_returns_the_reference(gen, contacts):
+    ref, up = contacts
+    out = gen.generate(ref, np.zeros((len(ref), 3)), seed=0)
+    err = mse(out, ref)
+    # well below what a real +3 N change does to these images
+    assert np.all(err < 0.35 * mse(up, ref)), (err, mse(up, ref))
+
+
+def test_contact_grows_with_normal_force(gen, contacts):
+    ref, _ = contacts
+    dfz = [-2.0, 0.0, 2.0, 4.0]
+    n = len(ref)
+    out = gen.generate(np.repeat(ref, len(dfz), 0), np.array([[0.0, 0.0, d] for _ in range(n) for d in dfz]), seed=0)
+    out = out.reshape(n, len(dfz), *ref.shape[1:])
+    area = contact_mask(out).sum(axis=(-2, -1))
+    mag = magnitude(out)
+    for k in range(n):
+        assert np.all(np.diff(mag[k]) > 0), mag[k]
+        assert np.all(np.diff(area[k]) >= -0.02 * area[k].max()) and area[k, -1] > area[k, 0], area[k]
+
+
+def test_generated_change_points_toward_the_true_target(gen, contacts):
+    """A +3 N generation is closer to the true 7 N image than the 4 N reference is."""
+    ref, up = contacts
+    out = gen.generate(ref, np.tile([[0.0, 0.0, 3.0]], (len(ref), 1)), seed=0)
+    assert np.all(mse(out, up) < mse(ref, up))
+
+
+def test_no_contact_reference_stays_without_contact(gen, sensor):
+    bare = np.stack([to_residual(sensor.render_penetration(np.zeros((120, 160), np.float32), noise_seed=s),
+                                 sensor.background) for s in range(3)])
+    out = gen.generate(bare, [[0.0, 0.0, 5.0], [0.5, -0.5, 8.0], [0.0, 0.0, -2.0]], seed=0)
+    assert contact_mask(out).mean() < 0.005
+    assert np.all(magnitude(out) < 3.0)
+
+
+def test_same_seed_same_output_and_seed_matters(gen, contacts):
+    ref, _ = contacts
+    df = np.tile([[0.2, 0.0, 2.0]], (len(ref), 1))
+    a = gen.generate(ref, df, steps=STEPS, seed=3)
+    np.testing.assert_array_equal(a, gen.generate(ref, df, steps=STEPS, seed=3))
+    assert not np.array_equal(a, gen.generate(ref, df, steps=STEPS, seed=4))
+
+
+def test_batch_of_one_equals_batch_of_64(gen, contacts):
+    ref, _ = contacts
+    rng = np.random.default_rng(0)
+    refs = ref[rng.integers(0, len(ref), 64)]
+    df = np.column_stack([rng.uniform(-1, 1, 64), rng.uniform(-1, 1, 64), rng.uniform(-3, 5, 64)])
+    big = gen.generate(refs, df, steps=STEPS, seed=11, batch_size=64)
+    for k in (0, 17, 63):
+        one = gen.generate(refs[k:k + 1], df[k:k + 1], steps=STEPS, seed=11, batch_size=1)[0]
+        diff = np.abs(one.astype(int) - big[k].astype(int))
+        assert diff.max() <= 2 and diff.mean() < 0.01, (k, diff.max(), diff.mean())
+
+
+def test_bfloat16_agrees_with_float32(contacts):
+    """Tolerance: bf16 keeps 8 mantissa bits; we accept an MSE below 4 grey levels² between the two."""
+    ref, _ = contacts
+    df = np.tile([[0.0, 0.0, 3.0]], (len(ref), 1))
+    a = ForceGenerator.from_pretrained().generate(ref, df, seed=0)
+    b = ForceGenerator.from_pretrained(dtype=torch.bfloat16).generate(ref, df, seed=0)
+    assert np.all(mse(a, b) < 4.0), mse(a, b)
+
+
+def test_other_resolutions_come_back_at_their_size(gen, contacts):
+    ref, _ = contacts
+    import cv2
+
+    big = np.stack([cv2.resize(r, (320, 240)) for r in ref[:2]])
+    out = gen.generate(big, np.zeros((2, 3)), steps=STEPS)
+    assert out.shape == big.shape and out.dtype == np.uint8
+    small = gen.generate(ref[:2], np.zeros((2, 3)), steps=STEPS)
+    np.testing.assert_allclose(cv2.resize(out[0], (160, 120), interpolation=cv2.INTER_AREA).astype(float),
+                               small[0].astype(float), atol=40)
+
+
+def test_generate_images_matches_generate_on_residuals(gen, sensor, contacts):
+    ref, _ = contacts
+    images = np.stack([from_residual(r, sensor.background) for r in ref])
+    df = np.tile([[0.0, 0.0, 1.0]], (len(ref), 1))
+    out = gen.generate_images(images, sensor.background, df, steps=STEPS, seed=5)
+    expected = np.stack([from_residual(r, sensor.background)
+                         for r in gen.generate(np.stack([to_residual(i, sensor.background) for i in images]), df, steps=STEPS, seed=5)])
+    np.testing.assert_array_equal(out, expected)
+
+
+def test_fast_variant_moves_with_the_force(contacts):
+    """The faster variant (one decode, no reference anchoring) still presses deeper for +ΔFz."""
+    fast = ForceGenerator.from_pretrained("fast")
+    ref, _ = contacts
+    n = len(ref)
+    out = fast.generate(np.concatenate([ref, ref]), np.concatenate([np.zeros((n, 3)), np.tile([[0.0, 0.0, 4.0]], (n, 1))]))
+    assert out.shape == (2 * n, *ref.shape[1:])
+    assert np.all(magnitude(out[n:]) > magnitude(out[:n]))
+    assert np.all(contact_mask(out[n:]).sum(axis=(-2, -1)) > contact_mask(out[:n]).sum(axis=(-2, -1)))
+
+
+# -- validated range ---------------------------------------------------------------------------------
+
+def test_out_of_range_targets_are_clamped_and_counted(gen, contacts):
+    ref, _ = contacts
+    before = gen.range_report.clamped
+    rf = np.tile([[0.0, 0.0, 4.0]], (3, 1))
+    df = np.array([[0.0, 0.0, 3.0], [0.0, 0.0, 9.0], [1.5, 0.0, 0.0]])  # targets 7 N ok, 13 N, Fx 1.5 N
+    with pytest.warns(UserWarning, match="clamped 2 of 3"):
+        out = gen.generate(ref, df, steps=STEPS, reference_force=rf, out_of_range="clamp")
+    assert gen.last_range_report.clamped == 2 and gen.last_range_report.clamped_indices == [1, 2]
+    assert gen.range_report.clamped == before + 2
+    same = gen.generate(ref[1:2], [[0.0, 0.0, 6.0]], steps=STEPS)  # 13 N clamped to 10 N = ΔFz 6
+    assert np.abs(out[1].astype(int) - same[0].astype(int)).max() <= 2  # batch-size rounding only
+
+
+def test_out_of_range_targets_can_be_refused(gen, contacts):
+    ref, _ = contacts
+    with pytest.raises(ValueError, match="validated range"):
+        gen.generate(ref[:1], [[0.0, 0.0, -4.0]], reference_force=[[0.0, 0.0, 4.0]], out_of_range="error")
+    with pytest.raises(ValueError, match="validated range"):
+        gen.generate(ref[:1], [[0.0, 0.0, 12.0]], out_of_range="error")  # |ΔFz| beyond the range's span
+    with pytest.raises(ValueError, match="out_of_range"):
+        gen.generate(ref[:1], [[0.0, 0.0, 1.0]], out_of_range="ignore")
+
+
+# -- bad input ----------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("bad, match", [
+    (lambda r: r.astype(np.float32), "uint8"),
+    (lambda r: r[0], "shape"),
+    (lambda r: r[..., :2], "shape"),
+    (lambda r: r[:0], "shape"),
+    (lambda r: r.tolist(), "uint8 array"),
+])
+def test_bad_residuals_are_refused(gen, contacts, bad, match):
+    ref, _ = contacts
+    with pytest.raises(ValueError, match=match):
+        gen.generate(bad(ref), np.zeros((len(ref), 3)))
+
+
+def test_bad_forces_and_options_are_refused(gen, contacts):
+    ref, _ = contacts
+    with pytest.raises(ValueError, match="NaN"):
+        gen.generate(ref, [[0, 0, np.nan]] * len(ref))
+    with pytest.raises(ValueError, match="rows but the batch has"):
+        gen.generate(ref, np.zeros((len(ref) + 1, 3)))
+    with pytest.raises(ValueError, match=r"\(B, 3\)"):
+        gen.generate(ref, np.zeros((len(ref), 2)))
+    with pytest.raises(ValueError, match="steps"):
+        gen.generate(ref, np.zeros((len(ref), 3)), steps=0)
+    with pytest.raises(ValueError, match="batch_size"):
+        gen.generate(ref, np.zeros((len(ref), 3)), batch_size=0)
+    with pytest.raises(ValueError, match="seed"):
+        gen.generate(ref, np.zeros((len(ref), 3)), seed=[1, 2])
+    with pytest.raises(ValueError, match="reference_force"):
+        gen.generate(ref, np.zeros((len(ref), 3)), reference_force=np.zeros((1, 3)))
+    with pytest.raises(ValueError, match="dtype"):
+        ForceGenerator.from_pretrained(dtype=torch.int8)
+
+
+def test_shipped_config_mismatch_is_a_clear_error(tmp_path):
+    folder = tmp_path / "ckpt"
+    shutil.copytree(CHECKPOINT_ROOT / "default", folder)
+    cfg = json.loads((folder / CONFIG_FILE).read_text())
+    cfg["dit"]["depth"] += 1
+    (folder / CONFIG_FILE).write_text(json.dumps(cfg))
+    with pytest.raises(ValueError, match="denoiser.*does not match"):
+        ForceGenerator.from_pretrained(folder)
+    (folder / DIT_FILE).write_bytes(b"not a safetensors file")
+    with pytest.raises(Exception):
+        ForceGenerator.from_pretrained(folder)
