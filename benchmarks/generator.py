@@ -67,21 +67,28 @@ def quality(pred_res: np.ndarray, tgt_res: np.ndarray, background: np.ndarray) -
     return {"mse": float(m.mean()), "mse_sd": float(m.std()), "ssim": float(s.mean()), "ssim_sd": float(s.std()), "n": int(len(m))}
 
 
+def _vm_hwm_mb() -> float:
+    """This process's peak resident memory (VmHWM, MB). Unlike ru_maxrss it is not inherited across exec."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
 def _peak_worker(method: str, ckpt: str | None, steps: int | None, threads: int, q) -> None:
     torch.set_num_threads(threads)
     ref = np.full((32, *RENDER_SIZE, 3), 127, np.uint8)
     df = np.tile([[0.0, 0.0, 2.0]], (32, 1))
-    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     if method == "generator":
         gen = ForceGenerator.from_pretrained(ckpt)
-        base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        base = _vm_hwm_mb()
         gen.generate(ref, df, steps=steps, batch_size=32)
     else:
         sensor = TactileSensor(SensorSpec.gelsight_mini().scaled(*RENDER_SIZE))
-        base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        base = _vm_hwm_mb()
         for r in ref:
             rerender(sensor, r, (0, 0, 3.0), (0, 0, 5.0))
-    q.put((resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, base / 1024))
+    q.put((_vm_hwm_mb(), base))
 
 
 def peak_memory_mb(method: str, ckpt: str | None = None, steps: int | None = None, threads: int = 1) -> dict:
@@ -90,7 +97,7 @@ def peak_memory_mb(method: str, ckpt: str | None = None, steps: int | None = Non
     q = ctx.Queue()
     p = ctx.Process(target=_peak_worker, args=(method, ckpt, steps, threads, q))
     p.start()
-    peak, base = q.get(timeout=600)
+    peak, base = q.get(timeout=600)  # MB
     p.join()
     return {"peak_rss_mb": round(peak, 1), "batch_growth_mb": round(peak - base, 1)}
 
