@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import os
-import statistics
 import time
 from pathlib import Path
 
@@ -37,19 +36,6 @@ def _observation(cameras=("third_view", "wrist"), camera_hw=(96, 128), tactile_h
     return obs
 
 
-def median_cpu_time(fn, repeats: int, warmup: int = 1) -> float:
-    """Median CPU time (s) this process spends in ``fn()``: unlike wall time, not inflated when other
-    processes share the cores (the wall time is reported beside it with the load average)."""
-    for _ in range(warmup):
-        fn()
-    times = []
-    for _ in range(repeats):
-        t0 = time.process_time()
-        fn()
-        times.append(time.process_time() - t0)
-    return statistics.median(times)
-
-
 def latency(quick: bool) -> list[dict]:
     """Median wall and CPU time of ``predict_chunk`` (batch 1, scene-sized frames) per preset."""
     from policies.act import ACT, ACTConfig, ACTPolicy
@@ -61,7 +47,7 @@ def latency(quick: bool) -> list[dict]:
         policy = ACTPolicy(model)
         obs = _observation()
         t = median_time(lambda: policy.predict_chunk(obs), repeats=repeats, warmup=2)
-        cpu = median_cpu_time(lambda: policy.predict_chunk(obs), repeats=repeats)
+        cpu = median_time(lambda: policy.predict_chunk(obs), repeats=repeats, clock=time.process_time)
         rows.append({"preset": preset, "params_M": sum(p.numel() for p in model.parameters()) / 1e6,
                      "chunk": model.config.chunk_size, "ms_per_chunk": t * 1e3, "cpu_ms_per_chunk": cpu * 1e3,
                      "target_ms": 30.0 if preset == "cpu" else None,
@@ -89,7 +75,7 @@ def training_throughput(demos: Path, quick: bool) -> dict:
         opt.step()
 
     t = median_time(step, repeats=3 if quick else 10, warmup=1)
-    cpu = median_cpu_time(step, repeats=3 if quick else 10)
+    cpu = median_time(step, repeats=3 if quick else 10, clock=time.process_time)
     return {"preset": "cpu", "batch_size": 16, "s_per_step": t, "samples_per_s": 16 / t,
             "cpu_s_per_step": cpu, "samples_per_cpu_s": 16 / cpu, "threads": torch.get_num_threads()}
 
