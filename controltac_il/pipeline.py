@@ -166,18 +166,19 @@ def run_pipeline(out: str | Path = "out/pipeline", config: PipelineConfig | None
     t = time.perf_counter()
     train_config = TrainConfig(steps=cfg.steps, batch_size=cfg.batch_size, seed=cfg.seed,
                                val_every=max(cfg.steps // 4, 1))
-    timed_augment = None
+
+    def timed_augment(ds):  # time the augmentation stage apart from training
+        t0 = time.perf_counter()
+        res = augment(ds)
+        times["augment"] = time.perf_counter() - t0
+        print(f"[augment] {cfg.copies} ForceAugment cop{'y' if cfg.copies == 1 else 'ies'}: "
+              f"{augment.description.get('summary')} ({times['augment']:.1f} s)")
+        return res
+
     if augment is not None:
-        def timed_augment(ds):  # noqa: E306 - time the augmentation stage apart from training
-            t0 = time.perf_counter()
-            res = augment(ds)
-            times["augment"] = time.perf_counter() - t0
-            print(f"[augment] {cfg.copies} ForceAugment cop{'y' if cfg.copies == 1 else 'ies'}: "
-                  f"{augment.description.get('summary')} ({times['augment']:.1f} s)")
-            return res
         timed_augment.description = augment.description
-    summary = train_on_folder(demos, out / "act", preset="cpu", train_config=train_config, augment=timed_augment,
-                              progress=progress)
+    summary = train_on_folder(demos, out / "act", preset="cpu", train_config=train_config,
+                              augment=timed_augment if augment is not None else None, progress=progress)
     times["train"] = time.perf_counter() - t - times.get("augment", 0.0)
     print(f"[train] {summary['steps']} steps, {summary['samples_per_s']:.1f} samples/s ({times['train']:.1f} s)")
 

@@ -40,7 +40,7 @@ from torch.nn import functional as F
 from tqdm.auto import tqdm
 
 from controltac_il.generator.autoencoder import TactileAutoencoder
-from controltac_il.generator.checkpoint import load_checkpoint, load_state_into, read_config, save_checkpoint
+from controltac_il.generator.checkpoint import load_checkpoint, save_checkpoint
 from controltac_il.generator.config import AutoencoderConfig, DiffusionConfig, DiTConfig, GeneratorConfig
 from controltac_il.generator.data import PairData, load_pair_data, sample_pairs
 from controltac_il.generator.dit import ForceDiT

@@ -54,7 +54,6 @@ def evaluate_in_sim(checkpoint, episodes: int = 50, seed: int = 100_000,
     from controltac_il.pipeline import wilson_interval
     from envs.config import PegInHoleConfig
     from envs.peg_in_hole import PegInHoleEnv
-    from hardware.interfaces import VirtualClock
 
     from envs.sim_robot import run_policy_episode
 
