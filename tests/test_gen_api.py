@@ -226,3 +226,15 @@ def test_shipped_config_mismatch_is_a_clear_error(tmp_path):
     (folder / DIT_FILE).write_bytes(b"not a safetensors file")
     with pytest.raises(Exception):
         ForceGenerator.from_pretrained(folder)
+
+
+def test_in_range_targets_from_float32_labels_are_not_counted_as_clamped():
+    """A target clipped to exactly 10 N in float32 must not count as out of range after the round trip."""
+    gen = ForceGenerator.from_pretrained()
+    ref = np.array([[0.3, -0.7, 1.2326633]], dtype=np.float32)
+    target = np.array([[0.1, 0.9, 10.0]], dtype=np.float32)
+    delta = (target - ref).astype(np.float64)
+    assert ref[0, 2].astype(np.float64) + delta[0, 2] > 10.0  # the float32 round trip overshoots
+    fixed = gen._apply_range(delta, ref.astype(np.float64), "error")
+    assert gen.last_range_report.clamped == 0
+    np.testing.assert_array_equal(fixed, delta)

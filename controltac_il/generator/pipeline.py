@@ -120,16 +120,19 @@ class ForceGenerator:
     def _apply_range(self, delta: np.ndarray, reference_force: np.ndarray | None, out_of_range: str) -> np.ndarray:
         if out_of_range not in OUT_OF_RANGE_POLICIES:
             raise ValueError(f"out_of_range must be one of {OUT_OF_RANGE_POLICIES}, got {out_of_range!r}")
+        tol = 1e-6  # N: float32 round trips of in-range values are not clamps
         if reference_force is not None:
             target = reference_force + delta
             lo = np.array([-SHEAR_MAX, -SHEAR_MAX, FZ_RANGE[0]])
             hi = np.array([SHEAR_MAX, SHEAR_MAX, FZ_RANGE[1]])
-            fixed = np.clip(target, lo, hi) - reference_force
+            outside = (target < lo - tol) | (target > hi + tol)
+            fixed = np.where(outside, np.clip(target, lo, hi) - reference_force, delta)
             what = "target force reference_force + delta_force"
         else:
-            fixed = np.clip(delta, -MAX_DELTA, MAX_DELTA)
+            outside = np.abs(delta) > MAX_DELTA + tol
+            fixed = np.where(outside, np.clip(delta, -MAX_DELTA, MAX_DELTA), delta)
             what = "delta_force"
-        bad = np.flatnonzero(np.any(np.abs(fixed - delta) > 1e-9, axis=1))
+        bad = np.flatnonzero(outside.any(axis=1))
         report = RangeReport(total=len(delta), clamped=len(bad), clamped_indices=bad.tolist())
         if len(bad) and out_of_range == "error":
             raise ValueError(
