@@ -44,6 +44,7 @@ from controltac_il.generator.checkpoint import load_checkpoint, save_checkpoint
 from controltac_il.generator.config import AutoencoderConfig, DiffusionConfig, DiTConfig, GeneratorConfig
 from controltac_il.generator.data import PairData, load_pair_data, sample_pairs
 from controltac_il.generator.dit import ForceDiT
+from controltac_il.tactile.residual import contact_mask
 from controltac_il.generator.pipeline import residual_to_unit
 from controltac_il.generator.sampler import make_scheduler
 from controltac_il.io import atomic_path, write_json
@@ -224,7 +225,7 @@ def crop_batch(data: PairData, rng: np.random.Generator, batch: int, crop: tuple
     for k, i in enumerate(idx):
         y, x = rng.integers(0, H - ch + 1), rng.integers(0, W - cw + 1)
         if rng.random() < 0.5:  # half the crops centred on a contact pixel (contacts cover little of the pad)
-            ys, xs = np.nonzero(np.abs(data.residuals[i].astype(np.int16) - 127).max(-1) > 12)
+            ys, xs = np.nonzero(contact_mask(data.residuals[i], threshold=12.0))
             if len(ys):
                 j = rng.integers(0, len(ys))
                 y = int(np.clip(ys[j] - ch // 2, 0, H - ch))
