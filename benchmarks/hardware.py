@@ -89,21 +89,19 @@ def serial_round_trips(n: int) -> dict:
     from hardware.fake_serial import FakeDynamixelServo, FakeRobotiq2F85
     from hardware.robotiq import RobotiqGripper
 
+    def read_times(gripper) -> dict:
+        times = []
+        for _ in range(n):
+            t0 = time.perf_counter()
+            gripper.state()
+            times.append(time.perf_counter() - t0)
+        return _stats_ms(times)
+
     out = {}
     with FakeDynamixelServo() as dev, DynamixelGripper(dev.port) as g:
-        times = []
-        for _ in range(n):
-            t0 = time.perf_counter()
-            g.state()
-            times.append(time.perf_counter() - t0)
-        out["dynamixel_read_present_position"] = _stats_ms(times)
+        out["dynamixel_read_present_position"] = read_times(g)
     with FakeRobotiq2F85() as dev, RobotiqGripper(dev.port) as g:
-        times = []
-        for _ in range(n):
-            t0 = time.perf_counter()
-            g.state()
-            times.append(time.perf_counter() - t0)
-        out["robotiq_read_status"] = _stats_ms(times)
+        out["robotiq_read_status"] = read_times(g)
     return out
 
 
