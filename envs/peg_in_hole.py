@@ -54,7 +54,8 @@ class PegInHoleEnv:
     def __init__(self, config: PegInHoleConfig | None = None):
         self.config = config or PegInHoleConfig()
         cfg = self.config
-        self.model = build_model(cfg.hole_diameter_mm, cfg.hole_depth_mm, cfg.ring_segments, cfg.camera_size)
+        self.model = build_model(cfg.hole_diameter_mm, cfg.hole_depth_mm, cfg.ring_segments, cfg.camera_size,
+                                 cfg.hole_chamfer_mm)
         self.data = mujoco.MjData(self.model)
         m = self.model
         self._jnt = {n: m.joint(n).qposadr[0] for n in

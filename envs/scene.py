@@ -2,7 +2,10 @@
 
 The receptacle is a base plate and a ring of ``ring_segments`` wall boxes whose inner faces are
 tangent to a circle of the hole's diameter (a regular polygon inscribed around the hole): boxes
-collide cheaply and exactly, a hole mesh would be decomposed into many convex pieces. The boxes sit
+collide cheaply and exactly, a hole mesh would be decomposed into many convex pieces. A 45° lead-in
+chamfer at the rim, as machined fixtures have, is a second ring of boxes tilted by 45° whose inner
+faces run from the hole's radius ``chamfer`` below the rim to ``chamfer`` further out at the rim (the
+walls above its lower edge step back so that nothing juts into the slope). The boxes sit
 in geom group 3, which cameras do not draw; cameras see one visual tube mesh instead (one draw call
 instead of sixteen: the software renderer pays per geom).
 """
@@ -26,11 +29,13 @@ def build_model(
     hole_depth_mm: float,
     ring_segments: int = 16,
     render_size: tuple[int, int] = (96, 128),
+    chamfer_mm: float = 0.0,
 ) -> mujoco.MjModel:
     """Compile the scene, filling the MJCF's ``receptacle`` body (at the origin; moved per episode).
 
     hole_diameter_mm: diameter of the inscribed circle of the wall polygon (mm).
     hole_depth_mm: from the rim to the floor (mm).
+    chamfer_mm: width (= height) of the 45° lead-in chamfer at the rim (mm); 0 = a sharp rim.
     render_size: largest (height, width) any camera renders, sizes the offscreen buffer.
     """
     spec = mujoco.MjSpec.from_file(str(ASSET))
@@ -48,19 +53,32 @@ def build_model(
     # half length so neighbouring boxes meet exactly at the outer polygon's vertices (a clean outer
     # 16-gon) and overlap towards the hole (no gaps in the inner polygon the peg slides along)
     half_len = (r + WALL_THICKNESS_M) * math.tan(math.pi / ring_segments)
+    c = chamfer_mm / 1000.0
+    wall = dict(type=mujoco.mjtGeom.mjGEOM_BOX, contype=1, conaffinity=0, priority=1, group=3,
+                solref=static.geom.solref, solimp=static.geom.solimp, friction=static.geom.friction,
+                rgba=[0.55, 0.45, 0.35, 1.0])
     for k in range(ring_segments):
         a = 2 * math.pi * k / ring_segments
-        c = r + WALL_THICKNESS_M / 2
-        body.add_geom(
-            name=f"hole_wall{k}", type=mujoco.mjtGeom.mjGEOM_BOX,
-            size=[WALL_THICKNESS_M / 2, half_len, depth / 2],
-            pos=[c * math.cos(a), c * math.sin(a), BASE_THICKNESS_M + depth / 2],
-            quat=[math.cos(a / 2), 0.0, 0.0, math.sin(a / 2)],
-            contype=1, conaffinity=0, priority=1, group=3,
-            solref=static.geom.solref, solimp=static.geom.solimp, friction=static.geom.friction,
-            rgba=[0.55, 0.45, 0.35, 1.0],
-        )
-    vertices, faces = tube_mesh(r, r + WALL_THICKNESS_M, BASE_THICKNESS_M, BASE_THICKNESS_M + depth, 32)
+        radial, yaw = np.array([math.cos(a), math.sin(a)]), [math.cos(a / 2), 0.0, 0.0, math.sin(a / 2)]
+        # (inner radius, bottom, top) of the wall boxes: full height, or stepped back above the chamfer
+        rings = [(r, BASE_THICKNESS_M, BASE_THICKNESS_M + depth - c)]
+        if c > 0:
+            rings.append((r + c, BASE_THICKNESS_M + depth - c, BASE_THICKNESS_M + depth))
+        for j, (r_in, z0, z1) in enumerate(rings):
+            thick = r + WALL_THICKNESS_M - r_in
+            body.add_geom(name=f"hole_wall{k}" if j == 0 else f"hole_wall_top{k}",
+                          size=[thick / 2, half_len, (z1 - z0) / 2],
+                          pos=[*((r_in + thick / 2) * radial), (z0 + z1) / 2], quat=yaw, **wall)
+        if c > 0:
+            # slab whose inner face is the slope from (r, rim - c) to (r + c, rim); it lies on the
+            # wall side of the slope (normal (+radial, -z) / sqrt 2), so it never rises above the rim
+            t = WALL_THICKNESS_M / 2
+            mid = np.array([r + c / 2, BASE_THICKNESS_M + depth - c / 2]) + t / 2 * np.array([1, -1]) / math.sqrt(2)
+            quat = np.zeros(4)
+            mujoco.mju_mulQuat(quat, np.array(yaw), np.array([math.cos(math.pi / 8), 0.0, math.sin(math.pi / 8), 0.0]))
+            body.add_geom(name=f"hole_chamfer{k}", size=[t / 2, half_len, c / math.sqrt(2)],
+                          pos=[*(mid[0] * radial), mid[1]], quat=quat, **wall)
+    vertices, faces = tube_mesh(r, r + WALL_THICKNESS_M, BASE_THICKNESS_M, BASE_THICKNESS_M + depth, 32, chamfer=c)
     spec.add_mesh(name="receptacle_tube", uservert=vertices.ravel().tolist(), userface=faces.ravel().tolist())
     body.add_geom(name="receptacle_visual", type=mujoco.mjtGeom.mjGEOM_MESH, meshname="receptacle_tube",
                   contype=0, conaffinity=0, group=2, density=0.0, rgba=[0.55, 0.45, 0.35, 1.0])
@@ -70,20 +88,25 @@ def build_model(
     return spec.compile()
 
 
-def tube_mesh(r_in: float, r_out: float, z0: float, z1: float, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Closed tube (annular prism) around the z axis: vertices (4n, 3) and outward-facing triangles (8n, 3)."""
+def tube_mesh(r_in: float, r_out: float, z0: float, z1: float, n: int,
+              chamfer: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Closed tube (annular prism) around the z axis, its inner top edge chamfered by ``chamfer`` (m)
+    at 45°: the (radius, z) profile revolved in ``n`` steps. Vertices (k n, 3) and outward-facing
+    triangles (2 k n, 3), k = 4 profile corners (5 with a chamfer)."""
+    # profile counter-clockwise in the (radius, z) half-plane: bottom, outside, top, inside
+    profile = [(r_in, z0), (r_out, z0), (r_out, z1)]
+    profile += [(r_in + chamfer, z1), (r_in, z1 - chamfer)] if chamfer > 0 else [(r_in, z1)]
     a = 2 * np.pi * np.arange(n) / n
     ring = np.stack([np.cos(a), np.sin(a)], axis=1)
-    layers = [(r_in, z0), (r_in, z1), (r_out, z0), (r_out, z1)]  # inner bottom/top, outer bottom/top
-    vertices = np.concatenate([np.column_stack([ring * rad, np.full(n, z)]) for rad, z in layers])
+    vertices = np.concatenate([np.column_stack([ring * rad, np.full(n, z)]) for rad, z in profile])
     i = np.arange(n)
     j = (i + 1) % n
-    ib, it, ob, ot = i, i + n, i + 2 * n, i + 3 * n
-    jb, jt, ob2, ot2 = j, j + n, j + 2 * n, j + 3 * n
-    quads = [(ob, ob2, ot2, ot), (ib, it, jt, jb), (it, ot, ot2, jt), (ib, jb, ob2, ob)]  # outer, inner, top, bottom
-    faces = np.concatenate([np.concatenate([np.column_stack([q0, q1, q2]), np.column_stack([q0, q2, q3])])
-                            for q0, q1, q2, q3 in quads])
-    return vertices, faces
+    faces = []
+    for p in range(len(profile)):
+        q = (p + 1) % len(profile)
+        quad = (p * n + i, p * n + j, q * n + j, q * n + i)
+        faces += [np.column_stack(quad[:3]), np.column_stack([quad[0], quad[2], quad[3]])]
+    return vertices, np.concatenate(faces)
 
 
 def rim_height_m(hole_depth_mm: float) -> float:

@@ -189,3 +189,44 @@ def test_receptacle_tube_mesh_faces_outward():
     # from the tube's material core (mid radius, mid height) towards each face
     core = np.column_stack([centre[:, :2] * ((r_in + r_out) / 2 / radial)[:, None], np.full(len(faces), (z0 + z1) / 2)])
     assert (np.einsum("ij,ij->i", normal, centre - core) > 0).all()
+
+
+@pytest.mark.parametrize("chamfer_mm", [0.0, 3.0])
+def test_lead_in_chamfer_guides_a_peg_beyond_the_clearance(chamfer_mm):
+    """A peg lowered 4 mm off the hole's axis (clearance 2.5 mm) sits on a sharp rim but slides
+    down a 3 mm chamfer into the hole."""
+    with PegInHoleEnv(PegInHoleConfig(cameras=(), tactile=False, hole_chamfer_mm=chamfer_mm)) as env:
+        expert = ScriptedExpert(env)
+        env.reset(seed=0)
+        expert.reset(0)
+        while expert.phase != "align":
+            env.step(expert.act())
+        z, yaw = env.tcp_pose()[2:]
+        held = env.peg_bottom()[:2] - env.tcp_pose()[:2]
+        target = env.hole_xy + np.array([0.0, 0.004]) - held
+        for _ in range(5):
+            env.step([*target, z, yaw, 1.0])
+        floor = 0.008 + 0.003
+        for k in range(1, 15):
+            env.step([*target, z + (floor + 0.045 - z) * k / 14, yaw, 1.0])
+        if chamfer_mm:
+            assert env.insertion_mm() >= env.config.success_depth_mm
+        else:  # caught on the rim, a little tilted into the hole
+            assert env.insertion_mm() < 5.0
+
+
+def test_chamfered_tube_mesh_faces_outward():
+    from envs.scene import tube_mesh
+
+    r_in, r_out, z0, z1, c = 0.015, 0.027, 0.008, 0.048, 0.003
+    vertices, faces = tube_mesh(r_in, r_out, z0, z1, 24, chamfer=c)
+    assert vertices.shape == (120, 3) and faces.shape == (240, 3)
+    # the rim's inner edge is pushed out by the chamfer, the wall below it is not
+    top = vertices[np.isclose(vertices[:, 2], z1)]
+    assert np.linalg.norm(top[:, :2], axis=1).min() == pytest.approx(r_in + c)
+    tri = vertices[faces]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    centre = tri.mean(axis=1)
+    radial = np.linalg.norm(centre[:, :2], axis=1)
+    core = np.column_stack([centre[:, :2] * ((r_in + r_out) / 2 / radial)[:, None], np.full(len(faces), (z0 + z1) / 2)])
+    assert (np.einsum("ij,ij->i", normal, centre - core) > 0).all()
