@@ -87,6 +87,38 @@ def _trained(run: Path, steps: int) -> bool:
         return False
 
 
+def run_variant(variant: str, *, demos: str, runs: str, steps: int, batch_size: int, eval_episodes: int,
+                shifted_grip: tuple[float, float], generator: str | None, max_copies: int) -> dict:
+    """Train one variant (or reuse it when trained to ``steps``) and evaluate it at the demos' grip-force
+    range and at ``shifted_grip``; one torch thread, so variants can run side by side."""
+    torch.set_num_threads(1)
+    from controltac_il.pipeline import make_augment
+    from policies.act.deploy import evaluate_in_sim
+    from policies.act.training import TrainConfig, train_on_folder
+
+    run, copies = Path(runs) / variant, VARIANTS[variant]
+    row: dict = {}
+    t = time.perf_counter()
+    if not _trained(run, steps):
+        augment = make_augment(copies, generator, seed=0, max_copies=max_copies) if copies else None
+        summary = train_on_folder(demos, run, preset="cpu", augment=augment, train_config=TrainConfig(
+            steps=steps, batch_size=batch_size, val_every=min(500, steps), seed=0),
+            resume=(run / "last").is_dir(), progress=False)
+        row.update(train_frames=summary["train_frames"], samples_per_s=summary["samples_per_s"])
+    row["best_val_l1"] = json.loads((run / "best" / "config.json").read_text())["meta"]["best_val_l1"]
+    row["train_s"] = time.perf_counter() - t
+    for name, grip in (("nominal", None), ("shifted", tuple(shifted_grip))):
+        t = time.perf_counter()
+        res = evaluate_in_sim(run, episodes=eval_episodes, seed=100_000, grip_force_range=grip, progress=False)
+        row[f"{name}_success"] = res["success_rate"]
+        row[f"{name}_wilson95"] = [round(x, 3) for x in res["wilson95"]]
+        row[f"{name}_n"] = res["episodes"]
+        row[f"{name}_grip_n"] = res["grip_force_range_n"]
+        row[f"{name}_eval_s"] = time.perf_counter() - t
+    row["status"] = "done"
+    return row
+
+
 def main(argv=None) -> dict:
     p = base_parser(__doc__.split("\n\n")[0])
     p.add_argument("--demos", type=int, default=50, help="demos collected in the scene (default 50, the paper's)")
@@ -99,11 +131,15 @@ def main(argv=None) -> dict:
     p.add_argument("--runs", type=Path, default=Path("runs/benchmark_act"),
                    help="folder for the trained policies (reused when already trained to --steps)")
     p.add_argument("--generator", default=None, help="generator checkpoint for ForceAugment (default shipped)")
+    p.add_argument("--jobs", type=int, default=1,
+                   help="variants trained and evaluated at once, one process and torch thread each (default 1)")
     p.add_argument("--skip-experiment", action="store_true", help="only latency and throughput")
     args = p.parse_args(argv)
     if args.quick:
         args.demos, args.steps, args.eval_episodes = 3, 20, 2
         args.variants = "real,fa1"
+        if args.runs == p.get_default("runs"):
+            args.runs = Path("runs/benchmark_act_quick")
     torch.set_num_threads(1)
     variants = [v.strip() for v in args.variants.split(",") if v.strip()]
     unknown = [v for v in variants if v not in VARIANTS]
@@ -133,9 +169,6 @@ def main(argv=None) -> dict:
     if args.skip_experiment:
         return results
 
-    from policies.act.deploy import evaluate_in_sim
-    from policies.act.training import TrainConfig, train_on_folder
-
     rows = results["experiment"] = []
     max_copies = max(VARIANTS[v] for v in variants)
     generator_problem = None
@@ -144,39 +177,41 @@ def main(argv=None) -> dict:
             from controltac_il.generator import ForceGenerator
 
             ForceGenerator.from_pretrained(args.generator)
+            # build the ForceAugment cache once, before any worker reads it
+            from policies.act.data import load_training_data
+
+            make_augment(max_copies, args.generator, seed=0)(load_training_data(demos, 20, 0.1, 0).train)
         except (OSError, ValueError, ImportError) as exc:
             generator_problem = f"{type(exc).__name__}: {exc}"
             print(f"ForceAugment variants skipped, no generator: {generator_problem}")
-    settings = (("nominal", None), ("shifted", tuple(args.shifted_grip)))
     for v in variants:
-        run = args.runs / v
-        copies = VARIANTS[v]
-        row = {"variant": v, "copies": copies, "status": "training"}
-        rows.append(row)
-        if copies and generator_problem:
+        row = {"variant": v, "copies": VARIANTS[v], "status": "queued"}
+        if VARIANTS[v] and generator_problem:
             row["status"] = f"skipped (no generator: {generator_problem})"
-            continue
-        t = time.perf_counter()
-        if not _trained(run, args.steps):
-            augment = make_augment(copies, args.generator, seed=0, max_copies=max_copies) if copies else None
-            summary = train_on_folder(demos, run, preset="cpu", augment=augment, train_config=TrainConfig(
-                steps=args.steps, batch_size=args.batch_size, val_every=max(args.steps // 3, 1), seed=0),
-                resume=(run / "last").is_dir())
-            row.update(train_frames=summary["train_frames"], best_val_l1=summary["best_val_l1"],
-                       samples_per_s=summary["samples_per_s"])
-        row["train_s"] = time.perf_counter() - t
-        for name, grip in settings:
-            row["status"] = f"evaluating {name}"
+        rows.append(row)
+    todo = [row for row in rows if row["status"] == "queued"]
+    job_args = dict(demos=str(demos), runs=str(args.runs), steps=args.steps, batch_size=args.batch_size,
+                    eval_episodes=args.eval_episodes, shifted_grip=tuple(args.shifted_grip),
+                    generator=args.generator, max_copies=max_copies)
+    if args.jobs > 1 and len(todo) > 1:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        with ProcessPoolExecutor(min(args.jobs, len(todo)), mp_context=multiprocessing.get_context("spawn")) as pool:
+            futures = {pool.submit(run_variant, row["variant"], **job_args): row for row in todo}
+            for row in todo:
+                row["status"] = "running"
             save()
-            t = time.perf_counter()
-            res = evaluate_in_sim(run, episodes=args.eval_episodes, seed=100_000, grip_force_range=grip)
-            row[f"{name}_success"] = res["success_rate"]
-            row[f"{name}_wilson95"] = [round(x, 3) for x in res["wilson95"]]
-            row[f"{name}_n"] = res["episodes"]
-            row[f"{name}_grip_n"] = res["grip_force_range_n"]
-            row[f"{name}_eval_s"] = time.perf_counter() - t
-        row["status"] = "done"
-        save()
+            for fut in as_completed(futures):
+                futures[fut].update(fut.result())
+                print(f"{futures[fut]['variant']}: done")
+                save()
+    else:
+        for row in todo:
+            row["status"] = "running"
+            save()
+            row.update(run_variant(row["variant"], **job_args))
+            save()
     print_table(rows, ["variant", "copies", "nominal_success", "nominal_wilson95", "shifted_success",
                        "shifted_wilson95", "best_val_l1", "train_s"],
                 f"Peg-in-hole success, {args.demos} demos, {args.eval_episodes} seeded episodes per setting")
