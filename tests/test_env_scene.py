@@ -193,26 +193,29 @@ def test_receptacle_tube_mesh_faces_outward():
 
 @pytest.mark.parametrize("chamfer_mm", [0.0, 3.0])
 def test_lead_in_chamfer_guides_a_peg_beyond_the_clearance(chamfer_mm):
-    """A peg lowered 4 mm off the hole's axis (clearance 2.5 mm) sits on a sharp rim but slides
-    down a 3 mm chamfer into the hole."""
+    """A peg lowered 4 mm off the hole's axis (radial clearance 2.5 mm) mostly catches on a sharp rim
+    but slides down a 3 mm chamfer into the hole (6 tries: 2 scenes x 3 directions of the offset)."""
+    inserted = 0
     with PegInHoleEnv(PegInHoleConfig(cameras=(), tactile=False, hole_chamfer_mm=chamfer_mm)) as env:
         expert = ScriptedExpert(env)
-        env.reset(seed=0)
-        expert.reset(0)
-        while expert.phase != "align":
-            env.step(expert.act())
-        z, yaw = env.tcp_pose()[2:]
-        held = env.peg_bottom()[:2] - env.tcp_pose()[:2]
-        target = env.hole_xy + np.array([0.0, 0.004]) - held
-        for _ in range(5):
-            env.step([*target, z, yaw, 1.0])
-        floor = 0.008 + 0.003
-        for k in range(1, 15):
-            env.step([*target, z + (floor + 0.045 - z) * k / 14, yaw, 1.0])
-        if chamfer_mm:
-            assert env.insertion_mm() >= env.config.success_depth_mm
-        else:  # caught on the rim, a little tilted into the hole
-            assert env.insertion_mm() < 5.0
+        for seed in (1, 2):
+            for offset in ([0.0, 0.004], [0.004, 0.0], [0.0, -0.004]):
+                env.reset(seed=seed)
+                expert.reset(seed)
+                while expert.phase != "align":
+                    env.step(expert.act())
+                z, yaw = env.tcp_pose()[2:]
+                held = env.peg_bottom()[:2] - env.tcp_pose()[:2]
+                target = env.hole_xy + np.array(offset) - held
+                for _ in range(5):
+                    env.step([*target, z, yaw, 1.0])
+                for k in range(1, 15):  # push the peg's bottom down to 3 mm above the floor
+                    env.step([*target, z + (0.011 + 0.045 - z) * k / 14, yaw, 1.0])
+                inserted += env.insertion_mm() >= env.config.success_depth_mm
+    if chamfer_mm:
+        assert inserted >= 5
+    else:
+        assert inserted <= 2
 
 
 def test_chamfered_tube_mesh_faces_outward():
