@@ -91,6 +91,20 @@ def test_stats_computed_once_and_saved_outside_data(folder, tmp_path):
         EpisodeDataset(folder, stats_path=folder / "stats.json")
 
 
+def test_rerecorded_episode_of_same_size_invalidates_stats(folder, tmp_path):
+    """A fixed-length task re-recorded into the same folder gives files of the same name, size and
+    length; the saved statistics (and ForceAugment caches, keyed by the same fingerprint) must not
+    be reused for them."""
+    ds = EpisodeDataset(folder, stats_path=tmp_path / "s.json")
+    path = folder / "episode_1.hdf5"
+    size = path.stat().st_size
+    write_episode(path, synthetic_episode(4, 77))
+    assert path.stat().st_size == size
+    ds2 = EpisodeDataset(folder, stats_path=tmp_path / "s.json")
+    assert ds2.fingerprint() != ds.fingerprint()
+    assert not np.allclose(ds2.stats["qpos"]["mean"], ds.stats["qpos"]["mean"])
+
+
 def test_read_only_folder_is_untouched(folder, tmp_path):
     sums = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in folder.iterdir()}
     for p in folder.iterdir():

@@ -59,7 +59,7 @@ class EpisodeDataset(Dataset):
         cameras: camera names to return; None = all cameras of the first episode.
         tactile_sensors: tactile sensor names to return; None = all of the first episode.
         stats_path: JSON file for the qpos/action mean and std; None = a file named after the folder in
-            ``default_stats_dir()``. Recomputed when the episode files change (names and sizes).
+            ``default_stats_dir()``. Recomputed when the episode files change (see ``fingerprint``).
     """
 
     def __init__(self, root, chunk_size: int = 20, cameras=None, tactile_sensors=None, stats_path=None):
@@ -71,7 +71,7 @@ class EpisodeDataset(Dataset):
         if not self.paths:
             raise ValueError(f"root: no episode_<i>.hdf5 files in {self.root}")
         self.episode_ids = [episode_index(p) for p in self.paths]
-        lengths, forces_present, backgrounds = [], [], {}
+        lengths, forces_present, backgrounds, self._digests = [], [], {}, []
         for n, p in enumerate(self.paths):
             with h5py.File(p, "r") as f:
                 if n == 0:
@@ -83,6 +83,8 @@ class EpisodeDataset(Dataset):
                     if missing:
                         raise ValueError(f"{p.name}: no /observations/{group}/{sorted(missing)[0]} (present in other episodes)")
                 lengths.append(int(f["observations/qpos"].shape[0]))
+                trajectory = f["observations/qpos"][()].tobytes() + f["action"][()].tobytes()
+                self._digests.append(hashlib.sha256(trajectory).hexdigest()[:16])
                 forces_present.append(set(_keys(f, "force")))
                 for s in self.tactile_sensors:
                     key = f"observations/tactile_background/{s}"
@@ -127,11 +129,16 @@ class EpisodeDataset(Dataset):
 
     # --- normalisation statistics -------------------------------------------------------------
     def fingerprint(self) -> dict:
-        """Identity of the data: episode file names, sizes and lengths (changes when files change)."""
-        return {
-            "root": str(self.root),
-            "files": [[p.name, p.stat().st_size, int(n)] for p, n in zip(self.paths, self.lengths)],
-        }
+        """Identity of the data: per episode file name, size, modification time (ns), length and a
+        digest of its qpos and actions.
+
+        Size and length alone do not tell a re-recorded folder from the old one (episodes of a
+        fixed-length task match byte for byte in size); the trajectory digest and mtime do."""
+        files = []
+        for p, n, digest in zip(self.paths, self.lengths, self._digests):
+            st = p.stat()
+            files.append([p.name, st.st_size, st.st_mtime_ns, int(n), digest])
+        return {"root": str(self.root), "files": files}
 
     def _default_stats_path(self) -> Path:
         digest = hashlib.sha256(str(self.root).encode()).hexdigest()[:16]
