@@ -1,6 +1,7 @@
 """ACT benchmark: inference latency per chunk, training throughput, and the paper's IL experiment in sim.
 
     python -m benchmarks.act --out act.json            # full: 50 demos, real vs ForceAugment 1/2/4
+    python -m benchmarks.act --steps 4000 --jobs 2 --out act.json   # two variants at a time (2 cores)
     python -m benchmarks.act --quick --out act.json    # CI: tiny sizes, real vs ForceAugment 1
 
 Experiment (ControlTac, imitation learning): train the cpu-preset ACT on the same demos with real data
@@ -198,7 +199,9 @@ def main(argv=None) -> dict:
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
         with ProcessPoolExecutor(min(args.jobs, len(todo)), mp_context=multiprocessing.get_context("spawn")) as pool:
-            futures = {pool.submit(run_variant, row["variant"], **job_args): row for row in todo}
+            # variants still to train first: they take longest
+            order = sorted(todo, key=lambda row: _trained(args.runs / row["variant"], args.steps))
+            futures = {pool.submit(run_variant, row["variant"], **job_args): row for row in order}
             for row in todo:
                 row["status"] = "running"
             save()
