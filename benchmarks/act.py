@@ -181,7 +181,10 @@ def main(argv=None) -> dict:
             # build the ForceAugment cache once, before any worker reads it
             from policies.act.data import load_training_data
 
-            make_augment(max_copies, args.generator, seed=0)(load_training_data(demos, 20, 0.1, 0).train)
+            from policies.act import ACTConfig
+
+            chunk = ACTConfig.from_preset("cpu").chunk_size  # the split train_on_folder makes below
+            make_augment(max_copies, args.generator, seed=0)(load_training_data(demos, chunk, 0.1, 0).train)
         except (OSError, ValueError, ImportError) as exc:
             generator_problem = f"{type(exc).__name__}: {exc}"
             print(f"ForceAugment variants skipped, no generator: {generator_problem}")
