@@ -1,5 +1,6 @@
 """Generator building blocks on random tensors: configs, autoencoder, DiT, DDIM sampler, checkpoints, train states."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -73,6 +74,14 @@ def test_dit_and_generator_config_reject_bad_fields():
         small_config(delta_scale=(1.0, 1.0))
     with pytest.raises(ValueError, match="unknown fields"):
         GeneratorConfig.from_dict({**small_config().to_dict(), "extra": 1})
+    with pytest.raises(ValueError, match="conv_head_width"):
+        DiTConfig(conv_head_width=-1)
+
+
+def test_configs_written_before_the_refinement_head_still_load():
+    d = small_config().to_dict()
+    del d["dit"]["conv_head_width"]
+    assert GeneratorConfig.from_dict(d).dit.conv_head_width == 0
 
 
 # -- networks ----------------------------------------------------------------------------------
@@ -95,6 +104,24 @@ def test_dit_starts_as_zero_predictor_and_uses_force():
     b = dit(x, x, torch.full((3,), 500), torch.tensor([[0.0, 0.0, 5.0]] * 3))
     c = dit(x, torch.zeros_like(x), torch.full((3,), 500), torch.zeros(3, 3))
     assert not torch.allclose(a, b) and not torch.allclose(a, c)  # ΔF and the reference latent both condition
+
+
+def test_refinement_head_starts_as_identity_and_acts_locally():
+    cfg = dataclasses.replace(SMALL_DIT, patch_size=2)
+    plain = randomised(ForceDiT(cfg))
+    headed = ForceDiT(dataclasses.replace(cfg, conv_head_width=6))
+    missing, unexpected = headed.load_state_dict(plain.state_dict(), strict=False)
+    assert unexpected == [] and all(k.startswith("refine.") for k in missing)
+    x, z_ref = torch.randn(2, 4, 8, 8), torch.randn(2, 4, 8, 8)
+    t, df = torch.tensor([3, 900]), torch.tensor([[0.0, 0.0, 2.0], [0.5, 0.0, -1.0]])
+    torch.testing.assert_close(headed(x, z_ref, t, df), plain(x, z_ref, t, df))  # zero-initialised last conv
+    head = randomised(headed.refine, 3)
+    out = plain(x, z_ref, t, df)
+    bumped = z_ref.clone()
+    bumped[:, :, 0, 0] += 1.0  # one latent pixel
+    diff = head(out, bumped, x) - head(out, z_ref, x)
+    assert diff[..., :4, :4].abs().amax(dim=(0, 1)).min() > 0  # three 3x3 convs reach 3 pixels...
+    assert torch.count_nonzero(diff[..., 4:, :]) == 0 and torch.count_nonzero(diff[..., :, 4:]) == 0  # ...and no further
 
 
 def test_residual_scaling_round_trip():

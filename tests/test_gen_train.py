@@ -56,9 +56,14 @@ def test_train_resume_and_reuse_autoencoder(dataset, tmp_path):
 
     fast = tmp_path / "fast"
     main(["--data", str(dataset), "--out", str(fast), "--image-size", "64", "80", "--autoencoder-from", str(run),
-          "--stage", "denoiser", "--dit-preset", "tiny", "--prediction-type", "sample", "--default-steps", "2", *TINY])
+          "--stage", "denoiser", "--dit-preset", "tiny", "--prediction-type", "sample", "--default-steps", "2",
+          "--dit-conv-head", "8", "--one-step-fraction", "0.5", *TINY])
     g2 = ForceGenerator.from_pretrained(fast / "final")
     assert g2.config.diffusion.prediction_type == "sample" and g2.config.dit.depth == 2
+    assert g2.config.dit.conv_head_width == 8
+    card = json.loads((fast / "final" / "model_card.json").read_text())
+    assert "--dit-conv-head 8 " in card["command"] and "--one-step-fraction 0.5 " in card["command"]
+    assert card["denoiser"]["history"][-1]["one_step_fraction"] == 0.5
     assert not (fast / "autoencoder_state.json").exists()
 
 
@@ -67,6 +72,10 @@ def test_bad_training_arguments(dataset, tmp_path):
         main(["--data", str(dataset), "--out", str(tmp_path / "x"), "--ae-crop", "200", "40"])
     with pytest.raises(ValueError, match="stage 'denoiser'"):
         main(["--data", str(dataset), "--out", str(tmp_path / "y"), "--stage", "denoiser"])
+    with pytest.raises(ValueError, match="one_step_fraction"):
+        main(["--data", str(dataset), "--out", str(tmp_path / "z"), "--one-step-fraction", "1.5"])
+    with pytest.raises(ValueError, match="dit_conv_head"):
+        main(["--data", str(dataset), "--out", str(tmp_path / "w"), "--dit-conv-head", "-2"])
 
 
 @pytest.mark.slow

@@ -92,6 +92,9 @@ class DiTConfig:
     patch_size: latent pixels per token side.
     hidden_size, depth, num_heads, mlp_ratio: transformer width, blocks, attention heads, MLP expansion.
     force_scale: ΔF (N) is divided by this per component [Fx, Fy, Fz] before the ΔF embedder MLP.
+    conv_head_width: channels of the local refinement head (three 3x3 convolutions at latent
+        resolution on [DiT output, reference latent, noisy latent], last one zero-initialised, added to
+        the DiT output; restores detail finer than a patch). 0 = no head (the plain DiT).
     """
 
     in_channels: int = 8
@@ -101,9 +104,12 @@ class DiTConfig:
     num_heads: int = 4
     mlp_ratio: float = 4.0
     force_scale: tuple[float, float, float] = (2.0, 2.0, 9.0)
+    conv_head_width: int = 0
 
     def __post_init__(self):
         self.force_scale = tuple(float(v) for v in self.force_scale)
+        if not isinstance(self.conv_head_width, int) or isinstance(self.conv_head_width, bool) or self.conv_head_width < 0:
+            raise ValueError(f"conv_head_width must be an int >= 0 (0 = no head), got {self.conv_head_width!r}")
         for n in ("in_channels", "patch_size", "hidden_size", "depth", "num_heads"):
             _check_pos_int(n, getattr(self, n))
         if self.hidden_size % self.num_heads:
@@ -116,19 +122,22 @@ class DiTConfig:
             raise ValueError(f"force_scale must be three positive numbers (N), got {self.force_scale!r}")
 
     @classmethod
-    def small(cls, in_channels: int = 8, patch_size: int = 2) -> "DiTConfig":
+    def small(cls, in_channels: int = 8, patch_size: int = 2, conv_head_width: int = 0) -> "DiTConfig":
         """DiT-S (this project's default teacher): 128 wide, 4 blocks."""
-        return cls(in_channels=in_channels, patch_size=patch_size, hidden_size=128, depth=4, num_heads=4)
+        return cls(in_channels=in_channels, patch_size=patch_size, hidden_size=128, depth=4, num_heads=4,
+                   conv_head_width=conv_head_width)
 
     @classmethod
-    def tiny(cls, in_channels: int = 8, patch_size: int = 2) -> "DiTConfig":
+    def tiny(cls, in_channels: int = 8, patch_size: int = 2, conv_head_width: int = 0) -> "DiTConfig":
         """DiT-T (faster variant): 96 wide, 2 blocks."""
-        return cls(in_channels=in_channels, patch_size=patch_size, hidden_size=96, depth=2, num_heads=4)
+        return cls(in_channels=in_channels, patch_size=patch_size, hidden_size=96, depth=2, num_heads=4,
+                   conv_head_width=conv_head_width)
 
     @classmethod
-    def base(cls, in_channels: int = 8, patch_size: int = 2) -> "DiTConfig":
+    def base(cls, in_channels: int = 8, patch_size: int = 2, conv_head_width: int = 0) -> "DiTConfig":
         """DiT-B: 256 wide, 8 blocks (too slow for the 2-core CPU target; for GPUs)."""
-        return cls(in_channels=in_channels, patch_size=patch_size, hidden_size=256, depth=8, num_heads=8)
+        return cls(in_channels=in_channels, patch_size=patch_size, hidden_size=256, depth=8, num_heads=8,
+                   conv_head_width=conv_head_width)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

@@ -4,6 +4,9 @@ Input: the noisy latent concatenated in channels with the reference latent, (B, 
 cut into p x p patches (tokens), given fixed 2-D sin-cos positions, and passed through adaLN-Zero
 blocks whose scale/shift/gate come from ``timestep embedding + ΔF embedding``; a final adaLN layer
 maps tokens back to a (B, C, h, w) prediction (noise or clean sample, per the diffusion config).
+Optionally (``conv_head_width > 0``) a local refinement head, as in U-ViT's final convolution, adds a
+per-pixel correction at latent resolution: a patch token sees the contact only at p x p granularity,
+and the contact edge moves by less than a patch as the force changes.
 """
 
 from __future__ import annotations
@@ -79,6 +82,24 @@ class DiTBlock(nn.Module):
         return x
 
 
+class LocalRefinementHead(nn.Module):
+    """Three 3x3 convolutions on [DiT output, z_ref, x_t] (3C channels) -> (B, C, h, w) correction.
+
+    The last convolution starts at zero, so a fresh head leaves the DiT output unchanged.
+    """
+
+    def __init__(self, channels: int, width: int):
+        super().__init__()
+        self.net = nn.Sequential(nn.Conv2d(3 * channels, width, 3, padding=1), nn.SiLU(),
+                                 nn.Conv2d(width, width, 3, padding=1), nn.SiLU(),
+                                 nn.Conv2d(width, channels, 3, padding=1))
+        nn.init.zeros_(self.net[-1].weight)
+        nn.init.zeros_(self.net[-1].bias)
+
+    def forward(self, out: torch.Tensor, z_ref: torch.Tensor, x_t: torch.Tensor) -> torch.Tensor:
+        return self.net(torch.cat([out, z_ref, x_t], dim=1))
+
+
 class ForceDiT(nn.Module):
     """Denoiser ε_θ(x_t, z_ref, t, ΔF) (or x0 predictor): (B, C, h, w) latents -> (B, C, h, w)."""
 
@@ -97,6 +118,7 @@ class ForceDiT(nn.Module):
         for m in (self.final_ada[1], self.final_linear):
             nn.init.zeros_(m.weight)
             nn.init.zeros_(m.bias)
+        self.refine = LocalRefinementHead(c, config.conv_head_width) if config.conv_head_width else None
         self._pos_cache: dict[tuple[int, int], torch.Tensor] = {}
 
     def _pos(self, h: int, w: int, like: torch.Tensor) -> torch.Tensor:
@@ -120,4 +142,6 @@ class ForceDiT(nn.Module):
         shift, scale = self.final_ada(cond).chunk(2, dim=-1)
         out = self.final_linear(modulate(self.final_norm(tok), shift, scale))  # (B, N, p*p*c)
         out = out.reshape(b, gh, gw, p, p, c).permute(0, 5, 1, 3, 2, 4).reshape(b, c, h, w)
+        if self.refine is not None:
+            out = out + self.refine(out, z_ref, x_t)
         return out

@@ -64,10 +64,13 @@ class TrainConfig:
     image_size: (H, W) of the model; dataset images are resized to it.
     ae_channels, latent_channels: autoencoder stage widths (f = 2**len) and latent channels.
     dit_preset: "small" (default teacher), "tiny" (faster variant) or "base"; dit_patch: latent pixels per token side.
+    dit_conv_head: width of the DiT's local refinement head (0 = none; see DiTConfig.conv_head_width).
     prediction_type: "epsilon" (paper) or "sample"; default_steps: DDIM steps stored as the default.
     ae_steps, ae_batch, ae_lr, ae_crop: autoencoder optimisation (crop (H, W) of the training patches).
     ae_contact_weight: extra loss weight on contact pixels of the autoencoder's targets.
     dit_steps, dit_batch, dit_lr: DiT optimisation (global batch, split across processes).
+    one_step_fraction: share of each DiT batch drawn at the last training timestep (the only one a
+        1-step DDIM sampler visits); the rest is uniform over all timesteps, as in the paper.
     min_lr_ratio: cosine decay floor as a fraction of the peak LR; warmup_steps: linear warm-up.
     ema_decay: EMA of the DiT weights (the shipped weights).
     no_contact_prob: share of no-contact pairs; no_contact_frames: how many bare frames to render.
@@ -85,6 +88,7 @@ class TrainConfig:
     latent_channels: int = 8
     dit_preset: str = "small"
     dit_patch: int = 2
+    dit_conv_head: int = 0
     prediction_type: str = "epsilon"
     default_steps: int = 10
     ae_steps: int = 1500
@@ -95,6 +99,7 @@ class TrainConfig:
     dit_steps: int = 4000
     dit_batch: int = 128
     dit_lr: float = 5e-4
+    one_step_fraction: float = 0.0
     min_lr_ratio: float = 0.1
     warmup_steps: int = 100
     ema_decay: float = 0.999
@@ -119,10 +124,11 @@ class TrainConfig:
             v = getattr(self, n)
             if not isinstance(v, int) or v < 0:
                 raise ValueError(f"{n} must be an int >= 0, got {v!r}")
-        for n in ("ae_batch", "dit_batch", "checkpoint_every", "no_contact_frames"):
+        for n in ("ae_batch", "dit_batch", "checkpoint_every", "no_contact_frames", "dit_conv_head"):
             v = getattr(self, n)
-            if not isinstance(v, int) or v < (0 if n == "no_contact_frames" else 1):
-                raise ValueError(f"{n} must be a positive int, got {v!r}")
+            low = 0 if n in ("no_contact_frames", "dit_conv_head") else 1
+            if not isinstance(v, int) or isinstance(v, bool) or v < low:
+                raise ValueError(f"{n} must be an int >= {low}, got {v!r}")
         for n in ("ae_lr", "dit_lr"):
             if not getattr(self, n) > 0:
                 raise ValueError(f"{n} must be > 0, got {getattr(self, n)!r}")
@@ -130,6 +136,8 @@ class TrainConfig:
             raise ValueError(f"min_lr_ratio must be in (0, 1], got {self.min_lr_ratio!r}")
         if not 0 <= self.ema_decay < 1:
             raise ValueError(f"ema_decay must be in [0, 1), got {self.ema_decay!r}")
+        if not 0 <= self.one_step_fraction <= 1:
+            raise ValueError(f"one_step_fraction must be in [0, 1], got {self.one_step_fraction!r}")
         if not 0 <= self.no_contact_prob < 1:
             raise ValueError(f"no_contact_prob must be in [0, 1), got {self.no_contact_prob!r}")
         if any(c > s for c, s in zip(self.ae_crop, self.image_size)):
@@ -345,7 +353,7 @@ def train_denoiser(cfg: TrainConfig, gcfg: GeneratorConfig, z: torch.Tensor, dat
         step, wall, history = meta["step"], meta["wall_s"], meta.get("history", [])
     # one entry per (re)start: resumed runs may change the step budget or the prediction target
     history = history + [{"from_step": step, "dit_steps": cfg.dit_steps, "prediction_type": gcfg.diffusion.prediction_type,
-                          "lr": cfg.dit_lr, "batch": cfg.dit_batch}]
+                          "lr": cfg.dit_lr, "batch": cfg.dit_batch, "one_step_fraction": cfg.one_step_fraction}]
     model = wrap(dit, world)
     sched = make_scheduler(gcfg.diffusion)
     c = gcfg.autoencoder.latent_channels
@@ -362,6 +370,8 @@ def train_denoiser(cfg: TrainConfig, gcfg: GeneratorConfig, z: torch.Tensor, dat
         g = torch.Generator().manual_seed(int(rng.integers(0, 2**62)))
         noise = torch.randn(x0.shape, generator=g)
         t = torch.randint(0, gcfg.diffusion.num_train_timesteps, (per_rank,), generator=g)
+        if cfg.one_step_fraction > 0:
+            t[torch.rand(per_rank, generator=g) < cfg.one_step_fraction] = gcfg.diffusion.num_train_timesteps - 1
         xt = sched.add_noise(x0, noise, t)
         target = noise if gcfg.diffusion.prediction_type == "epsilon" else x0
         set_lr(opt, lr_at(step, cfg.dit_steps, cfg.dit_lr, cfg.warmup_steps, cfg.min_lr_ratio))
@@ -421,7 +431,7 @@ def run(cfg: TrainConfig) -> Path:
     c = ae.config.latent_channels
     gcfg = GeneratorConfig(
         autoencoder=ae.config,
-        dit=DIT_PRESETS[cfg.dit_preset](in_channels=c, patch_size=cfg.dit_patch),
+        dit=DIT_PRESETS[cfg.dit_preset](in_channels=c, patch_size=cfg.dit_patch, conv_head_width=cfg.dit_conv_head),
         diffusion=DiffusionConfig(prediction_type=cfg.prediction_type, default_steps=cfg.default_steps),
         latent_scale=lat, delta_scale=dsc, anchor_to_reference=cfg.anchor_to_reference,
     )
@@ -490,6 +500,10 @@ def parse_args(argv=None) -> TrainConfig:
     p.add_argument("--dit-preset", choices=sorted(DIT_PRESETS), default="small", help="DiT size (default: small)")
     p.add_argument("--prediction-type", choices=("epsilon", "sample"), default="epsilon", help="what the DiT predicts")
     p.add_argument("--default-steps", type=int, default=d["default_steps"].default, help="DDIM steps stored as the default")
+    p.add_argument("--dit-conv-head", type=int, default=0, metavar="WIDTH",
+                   help="width of the DiT's local refinement head, 3x3 convs at latent resolution (default: 0 = none)")
+    p.add_argument("--one-step-fraction", type=float, default=0.0, metavar="F",
+                   help="share of each DiT batch trained at the last timestep, the one 1-step DDIM uses (default: 0)")
     for name in ("dit_patch", "ae_steps", "ae_batch", "dit_steps", "dit_batch", "warmup_steps", "checkpoint_every", "seed",
                  "no_contact_frames", "threads"):
         p.add_argument("--" + name.replace("_", "-"), type=int, default=d[name].default)
