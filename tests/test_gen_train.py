@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from controltac_il.generator import ForceGenerator
 from controltac_il.generator.data import load_pair_data, sample_pairs
@@ -65,6 +66,24 @@ def test_train_resume_and_reuse_autoencoder(dataset, tmp_path):
     assert "--dit-conv-head 8 " in card["command"] and "--one-step-fraction 0.5 " in card["command"]
     assert card["denoiser"]["history"][-1]["one_step_fraction"] == 0.5
     assert not (fast / "autoencoder_state.json").exists()
+
+    # fine-tuning: 0 steps from a checkpoint reproduces its DiT and keeps its latent scales
+    tune = ["--data", str(dataset), "--image-size", "64", "80", "--autoencoder-from", str(run), "--stage", "denoiser",
+            "--dit-preset", "tiny", "--prediction-type", "sample", "--dit-conv-head", "8"]
+    main([*tune, "--out", str(tmp_path / "tune0"), "--denoiser-from", str(fast / "final"), *TINY[:2], "--dit-steps", "0"])
+    g3 = ForceGenerator.from_pretrained(tmp_path / "tune0" / "final")
+    assert g3.config.latent_scale == g2.config.latent_scale and g3.config.delta_scale == g2.config.delta_scale
+    a, b = g2.denoiser.state_dict(), g3.denoiser.state_dict()
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    # from a run folder's state, then trained on: the history says where it started
+    main([*tune, "--out", str(tmp_path / "tune2"), "--denoiser-from", str(fast), *TINY])
+    card = json.loads((tmp_path / "tune2" / "final" / "model_card.json").read_text())
+    assert card["denoiser"]["from"] == str(fast) and f"--denoiser-from {fast}" in card["command"]
+    assert card["denoiser"]["history"][0]["denoiser_from"] == str(fast)
+    with pytest.raises(ValueError, match="another dit config.*conv_head_width"):
+        main([*tune[:-2], "--out", str(tmp_path / "tune3"), "--denoiser-from", str(fast), *TINY])
+    with pytest.raises(FileNotFoundError, match="denoiser_from"):
+        main([*tune, "--out", str(tmp_path / "tune4"), "--denoiser-from", str(tmp_path), *TINY])
 
 
 def test_bad_training_arguments(dataset, tmp_path):

@@ -4,6 +4,8 @@
     python -m controltac_il.generator.train --data DATASET --out RUN_DIR --resume   # continue
     python -m controltac_il.generator.train --data DATASET --out FAST_RUN --autoencoder-from RUN_DIR \
         --dit-preset tiny --prediction-type sample --default-steps 2                  # faster variant
+    python -m controltac_il.generator.train --data NEW_DATASET --out TUNED --autoencoder-from RUN_DIR \
+        --stage denoiser --denoiser-from RUN_DIR [same DiT flags] --dit-lr 3e-4        # fine-tune on new poses
     torchrun --nproc-per-node 2 -m controltac_il.generator.train ...                 # data parallel (gloo, CPU)
 
 Run folder (never the dataset folder)::
@@ -61,6 +63,9 @@ class TrainConfig:
     out: run folder (states, latents, final checkpoint).
     stage: "all", "autoencoder" or "denoiser" (the latter needs a trained autoencoder).
     autoencoder_from: run folder or checkpoint whose trained autoencoder is reused (skips stage 1).
+    denoiser_from: run folder or checkpoint whose DiT (EMA weights) starts this run's DiT: fine-tuning,
+        e.g. on freshly rendered poses. Its DiT architecture and autoencoder config must match this
+        run's, and its latent and ΔF scales are kept (the weights were trained on them).
     image_size: (H, W) of the model; dataset images are resized to it.
     ae_channels, latent_channels: autoencoder stage widths (f = 2**len) and latent channels.
     dit_preset: "small" (default teacher), "tiny" (faster variant) or "base"; dit_patch: latent pixels per token side.
@@ -83,6 +88,7 @@ class TrainConfig:
     out: str
     stage: str = "all"
     autoencoder_from: str | None = None
+    denoiser_from: str | None = None
     image_size: tuple[int, int] = (128, 160)
     ae_channels: tuple[int, ...] = (16, 48, 96)
     latent_channels: int = 8
@@ -333,6 +339,28 @@ def cached_latents(cfg: TrainConfig, ae: TactileAutoencoder, data: PairData, out
 
 # -- stage 2: DiT ------------------------------------------------------------------------------
 
+def source_denoiser(src: Path) -> tuple[GeneratorConfig, dict[str, torch.Tensor]]:
+    """(config, float32 DiT weights) of a run folder's latest state (its EMA) or of a checkpoint folder."""
+    stem = src / "denoiser_state"
+    if stem.with_suffix(".json").is_file():
+        config = GeneratorConfig.from_dict(json.loads(stem.with_suffix(".json").read_text())["config"])
+        tensors = load_file(str(stem.with_suffix(".safetensors")))
+        return config, {k[len("ema."):]: v.float() for k, v in tensors.items() if k.startswith("ema.")}
+    if not (src / "config.json").is_file():
+        raise FileNotFoundError(f"denoiser_from: {src} holds neither a denoiser_state.json (run folder) nor a config.json (checkpoint)")
+    config, _, dit = load_checkpoint(src)
+    return config, dit.state_dict()
+
+
+def check_same_models(src: Path, source: GeneratorConfig, gcfg: GeneratorConfig) -> None:
+    for part in ("dit", "autoencoder"):
+        a, b = getattr(source, part).to_dict(), getattr(gcfg, part).to_dict()
+        diff = {k: (a.get(k), b.get(k)) for k in a.keys() | b.keys() if a.get(k) != b.get(k)}
+        if diff:
+            raise ValueError(f"denoiser_from: {src} has another {part} config than this run "
+                             f"(field: (source, this run)): {diff}")
+
+
 @torch.no_grad()
 def ema_update(ema: torch.nn.Module, model: torch.nn.Module, decay: float) -> None:
     for pe, pm in zip(ema.parameters(), model.parameters()):
@@ -340,7 +368,8 @@ def ema_update(ema: torch.nn.Module, model: torch.nn.Module, decay: float) -> No
 
 
 def train_denoiser(cfg: TrainConfig, gcfg: GeneratorConfig, z: torch.Tensor, data: PairData, out: Path,
-                   rank: int, world: int) -> tuple[ForceDiT, dict]:
+                   rank: int, world: int, init: dict[str, torch.Tensor] | None = None) -> tuple[ForceDiT, dict]:
+    """Train (or resume) the DiT; ``init``: starting weights when there is no state to resume."""
     torch.manual_seed(cfg.seed + 1)
     dit = ForceDiT(gcfg.dit)
     ema = ForceDiT(gcfg.dit)
@@ -351,9 +380,13 @@ def train_denoiser(cfg: TrainConfig, gcfg: GeneratorConfig, z: torch.Tensor, dat
     if stem.with_suffix(".json").is_file():
         meta = load_state(stem, {"denoiser": dit, "ema": ema}, opt)
         step, wall, history = meta["step"], meta["wall_s"], meta.get("history", [])
+    elif init is not None:
+        dit.load_state_dict(init)
+        ema.load_state_dict(init)
     # one entry per (re)start: resumed runs may change the step budget or the prediction target
     history = history + [{"from_step": step, "dit_steps": cfg.dit_steps, "prediction_type": gcfg.diffusion.prediction_type,
-                          "lr": cfg.dit_lr, "batch": cfg.dit_batch, "one_step_fraction": cfg.one_step_fraction}]
+                          "lr": cfg.dit_lr, "batch": cfg.dit_batch, "one_step_fraction": cfg.one_step_fraction,
+                          "denoiser_from": cfg.denoiser_from}]
     model = wrap(dit, world)
     sched = make_scheduler(gcfg.diffusion)
     c = gcfg.autoencoder.latent_channels
@@ -427,7 +460,8 @@ def run(cfg: TrainConfig) -> Path:
         return out
 
     z = cached_latents(cfg, ae, data, out, rank, world)
-    lat, dsc = latent_scales(z, data, cfg.seed)
+    source, init = (None, None) if cfg.denoiser_from is None else source_denoiser(Path(cfg.denoiser_from))
+    lat, dsc = latent_scales(z, data, cfg.seed) if source is None else (source.latent_scale, source.delta_scale)
     c = ae.config.latent_channels
     gcfg = GeneratorConfig(
         autoencoder=ae.config,
@@ -435,7 +469,9 @@ def run(cfg: TrainConfig) -> Path:
         diffusion=DiffusionConfig(prediction_type=cfg.prediction_type, default_steps=cfg.default_steps),
         latent_scale=lat, delta_scale=dsc, anchor_to_reference=cfg.anchor_to_reference,
     )
-    dit, dit_meta = train_denoiser(cfg, gcfg, z, data, out, rank, world)
+    if source is not None:
+        check_same_models(Path(cfg.denoiser_from), source, gcfg)
+    dit, dit_meta = train_denoiser(cfg, gcfg, z, data, out, rank, world, init)
     final = out / "final"
     if rank == 0:
         meta = json.loads((Path(cfg.data) / "meta.json").read_text()) if (Path(cfg.data) / "meta.json").is_file() else {}
@@ -449,7 +485,7 @@ def run(cfg: TrainConfig) -> Path:
             "autoencoder": {"steps": ae_meta.get("step"), "wall_s": ae_meta.get("wall_s"), "final_loss": ae_meta.get("loss"),
                             "from": ae_meta.get("from")},
             "denoiser": {"preset": cfg.dit_preset, "steps": dit_meta["step"], "wall_s": dit_meta["wall_s"],
-                         "final_loss": dit_meta.get("loss"), "batch": cfg.dit_batch, "lr": cfg.dit_lr,
+                         "final_loss": dit_meta.get("loss"), "from": cfg.denoiser_from, "batch": cfg.dit_batch, "lr": cfg.dit_lr,
                          "parameters": sum(p.numel() for p in dit.parameters()), "history": dit_meta.get("history")},
             "autoencoder_parameters": sum(p.numel() for p in ae.parameters()),
             "world_size": world,
@@ -493,6 +529,8 @@ def parse_args(argv=None) -> TrainConfig:
     p.add_argument("--out", required=True, help="run folder for states, latents and OUT/final")
     p.add_argument("--stage", choices=STAGES, default="all", help="which stage(s) to train (default: all)")
     p.add_argument("--autoencoder-from", default=None, help="reuse the autoencoder of this run or checkpoint folder")
+    p.add_argument("--denoiser-from", default=None,
+                   help="start the DiT from this run or checkpoint folder's DiT (fine-tuning; same architecture and autoencoder)")
     p.add_argument("--resume", action="store_true", help="continue from the states in --out (without it, --out must not hold states)")
     p.add_argument("--image-size", type=int, nargs=2, default=d["image_size"].default, metavar=("H", "W"))
     p.add_argument("--ae-channels", type=int, nargs="+", default=d["ae_channels"].default, help="autoencoder stage widths")
