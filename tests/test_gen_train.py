@@ -70,8 +70,10 @@ def test_train_resume_and_reuse_autoencoder(dataset, tmp_path):
     # fine-tuning: 0 steps from a checkpoint reproduces its DiT and keeps its latent scales
     tune = ["--data", str(dataset), "--image-size", "64", "80", "--autoencoder-from", str(run), "--stage", "denoiser",
             "--dit-preset", "tiny", "--prediction-type", "sample", "--dit-conv-head", "8"]
-    main([*tune, "--out", str(tmp_path / "tune0"), "--denoiser-from", str(fast / "final"), *TINY[:2], "--dit-steps", "0"])
+    main([*tune, "--out", str(tmp_path / "tune0"), "--denoiser-from", str(fast / "final"), *TINY[:2], "--dit-steps", "0",
+          "--anchor-to-reference", "--detail-gate", "2"])
     g3 = ForceGenerator.from_pretrained(tmp_path / "tune0" / "final")
+    assert g3.config.anchor_to_reference and g3.config.detail_gate == 2.0
     assert g3.config.latent_scale == g2.config.latent_scale and g3.config.delta_scale == g2.config.delta_scale
     a, b = g2.denoiser.state_dict(), g3.denoiser.state_dict()
     assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
@@ -93,6 +95,10 @@ def test_bad_training_arguments(dataset, tmp_path):
         main(["--data", str(dataset), "--out", str(tmp_path / "y"), "--stage", "denoiser"])
     with pytest.raises(ValueError, match="one_step_fraction"):
         main(["--data", str(dataset), "--out", str(tmp_path / "z"), "--one-step-fraction", "1.5"])
+    with pytest.raises(ValueError, match="detail_gate.*anchor-to-reference"):
+        main(["--data", str(dataset), "--out", str(tmp_path / "v"), "--detail-gate", "4"])
+    with pytest.raises(ValueError, match="detail_gate"):
+        main(["--data", str(dataset), "--out", str(tmp_path / "u"), "--anchor-to-reference", "--detail-gate", "-1"])
     with pytest.raises(ValueError, match="dit_conv_head"):
         main(["--data", str(dataset), "--out", str(tmp_path / "w"), "--dit-conv-head", "-2"])
 

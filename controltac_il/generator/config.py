@@ -13,6 +13,7 @@ from typing import Any
 # Validated force range of the paper: target Fz in [1, 10] N, |Fx|, |Fy| <= 1 N.
 FZ_RANGE = (1.0, 10.0)
 SHEAR_MAX = 1.0
+DETAIL_GATE_SIGMA_PX = 2.0  # smoothing of the contact magnitudes that gate the reference detail
 
 
 def _check_pos_int(name: str, value: Any) -> None:
@@ -195,6 +196,12 @@ class GeneratorConfig:
         diffusion runs on ``(z_target - z_ref) / delta_scale`` (the latent the reference must move by).
     anchor_to_reference: if True the output is ``reference + decode(z_ref + Δz) - decode(z_ref)``,
         keeping the reference's fine detail where the force change does not move it.
+    detail_gate: with anchoring, > 0 keeps the reference's detail (``reference - decode(z_ref)``, what
+        the autoencoder misses) only as far as the target keeps the reference's contact: per-pixel
+        weight ``clip((m_target + g) / (m_ref + g), 0, 1)``, m = decoded residual magnitude (grey levels,
+        Gaussian-smoothed, σ = ``DETAIL_GATE_SIGMA_PX`` at the model size), g = this value (grey levels).
+        Without it a force decrease leaves a ghost of the reference contact; g keeps the weight near
+        1 on the bare gel, so the reference's sensor noise is kept. 0 = plain anchoring.
     """
 
     autoencoder: AutoencoderConfig = field(default_factory=AutoencoderConfig)
@@ -203,6 +210,7 @@ class GeneratorConfig:
     latent_scale: tuple[float, ...] = ()
     delta_scale: tuple[float, ...] = ()
     anchor_to_reference: bool = False
+    detail_gate: float = 0.0
 
     def __post_init__(self):
         if isinstance(self.autoencoder, dict):
@@ -224,6 +232,10 @@ class GeneratorConfig:
             setattr(self, name, v)
         if not isinstance(self.anchor_to_reference, bool):
             raise ValueError(f"anchor_to_reference must be a bool, got {self.anchor_to_reference!r}")
+        if isinstance(self.detail_gate, bool) or not isinstance(self.detail_gate, (int, float)) or not self.detail_gate >= 0:
+            raise ValueError(f"detail_gate must be a number >= 0 (grey levels), got {self.detail_gate!r}")
+        if self.detail_gate > 0 and not self.anchor_to_reference:
+            raise ValueError("detail_gate > 0 needs anchor_to_reference=True (it gates the anchored reference detail)")
 
     @property
     def image_size(self) -> tuple[int, int]:
@@ -241,6 +253,7 @@ class GeneratorConfig:
             "latent_scale": list(self.latent_scale),
             "delta_scale": list(self.delta_scale),
             "anchor_to_reference": self.anchor_to_reference,
+            "detail_gate": self.detail_gate,
         }
 
     @classmethod

@@ -21,7 +21,7 @@ import torch
 
 from controltac_il.generator.autoencoder import TactileAutoencoder
 from controltac_il.generator.checkpoint import checkpoint_hash, load_checkpoint
-from controltac_il.generator.config import FZ_RANGE, SHEAR_MAX, GeneratorConfig
+from controltac_il.generator.config import DETAIL_GATE_SIGMA_PX, FZ_RANGE, SHEAR_MAX, GeneratorConfig
 from controltac_il.generator.dit import ForceDiT
 from controltac_il.generator.sampler import ddim_sample, make_scheduler, seeded_noise
 
@@ -38,11 +38,6 @@ def residual_to_unit(residual: torch.Tensor) -> torch.Tensor:
     return (residual.permute(0, 3, 1, 2).float() - RESIDUAL_OFFSET) / 128.0
 
 
-def unit_to_residual(x: torch.Tensor) -> torch.Tensor:
-    """float (B, 3, H, W) in about [-1, 1] -> uint8 residual (B, H, W, 3)."""
-    return (x.float() * 128.0 + RESIDUAL_OFFSET).round().clamp(0, 255).to(torch.uint8).permute(0, 2, 3, 1)
-
-
 @dataclass
 class RangeReport:
     """Validated-range bookkeeping of one ``generate`` call (and, summed, of a generator's life).
@@ -55,6 +50,11 @@ class RangeReport:
     total: int = 0
     clamped: int = 0
     clamped_indices: list[int] = field(default_factory=list)
+
+
+def _resize_each(images: np.ndarray, size_wh: tuple[int, int]) -> np.ndarray:
+    """Bilinear resize of each (H, W[, C]) float image to (width, height) = size_wh."""
+    return np.stack([cv2.resize(x, size_wh, interpolation=cv2.INTER_LINEAR) for x in images])
 
 
 def _validate_residuals(x, name: str) -> np.ndarray:
@@ -155,12 +155,23 @@ class ForceGenerator:
         return (self.autoencoder.encode(x).float() / self._latent_scale).to(self.dtype)
 
     @torch.no_grad()
-    def _decode(self, z_ref_n: torch.Tensor, delta_n: torch.Tensor) -> torch.Tensor:
-        z = z_ref_n.float() * self._latent_scale + delta_n.float() * self._delta_scale
-        out = self.autoencoder.decode(z.to(self.dtype)).float()
-        if self.config.anchor_to_reference:
-            out = out - self.autoencoder.decode((z_ref_n.float() * self._latent_scale).to(self.dtype)).float()
-        return out
+    def _decode(self, z_ref_n: torch.Tensor, delta_n: torch.Tensor) -> tuple[np.ndarray, np.ndarray | None]:
+        """Decoded target and (when anchoring) decoded reference, grey levels about 0, (b, H, W, 3) float32."""
+        def decode(z):
+            return self.autoencoder.decode(z.to(self.dtype)).float().permute(0, 2, 3, 1).cpu().numpy() * 128.0
+        target = decode(z_ref_n.float() * self._latent_scale + delta_n.float() * self._delta_scale)
+        if not self.config.anchor_to_reference:
+            return target, None
+        return target, decode(z_ref_n.float() * self._latent_scale)
+
+    def _detail_weight(self, target: np.ndarray, recon: np.ndarray) -> np.ndarray:
+        """Share of the reference's detail to keep, (b, H, W, 1) in [0, 1] (see GeneratorConfig.detail_gate)."""
+        g = self.config.detail_gate
+        if g == 0:
+            return np.ones((*target.shape[:3], 1), np.float32)
+        def magnitude(x):
+            return np.stack([cv2.GaussianBlur(np.abs(m).mean(-1), (0, 0), DETAIL_GATE_SIGMA_PX) for m in x])
+        return np.clip((magnitude(target) + g) / (magnitude(recon) + g), 0.0, 1.0)[..., None]
 
     # -- public API ----------------------------------------------------------------------------
     def generate(self, reference_residuals, delta_force, steps: int | None = None, seed: int | Sequence[int] = 0,
@@ -207,17 +218,16 @@ class ForceGenerator:
             z_ref = self.encode(torch.from_numpy(model_in[s:e]))
             df = torch.from_numpy(delta[s:e]).float().to(self.device)
             d = ddim_sample(self.denoiser, scheduler, z_ref, df, noise[s:e].to(self.device), int(steps))
-            y = self._decode(z_ref, d)  # unit scale, (b, 3, H, W)
-            if self.config.anchor_to_reference:
-                change = y.permute(0, 2, 3, 1).cpu().numpy() * 128.0
-                if resized:
-                    change = np.stack([cv2.resize(c, (w_in, h_in), interpolation=cv2.INTER_LINEAR) for c in change])
-                out[s:e] = np.clip(np.round(ref[s:e].astype(np.float32) + change), 0, 255).astype(np.uint8)
-            else:
-                r = unit_to_residual(y).cpu().numpy()
-                if resized:
-                    r = np.stack([cv2.resize(x, (w_in, h_in), interpolation=cv2.INTER_LINEAR) for x in r])
-                out[s:e] = r
+            target, recon = self._decode(z_ref, d)
+            keep = None if recon is None else self._detail_weight(target, recon)
+            if resized:
+                target = _resize_each(target, (w_in, h_in))
+                if recon is not None:
+                    recon, keep = _resize_each(recon, (w_in, h_in)), _resize_each(keep[..., 0], (w_in, h_in))[..., None]
+            y = target + RESIDUAL_OFFSET
+            if recon is not None:  # the reference's detail (reference - its reconstruction), gated
+                y = y + keep * (ref[s:e].astype(np.float32) - RESIDUAL_OFFSET - recon)
+            out[s:e] = np.clip(np.round(y), 0, 255).astype(np.uint8)
         return out
 
     def generate_images(self, images, background, delta_force, **kwargs) -> np.ndarray:

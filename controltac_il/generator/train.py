@@ -79,7 +79,7 @@ class TrainConfig:
     min_lr_ratio: cosine decay floor as a fraction of the peak LR; warmup_steps: linear warm-up.
     ema_decay: EMA of the DiT weights (the shipped weights).
     no_contact_prob: share of no-contact pairs; no_contact_frames: how many bare frames to render.
-    anchor_to_reference: stored in the config (see GeneratorConfig).
+    anchor_to_reference, detail_gate: inference settings stored in the config (see GeneratorConfig).
     checkpoint_every: steps between periodic state saves. seed: data order, noise, init.
     threads: torch intra-op threads per process (None = torch's default).
     """
@@ -112,6 +112,7 @@ class TrainConfig:
     no_contact_prob: float = 0.05
     no_contact_frames: int = 32
     anchor_to_reference: bool = False
+    detail_gate: float = 0.0
     checkpoint_every: int = 250
     seed: int = 0
     threads: int | None = None
@@ -144,6 +145,8 @@ class TrainConfig:
             raise ValueError(f"ema_decay must be in [0, 1), got {self.ema_decay!r}")
         if not 0 <= self.one_step_fraction <= 1:
             raise ValueError(f"one_step_fraction must be in [0, 1], got {self.one_step_fraction!r}")
+        if not self.detail_gate >= 0 or (self.detail_gate > 0 and not self.anchor_to_reference):
+            raise ValueError(f"detail_gate must be >= 0 grey levels and needs --anchor-to-reference when > 0, got {self.detail_gate!r}")
         if not 0 <= self.no_contact_prob < 1:
             raise ValueError(f"no_contact_prob must be in [0, 1), got {self.no_contact_prob!r}")
         if any(c > s for c, s in zip(self.ae_crop, self.image_size)):
@@ -467,7 +470,7 @@ def run(cfg: TrainConfig) -> Path:
         autoencoder=ae.config,
         dit=DIT_PRESETS[cfg.dit_preset](in_channels=c, patch_size=cfg.dit_patch, conv_head_width=cfg.dit_conv_head),
         diffusion=DiffusionConfig(prediction_type=cfg.prediction_type, default_steps=cfg.default_steps),
-        latent_scale=lat, delta_scale=dsc, anchor_to_reference=cfg.anchor_to_reference,
+        latent_scale=lat, delta_scale=dsc, anchor_to_reference=cfg.anchor_to_reference, detail_gate=cfg.detail_gate,
     )
     if source is not None:
         check_same_models(Path(cfg.denoiser_from), source, gcfg)
@@ -549,6 +552,9 @@ def parse_args(argv=None) -> TrainConfig:
         p.add_argument("--" + name.replace("_", "-"), type=float, default=d[name].default)
     p.add_argument("--ae-crop", type=int, nargs=2, default=d["ae_crop"].default, metavar=("H", "W"))
     p.add_argument("--anchor-to-reference", action="store_true", help="output = reference + decoded change")
+    p.add_argument("--detail-gate", type=float, default=0.0, metavar="G",
+                   help="with anchoring: keep the reference's fine detail only where the target keeps its contact; "
+                        "G grey levels (default 0 = always keep; the shipped default uses 4)")
     a = vars(p.parse_args(argv))
     resume = a.pop("resume")
     cfg = TrainConfig(**a)
