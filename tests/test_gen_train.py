@@ -82,6 +82,14 @@ def test_train_resume_and_reuse_autoencoder(dataset, tmp_path):
     card = json.loads((tmp_path / "tune2" / "final" / "model_card.json").read_text())
     assert card["denoiser"]["from"] == str(fast) and f"--denoiser-from {fast}" in card["command"]
     assert card["denoiser"]["history"][0]["denoiser_from"] == str(fast)
+    # the lineage carries every earlier training, oldest first, so a chain of fine-tunes stays reproducible
+    fast_card = json.loads((fast / "final" / "model_card.json").read_text())
+    assert card["denoiser"]["lineage"] == [{"command": fast_card["command"], "data": {"path": str(dataset), "seed": 0, "images": 12},
+                                            "steps": 3, "wall_s": fast_card["denoiser"]["wall_s"]}]
+    main([*tune, "--out", str(tmp_path / "tune5"), "--denoiser-from", str(tmp_path / "tune2" / "final"), *TINY])
+    chain = json.loads((tmp_path / "tune5" / "final" / "model_card.json").read_text())["denoiser"]["lineage"]
+    assert [e["command"] for e in chain] == [fast_card["command"], card["command"]]
+    assert fast_card["denoiser"]["lineage"] == []
     with pytest.raises(ValueError, match="another dit config.*conv_head_width"):
         main([*tune[:-2], "--out", str(tmp_path / "tune3"), "--denoiser-from", str(fast), *TINY])
     with pytest.raises(FileNotFoundError, match="denoiser_from"):

@@ -65,7 +65,9 @@ class TrainConfig:
     autoencoder_from: run folder or checkpoint whose trained autoencoder is reused (skips stage 1).
     denoiser_from: run folder or checkpoint whose DiT (EMA weights) starts this run's DiT: fine-tuning,
         e.g. on freshly rendered poses. Its DiT architecture and autoencoder config must match this
-        run's, and its latent and ΔF scales are kept (the weights were trained on them).
+        run's, and its latent and ΔF scales are kept (the weights were trained on them). The model
+        card's ``denoiser.lineage`` lists the source's own trainings, so a chain of fine-tunes stays
+        reproducible.
     image_size: (H, W) of the model; dataset images are resized to it.
     ae_channels, latent_channels: autoencoder stage widths (f = 2**len) and latent channels.
     dit_preset: "small" (default teacher), "tiny" (faster variant) or "base"; dit_patch: latent pixels per token side.
@@ -355,6 +357,23 @@ def source_denoiser(src: Path) -> tuple[GeneratorConfig, dict[str, torch.Tensor]
     return config, dit.state_dict()
 
 
+def denoiser_lineage(src: Path) -> list[dict]:
+    """The trainings a ``--denoiser-from`` source went through, oldest first: its model card's lineage plus its
+    own command, data, steps and wall time. Read from a checkpoint's card, or from a run folder's ``final/``
+    card when that holds the run's latest state; empty where no card says (a run stopped mid-way)."""
+    card_path = src / "model_card.json"
+    if not card_path.is_file():
+        card_path = src / "final" / "model_card.json"
+        state = src / "denoiser_state.json"
+        if not card_path.is_file() or (state.is_file() and json.loads(state.read_text())["step"]
+                                       != json.loads(card_path.read_text())["denoiser"]["steps"]):
+            return []
+    card = json.loads(card_path.read_text())
+    d, data = card.get("denoiser", {}), card.get("data", {})
+    return d.get("lineage", []) + [{"command": card.get("command"), "data": {k: data.get(k) for k in ("path", "seed", "images")},
+                                    "steps": d.get("steps"), "wall_s": d.get("wall_s")}]
+
+
 def check_same_models(src: Path, source: GeneratorConfig, gcfg: GeneratorConfig) -> None:
     for part in ("dit", "autoencoder"):
         a, b = getattr(source, part).to_dict(), getattr(gcfg, part).to_dict()
@@ -489,6 +508,7 @@ def run(cfg: TrainConfig) -> Path:
                             "from": ae_meta.get("from")},
             "denoiser": {"preset": cfg.dit_preset, "steps": dit_meta["step"], "wall_s": dit_meta["wall_s"],
                          "final_loss": dit_meta.get("loss"), "from": cfg.denoiser_from, "batch": cfg.dit_batch, "lr": cfg.dit_lr,
+                         "lineage": [] if cfg.denoiser_from is None else denoiser_lineage(Path(cfg.denoiser_from)),
                          "parameters": sum(p.numel() for p in dit.parameters()), "history": dit_meta.get("history")},
             "autoencoder_parameters": sum(p.numel() for p in ae.parameters()),
             "world_size": world,

@@ -1,0 +1,67 @@
+"""The generator benchmark: its quality metrics on known cases and the --quick run CI relies on."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from benchmarks import generator as bench
+from controltac_il.tactile import SensorSpec, TactileSensor
+
+
+@pytest.fixture(scope="module")
+def pair():
+    """(reference, target) residuals of one pose at 4 and 7 N, and the background."""
+    sensor = TactileSensor(SensorSpec.gelsight_mini().scaled(*bench.RENDER_SIZE))
+    ref = sensor.press("big_sphere", (0.3, -0.2, 0.4), (0.0, 0.0, 4.0), noise_seed=1)
+    tgt = sensor.press("big_sphere", (0.3, -0.2, 0.4), (0.0, 0.0, 7.0), noise_seed=2)
+    return ref.residual[None], tgt.residual[None], sensor.background
+
+
+def test_quality_of_the_target_itself_is_perfect_and_keeps_all_noise(pair):
+    ref, tgt, bg = pair
+    q = bench.quality(tgt, tgt, bg, ref)
+    assert q["mse"] == 0.0 and q["ssim"] == pytest.approx(1.0)
+    assert q["bare_noise_ratio"] == pytest.approx(1.0)
+    assert q["n"] == 1
+
+
+def test_bare_noise_ratio_sees_denoising_and_a_noisier_image(pair):
+    ref, tgt, bg = pair
+    smooth = np.stack([cv2.GaussianBlur(t, (0, 0), 1.5) for t in tgt])
+    assert bench.quality(smooth, tgt, bg, ref)["bare_noise_ratio"] < 0.5
+    noisy = np.clip(tgt.astype(np.int16) + np.random.default_rng(0).integers(-6, 7, tgt.shape), 0, 255).astype(np.uint8)
+    assert bench.quality(noisy, tgt, bg, ref)["bare_noise_ratio"] > 1.5
+
+
+def test_eval_pairs_join_images_of_one_pose_with_their_forces(tmp_path):
+    refs, tgts, rf, tf, bg = bench.eval_pairs(tmp_path, "unseen", poses=1, forces=3, max_pairs=100)
+    n_objects = len(bench.SPLITS["unseen"][0])
+    assert len(refs) == n_objects * 3 * 2  # every ordered pair of the 3 forces of each pose
+    assert refs.shape == tgts.shape == (len(refs), *bench.RENDER_SIZE, 3) and refs.dtype == np.uint8
+    assert rf.shape == tf.shape == (len(refs), 3) and not np.any(np.all(rf == tf, axis=1))
+    assert bg.shape == (*bench.RENDER_SIZE, 3)
+    again = bench.eval_pairs(tmp_path, "unseen", poses=1, forces=3, max_pairs=5)  # the cached data, a seeded subset
+    assert len(again[0]) == 5 and np.array_equal(again[0], bench.eval_pairs(tmp_path, "unseen", 1, 3, 5)[0])
+
+
+def test_quick_run_writes_the_table_json_targets_and_sheet(tmp_path, capsys):
+    out = tmp_path / "gen.json"
+    doc = bench.main(["--quick", "--pairs", "6", "--threads", "1", "--out", str(out), "--cache", str(tmp_path / "data")])
+    assert json.loads(out.read_text()) == json.loads(json.dumps(doc))
+    names = [m["method"] for m in doc["methods"]]
+    assert names[:5] == ["reference copy", "physics re-render", "default DDIM-1", "default DDIM-2", "default DDIM-10"]
+    assert any(n.startswith("fast DDIM-") for n in names)
+    by = {m["method"]: m for m in doc["methods"]}
+    copy, default = by["reference copy"], by["default DDIM-1"]
+    for split in ("seen", "unseen"):
+        assert copy[split]["n"] == 6 and copy[split]["bare_noise_ratio"] == pytest.approx(1.0, abs=0.15)
+        assert default[split]["mse"] < copy[split]["mse"]  # the shipped model beats copying the reference
+    assert default["img_per_s_b1"] > 0 and default["peak_rss_mb"] > default["batch_growth_mb"] > 0
+    t = doc["targets"]
+    assert t["default_setting"] == "default DDIM-1"
+    assert t["unseen_mse_ratio_to_copy"] == pytest.approx(default["unseen"]["mse"] / copy["unseen"]["mse"])
+    assert "unseen MSE" in capsys.readouterr().out
+    sheet = cv2.imread(str(out.with_suffix(".png")))
+    assert sheet.shape == (24 + 6 * 2 * bench.RENDER_SIZE[0], 4 * 2 * bench.RENDER_SIZE[1], 3)
