@@ -15,6 +15,22 @@ from typing import Callable, Sequence
 from controltac_il.io import write_json
 
 
+def git_revision(path: Path) -> str | None:
+    """Short commit of the repository holding ``path``, suffixed ``-dirty`` when tracked files
+    differ from it (so a figure measured before its weights were committed says so); None
+    outside a repository or without git."""
+    try:
+        out = subprocess.run(
+            ["git", "describe", "--always", "--dirty", "--abbrev=7", "--exclude=*"], capture_output=True,
+            text=True, cwd=path, check=False,
+        )
+    except OSError:
+        return None
+    if out.returncode != 0:
+        return None
+    return out.stdout.strip() or None
+
+
 def machine_info() -> dict:
     """Where and when a benchmark ran: CPU, cores, torch threads, git commit, date (UTC)."""
     try:
@@ -32,13 +48,7 @@ def machine_info() -> dict:
                 break
     except OSError:
         pass
-    try:
-        commit = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-            cwd=Path(__file__).resolve().parent, check=False,
-        ).stdout.strip() or None
-    except OSError:
-        commit = None
+    commit = git_revision(Path(__file__).resolve().parent)
     return {
         "cpu": cpu,
         "cores": os.cpu_count(),

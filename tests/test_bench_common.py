@@ -1,0 +1,27 @@
+"""Benchmark provenance: the recorded revision says when the tree differs from the commit."""
+
+import subprocess
+
+from benchmarks.common import git_revision
+
+
+def _git(repo, *args):
+    subprocess.run(["git", *args], cwd=repo, check=True, capture_output=True)
+
+
+def test_git_revision_marks_uncommitted_changes_dirty(tmp_path):
+    _git(tmp_path, "init", "-q")
+    (tmp_path / "weights.txt").write_text("a")
+    _git(tmp_path, "add", "weights.txt")
+    _git(tmp_path, "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "one")
+    head = subprocess.run(["git", "rev-parse", "--short=7", "HEAD"], cwd=tmp_path,
+                          capture_output=True, text=True, check=True).stdout.strip()
+    assert git_revision(tmp_path) == head
+    _git(tmp_path, "tag", "v1")  # a tag does not replace the commit
+    assert git_revision(tmp_path) == head
+    (tmp_path / "weights.txt").write_text("b")
+    assert git_revision(tmp_path) == head + "-dirty"
+
+
+def test_git_revision_outside_a_repository_is_none(tmp_path):
+    assert git_revision(tmp_path) is None
