@@ -66,6 +66,10 @@ def test_train_resume_and_reuse_autoencoder(dataset, tmp_path):
     assert "--dit-conv-head 8 " in card["command"] and "--one-step-fraction 0.5 " in card["command"]
     assert card["denoiser"]["history"][-1]["one_step_fraction"] == 0.5
     assert not (fast / "autoencoder_state.json").exists()
+    # the reused autoencoder's own training (the resumed run's arguments) is in the card
+    ae_made_by = {"command": json.loads((final / "model_card.json").read_text())["command"],
+                  "data": {"path": str(dataset), "seed": 0, "images": 12}}
+    assert "--ae-steps 5 " in ae_made_by["command"] and card["autoencoder"]["trained_by"] == ae_made_by
 
     # fine-tuning: 0 steps from a checkpoint reproduces its DiT and keeps its latent scales
     tune = ["--data", str(dataset), "--image-size", "64", "80", "--autoencoder-from", str(run), "--stage", "denoiser",
@@ -86,8 +90,11 @@ def test_train_resume_and_reuse_autoencoder(dataset, tmp_path):
     fast_card = json.loads((fast / "final" / "model_card.json").read_text())
     assert card["denoiser"]["lineage"] == [{"command": fast_card["command"], "data": {"path": str(dataset), "seed": 0, "images": 12},
                                             "steps": 3, "wall_s": fast_card["denoiser"]["wall_s"]}]
-    main([*tune, "--out", str(tmp_path / "tune5"), "--denoiser-from", str(tmp_path / "tune2" / "final"), *TINY])
-    chain = json.loads((tmp_path / "tune5" / "final" / "model_card.json").read_text())["denoiser"]["lineage"]
+    from_checkpoint = [a if a != str(run) else str(fast / "final") for a in tune]  # autoencoder of a checkpoint
+    main([*from_checkpoint, "--out", str(tmp_path / "tune5"), "--denoiser-from", str(tmp_path / "tune2" / "final"), *TINY])
+    card5 = json.loads((tmp_path / "tune5" / "final" / "model_card.json").read_text())
+    assert card5["autoencoder"]["trained_by"] == ae_made_by and card5["autoencoder"]["steps"] == 5
+    chain = card5["denoiser"]["lineage"]
     assert [e["command"] for e in chain] == [fast_card["command"], card["command"]]
     assert fast_card["denoiser"]["lineage"] == []
     with pytest.raises(ValueError, match="another dit config.*conv_head_width"):

@@ -287,7 +287,8 @@ def train_autoencoder(cfg: TrainConfig, data: PairData, out: Path, rank: int, wo
         bar.set_postfix(loss=f"{loss_ema:.4f}")
         if rank == 0 and (step % cfg.checkpoint_every == 0 or step == cfg.ae_steps):
             save_state(stem, {"autoencoder": ae}, opt, {"step": step, "wall_s": wall + time.perf_counter() - t0,
-                                                       "loss": loss_ema, "config": ae_cfg.to_dict()})
+                                                       "loss": loss_ema, "config": ae_cfg.to_dict(),
+                                                       "trained_by": provenance(cfg)})
     bar.close()
     barrier(world)
     if world > 1 and step > 0:  # every rank reads rank 0's final state (identical weights anyway under DDP)
@@ -297,16 +298,40 @@ def train_autoencoder(cfg: TrainConfig, data: PairData, out: Path, rank: int, wo
 
 
 def reuse_autoencoder(src: Path) -> tuple[TactileAutoencoder, dict]:
-    """The trained autoencoder of another run folder (its state) or of a checkpoint folder (its weights)."""
+    """The trained autoencoder of another run folder (its state) or of a checkpoint folder (its weights),
+    with the training that made it (``trained_by``: command and data) where the source records it."""
     stem = src / "autoencoder_state"
     if stem.with_suffix(".json").is_file():
         meta = json.loads(stem.with_suffix(".json").read_text())
         ae = TactileAutoencoder(AutoencoderConfig.from_dict(meta["config"]))
         tensors = load_file(str(stem.with_suffix(".safetensors")))
         ae.load_state_dict({k[len("autoencoder."):]: v for k, v in tensors.items() if k.startswith("autoencoder.")})
+        if "trained_by" not in meta:  # states written before it was recorded: the run's saved arguments
+            meta["trained_by"] = legacy_provenance(src)
         return ae.eval(), {**meta, "from": str(src)}
     config, ae, _ = load_checkpoint(src)
-    return ae.eval(), {"from": str(src), "config": config.autoencoder.to_dict()}
+    card = json.loads((src / "model_card.json").read_text()) if (src / "model_card.json").is_file() else {}
+    a = card.get("autoencoder", {})
+    return ae.eval(), {"step": a.get("steps"), "wall_s": a.get("wall_s"), "loss": a.get("final_loss"),
+                       "trained_by": a.get("trained_by"), "from": str(src), "config": config.autoencoder.to_dict()}
+
+
+def provenance(cfg: TrainConfig) -> dict:
+    """The command that reproduces ``cfg`` and its dataset (path, seed, image count from its meta.json)."""
+    meta_path = Path(cfg.data) / "meta.json"
+    meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
+    return {"command": "python -m controltac_il.generator.train " + " ".join(_cli_args(cfg)),
+            "data": {"path": str(cfg.data), "seed": meta.get("seed"), "images": meta.get("count")}}
+
+
+def legacy_provenance(run: Path) -> dict | None:
+    """``provenance`` rebuilt from a run folder's ``train_config.json`` (its latest invocation's arguments;
+    None without one). Fields added to TrainConfig since take their defaults."""
+    path = run / "train_config.json"
+    if not path.is_file():
+        return None
+    saved = json.loads(path.read_text())
+    return provenance(TrainConfig(**{f.name: saved[f.name] for f in dataclasses.fields(TrainConfig) if f.name in saved}))
 
 
 # -- latents -----------------------------------------------------------------------------------
@@ -505,7 +530,7 @@ def run(cfg: TrainConfig) -> Path:
                      "no_contact_frames": int(len(data.no_contact)), "fz_range": meta.get("fz_range"),
                      "optics": meta.get("optics"), "render_size": [meta.get("spec", {}).get("height"), meta.get("spec", {}).get("width")]},
             "autoencoder": {"steps": ae_meta.get("step"), "wall_s": ae_meta.get("wall_s"), "final_loss": ae_meta.get("loss"),
-                            "from": ae_meta.get("from")},
+                            "from": ae_meta.get("from"), "trained_by": ae_meta.get("trained_by")},
             "denoiser": {"preset": cfg.dit_preset, "steps": dit_meta["step"], "wall_s": dit_meta["wall_s"],
                          "final_loss": dit_meta.get("loss"), "from": cfg.denoiser_from, "batch": cfg.dit_batch, "lr": cfg.dit_lr,
                          "lineage": [] if cfg.denoiser_from is None else denoiser_lineage(Path(cfg.denoiser_from)),
