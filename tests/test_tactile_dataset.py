@@ -110,3 +110,30 @@ def test_not_a_dataset_and_bad_options(tmp_path):
         _write(tmp_path / "x", fz_range=(5.0, 1.0))
     with pytest.raises(ValueError, match="unknown object"):
         _write(tmp_path / "y", objects=("banana",))
+
+
+def test_command_line_writes_the_same_bytes_as_the_call(tmp_path, capsys):
+    out = tds.main(["--out", str(tmp_path / "cli"), "--objects", "cross", "big_sphere", "--poses-per-object", "2",
+                    "--forces-per-pose", "3", "--seed", "3", "--size", "60", "80"])
+    assert _digest(out) == _digest(_write(tmp_path / "call"))
+    assert "12 images" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--size", "60", "60"], "aspect ratio"),
+    (["--objects", "teapot"], "invalid choice"),
+    (["--poses-per-object", "0"], "poses_per_object"),
+    (["--fz-range", "5", "1"], "fz_range"),
+])
+def test_command_line_refuses_bad_arguments_by_name(tmp_path, capsys, argv, message):
+    with pytest.raises(SystemExit):
+        tds.main(["--out", str(tmp_path / "x"), *argv])
+    assert message in capsys.readouterr().err and not (tmp_path / "x").exists()
+
+
+def test_command_line_never_overwrites_a_dataset(tmp_path, capsys):
+    existing = _write(tmp_path / "mine")
+    before = _digest(existing)
+    with pytest.raises(SystemExit):
+        tds.main(["--out", str(existing), "--poses-per-object", "1", "--forces-per-pose", "1"])
+    assert "exists" in capsys.readouterr().err and _digest(existing) == before

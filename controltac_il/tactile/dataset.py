@@ -9,10 +9,15 @@ Layout of a dataset folder::
 
 Forces are stored in the project's convention (N, sensor frame, Fz > 0 pressing). Real FeelAnyForce
 recordings store Fz < 0 when pressing; ``load_dataset`` detects that (or is told) and flips the sign.
+
+Command line (the generator's and estimator's training data)::
+
+    python -m controltac_il.tactile.dataset --out data/train600 --poses-per-object 600 --seed 0 --size 120 160
 """
 
 from __future__ import annotations
 
+import argparse
 import csv
 import json
 from dataclasses import dataclass
@@ -24,7 +29,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from controltac_il.io import atomic_dir
-from controltac_il.tactile.indenters import TRAIN_OBJECTS, get_indenter
+from controltac_il.tactile.indenters import INDENTERS, TRAIN_OBJECTS, get_indenter
 from controltac_il.tactile.residual import to_residual
 from controltac_il.tactile.sensor import TactileSensor
 from controltac_il.tactile.spec import SensorSpec
@@ -178,3 +183,40 @@ def load_dataset(root, fz_pressing: str = "auto") -> TactileDataset:
     bg_path = root / "background.png"
     background = cv2.cvtColor(cv2.imread(str(bg_path)), cv2.COLOR_BGR2RGB) if bg_path.is_file() else None
     return TactileDataset(root, records, background, meta)
+
+
+def main(argv=None) -> Path:
+    p = argparse.ArgumentParser(
+        prog="python -m controltac_il.tactile.dataset",
+        description="Render a sensor-model tactile dataset (manifest.csv, background.png, meta.json, "
+                    "images/<object>/). Every image is a pure function of the arguments; the folder appears "
+                    "only when complete.")
+    p.add_argument("--out", required=True, help="dataset folder to create (must not exist)")
+    p.add_argument("--objects", nargs="+", default=list(TRAIN_OBJECTS), choices=sorted(INDENTERS), metavar="NAME",
+                   help=f"indenters to press (default: the six training objects {' '.join(TRAIN_OBJECTS)})")
+    p.add_argument("--poses-per-object", type=int, default=50, help="contact poses per object (default 50)")
+    p.add_argument("--forces-per-pose", type=int, default=8, help="forces rendered at each pose (default 8)")
+    p.add_argument("--seed", type=int, default=0, help="seeds poses, forces and sensor noise (default 0)")
+    p.add_argument("--size", type=int, nargs=2, metavar=("H", "W"), default=None,
+                   help="render resolution in pixels, same pad (default: GelSight Mini's native 240 320)")
+    p.add_argument("--optics", choices=("three_light", "polynomial"), default="three_light", help="sensor optics model")
+    p.add_argument("--fz-range", type=float, nargs=2, metavar=("LOW", "HIGH"), default=(0.5, 11.0),
+                   help="normal force range in N, drawn uniformly (default 0.5 11)")
+    p.add_argument("--shear-max", type=float, default=1.0, help="|Fx|, |Fy| bound in N (default 1)")
+    a = p.parse_args(argv)
+    if Path(a.out).exists():
+        p.error(f"--out {a.out} exists; choose a new folder (datasets are never overwritten)")
+    try:
+        spec = SensorSpec.gelsight_mini()
+        if a.size is not None:
+            spec = spec.scaled(*a.size)
+        out = write_dataset(a.out, a.objects, a.poses_per_object, a.forces_per_pose, a.seed, spec, a.optics,
+                            tuple(a.fz_range), a.shear_max)
+    except ValueError as e:
+        p.error(str(e))
+    print(f"wrote {out} ({len(a.objects) * a.poses_per_object * a.forces_per_pose} images)")
+    return out
+
+
+if __name__ == "__main__":
+    main()
