@@ -141,6 +141,7 @@ def main(argv=None) -> dict:
         "benchmark": "augment",
         "quick": args.quick,
         "generator": gen_name,
+        "generator_hash": str(gen.checkpoint_hash),
         "data": {"episodes": episodes, "frames_per_episode": frames, "tactile": "2 x 240x320",
                  "cameras": "2 x 240x320", "copies": copies},
         "cache_build": build,

@@ -1,0 +1,21 @@
+"""The ForceAugment benchmark's --quick run: its counts add up and it names the generator it measured."""
+
+import json
+
+from benchmarks import augment as bench
+from controltac_il.generator import ForceGenerator
+
+
+def test_quick_run_counts_add_up_and_name_the_shipped_generator(tmp_path):
+    out = tmp_path / "augment.json"
+    bench.main(["--quick", "--out", str(out)])
+    res = json.loads(out.read_text())
+    counts = res["counts_clamp_mode"]
+    assert counts["tactile_frames"] == (counts["regenerated"] + counts["clamped"] + counts["skipped"]
+                                        + counts["no_contact"])
+    assert res["cache_build"]["frames_generated"] == counts["regenerated"] + counts["clamped"]
+    # skip mode draws the same offsets and jitter, so it keeps real exactly the frames clamp mode clamped
+    assert res["skipped_in_skip_mode"] == counts["clamped"] > 0
+    assert res["generator_hash"] == ForceGenerator.from_pretrained().checkpoint_hash
+    assert set(res["items_per_s"]) == {"bare", "cached", "online"}
+    assert all(v > 0 for v in res["items_per_s"].values())
