@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from benchmarks.common import base_parser, median_time, print_table, write_results
+from policies.act.training import augment_change
 
 VARIANTS = {"real": 0, "fa1": 1, "fa2": 2, "fa4": 4}
 
@@ -81,11 +82,16 @@ def training_throughput(demos: Path, quick: bool) -> dict:
             "cpu_s_per_step": cpu, "samples_per_cpu_s": 16 / cpu, "threads": torch.get_num_threads()}
 
 
-def _trained(run: Path, steps: int) -> bool:
+def _run_meta(run: Path) -> dict:
+    """The meta of ``run/last`` ({} when there is no readable checkpoint yet)."""
     try:
-        return json.loads((run / "last" / "config.json").read_text())["meta"]["step"] >= steps
+        return json.loads((run / "last" / "config.json").read_text())["meta"]
     except (OSError, KeyError, json.JSONDecodeError):
-        return False
+        return {}
+
+
+def _trained(run: Path, steps: int) -> bool:
+    return _run_meta(run).get("step", 0) >= steps
 
 
 def run_variant(variant: str, *, demos: str, runs: str, steps: int, batch_size: int, eval_episodes: int,
@@ -120,6 +126,21 @@ def run_variant(variant: str, *, demos: str, runs: str, steps: int, batch_size: 
     return row
 
 
+def _refuse_stale_runs(p, runs: Path, variants: list[str], generator: str | None) -> None:
+    """A policy trained with another generator or augmentation is never reused as this run's: stop early."""
+    from controltac_il.pipeline import make_augment
+
+    for v in variants:
+        try:
+            now = make_augment(VARIANTS[v], generator, seed=0).description if VARIANTS[v] else None
+        except OSError:
+            continue  # no generator: the variant is skipped later
+        change = augment_change(_run_meta(runs / v).get("augment", now), now)
+        if change:
+            p.error(f"--runs: {runs / v} was trained with different augmentation ({change}); "
+                    f"pass another --runs folder or remove that one")
+
+
 def main(argv=None) -> dict:
     p = base_parser(__doc__.split("\n\n")[0])
     p.add_argument("--demos", type=int, default=50, help="demos collected in the scene (default 50, the paper's)")
@@ -148,6 +169,9 @@ def main(argv=None) -> dict:
         p.error(f"--variants: unknown {unknown}; choose from {list(VARIANTS)}")
 
     from controltac_il.pipeline import default_demos, make_augment
+
+    if not args.skip_experiment:
+        _refuse_stale_runs(p, args.runs, variants, args.generator)
 
     results: dict = {"settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}}
 

@@ -100,7 +100,11 @@ class ForceAugmentStage:
         self.copies, self.generator, self.seed, self.steps = copies, generator, seed, steps
         self.max_copies = max(copies, max_copies or copies)
         self.cache_dir = cache_dir
+        from controltac_il.generator.checkpoint import checkpoint_hash
+        from controltac_il.generator.pipeline import locate_checkpoint
+
         self.description = {"kind": "force", "copies": copies, "generator": str(generator or "shipped"),
+                            "generator_hash": checkpoint_hash(locate_checkpoint(generator)),
                             "seed": seed, "steps": steps}
 
     def __call__(self, train_set):

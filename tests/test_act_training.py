@@ -57,6 +57,25 @@ def test_resume_continues_from_last_and_refuses_another_config(tmp_path):
         train(cfg, TrainConfig(steps=6), ds, None, tmp_path / "fresh", stats=ds.stats(), resume=True)
 
 
+def test_resume_refuses_another_generator_but_not_another_augment_summary(tmp_path):
+    ds = SyntheticACTDataset(16)
+    cfg = tiny_config()
+    aug = {"kind": "force", "copies": 1, "generator": "shipped", "generator_hash": "aaaa", "seed": 0, "steps": None}
+    train(cfg, TrainConfig(steps=2, batch_size=8, save_every=2), ds, None, tmp_path, stats=ds.stats(),
+          meta={"augment": {**aug, "summary": {"clamped": 3}}}, progress=False)
+    with pytest.raises(CheckpointError, match=r"different augmentation \(generator_hash: 'aaaa' -> 'bbbb'\)"):
+        train(cfg, TrainConfig(steps=4, batch_size=8), ds, None, tmp_path, stats=ds.stats(), resume=True,
+              meta={"augment": {**aug, "generator_hash": "bbbb"}}, progress=False)
+    with pytest.raises(CheckpointError, match=r"augmentation \(copies: 1 -> None"):
+        train(cfg, TrainConfig(steps=4, batch_size=8), ds, None, tmp_path, stats=ds.stats(), resume=True,
+              progress=False)  # unaugmented now
+    assert load_checkpoint(tmp_path / "last")[2]["step"] == 2  # refused runs leave the checkpoint alone
+    # the counts of what the augmentation did may differ (e.g. fewer copies cached); the settings may not
+    summary = train(cfg, TrainConfig(steps=4, batch_size=8), ds, None, tmp_path, stats=ds.stats(), resume=True,
+                    meta={"augment": {**aug, "summary": {"clamped": 5}}}, progress=False)
+    assert summary["steps"] == 4
+
+
 def test_train_config_validation():
     with pytest.raises(ValueError, match="steps"):
         TrainConfig(steps=0)

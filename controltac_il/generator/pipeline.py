@@ -83,6 +83,18 @@ def _validate_forces(f, n: int, name: str) -> np.ndarray:
     return f
 
 
+def locate_checkpoint(path: str | Path | None = None) -> Path:
+    """The checkpoint folder ``from_pretrained(path)`` loads: ``None``/``"default"`` and ``"fast"`` name the shipped ones."""
+    if path is None:
+        path = "default"
+    if isinstance(path, str) and path in SHIPPED:
+        path = CHECKPOINT_ROOT / path
+    path = Path(path)
+    if not path.is_dir():
+        raise FileNotFoundError(f"generator checkpoint folder {path} not found")
+    return path
+
+
 class ForceGenerator:
     """Stage-1 force-control generator (autoencoder + ΔF-conditioned DiT + DDIM)."""
 
@@ -106,13 +118,7 @@ class ForceGenerator:
     def from_pretrained(cls, path: str | Path | None = None, device: str | torch.device = "cpu",
                         dtype: torch.dtype = torch.float32) -> "ForceGenerator":
         """Load a checkpoint folder; ``None`` or ``"default"`` = the shipped default, ``"fast"`` = the faster variant."""
-        if path is None:
-            path = "default"
-        if isinstance(path, str) and path in SHIPPED:
-            path = CHECKPOINT_ROOT / path
-        path = Path(path)
-        if not path.is_dir():
-            raise FileNotFoundError(f"generator checkpoint folder {path} not found")
+        path = locate_checkpoint(path)
         config, ae, dit = load_checkpoint(path)
         return cls(config, ae, dit, device=device, dtype=dtype, checkpoint_hash=checkpoint_hash(path))
 

@@ -118,6 +118,15 @@ def evaluate(model: ACT, loader: DataLoader, max_batches: int) -> dict[str, floa
     return {k: v / max(n, 1) for k, v in totals.items()}
 
 
+def augment_change(before: dict | None, now: dict | None) -> str | None:
+    """How two runs' augmentation settings differ (``"field: old -> new, ..."``), or None when they match.
+
+    The counts in ``summary`` (what the augmentation did) are not settings and are ignored."""
+    settings = [{k: v for k, v in (d or {}).items() if k != "summary"} for d in (before, now)]
+    fields = sorted(k for k in set(settings[0]) | set(settings[1]) if settings[0].get(k) != settings[1].get(k))
+    return ", ".join(f"{k}: {settings[0].get(k)!r} -> {settings[1].get(k)!r}" for k in fields) or None
+
+
 def train(act_config: ACTConfig, train_config: TrainConfig, train_set: Dataset, val_set: Dataset | None,
           out_dir: str | Path, *, stats: dict, backgrounds: dict[str, np.ndarray] | None = None,
           resume: bool = False, meta: dict | None = None, progress: bool = True) -> dict:
@@ -142,6 +151,10 @@ def train(act_config: ACTConfig, train_config: TrainConfig, train_set: Dataset, 
         if loaded.config.to_dict() != act_config.to_dict():
             raise CheckpointError(f"--resume: {out_dir / 'last'} was trained with a different ACT config; "
                                   f"use a new --out folder or the same --preset and options")
+        change = augment_change(last_meta.get("augment"), (meta or {}).get("augment"))
+        if change:  # e.g. a retrained generator: the run would mix two training sets
+            raise CheckpointError(f"--resume: {out_dir / 'last'} was trained with different augmentation ({change}); "
+                                  "use a new --out folder or the same --augment options and generator")
         model.load_state_dict(loaded.state_dict())
         load_optimizer_state(out_dir / "last", optimizer)
         step = int(last_meta.get("step", 0))
