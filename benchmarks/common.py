@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import datetime as _dt
+import functools
 import os
 import platform
 import statistics
@@ -104,9 +105,16 @@ def base_parser(description: str) -> argparse.ArgumentParser:
     return p
 
 
+@functools.cache
+def run_header() -> dict:
+    """``machine_info()`` at this process's first write: a benchmark that saves as it goes keeps the
+    revision it started from (its own earlier save into a tracked results file is not a change)."""
+    return machine_info()
+
+
 def write_results(out: Path | None, results: dict) -> dict:
-    """Prepend the machine header and write ``results`` to ``out`` (if given) atomically."""
-    doc = {"machine": machine_info(), **results}
+    """Prepend the machine header (``run_header``) and write ``results`` to ``out`` (if given) atomically."""
+    doc = {"machine": run_header(), **results}
     if out is not None:
         write_json(out, doc)
         print(f"\nwrote {out}")
