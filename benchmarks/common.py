@@ -32,8 +32,11 @@ def git_revision(path: Path) -> str | None:
     return out.stdout.strip() or None
 
 
+@functools.cache
 def machine_info() -> dict:
-    """Where and when a benchmark ran: CPU, cores, torch threads, git commit, date (UTC)."""
+    """Where and when a benchmark ran: CPU, cores, torch threads, git commit, date (UTC), taken once per
+    process at its first write, so a benchmark that saves as it goes keeps the revision it started from
+    (its own earlier save into a tracked results file is not a change)."""
     try:
         import torch
 
@@ -105,16 +108,9 @@ def base_parser(description: str) -> argparse.ArgumentParser:
     return p
 
 
-@functools.cache
-def run_header() -> dict:
-    """``machine_info()`` at this process's first write: a benchmark that saves as it goes keeps the
-    revision it started from (its own earlier save into a tracked results file is not a change)."""
-    return machine_info()
-
-
 def write_results(out: Path | None, results: dict) -> dict:
-    """Prepend the machine header (``run_header``) and write ``results`` to ``out`` (if given) atomically."""
-    doc = {"machine": run_header(), **results}
+    """Prepend the machine header (``machine_info``) and write ``results`` to ``out`` (if given) atomically."""
+    doc = {"machine": machine_info(), **results}
     if out is not None:
         write_json(out, doc)
         print(f"\nwrote {out}")

@@ -32,11 +32,11 @@ def test_a_run_that_saves_as_it_goes_keeps_the_revision_it_started_from(tmp_path
 
     revisions = iter(["abc1234", "abc1234-dirty"])  # the first save itself dirties a tracked results file
     monkeypatch.setattr(common, "git_revision", lambda path: next(revisions))
-    common.run_header.cache_clear()
+    common.machine_info.cache_clear()
     try:
         first = common.write_results(tmp_path / "r.json", {"step": 1})
         second = common.write_results(tmp_path / "r.json", {"step": 2})
     finally:
-        common.run_header.cache_clear()
+        common.machine_info.cache_clear()
     assert first["machine"]["git_commit"] == second["machine"]["git_commit"] == "abc1234"
     assert second["step"] == 2

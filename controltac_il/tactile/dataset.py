@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import inspect
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -194,15 +195,20 @@ def main(argv=None) -> Path:
     p.add_argument("--out", required=True, help="dataset folder to create (must not exist)")
     p.add_argument("--objects", nargs="+", default=list(TRAIN_OBJECTS), choices=sorted(INDENTERS), metavar="NAME",
                    help=f"indenters to press (default: the six training objects {' '.join(TRAIN_OBJECTS)})")
-    p.add_argument("--poses-per-object", type=int, default=50, help="contact poses per object (default 50)")
-    p.add_argument("--forces-per-pose", type=int, default=8, help="forces rendered at each pose (default 8)")
-    p.add_argument("--seed", type=int, default=0, help="seeds poses, forces and sensor noise (default 0)")
+    d = {k: v.default for k, v in inspect.signature(write_dataset).parameters.items()}
+    p.add_argument("--poses-per-object", type=int, default=d["poses_per_object"],
+                   help=f"contact poses per object (default {d['poses_per_object']})")
+    p.add_argument("--forces-per-pose", type=int, default=d["forces_per_pose"],
+                   help=f"forces rendered at each pose (default {d['forces_per_pose']})")
+    p.add_argument("--seed", type=int, default=d["seed"], help=f"seeds poses, forces and sensor noise (default {d['seed']})")
     p.add_argument("--size", type=int, nargs=2, metavar=("H", "W"), default=None,
                    help="render resolution in pixels, same pad (default: GelSight Mini's native 240 320)")
-    p.add_argument("--optics", choices=("three_light", "polynomial"), default="three_light", help="sensor optics model")
-    p.add_argument("--fz-range", type=float, nargs=2, metavar=("LOW", "HIGH"), default=(0.5, 11.0),
-                   help="normal force range in N, drawn uniformly (default 0.5 11)")
-    p.add_argument("--shear-max", type=float, default=1.0, help="|Fx|, |Fy| bound in N (default 1)")
+    p.add_argument("--optics", choices=("three_light", "polynomial"), default=d["optics"],
+                   help=f"sensor optics model (default {d['optics']})")
+    p.add_argument("--fz-range", type=float, nargs=2, metavar=("LOW", "HIGH"), default=d["fz_range"],
+                   help="normal force range in N, drawn uniformly (default {} {})".format(*d["fz_range"]))
+    p.add_argument("--shear-max", type=float, default=d["shear_max"],
+                   help=f"|Fx|, |Fy| bound in N (default {d['shear_max']})")
     a = p.parse_args(argv)
     if Path(a.out).exists():
         p.error(f"--out {a.out} exists; choose a new folder (datasets are never overwritten)")
