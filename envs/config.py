@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 CAMERAS = ("third_view", "wrist")
 SENSORS = ("left", "right")
 OPTICS = ("polynomial", "three_light")
+CAMERA_LAYOUTS = ("side", "occluding")
 
 
 def _check_range(name: str, value, low: float = -math.inf, high: float = math.inf) -> tuple[float, float]:
@@ -68,6 +69,17 @@ class PegInHoleConfig:
     success_depth_mm: the peg counts as inserted when its bottom is this far below the rim and
         its axis is inside the hole.
     tactile_noise: add the sensor model's pixel noise (seeded per episode and step).
+    peg_in_hand: start every episode with the peg already grasped (vertical, its top
+        ``grasp_depth_mm`` above the TCP) instead of standing on the table; ``peg_xy_range_m`` is
+        then where the hand and peg start.
+    in_hand_offset_mm: (low, high) of the magnitude of the peg axis' offset from the TCP along the
+        gel (the hand's x axis, image columns of the tactile frames), with a random sign; only
+        with ``peg_in_hand``. The grip centres the peg between the fingers but not along them.
+    grasp_depth_mm: how far below the peg's top the TCP holds it when ``peg_in_hand`` (mm).
+    camera_layout: "side" (the paper's third-view camera beside the scene and a wrist camera behind
+        the fingers) or "occluding": a top-down third-view camera over a 100 mm wide gripper body
+        and a wrist camera on the left finger's back looking down past it, so that the finger and
+        the body hide the held peg from both cameras (they still see the hole and the gripper).
     ring_segments: number of wall boxes around the hole (the hole is a regular polygon of this many
         sides inscribed around the circle; 16 keeps the corners within 0.3 mm of it).
     """
@@ -91,7 +103,32 @@ class PegInHoleConfig:
     workspace_high: tuple[float, float, float, float] = (0.16, 0.14, 0.25, math.pi / 2)
     success_depth_mm: float = 30.0
     tactile_noise: bool = True
+    peg_in_hand: bool = False
+    in_hand_offset_mm: tuple[float, float] = (0.0, 0.0)
+    grasp_depth_mm: float = 18.0
+    camera_layout: str = "side"
     ring_segments: int = field(default=16, repr=False)
+
+    @classmethod
+    def touch_critical(cls, **overrides) -> "PegInHoleConfig":
+        """The variant where only touch tells how to insert (issue 19; ``benchmarks.touch_il``).
+
+        The peg starts in the hand, held 5-8 mm off the TCP along the gel with a random sign: more
+        than the Ø30 mm hole's 2.5 mm radial clearance plus its 2 mm chamfer, so inserting at the TCP
+        (what a policy that ignores the offset learns) lands the peg on the rim. The offset moves
+        the contact stripe across the tactile images by 40-63 px (of 160); the ``occluding``
+        cameras never see the peg (``tests/test_env_touch.py`` renders the same hand pose with
+        opposite offsets and gets byte-identical camera images), while still showing the hole.
+        The grip force per episode, 4-7 N, sets the stripe's width and intensity; the benchmark's
+        shifts go below and above it. The peg starts in the hand rather than being picked so that
+        the cameras never see where it was grasped and episodes stay short (about 40 steps).
+        """
+        settings = dict(peg_in_hand=True, in_hand_offset_mm=(5.0, 8.0), grasp_depth_mm=18.0,
+                        camera_layout="occluding", hole_chamfer_mm=2.0, grip_force_range_n=(4.0, 7.0),
+                        peg_xy_range_m=((-0.06, -0.04), (-0.02, 0.02)), peg_yaw_range_rad=(0.0, 0.0),
+                        max_steps=60)
+        settings.update(overrides)
+        return cls(**settings)
 
     def __post_init__(self):
         self.cameras = tuple(self.cameras)
@@ -140,6 +177,13 @@ class PegInHoleConfig:
         self.workspace_low, self.workspace_high = low, high
         if not isinstance(self.ring_segments, int) or not 8 <= self.ring_segments <= 64:
             raise ValueError(f"ring_segments must be an int in [8, 64], got {self.ring_segments!r}")
+        self.in_hand_offset_mm = _check_range("in_hand_offset_mm", self.in_hand_offset_mm, 0.0, 9.0)
+        if any(self.in_hand_offset_mm) and not self.peg_in_hand:
+            raise ValueError("in_hand_offset_mm needs peg_in_hand=True (otherwise the grasp sets the offset)")
+        if not 10.0 <= float(self.grasp_depth_mm) <= 30.0:
+            raise ValueError(f"grasp_depth_mm must be in [10, 30] (the gel is 15.2 mm tall), got {self.grasp_depth_mm!r}")
+        if self.camera_layout not in CAMERA_LAYOUTS:
+            raise ValueError(f"camera_layout must be one of {CAMERA_LAYOUTS}, got {self.camera_layout!r}")
         if not 1.0 <= float(self.success_depth_mm) <= float(self.hole_depth_mm):
             raise ValueError(
                 f"success_depth_mm must be in [1, hole_depth_mm={self.hole_depth_mm}], got {self.success_depth_mm!r}")

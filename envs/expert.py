@@ -1,7 +1,7 @@
 """Scripted peg-in-hole expert with injected noise (privileged: it reads the peg and hole poses).
 
 Phases (control steps at 10 Hz): approach above the peg, descend, close, lift, carry the peg over
-the hole, align, insert, hold. Each phase interpolates the target linearly from where the previous
+the hole, align, insert, hold (from "carry" on when the scene starts with the peg in the hand). Each phase interpolates the target linearly from where the previous
 one ended to its goal; goals that depend on the scene (where the peg sits in the hand) are computed
 when the phase starts, and while aligning and inserting the horizontal target is re-aimed every
 step at the peg's actual bottom, so the expert corrects the in-hand offset and swing it got.
@@ -58,6 +58,7 @@ class ExpertConfig:
 # (phase, control steps)
 PHASES = (("approach", 12), ("descend", 8), ("close", 5), ("lift", 8), ("carry", 14), ("align", 6),
           ("insert", 14), ("hold", 5))
+IN_HAND_PHASES = PHASES[4:]  # PegInHoleConfig.peg_in_hand: the episode starts with the peg held
 
 
 def wrap_half_turn(yaw: float) -> float:
@@ -82,23 +83,23 @@ class ScriptedExpert:
         self._rng = np.random.default_rng(seed)
         self._offset = self._rng.uniform(*cfg.grasp_offset_mm) / 1000.0
         self._depth = self._rng.uniform(*cfg.grasp_depth_mm) / 1000.0
+        self._phases = IN_HAND_PHASES if self.env.config.peg_in_hand else PHASES
         self._phase = 0
         self._k = 0
-        pose = self.env.tcp_pose()
-        self._start = np.array([*pose, 0.0])
-        self._goal = self._goal_for(PHASES[0][0])
+        self._start = self.env.command
+        self._goal = self._goal_for(self._phases[0][0])
         self._last = self._start.copy()
 
     @property
     def phase(self) -> str:
         """Name of the current phase ("done" after the plan)."""
-        return PHASES[self._phase][0] if self._phase < len(PHASES) else "done"
+        return self._phases[self._phase][0] if self._phase < len(self._phases) else "done"
 
     def act(self) -> np.ndarray:
         """Next action [x, y, z, yaw, gripper] (float32 (5,))."""
-        if self._phase >= len(PHASES):
+        if self._phase >= len(self._phases):
             return self._last.astype(np.float32)
-        name, n = PHASES[self._phase]
+        name, n = self._phases[self._phase]
         self._k += 1
         target = self._start + (self._goal - self._start) * (self._k / n)
         fine = name in ("align", "insert", "hold")
@@ -115,8 +116,8 @@ class ScriptedExpert:
             self._phase += 1
             self._k = 0
             self._start = target
-            if self._phase < len(PHASES):
-                self._goal = self._goal_for(PHASES[self._phase][0])
+            if self._phase < len(self._phases):
+                self._goal = self._goal_for(self._phases[self._phase][0])
         self._last = noisy
         return noisy.astype(np.float32)
 

@@ -43,7 +43,7 @@ class PegInHoleEnv:
 
     Episode randomisation (seeded by ``reset(seed=...)``): peg position and yaw, hole position,
     grip force (``config.grip_force_range_n``); the in-hand offset comes from where the policy
-    grasps. ``info`` holds ``success``, ``clipped`` (the target was outside the workspace or the
+    grasps, or, with ``config.peg_in_hand``, is drawn (``in_hand_offset_m``, privileged). ``info`` holds ``success``, ``clipped`` (the target was outside the workspace or the
     gripper command outside [0, 1]), ``grip_force_n``, ``insertion_mm`` and ``max_penetration_mm``
     (deepest peg contact with the receptacle or table).
     """
@@ -55,7 +55,7 @@ class PegInHoleEnv:
         self.config = config or PegInHoleConfig()
         cfg = self.config
         self.model = build_model(cfg.hole_diameter_mm, cfg.hole_depth_mm, cfg.ring_segments, cfg.camera_size,
-                                 cfg.hole_chamfer_mm)
+                                 cfg.hole_chamfer_mm, cfg.camera_layout)
         self.data = mujoco.MjData(self.model)
         m = self.model
         self._jnt = {n: m.joint(n).qposadr[0] for n in
@@ -99,6 +99,7 @@ class PegInHoleEnv:
         self._episode_seed = 0
         self.hole_xy = np.zeros(2)
         self.grip_force_n = 0.0
+        self.in_hand_offset_m: float | None = None
         self._target = np.array([*HOME, 0.0])
         self._steps = 0
         self._warnings = 0
@@ -122,20 +123,33 @@ class PegInHoleEnv:
         for s in SENSORS:
             m.actuator_forcerange[self._act[f"{s}_finger"]] = [-self.grip_force_n, self.grip_force_n]
         q = self._peg_qpos
-        d.qpos[q:q + 3] = [*peg_xy, PEG_HALF_LENGTH_M]
         d.qpos[q + 3:q + 7] = [math.cos(peg_yaw / 2), 0.0, 0.0, math.sin(peg_yaw / 2)]
-        for name, value in zip(("hand_x", "hand_y", "hand_z", "hand_yaw"), HOME):
+        if cfg.peg_in_hand:
+            # hand over the start point, peg between the closed fingers, its axis off the TCP along the gel
+            self.in_hand_offset_m = float(rng.choice((-1.0, 1.0)) * rng.uniform(*cfg.in_hand_offset_mm)) / 1000.0
+            home = (*peg_xy, HOME[2], 0.0)
+            top = HOME[2] + cfg.grasp_depth_mm / 1000.0
+            d.qpos[q:q + 3] = [peg_xy[0] + self.in_hand_offset_m, peg_xy[1], top - PEG_HALF_LENGTH_M]
+            fingers, closing = PEG_RADIUS_M, 1.0
+        else:
+            self.in_hand_offset_m = None
+            home = HOME
+            d.qpos[q:q + 3] = [*peg_xy, PEG_HALF_LENGTH_M]
+            fingers, closing = FINGER_OPEN_M, 0.0
+        for name, value in zip(("hand_x", "hand_y", "hand_z", "hand_yaw"), home):
             d.qpos[self._jnt[name]] = value
-        d.qpos[self._jnt["left_finger"]] = d.qpos[self._jnt["right_finger"]] = FINGER_OPEN_M
-        self._target = np.array([*HOME, 0.0])
+        d.qpos[self._jnt["left_finger"]] = d.qpos[self._jnt["right_finger"]] = fingers
+        self._target = np.array([*home, closing])
         d.ctrl[:] = self._ctrl_vector(self._target)
         mujoco.mj_forward(m, d)
-        for _ in range(cfg.substeps):  # let the peg settle on the table
+        for _ in range(cfg.substeps):  # let the peg settle on the table or in the grip
             mujoco.mj_step(m, d)
         self._steps = 0
         self._warnings = self._warning_count()
         info = {"success": False, "clipped": False, "grip_force_n": self.grip_force_n,
                 "insertion_mm": self.insertion_mm(), "max_penetration_mm": 0.0, "episode_seed": self._episode_seed}
+        if cfg.peg_in_hand:
+            info["in_hand_offset_mm"] = self.in_hand_offset_m * 1000.0
         return self._observe(), info
 
     def step(self, action) -> tuple[dict, float, bool, bool, dict]:
@@ -198,6 +212,11 @@ class PegInHoleEnv:
         self.close()
 
     # ------------------------------------------------------------------ state
+    @property
+    def command(self) -> np.ndarray:
+        """float64 (5,) the target the servos hold now: [x, y, z, yaw, gripper] (the last action)."""
+        return self._target.copy()
+
     def tcp_pose(self) -> np.ndarray:
         """float64 (4,) current TCP [x, y, z, yaw] (m, rad)."""
         return np.array([self.data.qpos[self._jnt[n]] for n in ("hand_x", "hand_y", "hand_z", "hand_yaw")])

@@ -30,6 +30,7 @@ def build_model(
     ring_segments: int = 16,
     render_size: tuple[int, int] = (96, 128),
     chamfer_mm: float = 0.0,
+    camera_layout: str = "side",
 ) -> mujoco.MjModel:
     """Compile the scene, filling the MJCF's ``receptacle`` body (at the origin; moved per episode).
 
@@ -37,8 +38,13 @@ def build_model(
     hole_depth_mm: from the rim to the floor (mm).
     chamfer_mm: width (= height) of the 45° lead-in chamfer at the rim (mm); 0 = a sharp rim.
     render_size: largest (height, width) any camera renders, sizes the offscreen buffer.
+    camera_layout: "side" (the MJCF's cameras) or "occluding" (see ``occlude_held_peg``).
     """
     spec = mujoco.MjSpec.from_file(str(ASSET))
+    if camera_layout == "occluding":
+        occlude_held_peg(spec)
+    elif camera_layout != "side":
+        raise ValueError(f"camera_layout must be 'side' or 'occluding', got {camera_layout!r}")
     r = hole_diameter_mm / 2000.0
     depth = hole_depth_mm / 1000.0
     body = spec.body("receptacle")
@@ -86,6 +92,28 @@ def build_model(
     spec.visual.global_.offheight = max(int(h), 1)
     spec.visual.global_.offwidth = max(int(w), 1)
     return spec.compile()
+
+
+def occlude_held_peg(spec: mujoco.MjSpec) -> None:
+    """Place the cameras so that neither sees a peg held between the fingers.
+
+    third_view: 0.9 m above the table looking straight down (image up = world +y), fovy 15°: the
+    whole workspace at 1.9 mm per pixel (96x128), the hole in plain view. The gripper body (palm)
+    is widened to 90 x 90 mm, which covers a held peg 8 mm off-centre from this camera anywhere over
+    the workspace (its lowest point is 0.11 m below the palm; rays slant by at most 0.13).
+    wrist: on the back of the left finger, 2.5 mm out from it, looking down: the finger's back face
+    (24 x 62 mm) hides everything on the peg's side of it, and the camera sees the table, the hole's
+    outer ring and the gripper body on the other side.
+    """
+    cam = spec.camera("third_view")
+    cam.pos = [0.01, 0.0, 0.9]
+    cam.alt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT  # the MJCF gives xyaxes; use quat instead
+    cam.quat = [1.0, 0.0, 0.0, 0.0]
+    cam.fovy = 15.0
+    spec.geom("palm").size = [0.045, 0.045, 0.01]
+    spec.delete(spec.camera("wrist"))
+    spec.body("left_finger").add_camera(name="wrist", pos=[0.0, 0.0135, 0.045], quat=[1.0, 0.0, 0.0, 0.0],
+                                        fovy=80.0)
 
 
 def tube_mesh(r_in: float, r_out: float, z0: float, z1: float, n: int,

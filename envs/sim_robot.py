@@ -117,7 +117,7 @@ class SimRobot:
         self.observation, self.last_info = self.env.reset(seed=seed)
         self.frame_time = self.clock.now()
         self.steps = 0
-        self.command = np.array([*self.env.tcp_pose(), self.env.gripper_closure()])
+        self.command = self.env.command  # hold what the scene starts with (a held peg stays held)
         self.arm, self.gripper = SimArm(self), SimGripper(self)
         cfg = self.env.config
         self.cameras = {c: SimFrameSource(self, c, f"images/{c}") for c in cfg.cameras}
