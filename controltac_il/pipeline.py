@@ -60,15 +60,18 @@ def scene_fingerprint() -> str:
     return h.hexdigest()[:10]
 
 
-def default_demos(episodes: int = 20, seed: int = 0, root: str | Path | None = None) -> Path:
+def default_demos(episodes: int = 20, seed: int = 0, root: str | Path | None = None, scene: str = "default") -> Path:
     """Folder of ``episodes`` scripted-expert peg-in-hole demos (collected once, then reused).
+
+    scene: "default" or "touch_critical" (``envs.config.SCENES``).
 
     The cache folder is keyed by the scene's fingerprint, so demos recorded by an older scene are
     never reused. Written atomically: an interrupted collection leaves no half folder behind.
     """
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
-    name = f"peg_in_hole-n{episodes}-seed{seed}-{scene_fingerprint()}"
+    prefix = "peg_in_hole" if scene == "default" else f"peg_in_hole_{scene}"
+    name = f"{prefix}-n{episodes}-seed{seed}-{scene_fingerprint()}"
     folder = Path(root) if root is not None else cache_root() / "demos" / name
     info = folder / "collect_info.json"
     if info.is_file():
@@ -80,7 +83,7 @@ def default_demos(episodes: int = 20, seed: int = 0, root: str | Path | None = N
     from envs import collect
 
     with atomic_dir(folder) as tmp:
-        code = collect.main(["--episodes", str(episodes), "--out", str(tmp), "--seed", str(seed)])
+        code = collect.main(["--episodes", str(episodes), "--out", str(tmp), "--seed", str(seed), "--scene", scene])
         if code != 0:
             raise RuntimeError(f"demo collection failed (exit code {code}); see the messages above")
     return folder

@@ -22,7 +22,7 @@ import numpy as np
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 
-from envs.config import CAMERAS, SENSORS, PegInHoleConfig  # noqa: E402
+from envs.config import CAMERAS, SCENES, SENSORS, scene_config  # noqa: E402
 from envs.expert import ExpertConfig, ScriptedExpert  # noqa: E402
 from envs.peg_in_hole import PegInHoleEnv  # noqa: E402
 
@@ -65,6 +65,7 @@ def record_episode(env: PegInHoleEnv, expert: ScriptedExpert, seed: int, hold_st
             "grip_force_n": float(env.grip_force_n),
             "hole_xy_m": np.asarray(env.hole_xy, dtype=np.float64),
             "hole_diameter_mm": float(cfg.hole_diameter_mm),
+            **({"in_hand_offset_mm": float(env.in_hand_offset_m * 1000.0)} if cfg.peg_in_hand else {}),
             "action_space": "tcp x y z (m), yaw (rad), gripper [0 open, 1 closed]",
             "qpos_space": "tcp x y z (m), yaw (rad), gripper closure [0, 1]",
         },
@@ -92,9 +93,13 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--optics", default="three_light", choices=("three_light", "polynomial"),
                    help="tactile optics model (default three_light, as the generator's training data)")
     p.add_argument("--no-tactile", action="store_true", help="record no tactile images (forces are still recorded)")
-    p.add_argument("--grip-force", type=float, nargs=2, default=(3.0, 9.0), metavar=("LOW", "HIGH"),
-                   help="per-finger grip force range in N, drawn per episode (default 3 9)")
-    p.add_argument("--hole-diameter", type=float, default=30.0, help="hole diameter in mm (30 = paper, default)")
+    p.add_argument("--scene", default="default", choices=SCENES,
+                   help="default: pick the peg from the table; touch_critical: the peg starts in the hand "
+                        "off-centre and the cameras cannot see it (PegInHoleConfig.touch_critical)")
+    p.add_argument("--grip-force", type=float, nargs=2, default=None, metavar=("LOW", "HIGH"),
+                   help="per-finger grip force range in N, drawn per episode (default: the scene's, 3 9 / 4 7)")
+    p.add_argument("--hole-diameter", type=float, default=None,
+                   help="hole diameter in mm (default: the scene's, 30 = paper)")
     p.add_argument("--hold-steps", type=int, default=3, help="frames recorded after the insertion succeeds (default 3)")
     p.add_argument("--keep-failures", action="store_true", help="also write episodes where the expert failed")
     p.add_argument("--max-attempts", type=int, default=None,
@@ -116,10 +121,13 @@ def main(argv=None) -> int:
 
     args = parse_args(argv)
     try:
-        config = PegInHoleConfig(cameras=tuple(args.cameras), camera_size=tuple(args.camera_size),
-                                 tactile=not args.no_tactile, tactile_size=tuple(args.tactile_size),
-                                 tactile_optics=args.optics, grip_force_range_n=tuple(args.grip_force),
-                                 hole_diameter_mm=args.hole_diameter)
+        overrides = dict(cameras=tuple(args.cameras), camera_size=tuple(args.camera_size),
+                         tactile=not args.no_tactile, tactile_size=tuple(args.tactile_size), tactile_optics=args.optics)
+        if args.grip_force is not None:
+            overrides["grip_force_range_n"] = tuple(args.grip_force)
+        if args.hole_diameter is not None:
+            overrides["hole_diameter_mm"] = args.hole_diameter
+        config = scene_config(args.scene, **overrides)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

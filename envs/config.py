@@ -192,3 +192,15 @@ class PegInHoleConfig:
     def substeps(self) -> int:
         """Physics steps per control step."""
         return int(round(500.0 / float(self.control_hz)))
+
+
+SCENES = ("default", "touch_critical")
+
+
+def scene_config(scene: str = "default", **overrides) -> PegInHoleConfig:
+    """The named scene's config with ``overrides``: "default" (pick and insert) or "touch_critical"."""
+    if scene == "default":
+        return PegInHoleConfig(**overrides)
+    if scene == "touch_critical":
+        return PegInHoleConfig.touch_critical(**overrides)
+    raise ValueError(f"scene must be one of {SCENES}, got {scene!r}")

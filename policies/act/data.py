@@ -82,9 +82,11 @@ class TrainingData:
 
 
 def load_training_data(root: str | Path, chunk_size: int, val_fraction: float = 0.1, seed: int = 0,
-                       stats_path: str | Path | None = None) -> TrainingData:
-    """Open ``root`` as an :class:`EpisodeDataset` and split it by episode."""
-    ds = EpisodeDataset(root, chunk_size=chunk_size, stats_path=stats_path)
+                       stats_path: str | Path | None = None, tactile_sensors=None) -> TrainingData:
+    """Open ``root`` as an :class:`EpisodeDataset` and split it by episode.
+
+    tactile_sensors: the tactile streams to train on (None = all; () = none, a vision-only policy)."""
+    ds = EpisodeDataset(root, chunk_size=chunk_size, stats_path=stats_path, tactile_sensors=tactile_sensors)
     train_idx, val_idx = split_by_episode(ds, val_fraction, seed)
     episodes, _ = ds.frame_table()
     stats = {k: {m: np.asarray(v).astype(float).tolist() for m, v in d.items()} for k, d in ds.stats.items()}

@@ -43,16 +43,17 @@ def check_setup(policy: ACTPolicy, cameras, tactile, action_dim: int = 5, state_
 
 def evaluate_in_sim(checkpoint, episodes: int = 50, seed: int = 100_000,
                     grip_force_range: tuple[float, float] | None = None, env_overrides: dict | None = None,
-                    progress: bool = True) -> dict:
+                    progress: bool = True, scene: str = "default") -> dict:
     """Success rate of the policy over ``episodes`` seeded scene episodes (seeds seed .. seed+episodes-1).
 
     Runs the robot's ControlLoop (sync inference, virtual clock, temporal ensembling, safety filter).
     grip_force_range: per-finger grip force range (N) of the test episodes; None = the scene default
         (the range the demos were collected with). env_overrides: other PegInHoleConfig fields.
+    scene: "default" or "touch_critical" (``envs.config.scene_config``).
     Returns successes, episodes, success_rate, wilson95 and per-episode outcomes.
     """
     from controltac_il.pipeline import wilson_interval
-    from envs.config import PegInHoleConfig
+    from envs.config import scene_config
     from envs.peg_in_hole import PegInHoleEnv
 
     from envs.sim_robot import run_policy_episode
@@ -61,7 +62,7 @@ def evaluate_in_sim(checkpoint, episodes: int = 50, seed: int = 100_000,
     overrides = dict(env_overrides or {})
     if grip_force_range is not None:
         overrides["grip_force_range_n"] = tuple(grip_force_range)
-    env_config = PegInHoleConfig(**overrides)
+    env_config = scene_config(scene, **overrides)
     check_setup(policy, env_config.cameras, ("left", "right") if env_config.tactile else ())
     cfg = policy.config
     outcomes, inference_ms, clamps = [], [], {}
