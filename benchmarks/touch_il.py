@@ -211,8 +211,8 @@ def parse_args(argv=None):
     p = base_parser(__doc__.split("\n\n")[0])
     p.add_argument("--demos", default=",".join(map(str, BUDGETS)),
                    help="comma list of demonstration budgets (default 20,35,50; each <= --collect)")
-    p.add_argument("--collect", type=int, default=None,
-                   help="scripted demos collected once; budgets are its first N (default: the largest budget)")
+    p.add_argument("--collect", type=int, default=max(BUDGETS),
+                   help=f"scripted demos collected once; budgets are its first N (default {max(BUDGETS)})")
     p.add_argument("--variants", default=",".join(VARIANTS), help=f"comma list of {', '.join(VARIANTS)}")
     p.add_argument("--image-aug-copies", type=int, default=2,
                    help="photometric copies for image_aug, to compare with the fa variant of as many (default 2)")
@@ -243,7 +243,6 @@ def parse_args(argv=None):
         p.error(f"--demos: expected a comma list of integers, got {args.demos!r}")
     if not args.budgets or args.budgets[0] < 2:
         p.error(f"--demos: every budget must be >= 2 (one episode is held out for validation), got {args.demos!r}")
-    args.collect = args.collect or args.budgets[-1]
     if args.budgets[-1] > args.collect:
         p.error(f"--demos: budget {args.budgets[-1]} is larger than the {args.collect} collected demos (--collect)")
     args.variant_list = [v.strip() for v in args.variants.split(",") if v.strip()]
@@ -274,6 +273,7 @@ def main(argv=None) -> dict:
     from controltac_il.pipeline import default_demos
     from envs.config import PegInHoleConfig
     from policies.act import ACTConfig
+    from policies.act.training import augment_change
 
     torch.set_num_threads(2 if args.jobs == 1 else 1)
     t_start = time.perf_counter()
@@ -326,6 +326,14 @@ def main(argv=None) -> dict:
             t = time.perf_counter()
             make_stage("fa1", 1, args.generator, max_force)(load_training_data(dirs[n], chunk, 0.1, 0).train)
             results.setdefault("cache_s", {})[str(n)] = round(time.perf_counter() - t, 1)
+    for n in args.budgets:  # a policy trained on other augmentation is never reused as this grid's
+        for v in args.variant_list:
+            run = args.runs / "policies" / f"{v}-n{n}"
+            stage = make_stage(v, copies[v], args.generator, max_force)
+            change = augment_change(_run_meta(run).get("augment"), stage.description if stage else None)
+            if _run_meta(run) and change:
+                p.error(f"--runs: {run} was trained with different augmentation ({change}); "
+                        "use another --runs folder")
     cells = list(done.values())
     save(cells)
     units = []  # largest budget first: the paper's headline (50 demos) finishes first

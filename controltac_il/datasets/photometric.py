@@ -66,7 +66,8 @@ class PhotometricAugment(Dataset):
             raise ValueError(f"copies must be an int >= 1, got {copies!r}")
         self.dataset, self.copies, self.seed = dataset, copies, int(seed)
         self.jitter = jitter or PhotometricJitter()
-        self.description = {"kind": "image", "copies": copies, "seed": self.seed, **asdict(self.jitter)}
+        self.description = {"kind": "image", "copies": copies, "seed": self.seed,
+                            **{k: list(v) for k, v in asdict(self.jitter).items()}}  # as JSON reads it back
 
     def __len__(self) -> int:
         return (self.copies + 1) * len(self.dataset)
