@@ -3,6 +3,7 @@
 
     python deploy_policy.py --robot sim --checkpoint runs/act --episodes 20
     python deploy_policy.py --robot sim --checkpoint runs/act --grip-force 10 12     # shifted grip force
+    python deploy_policy.py --robot sim --scene touch_critical --checkpoint runs/touch_act
     python deploy_policy.py --robot xarm --checkpoint runs/act --config setup.yaml
 
 The checkpoint is checked against the set-up (cameras, tactile sensors, action size) before anything
@@ -26,8 +27,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--config", type=Path, default=None, help="robot set-up YAML (xarm / ur): devices, limits")
     p.add_argument("--episodes", type=int, default=20, help="simulated episodes (default 20)")
     p.add_argument("--seed", type=int, default=100_000, help="first scene seed of the simulated episodes")
+    p.add_argument("--scene", default="default", choices=("default", "touch_critical"),
+                   help="simulated scene: default (pick and insert) or touch_critical (peg held off-centre, "
+                        "hidden from the cameras; see PegInHoleConfig.touch_critical)")
     p.add_argument("--grip-force", type=float, nargs=2, default=None, metavar=("LOW", "HIGH"),
-                   help="simulated grip force range, N (default: the scene's, 3-9)")
+                   help="simulated grip force range, N (default: the scene's, 3-9 / 4-7)")
     p.add_argument("--max-steps", type=int, default=None, help="robot: stop after this many control steps")
     p.add_argument("--threads", type=int, default=1,
                    help="torch CPU threads for inference (default 1: a 20 ms chunk gains little from more, and "
@@ -48,7 +52,7 @@ def main(argv=None) -> int:
     try:
         if args.robot == "sim":
             result = evaluate_in_sim(args.checkpoint, episodes=args.episodes, seed=args.seed,
-                                     grip_force_range=args.grip_force)
+                                     grip_force_range=args.grip_force, scene=args.scene)
             lo, hi = result["wilson95"]
             print(f"success {result['successes']}/{result['episodes']} = {result['success_rate']:.0%}  "
                   f"Wilson 95 % interval [{lo:.0%}, {hi:.0%}]  (grip force {result['grip_force_range_n']} N)")

@@ -68,3 +68,16 @@ def test_deploy_cli_reports_a_corrupted_checkpoint(checkpoint, capsys):
     assert "corrupted" in capsys.readouterr().err
     assert deploy_policy.main(["--robot", "xarm", "--checkpoint", str(checkpoint)]) == 2  # no --config
     assert "--config" in capsys.readouterr().err
+
+
+def test_deploy_cli_runs_the_touch_critical_scene(checkpoint, tmp_path):
+    import json
+
+    import deploy_policy
+
+    out = tmp_path / "result.json"
+    assert deploy_policy.main(["--robot", "sim", "--scene", "touch_critical", "--checkpoint", str(checkpoint),
+                               "--episodes", "1", "--out", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert result["grip_force_range_n"] == [4.0, 7.0] and result["episodes"] == 1
+    assert result["outcomes"][0]["steps"] == 60  # an untrained policy never inserts: the variant's limit
