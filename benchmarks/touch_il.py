@@ -23,6 +23,8 @@ import json
 import time
 from pathlib import Path
 
+import numpy as np
+
 BUDGETS = (20, 35, 50)
 # variant -> (augmentation kind, copies); image_aug's copies come from --image-aug-copies
 VARIANTS = {"vision_only": ("none", 0), "real": ("none", 0), "fa1": ("force", 1), "fa2": ("force", 2),
@@ -196,6 +198,56 @@ def plot(cells: list[dict], path: Path, budgets: list[int], image_aug_copies: in
     plt.close(fig)
 
 
+def _stripe_column(residual: np.ndarray) -> float:
+    """Column centroid (px) of the contact in a tactile residual uint8 (H, W, 3)."""
+    cols = np.abs(residual.astype(np.float32) - 127.0).sum(axis=2).mean(axis=0)
+    cols = np.clip(cols - np.median(cols), 0, None)
+    return float((cols * np.arange(cols.size)).sum() / cols.sum())
+
+
+def vision_check(seeds=range(20), offsets_mm=(-8.0, -5.0, 5.0, 8.0)) -> dict:
+    """Can the cameras see the in-hand offset? For each seeded episode, at the start and at the moment
+    of insertion (peg 35 mm lower, in the hole's mouth), render every camera with the held peg moved to
+    each offset and nothing else changed: ``max_pixel_diff`` 0 means byte-identical images, so no
+    model can read the offset from them. The left pad's contact column (px) shows what touch sees."""
+    from envs.config import PegInHoleConfig
+    from envs.peg_in_hole import PegInHoleEnv  # before mujoco: it selects the headless GL backend
+
+    import mujoco
+
+    cfg = PegInHoleConfig.touch_critical(tactile_noise=False)
+    diffs = {c: 0 for c in cfg.cameras}
+    columns = []
+    with PegInHoleEnv(cfg) as env:
+        for seed in seeds:
+            env.reset(seed=seed)
+            for moment in ("start", "insertion"):
+                if moment == "insertion":
+                    a = env.command
+                    a[:2] = env.hole_xy - np.array([env.in_hand_offset_m, 0.0])
+                    a[2] -= 0.035
+                    for _ in range(8):
+                        env.step(a)
+                images, cols = {c: [] for c in cfg.cameras}, []
+                for off in offsets_mm:
+                    env.data.qpos[env._peg_qpos] = env.tcp_pose()[0] + off / 1000.0
+                    env.data.qvel[:] = 0.0
+                    mujoco.mj_forward(env.model, env.data)
+                    for c in cfg.cameras:
+                        images[c].append(env.render_camera(c).astype(np.int16))
+                    residual = np.clip(env.render_tactile("left").astype(np.int16)
+                                       - env.tactile_background("left") + 127, 0, 255)
+                    cols.append(_stripe_column(residual))
+                for c in cfg.cameras:
+                    diffs[c] = max(diffs[c], max(int(np.abs(images[c][0] - im).max()) for im in images[c][1:]))
+                columns.append(cols)
+    cols = np.asarray(columns)
+    return {"episodes": len(list(seeds)), "offsets_mm": list(offsets_mm), "moments": ["start", "insertion"],
+            "max_pixel_diff": diffs, "tactile_column_px_mean": cols.mean(axis=0).round(1).tolist(),
+            "tactile_column_px_min_step": float(np.abs(np.diff(cols, axis=1)).min().round(1)),
+            "tactile_width_px": cfg.tactile_size[1]}
+
+
 def _band(p, flag: str, value) -> tuple[float, float]:
     lo, hi = (float(v) for v in value)
     if not lo < hi:
@@ -314,6 +366,7 @@ def main(argv=None) -> dict:
             if results["cells"]:
                 plot(results["cells"], args.out.with_suffix(".png"), args.budgets, args.image_aug_copies)
 
+    results["vision_check"] = vision_check(range(3 if args.quick else 20))
     t = time.perf_counter()
     all_demos = default_demos(args.collect, seed=0, scene="touch_critical")
     results["collect_s"] = round(time.perf_counter() - t, 1)

@@ -1,6 +1,5 @@
 """The touch-critical peg-in-hole variant: only touch tells where the peg sits in the hand (issue 19)."""
 
-import mujoco
 import numpy as np
 import pytest
 
@@ -18,22 +17,6 @@ def _run_expert(env, seed: int) -> dict:
         if terminated or truncated:
             break
     return info
-
-
-def _stripe_column(residual_rgb: np.ndarray) -> float:
-    """Column centroid (px) of the contact in a tactile residual: the gel deformation seen as colour change."""
-    mag = np.abs(residual_rgb.astype(np.float32) - 127.0).sum(axis=2)
-    cols = mag.mean(axis=0)
-    cols = np.clip(cols - np.median(cols), 0, None)
-    return float((cols * np.arange(cols.size)).sum() / cols.sum())
-
-
-def _place_peg(env, offset_m: float) -> None:
-    """Move the held peg to ``offset_m`` off the TCP along the gel (hand x), nothing else changed."""
-    q = env._peg_qpos
-    env.data.qpos[q] = env.tcp_pose()[0] + offset_m
-    env.data.qvel[:] = 0.0
-    mujoco.mj_forward(env.model, env.data)
 
 
 def test_touch_critical_is_a_named_preset_and_the_default_scene_is_unchanged():
@@ -102,37 +85,6 @@ def test_expert_success_on_50_seeded_episodes_in_every_grip_band():
         with PegInHoleEnv(cfg) as env:
             wins = sum(_run_expert(env, seed)["success"] for seed in range(50))
         assert wins >= 48, (band, wins)
-
-
-def test_cameras_cannot_see_the_offset_but_touch_can():
-    """Same hand pose, the peg held at -8, -5, +5, +8 mm: camera images byte-identical, tactile not."""
-    cfg = PegInHoleConfig.touch_critical(tactile_noise=False)
-    with PegInHoleEnv(cfg) as env:
-        for seed in (0, 3):
-            env.reset(seed=seed)
-            # bring the peg down into the hole's mouth (the moment of insertion) and over the start
-            for target_z in (None, env.command[2] - 0.035):
-                if target_z is not None:
-                    a = env.command
-                    a[:2] = env.hole_xy - np.array([env.in_hand_offset_m, 0.0])
-                    a[2] = target_z
-                    for _ in range(8):
-                        env.step(a)
-                cams, columns = {}, []
-                for off in (-8e-3, -5e-3, 5e-3, 8e-3):
-                    _place_peg(env, off)
-                    for cam in cfg.cameras:
-                        cams.setdefault(cam, []).append(env.render_camera(cam))
-                    residual = np.clip(env.render_tactile("left").astype(int) - env.tactile_background("left") + 127,
-                                       0, 255)
-                    columns.append(_stripe_column(residual))
-                for cam, images in cams.items():
-                    for other in images[1:]:
-                        assert np.array_equal(images[0], other), cam
-                # the left sensor's image x runs along -hand x: the stripe moves by ~7.9 px per mm
-                px_per_mm = cfg.tactile_size[1] / 20.3
-                moved = np.diff(columns) / (np.diff([-8.0, -5.0, 5.0, 8.0]) * -px_per_mm)
-                assert np.all(moved > 0.6), columns
 
 
 def test_the_cameras_still_show_the_hole():

@@ -28,6 +28,17 @@ def test_bad_input_is_one_line_naming_the_flag(argv, flag, capsys):
     assert flag in err[-1]
 
 
+def test_cameras_cannot_see_the_offset_but_touch_can():
+    """Same hand pose, peg held at -8, -5, +5, +8 mm: byte-identical camera images; the contact moves."""
+    check = bench.vision_check(seeds=(0, 3))
+    assert check["max_pixel_diff"] == {"third_view": 0, "wrist": 0}
+    # the left pad's image x runs along -hand x: +3 / +10 / +3 mm move the contact ~24 / 79 / 24 px left
+    cols = check["tactile_column_px_mean"]
+    assert cols[0] > cols[1] > cols[2] > cols[3]
+    assert check["tactile_column_px_min_step"] > 15
+    assert 60 < cols[1] - cols[2] < 100
+
+
 def test_p_values_are_one_sided_fisher_against_real_in_the_same_budget_and_setting():
     def cell(variant, demos, setting, k, n=50):
         return {"variant": variant, "demos": demos, "setting": setting, "successes": k, "episodes": n}
