@@ -74,6 +74,10 @@ def test_quick_grid_writes_cells_picture_and_resumes_without_retraining(tmp_path
     assert {c["variant"]: c["copies"] for c in cells} == {"vision_only": 0, "real": 0, "fa1": 1, "image_aug": 1}
     assert {c["variant"]: c["augment"]["kind"] for c in cells if c["augment"]} == {"fa1": "force", "image_aug": "image"}
     assert out.with_suffix(".png").read_bytes()[:4] == b"\x89PNG"
+    assert doc["vision_check"]["max_pixel_diff"] == {"third_view": 0, "wrist": 0}
+    bands = doc["grip_response"]["bands"]
+    assert bands["shifted_low"]["true_intensity"] < bands["nominal"]["true_intensity"] < bands["shifted_high"]["true_intensity"]
+    assert bands["nominal"]["copy_mse"] == 0.0 and bands["shifted_low"]["copy_mse"] > 0
     assert len(list((runs / "cells").glob("*.json"))) == 12
     # vision_only was trained without tactile streams
     vo = json.loads((runs / "policies" / "vision_only-n3" / "best" / "config.json").read_text())
