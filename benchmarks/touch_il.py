@@ -73,13 +73,15 @@ def budget_demos(all_demos: Path, runs: Path, n: int) -> Path:
     return folder
 
 
-def make_stage(variant: str, copies: int, generator: str | None, max_force_copies: int):
-    """The training set's augmentation for a variant (None for real and vision_only)."""
+def make_stage(variant: str, copies: int, generator: str | None, max_force_copies: int,
+               force_settings: dict | None = None):
+    """The training set's augmentation for a variant (None for real and vision_only); force_settings:
+    ForceAugment fields that differ from the paper's (``offset_range``, ``out_of_range``)."""
     kind, _ = VARIANTS[variant]
     if kind == "force":
         from controltac_il.pipeline import make_augment
 
-        return make_augment(copies, generator, seed=0, max_copies=max_force_copies)
+        return make_augment(copies, generator, seed=0, max_copies=max_force_copies, **(force_settings or {}))
     if kind == "image":
         from controltac_il.datasets.photometric import PhotometricAugmentStage
 
@@ -103,7 +105,7 @@ def load_cells(runs: Path, signature: str) -> dict[tuple, dict]:
 
 def run_unit(variant: str, demos: int, *, demos_dir: str, runs: str, steps: int, batch_size: int, copies: int,
              generator: str | None, max_force_copies: int, bands: dict, eval_episodes: int, signature: str,
-             todo_settings: list[str]) -> list[dict]:
+             todo_settings: list[str], force_settings: dict | None = None) -> list[dict]:
     """Train one (variant, budget) policy, or reuse it when trained to ``steps``, then evaluate it in
     each setting of ``todo_settings``; each cell is written to ``runs/cells`` as soon as it is done.
     One torch thread, so two units can run side by side on 2 cores."""
@@ -121,7 +123,7 @@ def run_unit(variant: str, demos: int, *, demos_dir: str, runs: str, steps: int,
     meta = _run_meta(run)
     trained_now = meta.get("step", 0) < steps
     if trained_now:
-        stage = make_stage(variant, copies, generator, max_force_copies)
+        stage = make_stage(variant, copies, generator, max_force_copies, force_settings)
         train_on_folder(demos_dir, run, preset="cpu", augment=stage, tactile_sensors=() if variant == "vision_only"
                         else None, train_config=TrainConfig(steps=steps, batch_size=batch_size,
                                                             val_every=min(500, steps), seed=0),
@@ -325,12 +327,20 @@ def parse_args(argv=None):
     p.add_argument("--shifted-high", type=float, nargs=2, default=SHIFTED_HIGH_N, metavar=("LOW", "HIGH"),
                    help="grip band above the demos' in N (default 8 10)")
     p.add_argument("--generator", default=None, help="generator checkpoint for ForceAugment (default: shipped)")
+    p.add_argument("--offset-range", type=float, nargs=2, default=None, metavar=("LOW", "HIGH"),
+                   help="ForceAugment's per-copy normal-force offset range in N (default: the paper's -3 10)")
+    p.add_argument("--out-of-range", default=None, choices=("clamp", "skip"),
+                   help="ForceAugment targets outside Fz 1-10 N: clamp them (default) or keep the frame real")
     p.add_argument("--runs", type=Path, default=Path("runs/touch_il"),
                    help="folder for demos, policies and finished cells (default runs/touch_il)")
     p.add_argument("--jobs", type=int, default=1, help="policies trained and evaluated at once (default 1; 2 on 2 cores)")
     p.add_argument("--resume", action="store_true",
                    help="continue a grid in --runs: reuse its trained policies and finished cells")
     args = p.parse_args(argv)
+    args.force_settings = {k: v for k, v in (("offset_range", args.offset_range), ("out_of_range", args.out_of_range))
+                           if v is not None}
+    if args.offset_range is not None and not args.offset_range[0] <= args.offset_range[1]:
+        p.error(f"--offset-range: low {args.offset_range[0]:g} N is above high {args.offset_range[1]:g} N")
     if args.quick:
         args.demos, args.collect, args.steps, args.eval_episodes = "3", 3, 4, 1
         args.variants, args.image_aug_copies, args.batch_size = "vision_only,real,fa1,image_aug", 1, 4
@@ -388,7 +398,8 @@ def main(argv=None) -> dict:
     sig_fields = {"scene": "touch_critical", "scene_config": repr(PegInHoleConfig.touch_critical()),
                   "steps": args.steps, "batch_size": args.batch_size, "eval_episodes": args.eval_episodes,
                   "eval_seed": EVAL_SEED, "bands": args.bands, "generator_hash": generator_hash,
-                  "collect": args.collect, "image_aug_copies": args.image_aug_copies, "checkpoint": "last"}
+                  "collect": args.collect, "image_aug_copies": args.image_aug_copies, "checkpoint": "last",
+                  **({"force_settings": args.force_settings} if args.force_settings else {})}
     signature = hashlib.sha1(json.dumps(sig_fields, sort_keys=True, default=str).encode()).hexdigest()[:12]
     done = load_cells(args.runs, signature) if (args.runs / "cells").is_dir() else {}
     if (args.runs / "cells").is_dir() and any((args.runs / "cells").iterdir()) and not args.resume:
@@ -399,6 +410,7 @@ def main(argv=None) -> dict:
         "copies": copies, "steps": args.steps, "batch_size": args.batch_size, "eval_episodes": args.eval_episodes,
         "eval_seed": EVAL_SEED, "grip_bands_n": args.bands, "collect": args.collect, "generator": args.generator,
         "generator_hash": generator_hash, "jobs": args.jobs, "signature": signature,
+        "force_augment": args.force_settings or "paper: offset U[-3, 10] N, jitter {0, ±0.5, ±1} N, clamp",
         "checkpoint": CHECKPOINT_NOTE}}
     history_path = args.runs / "wall_s.json"
     history = json.loads(history_path.read_text()) if args.resume and history_path.is_file() else []
@@ -426,12 +438,13 @@ def main(argv=None) -> dict:
         chunk = ACTConfig.from_preset("cpu").chunk_size
         for n in args.budgets:
             t = time.perf_counter()
-            make_stage("fa1", 1, args.generator, max_force)(load_training_data(dirs[n], chunk, 0.1, 0).train)
+            make_stage("fa1", 1, args.generator, max_force, args.force_settings)(
+                load_training_data(dirs[n], chunk, 0.1, 0).train)
             results.setdefault("cache_s", {})[str(n)] = round(time.perf_counter() - t, 1)
     for n in args.budgets:  # a policy trained on other augmentation is never reused as this grid's
         for v in args.variant_list:
             run = args.runs / "policies" / f"{v}-n{n}"
-            stage = make_stage(v, copies[v], args.generator, max_force)
+            stage = make_stage(v, copies[v], args.generator, max_force, args.force_settings)
             change = augment_change(_run_meta(run).get("augment"), stage.description if stage else None)
             if _run_meta(run) and change:
                 p.error(f"--runs: {run} was trained with different augmentation ({change}); "
@@ -445,7 +458,8 @@ def main(argv=None) -> dict:
             if todo:
                 units.append((v, n, todo))
     job = dict(runs=str(args.runs), steps=args.steps, batch_size=args.batch_size, generator=args.generator,
-               max_force_copies=max_force, bands=args.bands, eval_episodes=args.eval_episodes, signature=signature)
+               max_force_copies=max_force, bands=args.bands, eval_episodes=args.eval_episodes, signature=signature,
+               force_settings=args.force_settings)
     from tqdm import tqdm
 
     bar = tqdm(total=len(units), desc="policies", unit="policy", dynamic_ncols=True)
