@@ -105,7 +105,7 @@ def load_cells(runs: Path, signature: str) -> dict[tuple, dict]:
 
 def run_unit(variant: str, demos: int, *, demos_dir: str, runs: str, steps: int, batch_size: int, copies: int,
              generator: str | None, max_force_copies: int, bands: dict, eval_episodes: int, signature: str,
-             todo_settings: list[str], force_settings: dict | None = None) -> list[dict]:
+             todo_settings: list[str], force_settings: dict | None = None, train_seed: int = 0) -> list[dict]:
     """Train one (variant, budget) policy, or reuse it when trained to ``steps``, then evaluate it in
     each setting of ``todo_settings``; each cell is written to ``runs/cells`` as soon as it is done.
     One torch thread, so two units can run side by side on 2 cores."""
@@ -126,8 +126,8 @@ def run_unit(variant: str, demos: int, *, demos_dir: str, runs: str, steps: int,
         stage = make_stage(variant, copies, generator, max_force_copies, force_settings)
         train_on_folder(demos_dir, run, preset="cpu", augment=stage, tactile_sensors=() if variant == "vision_only"
                         else None, train_config=TrainConfig(steps=steps, batch_size=batch_size,
-                                                            val_every=min(500, steps), seed=0),
-                        resume=(run / "last").is_dir(), progress=False)
+                                                            val_every=min(500, steps), seed=train_seed),
+                        split_seed=0, resume=(run / "last").is_dir(), progress=False)
         meta = _run_meta(run)
     train_s = time.perf_counter() - t
     best = json.loads((run / "best" / "config.json").read_text())["meta"]
@@ -333,6 +333,9 @@ def parse_args(argv=None):
                    help="ForceAugment targets outside Fz 1-10 N: clamp them (default) or keep the frame real")
     p.add_argument("--runs", type=Path, default=Path("runs/touch_il"),
                    help="folder for demos, policies and finished cells (default runs/touch_il)")
+    p.add_argument("--train-seed", type=int, default=0,
+                   help="seed of the policies' initialisation and sampling order (default 0); the demos, their "
+                        "train/validation split and the ForceAugment draws stay fixed, so seeds measure training variance")
     p.add_argument("--jobs", type=int, default=1, help="policies trained and evaluated at once (default 1; 2 on 2 cores)")
     p.add_argument("--resume", action="store_true",
                    help="continue a grid in --runs: reuse its trained policies and finished cells")
@@ -399,7 +402,8 @@ def main(argv=None) -> dict:
                   "steps": args.steps, "batch_size": args.batch_size, "eval_episodes": args.eval_episodes,
                   "eval_seed": EVAL_SEED, "bands": args.bands, "generator_hash": generator_hash,
                   "collect": args.collect, "image_aug_copies": args.image_aug_copies, "checkpoint": "last",
-                  **({"force_settings": args.force_settings} if args.force_settings else {})}
+                  **({"force_settings": args.force_settings} if args.force_settings else {}),
+                  **({"train_seed": args.train_seed} if args.train_seed else {})}
     signature = hashlib.sha1(json.dumps(sig_fields, sort_keys=True, default=str).encode()).hexdigest()[:12]
     done = load_cells(args.runs, signature) if (args.runs / "cells").is_dir() else {}
     if (args.runs / "cells").is_dir() and any((args.runs / "cells").iterdir()) and not args.resume:
@@ -407,7 +411,7 @@ def main(argv=None) -> dict:
 
     results: dict = {"benchmark": "touch_il", "settings": {
         "scene": "PegInHoleConfig.touch_critical()", "budgets": args.budgets, "variants": args.variant_list,
-        "copies": copies, "steps": args.steps, "batch_size": args.batch_size, "eval_episodes": args.eval_episodes,
+        "copies": copies, "train_seed": args.train_seed, "steps": args.steps, "batch_size": args.batch_size, "eval_episodes": args.eval_episodes,
         "eval_seed": EVAL_SEED, "grip_bands_n": args.bands, "collect": args.collect, "generator": args.generator,
         "generator_hash": generator_hash, "jobs": args.jobs, "signature": signature,
         "force_augment": args.force_settings or "paper: offset U[-3, 10] N, jitter {0, ±0.5, ±1} N, clamp",
@@ -459,7 +463,7 @@ def main(argv=None) -> dict:
                 units.append((v, n, todo))
     job = dict(runs=str(args.runs), steps=args.steps, batch_size=args.batch_size, generator=args.generator,
                max_force_copies=max_force, bands=args.bands, eval_episodes=args.eval_episodes, signature=signature,
-               force_settings=args.force_settings)
+               force_settings=args.force_settings, train_seed=args.train_seed)
     from tqdm import tqdm
 
     bar = tqdm(total=len(units), desc="policies", unit="policy", dynamic_ncols=True)

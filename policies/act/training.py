@@ -236,10 +236,13 @@ def resolve_checkpoint(path: str | Path) -> Path:
 
 def train_on_folder(dataset: str | Path, out_dir: str | Path, *, preset: str = "cpu", train_config: TrainConfig,
                     val_fraction: float = 0.1, augment=None, resume: bool = False, stats_path=None,
-                    tactile_sensors=None, progress: bool = True, **act_overrides) -> dict:
+                    tactile_sensors=None, split_seed: int | None = None, progress: bool = True,
+                    **act_overrides) -> dict:
     """Train ACT on a folder of episodes; the ACT config's data fields come from the episodes.
 
     tactile_sensors: tactile streams the policy reads (None = every one recorded; () = vision only).
+    split_seed: seed of the train / validation split by episode (None = ``train_config.seed``), so that
+        training seeds can vary on one split (and one ForceAugment cache).
     augment: optional callable ``train_set -> train_set`` (e.g. ForceAugment over the training split);
         validation always stays on the recorded episodes.
     act_overrides: ACTConfig fields to change from the preset (e.g. chunk_size).
@@ -247,7 +250,8 @@ def train_on_folder(dataset: str | Path, out_dir: str | Path, *, preset: str = "
     from policies.act.data import check_compatible, load_training_data  # noqa: PLC0415 (h5py only when used)
 
     chunk = act_overrides.get("chunk_size", ACTConfig.from_preset(preset).chunk_size)
-    data = load_training_data(dataset, chunk, val_fraction, train_config.seed, stats_path, tactile_sensors)
+    split = train_config.seed if split_seed is None else split_seed
+    data = load_training_data(dataset, chunk, val_fraction, split, stats_path, tactile_sensors)
     act_config = ACTConfig.from_preset(preset, camera_names=data.spec.camera_names,
                                        tactile_names=data.spec.tactile_names, state_dim=data.spec.state_dim,
                                        action_dim=data.spec.action_dim, **act_overrides)
