@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from benchmarks.common import base_parser, median_time, print_table, write_results
+from benchmarks.common import base_parser, median_time, print_table, run_meta, write_results
 from policies.act.training import augment_change
 
 VARIANTS = {"real": 0, "fa1": 1, "fa2": 2, "fa4": 4}
@@ -82,16 +82,8 @@ def training_throughput(demos: Path, quick: bool) -> dict:
             "cpu_s_per_step": cpu, "samples_per_cpu_s": 16 / cpu, "threads": torch.get_num_threads()}
 
 
-def _run_meta(run: Path) -> dict:
-    """The meta of ``run/last`` ({} when there is no readable checkpoint yet)."""
-    try:
-        return json.loads((run / "last" / "config.json").read_text())["meta"]
-    except (OSError, KeyError, json.JSONDecodeError):
-        return {}
-
-
 def _trained(run: Path, steps: int) -> bool:
-    return _run_meta(run).get("step", 0) >= steps
+    return run_meta(run).get("step", 0) >= steps
 
 
 def run_variant(variant: str, *, demos: str, runs: str, steps: int, batch_size: int, eval_episodes: int,
@@ -135,7 +127,7 @@ def _refuse_stale_runs(p, runs: Path, variants: list[str], generator: str | None
             now = make_augment(VARIANTS[v], generator, seed=0).description if VARIANTS[v] else None
         except OSError:
             continue  # no generator: the variant is skipped later
-        change = augment_change(_run_meta(runs / v).get("augment", now), now)
+        change = augment_change(run_meta(runs / v).get("augment", now), now)
         if change:
             p.error(f"--runs: {runs / v} was trained with different augmentation ({change}); "
                     f"pass another --runs folder or remove that one")

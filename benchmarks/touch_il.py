@@ -112,6 +112,7 @@ def run_unit(variant: str, demos: int, *, demos_dir: str, runs: str, steps: int,
     import torch
 
     torch.set_num_threads(1)
+    from benchmarks.common import run_meta
     from controltac_il.io import write_json
     from controltac_il.pipeline import wilson_interval
     from policies.act.deploy import evaluate_in_sim
@@ -120,7 +121,7 @@ def run_unit(variant: str, demos: int, *, demos_dir: str, runs: str, steps: int,
     runs = Path(runs)
     run = runs / "policies" / f"{variant}-n{demos}"
     t = time.perf_counter()
-    meta = _run_meta(run)
+    meta = run_meta(run)
     trained_now = meta.get("step", 0) < steps
     if trained_now:
         stage = make_stage(variant, copies, generator, max_force_copies, force_settings)
@@ -128,7 +129,7 @@ def run_unit(variant: str, demos: int, *, demos_dir: str, runs: str, steps: int,
                         else None, train_config=TrainConfig(steps=steps, batch_size=batch_size,
                                                             val_every=min(500, steps), seed=train_seed),
                         split_seed=0, resume=(run / "last").is_dir(), progress=False)
-        meta = _run_meta(run)
+        meta = run_meta(run)
     train_s = time.perf_counter() - t
     best = json.loads((run / "best" / "config.json").read_text())["meta"]
     cells = []
@@ -149,13 +150,6 @@ def run_unit(variant: str, demos: int, *, demos_dir: str, runs: str, steps: int,
         write_json(_cell_path(runs, variant, demos, setting), cell)
         cells.append(cell)
     return cells
-
-
-def _run_meta(run: Path) -> dict:
-    try:
-        return json.loads((run / "last" / "config.json").read_text())["meta"]
-    except (OSError, KeyError, json.JSONDecodeError):
-        return {}
 
 
 def plot(cells: list[dict], path: Path, budgets: list[int], image_aug_copies: int) -> None:
@@ -381,7 +375,7 @@ def main(argv=None) -> dict:
     p, args = parse_args(argv)
     import torch
 
-    from benchmarks.common import print_table, write_results
+    from benchmarks.common import print_table, run_meta, write_results
     from controltac_il.pipeline import default_demos
     from envs.config import PegInHoleConfig
     from policies.act import ACTConfig
@@ -411,8 +405,8 @@ def main(argv=None) -> dict:
 
     results: dict = {"benchmark": "touch_il", "settings": {
         "scene": "PegInHoleConfig.touch_critical()", "budgets": args.budgets, "variants": args.variant_list,
-        "copies": copies, "train_seed": args.train_seed, "steps": args.steps, "batch_size": args.batch_size, "eval_episodes": args.eval_episodes,
-        "eval_seed": EVAL_SEED, "grip_bands_n": args.bands, "collect": args.collect, "generator": args.generator,
+        "copies": copies, "train_seed": args.train_seed, "steps": args.steps, "batch_size": args.batch_size,
+        "eval_episodes": args.eval_episodes, "eval_seed": EVAL_SEED, "grip_bands_n": args.bands, "collect": args.collect, "generator": args.generator,
         "generator_hash": generator_hash, "jobs": args.jobs, "signature": signature,
         "force_augment": args.force_settings or "paper: offset U[-3, 10] N, jitter {0, ±0.5, ±1} N, clamp",
         "checkpoint": CHECKPOINT_NOTE}}
@@ -445,12 +439,13 @@ def main(argv=None) -> dict:
             make_stage("fa1", 1, args.generator, max_force, args.force_settings)(
                 load_training_data(dirs[n], chunk, 0.1, 0).train)
             results.setdefault("cache_s", {})[str(n)] = round(time.perf_counter() - t, 1)
-    for n in args.budgets:  # a policy trained on other augmentation is never reused as this grid's
-        for v in args.variant_list:
+    for v in args.variant_list:  # a policy trained on other augmentation is never reused as this grid's
+        stage = make_stage(v, copies[v], args.generator, max_force, args.force_settings)
+        for n in args.budgets:
             run = args.runs / "policies" / f"{v}-n{n}"
-            stage = make_stage(v, copies[v], args.generator, max_force, args.force_settings)
-            change = augment_change(_run_meta(run).get("augment"), stage.description if stage else None)
-            if _run_meta(run) and change:
+            meta = run_meta(run)
+            change = augment_change(meta.get("augment"), stage.description if stage else None)
+            if meta and change:
                 p.error(f"--runs: {run} was trained with different augmentation ({change}); "
                         "use another --runs folder")
     cells = list(done.values())

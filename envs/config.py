@@ -77,7 +77,7 @@ class PegInHoleConfig:
         with ``peg_in_hand``. The grip centres the peg between the fingers but not along them.
     grasp_depth_mm: how far below the peg's top the TCP holds it when ``peg_in_hand`` (mm).
     camera_layout: "side" (the paper's third-view camera beside the scene and a wrist camera behind
-        the fingers) or "occluding": a top-down third-view camera over a 100 mm wide gripper body
+        the fingers) or "occluding": a top-down third-view camera over a 90 mm wide gripper body
         and a wrist camera on the left finger's back looking down past it, so that the finger and
         the body hide the held peg from both cameras (they still see the hole and the gripper).
     ring_segments: number of wall boxes around the hole (the hole is a regular polygon of this many
@@ -117,11 +117,11 @@ class PegInHoleConfig:
         than the Ø30 mm hole's 2.5 mm radial clearance plus its 2 mm chamfer, so inserting at the TCP
         (what a policy that ignores the offset learns) lands the peg on the rim. The offset moves
         the contact stripe across the tactile images by 40-63 px (of 160); the ``occluding``
-        cameras never see the peg (``tests/test_env_touch.py`` renders the same hand pose with
+        cameras never see the peg (``benchmarks.touch_il.vision_check`` renders the same hand pose with
         opposite offsets and gets byte-identical camera images), while still showing the hole.
         The grip force per episode, 4-7 N, sets the stripe's width and intensity; the benchmark's
         shifts go below and above it. The peg starts in the hand rather than being picked so that
-        the cameras never see where it was grasped and episodes stay short (about 40 steps).
+        the cameras never see where it was grasped and episodes stay short (33 steps for the expert).
         """
         settings = dict(peg_in_hand=True, in_hand_offset_mm=(5.0, 8.0), grasp_depth_mm=18.0,
                         camera_layout="occluding", hole_chamfer_mm=2.0, grip_force_range_n=(4.0, 7.0),
