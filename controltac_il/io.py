@@ -1,7 +1,7 @@
-"""Atomic file writing: nothing the user owns is ever left half-written.
+"""Where the tool writes, and how: the cache root and atomic writers.
 
 Every writer goes to a temporary path in the destination's folder and is renamed into place
-(``os.replace`` is atomic on POSIX within one filesystem).
+(``os.replace`` is atomic on POSIX within one filesystem), so nothing is ever left half-written.
 """
 
 from __future__ import annotations
@@ -13,6 +13,15 @@ import shutil
 import tempfile
 from pathlib import Path
 from typing import Iterator
+
+
+def cache_root() -> Path:
+    """The tool's cache folder (demos, ForceAugment caches): $CONTROLTAC_CACHE, else
+    $XDG_CACHE_HOME/controltac_il, else ~/.cache/controltac_il."""
+    base = os.environ.get("CONTROLTAC_CACHE")
+    if base:
+        return Path(base)
+    return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "controltac_il"
 
 
 @contextlib.contextmanager
