@@ -18,6 +18,8 @@ import json
 import sys
 from pathlib import Path
 
+from envs.config import EVAL_SEED, SCENES
+
 
 def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -26,8 +28,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="checkpoint folder, or a train_act.py --out folder (its best/, else last/)")
     p.add_argument("--config", type=Path, default=None, help="robot set-up YAML (xarm / ur): devices, limits")
     p.add_argument("--episodes", type=int, default=20, help="simulated episodes (default 20)")
-    p.add_argument("--seed", type=int, default=100_000, help="first scene seed of the simulated episodes")
-    p.add_argument("--scene", default="default", choices=("default", "touch_critical"),
+    p.add_argument("--seed", type=int, default=EVAL_SEED, help="first scene seed of the simulated episodes "
+                   "(default: the evaluation seeds, disjoint from the demos')")
+    p.add_argument("--scene", default="default", choices=SCENES,
                    help="simulated scene: default (pick and insert) or touch_critical (peg held off-centre, "
                         "hidden from the cameras; see PegInHoleConfig.touch_critical)")
     p.add_argument("--grip-force", type=float, nargs=2, default=None, metavar=("LOW", "HIGH"),
@@ -46,7 +49,7 @@ def main(argv=None) -> int:
 
     from controltac_il.io import write_json
     from policies.act import CheckpointError
-    from policies.act.deploy import deploy_on_robot, evaluate_in_sim
+    from controltac_il.app.deploy import deploy_on_robot, evaluate_in_sim
 
     torch.set_num_threads(max(1, args.threads))
     try:

@@ -57,21 +57,16 @@ def main(argv=None) -> int:
 def run(args: argparse.Namespace) -> dict:
     import torch
 
-    from policies.act.training import TrainConfig, train_on_folder
+    from controltac_il.app.train import train_act
+    from policies.act.training import TrainConfig
 
     if args.threads:
         torch.set_num_threads(args.threads)
-    dataset, augment = args.dataset, None
-    if dataset is None or args.augment == "force":
-        from controltac_il.pipeline import default_demos, make_augment
-
-        dataset = dataset if dataset is not None else default_demos(args.demos)
-        augment = make_augment(args.copies, args.generator, seed=args.seed) if args.augment == "force" else None
     train_config = TrainConfig(steps=args.steps, batch_size=args.batch_size, val_every=args.val_every,
                                num_workers=args.workers, seed=args.seed)
-    return train_on_folder(dataset, args.out, preset=args.preset, train_config=train_config,
-                           val_fraction=args.val_fraction, augment=augment, resume=args.resume,
-                           chunk_size=args.chunk_size)
+    return train_act(args.out, args.dataset, demos=args.demos, preset=args.preset, train_config=train_config,
+                     copies=args.copies if args.augment == "force" else 0, generator=args.generator,
+                     val_fraction=args.val_fraction, chunk_size=args.chunk_size, resume=args.resume)
 
 
 if __name__ == "__main__":

@@ -91,15 +91,15 @@ def run_variant(variant: str, *, demos: str, runs: str, steps: int, batch_size: 
     """Train one variant (or reuse it when trained to ``steps``) and evaluate it at the demos' grip-force
     range and at ``shifted_grip``; one torch thread, so variants can run side by side."""
     torch.set_num_threads(1)
-    from controltac_il.pipeline import make_augment
-    from policies.act.deploy import evaluate_in_sim
+    from controltac_il.app import ForceAugmentStage, evaluate_in_sim
+    from envs.config import EVAL_SEED
     from policies.act.training import TrainConfig, train_on_folder
 
     run, copies = Path(runs) / variant, VARIANTS[variant]
     row: dict = {}
     t = time.perf_counter()
     if not _trained(run, steps):
-        augment = make_augment(copies, generator, seed=0, max_copies=max_copies) if copies else None
+        augment = ForceAugmentStage(copies, generator, seed=0, max_copies=max_copies) if copies else None
         summary = train_on_folder(demos, run, preset="cpu", augment=augment, train_config=TrainConfig(
             steps=steps, batch_size=batch_size, val_every=min(500, steps), seed=0),
             resume=(run / "last").is_dir(), progress=False)
@@ -108,7 +108,7 @@ def run_variant(variant: str, *, demos: str, runs: str, steps: int, batch_size: 
     row["train_s"] = time.perf_counter() - t
     for name, grip in (("nominal", None), ("shifted", tuple(shifted_grip))):
         t = time.perf_counter()
-        res = evaluate_in_sim(run, episodes=eval_episodes, seed=100_000, grip_force_range=grip, progress=False)
+        res = evaluate_in_sim(run, episodes=eval_episodes, seed=EVAL_SEED, grip_force_range=grip, progress=False)
         row[f"{name}_success"] = res["success_rate"]
         row[f"{name}_wilson95"] = [round(x, 3) for x in res["wilson95"]]
         row[f"{name}_n"] = res["episodes"]
@@ -118,19 +118,21 @@ def run_variant(variant: str, *, demos: str, runs: str, steps: int, batch_size: 
     return row
 
 
-def _refuse_stale_runs(p, runs: Path, variants: list[str], generator: str | None) -> None:
-    """A policy trained with another generator or augmentation is never reused as this run's: stop early."""
-    from controltac_il.pipeline import make_augment
+def stale_runs(runs: Path, variants: list[str], generator: str | None) -> list[str]:
+    """Why each policy under ``runs`` trained with another generator or augmentation cannot be reused
+    as this run's (empty: all reusable or not trained yet)."""
+    from controltac_il.app import ForceAugmentStage
 
+    stale = []
     for v in variants:
         try:
-            now = make_augment(VARIANTS[v], generator, seed=0).description if VARIANTS[v] else None
+            now = ForceAugmentStage(VARIANTS[v], generator, seed=0).description if VARIANTS[v] else None
         except OSError:
             continue  # no generator: the variant is skipped later
         change = augment_change(run_meta(runs / v).get("augment", now), now)
         if change:
-            p.error(f"--runs: {runs / v} was trained with different augmentation ({change}); "
-                    f"pass another --runs folder or remove that one")
+            stale.append(f"{runs / v} was trained with different augmentation ({change})")
+    return stale
 
 
 def main(argv=None) -> dict:
@@ -160,10 +162,12 @@ def main(argv=None) -> dict:
     if unknown:
         p.error(f"--variants: unknown {unknown}; choose from {list(VARIANTS)}")
 
-    from controltac_il.pipeline import default_demos, make_augment
+    from controltac_il.app import ForceAugmentStage, default_demos
 
     if not args.skip_experiment:
-        _refuse_stale_runs(p, args.runs, variants, args.generator)
+        stale = stale_runs(args.runs, variants, args.generator)
+        if stale:
+            p.error(f"--runs: {stale[0]}; pass another --runs folder or remove that one")
 
     results: dict = {"settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}}
 
@@ -200,7 +204,7 @@ def main(argv=None) -> dict:
             from policies.act import ACTConfig
 
             chunk = ACTConfig.from_preset("cpu").chunk_size  # the split train_on_folder makes below
-            make_augment(max_copies, args.generator, seed=0)(load_training_data(demos, chunk, 0.1, 0).train)
+            ForceAugmentStage(max_copies, args.generator, seed=0)(load_training_data(demos, chunk, 0.1, 0).train)
         except (OSError, ValueError, ImportError) as exc:
             generator_problem = f"{type(exc).__name__}: {exc}"
             print(f"ForceAugment variants skipped, no generator: {generator_problem}")

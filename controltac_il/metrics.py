@@ -1,4 +1,4 @@
-"""Metrics as in the paper: MSE on 0–255 RGB, SSIM, force MAE."""
+"""Metrics as in the paper: MSE on 0–255 RGB, SSIM, force MAE; success rates with their Wilson interval."""
 
 from __future__ import annotations
 
@@ -40,3 +40,15 @@ def force_mae(pred: np.ndarray, true: np.ndarray) -> np.ndarray:
     if pred.shape != true.shape or pred.shape[-1:] != (3,):
         raise ValueError(f"pred and true must both be (..., 3) forces, got {pred.shape} and {true.shape}")
     return np.abs(pred - true).mean(axis=-1)
+
+
+def wilson_interval(successes: int, trials: int) -> tuple[float, float]:
+    """Wilson score 95 % interval (low, high) of a success rate (scipy's); (0, 1) when there are no trials."""
+    from scipy.stats import binomtest
+
+    if trials < 0 or not 0 <= successes <= trials:
+        raise ValueError(f"need 0 <= successes <= trials, got successes={successes}, trials={trials}")
+    if trials == 0:
+        return 0.0, 1.0
+    ci = binomtest(int(successes), int(trials)).proportion_ci(confidence_level=0.95, method="wilson")
+    return float(ci.low), float(ci.high)

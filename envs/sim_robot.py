@@ -1,15 +1,15 @@
-"""The MuJoCo scene behind the hardware interfaces, so the shared control loop drives it like a robot.
+"""The MuJoCo scene as a robot setup, so the shared control loop drives it like an xArm or a UR.
 
-``SimRobot`` owns a ``PegInHoleEnv`` and exposes ``arm`` (:class:`hardware.interfaces.Arm`),
-``gripper`` (``Gripper``), ``cameras`` and ``tactile`` (``FrameSource`` by name) and ``clock``: a
-virtual clock whose ``sleep_until`` advances the physics one control period per period slept,
-applying the latest arm and gripper commands. The loop therefore runs as fast as the simulation
-(no wall-clock waiting), deterministically, with ``ControlLoopConfig(inference="sync")``.
+``SimRobot`` owns a ``PegInHoleEnv`` episode and exposes what ``hardware.config.open_setup`` gives for
+a real robot: ``arm`` (:class:`hardware.interfaces.Arm`), ``gripper``, ``cameras`` and ``tactile``
+(``FrameSource`` by name), ``limits`` (the scene's workspace as SafetyLimits) and ``control``
+(synchronous inference at the scene's rate), plus ``clock``: a virtual clock whose ``sleep_until``
+advances the physics one control period per period slept, applying the latest arm and gripper
+commands. The loop therefore runs as fast as the simulation (no wall-clock waiting), deterministically.
 
     with SimRobot(PegInHoleConfig(), seed=0) as robot:
         loop = ControlLoop(robot.arm, policy, gripper=robot.gripper, cameras=robot.cameras,
-                           tactile=robot.tactile, limits=robot.safety_limits(), clock=robot.clock,
-                           config=ControlLoopConfig(inference="sync"))
+                           tactile=robot.tactile, limits=robot.limits, clock=robot.clock, config=robot.control)
         loop.run(max_steps=120, on_step=lambda step, obs, target: robot.success)
 """
 
@@ -21,6 +21,7 @@ import numpy as np
 
 from envs.config import SENSORS, PegInHoleConfig
 from envs.peg_in_hole import PegInHoleEnv
+from hardware.control_loop import ControlLoopConfig
 from hardware.interfaces import (
     POSE_DIM,
     Arm,
@@ -33,6 +34,10 @@ from hardware.interfaces import (
     SensorError,
     VirtualClock,
 )
+from hardware.safety import SafetyLimits
+
+MAX_STEP_M = 0.03  # per-period translation limit of the simulated arm (the scene's expert moves <= 2 cm)
+MAX_ROTATION_RAD = 0.2  # per-period yaw limit
 
 
 class SimClock(VirtualClock):
@@ -107,6 +112,8 @@ class SimRobot:
 
     config: the scene; cameras and tactile streams are the ones it renders.
     seed: the episode's scene seed (``reset(seed)``).
+    limits: the scene's workspace with per-period limits MAX_STEP_M / MAX_ROTATION_RAD.
+    control: ``ControlLoopConfig(rate_hz=<scene's control_hz>, inference="sync")``.
     After each period: ``last_info`` (the env's info dict), ``success``, ``steps``.
     """
 
@@ -123,6 +130,10 @@ class SimRobot:
         self.cameras = {c: SimFrameSource(self, c, f"images/{c}") for c in cfg.cameras}
         self.tactile = ({s: SimFrameSource(self, s, f"tactile/{s}", self.env.tactile_background(s)) for s in SENSORS}
                         if cfg.tactile else {})
+        self.limits = SafetyLimits(workspace_min=cfg.workspace_low[:3], workspace_max=cfg.workspace_high[:3],
+                                   yaw_min=cfg.workspace_low[3], yaw_max=cfg.workspace_high[3],
+                                   max_step_m=MAX_STEP_M, max_rotation_rad=MAX_ROTATION_RAD)
+        self.control = ControlLoopConfig(rate_hz=cfg.control_hz, inference="sync")
 
     @property
     def success(self) -> bool:
@@ -133,15 +144,6 @@ class SimRobot:
         self.observation, _, _, _, self.last_info = self.env.step(self.command.copy())
         self.steps += 1
         self.frame_time = self.clock.now() + self.clock.period_s
-
-    def safety_limits(self, max_step_m: float = 0.03, max_rotation_rad: float = 0.2):
-        """``SafetyLimits`` matching the scene's workspace (per-period step limits as given)."""
-        from hardware.safety import SafetyLimits
-
-        cfg = self.env.config
-        return SafetyLimits(workspace_min=cfg.workspace_low[:3], workspace_max=cfg.workspace_high[:3],
-                            yaw_min=cfg.workspace_low[3], yaw_max=cfg.workspace_high[3],
-                            max_step_m=max_step_m, max_rotation_rad=max_rotation_rad)
 
     def close(self) -> None:
         self.observation = None
@@ -154,30 +156,3 @@ class SimRobot:
     def __exit__(self, *exc):
         self.close()
 
-
-def run_policy_episode(policy, env_config: PegInHoleConfig | None = None, seed: int = 0, chunk_size: int = 20,
-                       ensemble_k: float = 0.01, max_steps: int | None = None, env: PegInHoleEnv | None = None) -> dict:
-    """Run ``policy`` (``predict_chunk(obs) -> (chunk, 5)``) for one seeded episode through ``ControlLoop``.
-
-    Synchronous inference every step with temporal ensembling; the episode ends at success or after
-    ``max_steps`` (default: the scene's ``max_steps``). ``env`` reuses an existing scene (its config
-    wins). Returns success, steps, inference_ms (per call), stop_reason, safety clamp counts,
-    grip_force_n and insertion_mm.
-    """
-    from hardware.control_loop import ControlLoop, ControlLoopConfig
-
-    with SimRobot(env_config, seed=seed, env=env) as robot:
-        cfg = robot.env.config
-        loop = ControlLoop(
-            robot.arm, policy, gripper=robot.gripper, cameras=robot.cameras, tactile=robot.tactile,
-            limits=robot.safety_limits(), clock=robot.clock,
-            config=ControlLoopConfig(rate_hz=cfg.control_hz, chunk_size=chunk_size, ensemble_k=ensemble_k,
-                                     inference="sync"),
-        )
-        stats = loop.run(max_steps=max_steps or cfg.max_steps, on_step=lambda step, obs, target: robot.success)
-        return {
-            "success": robot.success, "steps": robot.steps, "seed": seed,
-            "inference_ms": [t * 1e3 for t in stats.inference_s], "stop_reason": stats.stop_reason,
-            "safety": stats.safety.as_dict(), "grip_force_n": robot.env.grip_force_n,
-            "insertion_mm": float(robot.last_info.get("insertion_mm", 0.0)),
-        }

@@ -29,9 +29,12 @@ def test_a_policy_trained_with_another_generator_is_refused_by_name(tmp_path, ca
     assert (tmp_path / "fa1" / "last" / "config.json").read_bytes() == before  # left as it was
 
 
-def test_runs_with_the_same_settings_pass_the_check(tmp_path):
+def test_only_runs_with_other_settings_are_stale(tmp_path):
     now = {"kind": "force", "copies": 2, "generator": "shipped",
            "generator_hash": checkpoint_hash(locate_checkpoint(None)), "seed": 0, "steps": None}
-    _fake_run(tmp_path / "fa2", {**now, "summary": {"clamped": 7}})
+    _fake_run(tmp_path / "fa2", {**now, "summary": {"clamped": 7}})  # counts differ: not a setting
     _fake_run(tmp_path / "real", None)
-    bench._refuse_stale_runs(None, tmp_path, ["real", "fa2", "fa4"], None)  # fa4 not trained yet: fine
+    assert bench.stale_runs(tmp_path, ["real", "fa2", "fa4"], None) == []  # fa4 not trained yet: fine
+    _fake_run(tmp_path / "fa1", {**now, "copies": 2, "seed": 3})
+    assert bench.stale_runs(tmp_path, ["real", "fa1", "fa2"], None) == [
+        f"{tmp_path / 'fa1'} was trained with different augmentation (copies: 2 -> 1, seed: 3 -> 0)"]

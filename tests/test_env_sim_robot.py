@@ -4,25 +4,28 @@ import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from envs.config import PegInHoleConfig
 from envs.expert import ScriptedExpert
 from envs.peg_in_hole import PegInHoleEnv
-from envs.sim_robot import SimRobot, run_policy_episode
+from envs.sim_robot import SimRobot
+from hardware.control_loop import ControlLoop
 from hardware.interfaces import ArmFault, SensorError
 
 
 class ExpertPolicy:
-    """The scripted expert behind the policy protocol: one-step chunks."""
+    """The scripted expert as a policy (observation -> chunk): one-step chunks."""
 
     def __init__(self, env, seed):
         self.expert = ScriptedExpert(env)
         self.expert.reset(seed)
         self.observations = []
 
-    def predict_chunk(self, observation):
+    def __call__(self, observation):
         self.observations.append(observation)
         return self.expert.act()[None, :]
 
@@ -35,13 +38,15 @@ def env():
 
 
 def test_control_loop_drives_the_scene_to_success(env):
-    env.reset(seed=4)
-    policy = ExpertPolicy(env, seed=4)  # the expert plans from the freshly reset scene
-    result = run_policy_episode(policy, seed=4, chunk_size=1, env=env)
-    assert result["success"], result
-    assert result["insertion_mm"] >= env.config.success_depth_mm
-    assert result["steps"] < env.config.max_steps
-    assert "on_step ended the run" in result["stop_reason"]
+    with SimRobot(seed=4, env=env) as robot:  # a setup like hardware.config.open_setup's
+        policy = ExpertPolicy(env, seed=4)  # the expert plans from the freshly reset scene
+        loop = ControlLoop(robot.arm, policy, gripper=robot.gripper, cameras=robot.cameras, tactile=robot.tactile,
+                           limits=robot.limits, clock=robot.clock, config=replace(robot.control, chunk_size=1))
+        stats = loop.run(max_steps=env.config.max_steps, on_step=lambda step, obs, target: robot.success)
+        assert robot.success and robot.steps < env.config.max_steps
+        assert robot.last_info["insertion_mm"] >= env.config.success_depth_mm
+    assert "on_step ended the run" in stats.stop_reason
+    assert robot.control.inference == "sync" and robot.control.rate_hz == env.config.control_hz
     obs = policy.observations[-1]
     assert obs["qpos"].shape == (5,) and obs["qpos"].dtype == np.float32
     assert obs["images/wrist"].shape == (48, 64, 3)
@@ -72,7 +77,6 @@ def test_clock_steps_physics_and_devices_follow_commands(env):
         np.testing.assert_allclose(robot.arm.state().pose, state.pose, atol=1e-3)  # stop holds the pose
         with pytest.raises(ArmFault):
             robot.arm.servo([0.0, 0.0, np.nan, 0.0])
-        limits = robot.safety_limits()
-        assert limits.workspace_min == env.config.workspace_low[:3]
+        assert robot.limits.workspace_min == env.config.workspace_low[:3]
     with pytest.raises(SensorError):
         robot.cameras["wrist"].latest()

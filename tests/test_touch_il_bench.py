@@ -97,15 +97,15 @@ def test_quick_grid_writes_cells_picture_and_resumes_without_retraining(tmp_path
 
 
 def test_force_augment_stage_records_only_settings_that_differ_from_the_paper():
-    from controltac_il.pipeline import make_augment
+    from controltac_il.app import ForceAugmentStage
 
-    paper = make_augment(2)
+    paper = ForceAugmentStage(2)
     assert "offset_range" not in paper.description and "out_of_range" not in paper.description
-    assert make_augment(2, offset_range=(-3.0, 10.0)).description == paper.description  # the default, named
-    sym = make_augment(2, offset_range=(-5, 5), out_of_range="skip")
+    assert ForceAugmentStage(2, offset_range=(-3.0, 10.0)).description == paper.description  # the default, named
+    sym = ForceAugmentStage(2, offset_range=(-5, 5), out_of_range="skip")
     assert sym.description["offset_range"] == [-5.0, 5.0] and sym.description["out_of_range"] == "skip"
     with pytest.raises(ValueError, match="offset_range"):
-        make_augment(2, offset_range=(5, -5))
+        ForceAugmentStage(2, offset_range=(5, -5))
 
 
 def test_bad_offset_range_names_the_flag(capsys):

@@ -5,9 +5,9 @@ import json
 import pytest
 import torch
 
-from controltac_il.pipeline import PipelineConfig, run_pipeline, wilson_interval
+from controltac_il.app import PipelineConfig, evaluate_in_sim, run_pipeline
+from controltac_il.metrics import wilson_interval
 from policies.act import ACT, ACTConfig, ACTPolicy
-from policies.act.deploy import evaluate_in_sim
 
 SCENE_SMALL = dict(camera_size=(32, 40), tactile_size=(24, 32), max_steps=4)
 

@@ -1,4 +1,4 @@
-"""Deployment: checks before motion, Wilson interval, the deploy CLI's errors."""
+"""Deployment through the wiring: checks before motion, Wilson interval, the deploy CLI's errors."""
 
 import math
 import sys
@@ -8,9 +8,9 @@ import pytest
 import torch
 
 from act_fixtures import tiny_config
-from controltac_il.pipeline import wilson_interval
+from controltac_il.app.deploy import check_setup, deploy_on_robot, load_policy
+from controltac_il.metrics import wilson_interval
 from policies.act import ACT, ACTPolicy, save_checkpoint
-from policies.act.deploy import check_setup, deploy_on_robot, load_policy
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))  # deploy_policy.py lives at the repository root
@@ -43,9 +43,11 @@ def test_check_setup_names_what_is_missing(checkpoint):
         check_setup(policy, ["third_view"], ["left", "right"])
     with pytest.raises(ValueError, match="tactile sensor 'right'"):
         check_setup(policy, ["third_view", "wrist"], ["left"])
-    with pytest.raises(ValueError, match="dimension 5; the robot takes 7"):
-        check_setup(policy, ["third_view", "wrist"], ["left", "right"], action_dim=7)
     assert isinstance(load_policy(policy), ACTPolicy)
+    torch.manual_seed(0)
+    seven = ACTPolicy(ACT(tiny_config(action_dim=7)))
+    with pytest.raises(ValueError, match="action_dim is 7; the robot's actions"):
+        check_setup(seven, ["third_view", "wrist"], ["left", "right"])
 
 
 def test_robot_deploy_refuses_a_setup_without_a_camera_before_connecting(checkpoint, tmp_path):

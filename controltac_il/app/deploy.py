@@ -1,0 +1,128 @@
+"""Deploy a trained ACT through the robot's control loop: one ``deploy(setup, policy)`` for every robot.
+
+A *setup* is anything with ``arm``, ``gripper``, ``cameras``, ``tactile`` (FrameSource by name),
+``limits`` (SafetyLimits), ``control`` (ControlLoopConfig) and ``clock``: ``hardware.config.open_setup``
+gives one for an xArm or a UR, ``envs.sim_robot.SimRobot`` one for the MuJoCo scene (virtual clock,
+synchronous inference, deterministic). The policy's own chunk size and temporal-ensembling
+coefficient are used; the setup gives the rate and the inference mode.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from controltac_il.metrics import wilson_interval
+from envs.config import EVAL_SEED, SENSORS, scene_config
+from envs.peg_in_hole import PegInHoleEnv
+from envs.sim_robot import SimRobot
+from hardware.config import load_setup, open_setup
+from hardware.control_loop import ControlLoop, LoopStats
+from hardware.interfaces import ACTION_DIM
+from policies.act.policy import ACTPolicy
+from policies.act.training import resolve_checkpoint
+
+
+def load_policy(checkpoint: str | Path | ACTPolicy, device: str = "cpu") -> ACTPolicy:
+    """An :class:`ACTPolicy` from a checkpoint folder or a training output folder (best, else last)."""
+    if isinstance(checkpoint, ACTPolicy):
+        return checkpoint
+    return ACTPolicy.from_pretrained(resolve_checkpoint(checkpoint), device=device)
+
+
+def check_setup(policy: ACTPolicy, cameras, tactile) -> None:
+    """Raise ValueError (before anything moves) when the set-up lacks what the policy expects."""
+    cfg = policy.config
+    missing = [f"camera {c!r}" for c in cfg.camera_names if c not in cameras]
+    missing += [f"tactile sensor {s!r}" for s in cfg.tactile_names if s not in tactile]
+    if missing:
+        raise ValueError(f"the set-up has no {', '.join(missing)} that the checkpoint expects "
+                         f"(set-up: cameras {sorted(cameras)}, tactile {sorted(tactile)})")
+    for name, dim in (("action_dim", cfg.action_dim), ("state_dim", cfg.state_dim)):
+        if dim != ACTION_DIM:
+            raise ValueError(f"the checkpoint's {name} is {dim}; the robot's actions and qpos are "
+                             f"[x, y, z, yaw, gripper] ({ACTION_DIM})")
+
+
+def deploy(setup, policy: ACTPolicy, max_steps: int | None = None, stop_when=None) -> LoopStats:
+    """Run ``policy`` on ``setup`` through :class:`ControlLoop` until ``max_steps`` or ``stop_when()``.
+
+    The checkpoint and the set-up are checked against each other before anything moves; the loop stops
+    the arm on Ctrl-C, a fault, a stale frame or a late policy. Returns the loop's statistics.
+    """
+    check_setup(policy, setup.cameras, setup.tactile)
+    control = replace(setup.control, chunk_size=policy.config.chunk_size,
+                      ensemble_k=policy.config.temporal_ensemble_coeff)
+    loop = ControlLoop(setup.arm, policy, gripper=setup.gripper, cameras=setup.cameras, tactile=setup.tactile,
+                       limits=setup.limits, clock=setup.clock, config=control)
+    on_step = (lambda step, obs, target: stop_when()) if stop_when is not None else None
+    return loop.run(max_steps=max_steps, on_step=on_step)
+
+
+def run_sim_episode(policy: ACTPolicy, env: PegInHoleEnv, seed: int) -> dict:
+    """One seeded scene episode through :func:`deploy`; ends at success or after the scene's max_steps.
+
+    Returns success, steps, seed, inference_ms (per call), stop_reason, safety clamp counts,
+    grip_force_n and insertion_mm.
+    """
+    with SimRobot(seed=seed, env=env) as robot:
+        stats = deploy(robot, policy, max_steps=env.config.max_steps, stop_when=lambda: robot.success)
+        return {"success": robot.success, "steps": robot.steps, "seed": seed,
+                "inference_ms": [t * 1e3 for t in stats.inference_s], "stop_reason": stats.stop_reason,
+                "safety": stats.safety.as_dict(), "grip_force_n": env.grip_force_n,
+                "insertion_mm": float(robot.last_info.get("insertion_mm", 0.0))}
+
+
+def evaluate_in_sim(checkpoint, episodes: int = 50, seed: int = EVAL_SEED,
+                    grip_force_range: tuple[float, float] | None = None, env_overrides: dict | None = None,
+                    progress: bool = True, scene: str = "default") -> dict:
+    """Success rate of the policy over ``episodes`` seeded scene episodes (seeds seed .. seed+episodes-1).
+
+    grip_force_range: per-finger grip force range (N) of the test episodes; None = the scene's (the
+        range the demos were collected with). env_overrides: other PegInHoleConfig fields.
+    scene: "default" or "touch_critical" (``envs.config.scene_config``).
+    Returns successes, episodes, success_rate, wilson95 and per-episode outcomes.
+    """
+    policy = load_policy(checkpoint)
+    overrides = dict(env_overrides or {})
+    if grip_force_range is not None:
+        overrides["grip_force_range_n"] = tuple(grip_force_range)
+    env_config = scene_config(scene, **overrides)
+    check_setup(policy, env_config.cameras, SENSORS if env_config.tactile else ())
+    outcomes, inference_ms, clamps = [], [], {}
+    with PegInHoleEnv(env_config) as env:
+        bar = tqdm(range(episodes), desc="evaluate", disable=not progress, dynamic_ncols=True)
+        for i in bar:
+            try:
+                r = run_sim_episode(policy, env, seed + i)
+                r["error"] = None
+            except Exception as exc:  # a fault ends the episode as a failure; the loop has stopped the devices
+                r = {"seed": seed + i, "success": False, "steps": None, "inference_ms": [], "safety": {},
+                     "error": f"{type(exc).__name__}: {exc}"}
+            inference_ms.extend(r.pop("inference_ms"))
+            for k, v in r.pop("safety").items():
+                clamps[k] = clamps.get(k, 0) + v
+            outcomes.append(r)
+            bar.set_postfix(success=f"{sum(o['success'] for o in outcomes)}/{len(outcomes)}")
+    k = sum(o["success"] for o in outcomes)
+    return {"successes": k, "episodes": episodes, "success_rate": k / episodes if episodes else 0.0,
+            "wilson95": list(wilson_interval(k, episodes)), "grip_force_range_n": list(env_config.grip_force_range_n),
+            "inference_ms_p50": float(np.median(inference_ms)) if inference_ms else None,
+            "safety_clamps": clamps, "errors": sum(o["error"] is not None for o in outcomes), "outcomes": outcomes}
+
+
+def deploy_on_robot(kind: str, checkpoint, setup_yaml: str | Path, max_steps: int | None = None) -> dict:
+    """Run the policy on the robot described by ``setup_yaml`` (``hardware/configs/*.yaml``).
+
+    Checked before any device is connected; returns the loop's deadline statistics.
+    """
+    setup_cfg = load_setup(setup_yaml)
+    if setup_cfg.robot.type != kind:
+        raise ValueError(f"--robot {kind}, but {setup_yaml} describes robot.type {setup_cfg.robot.type!r}")
+    policy = load_policy(checkpoint)
+    check_setup(policy, setup_cfg.cameras, setup_cfg.tactile)
+    with open_setup(setup_cfg) as setup:
+        return deploy(setup, policy, max_steps=max_steps).summary()

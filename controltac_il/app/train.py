@@ -1,0 +1,27 @@
+"""``train_act.py``'s job: train ACT on a folder of episodes (default: the scene's demos), optionally
+with ForceAugment copies of every training episode."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from controltac_il.app.augment_stage import ForceAugmentStage
+from controltac_il.app.demos import default_demos
+from policies.act.training import TrainConfig, train_on_folder
+
+
+def train_act(out: str | Path, dataset: str | Path | None = None, *, demos: int = 20, preset: str = "cpu",
+              train_config: TrainConfig | None = None, copies: int = 0, generator: str | Path | None = None,
+              val_fraction: float = 0.1, chunk_size: int = 20, resume: bool = False,
+              progress: bool = True) -> dict:
+    """Train into ``out`` (``last/``, ``best/``, ``train_log.json``); returns the training summary.
+
+    dataset: folder of ``episode_<i>.hdf5``; None collects (or reuses) ``demos`` scripted demos.
+    copies: ForceAugment copies per training episode (0 = real data only), drawn with the training seed.
+    """
+    train_config = train_config or TrainConfig()
+    if dataset is None:
+        dataset = default_demos(demos)
+    augment = ForceAugmentStage(copies, generator, seed=train_config.seed) if copies else None
+    return train_on_folder(dataset, out, preset=preset, train_config=train_config, val_fraction=val_fraction,
+                           augment=augment, resume=resume, chunk_size=chunk_size, progress=progress)
