@@ -215,8 +215,6 @@ def vision_check(seeds=range(20), offsets_mm=(-8.0, -5.0, 5.0, 8.0)) -> dict:
     from envs.config import PegInHoleConfig
     from envs.peg_in_hole import PegInHoleEnv  # before mujoco: it selects the headless GL backend
 
-    import mujoco
-
     cfg = PegInHoleConfig.touch_critical(tactile_noise=False)
     diffs = {c: 0 for c in cfg.cameras}
     columns = []
@@ -232,9 +230,7 @@ def vision_check(seeds=range(20), offsets_mm=(-8.0, -5.0, 5.0, 8.0)) -> dict:
                         env.step(a)
                 images, cols = {c: [] for c in cfg.cameras}, []
                 for off in offsets_mm:
-                    env.data.qpos[env._peg_qpos] = env.tcp_pose()[0] + off / 1000.0
-                    env.data.qvel[:] = 0.0
-                    mujoco.mj_forward(env.model, env.data)
+                    env.set_peg_offset_in_hand(off / 1000.0)
                     for c in cfg.cameras:
                         images[c].append(env.render_camera(c).astype(np.int16))
                     residual = np.clip(env.render_tactile("left").astype(np.int16)

@@ -3,9 +3,10 @@
 Modules (one job each)::
 
     config.py       PegInHoleConfig: what is rendered, sizes, randomisation ranges, workspace
-    scene.py        builds the MJCF (assets/peg_in_hole.xml) plus the receptacle sized from the config
+    scene.py        builds the MJCF (assets/peg_in_hole.xml including assets/tactile_gripper.xml) plus
+                    the receptacle sized from the config
     tactile_rig.py  pinhole ray casting (mj_multiRay) -> penetration map; pad contact forces
-    peg_in_hole.py  PegInHoleEnv: reset(seed) / step(action) Gymnasium-style
+    peg_in_hole.py  PegInHoleEnv, a gymnasium.Env (also gymnasium.make("envs.peg_in_hole:PegInHole-v0"))
     expert.py       ScriptedExpert: approach, grasp, lift, carry, align, insert, with injected noise
     collect.py      python -m envs.collect --episodes 50 --out DIR  (ACT HDF5 episodes)
     sim_robot.py    the scene behind hardware.interfaces (Arm, Gripper, FrameSource) for ControlLoop

@@ -1,15 +1,19 @@
-"""``PegInHoleEnv``: Gymnasium-style MuJoCo peg-in-hole scene with tactile fingers.
+"""``PegInHoleEnv``: the MuJoCo peg-in-hole scene with tactile fingers as a ``gymnasium.Env``.
 
-Action (5,): absolute end-effector target [x, y, z, yaw] (m, rad; TCP between the gel centres,
-world frame) and a gripper command in [0, 1] (0 = open, 1 = closed): the action space of the robot
-adapters. Within one control step the servo target moves linearly from the previous target to the
-new one (the robot's own interpolation), then holds.
+Action (5,) (``action_space``, a float64 Box): absolute end-effector target [x, y, z, yaw] (m, rad; TCP
+between the gel centres, world frame) and a gripper command in [0, 1] (0 = open, 1 = closed): the
+action space of the robot adapters. Its bounds are the model's: the hand actuators' ``ctrlrange``
+(the config's workspace) and, for the gripper, the fingers' ``ctrlrange`` mapped to [0, 1]. Within
+one control step the servo target moves linearly from the previous target to the new one (the
+robot's own interpolation), then holds.
 
-Observation dict:
+Observation dict (``observation_space``, a ``spaces.Dict`` of exactly these keys):
     qpos            float32 (5,): TCP [x, y, z, yaw] and gripper closure in [0, 1]
     images/<cam>    uint8 (H, W, 3) for each configured camera
     tactile/<s>     uint8 (H, W, 3) for s in ("left", "right") when ``config.tactile``
     force/<s>       float32 (3,): [Fx, Fy, Fz] N on each gel in its sensor frame (Fz > 0 pressing)
+
+``render_mode="rgb_array"``: ``render()`` returns the third-view camera's image (``camera_size``).
 """
 
 from __future__ import annotations
@@ -19,47 +23,75 @@ import math
 import os
 from concurrent.futures import ThreadPoolExecutor
 
+import gymnasium as gym
 import numpy as np
+from gymnasium import spaces
 
 os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must precede the first mujoco import
 os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 import mujoco  # noqa: E402
 
 from envs.config import SENSORS, PegInHoleConfig  # noqa: E402
-from envs.scene import build_model, rim_height_m  # noqa: E402
+from envs.scene import HAND_ACTUATORS, build_model, rim_height_m  # noqa: E402
 from envs.tactile_rig import PadRays, group_mask, pad_force  # noqa: E402
 
 PEG_RADIUS_M = 0.0125
 PEG_HALF_LENGTH_M = 0.04
-FINGER_OPEN_M = 0.03  # gel surface distance from the TCP plane, gripper command 0
-FINGER_CLOSED_M = 0.004  # servo target at command 1 (inside the peg: the grip force saturates)
 PEG_RAYS = group_mask(1)  # the peg's geom group
 WORLD_RAYS = group_mask(0, 3)  # table, hole floor, gripper (0) and the receptacle's collision walls (3)
-HOME = (0.0, 0.0, 0.15, 0.0)
+RENDER_CAMERA = "third_view"  # what render() shows
 
 
-class PegInHoleEnv:
+class PegInHoleEnv(gym.Env):
     """MuJoCo peg-in-hole scene. See the module docstring for the action and observation spaces.
 
-    Episode randomisation (seeded by ``reset(seed=...)``): peg position and yaw, hole position,
-    grip force (``config.grip_force_range_n``); the in-hand offset comes from where the policy
-    grasps, or, with ``config.peg_in_hand``, is drawn (``in_hand_offset_m``, privileged). ``info`` holds ``success``, ``clipped`` (the target was outside the workspace or the
-    gripper command outside [0, 1]), ``grip_force_n``, ``insertion_mm`` and ``max_penetration_mm``
-    (deepest peg contact with the receptacle or table).
+    config: the scene (``PegInHoleConfig``); render_mode: None or "rgb_array" (``render()``).
+    Episode randomisation (``reset(seed=...)``, drawn from ``np_random``): peg position and yaw, hole
+    position, grip force (``config.grip_force_range_n``); the in-hand offset comes from where the
+    policy grasps, or, with ``config.peg_in_hand``, is drawn (``in_hand_offset_m``, privileged).
+    ``info`` holds ``success``, ``clipped`` (the action was outside ``action_space``: a target outside
+    the workspace or a gripper command outside [0, 1]), ``grip_force_n``, ``insertion_mm``,
+    ``max_penetration_mm`` (deepest peg contact with the receptacle or table) and ``episode_seed``.
+    A context manager: leaving the ``with`` block calls ``close()``.
     """
 
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
     action_dim = 5
     qpos_dim = 5
 
-    def __init__(self, config: PegInHoleConfig | None = None):
+    def __init__(self, config: PegInHoleConfig | None = None, render_mode: str | None = None):
         self.config = config or PegInHoleConfig()
         cfg = self.config
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
+        self.render_mode = render_mode
+        self.metadata = {**self.metadata, "render_fps": cfg.control_hz}
         self.model = build_model(cfg.hole_diameter_mm, cfg.hole_depth_mm, cfg.ring_segments, cfg.camera_size,
-                                 cfg.hole_chamfer_mm, cfg.camera_layout)
+                                 cfg.hole_chamfer_mm, cfg.camera_layout, (cfg.workspace_low, cfg.workspace_high))
         self.data = mujoco.MjData(self.model)
+        self._index_model()
+        self.action_space, self.observation_space = self._spaces()
+        self._renderer = None
+        if cfg.cameras or render_mode == "rgb_array":
+            self._renderer = mujoco.Renderer(self.model, cfg.camera_size[0], cfg.camera_size[1])
+        self._sensors: dict = {}
+        self._rays: dict[str, PadRays] = {}
+        self._backgrounds: dict[str, np.ndarray] = {}
+        if cfg.tactile:
+            self._init_tactile()
+        self._pool = ThreadPoolExecutor(len(SENSORS), thread_name_prefix="tactile") if cfg.tactile else None
+        self._episode_seed = 0
+        self.hole_xy = np.zeros(2)
+        self.grip_force_n = 0.0
+        self.in_hand_offset_m: float | None = None
+        self._target = np.array([*self._home, 0.0])
+        self._steps = 0
+        self._warnings = 0
+
+    def _index_model(self) -> None:
+        """Look up the ids and addresses the env reads and writes, and the home keyframe."""
         m = self.model
-        self._jnt = {n: m.joint(n).qposadr[0] for n in
-                     ("hand_x", "hand_y", "hand_z", "hand_yaw", "left_finger", "right_finger")}
+        self._jnt = {n: m.joint(n).qposadr[0] for n in (*HAND_ACTUATORS, "left_finger", "right_finger")}
         self._act = {m.actuator(i).name: i for i in range(m.nu)}
         self._peg_body = m.body("peg").id
         self._peg_qpos = m.joint("peg").qposadr[0]
@@ -70,55 +102,73 @@ class PegInHoleEnv:
         self._finger_body = {s: m.body(f"{s}_finger").id for s in SENSORS}
         # contact sensors (MJCF): [found, dist] of the peg's deepest contact with receptacle / table
         self._contact_dist = [m.sensor_adr[m.sensor(n).id] + 1 for n in ("peg_receptacle", "peg_table")]
-        self._pose_act = [self._act[n] for n in ("hand_x", "hand_y", "hand_z", "hand_yaw")]
+        self._pose_act = [self._act[n] for n in HAND_ACTUATORS]
         self._finger_act = [self._act[f"{s}_finger"] for s in SENSORS]
-        self._low = np.array(cfg.workspace_low)
-        self._high = np.array(cfg.workspace_high)
-        self._renderer = None
-        if cfg.cameras:
-            self._renderer = mujoco.Renderer(m, cfg.camera_size[0], cfg.camera_size[1])
-        self._sensors: dict = {}
-        self._rays: dict[str, PadRays] = {}
-        self._backgrounds: dict[str, np.ndarray] = {}
-        if cfg.tactile:
-            from controltac_il.tactile import SensorSpec, TactileSensor
+        # gripper command 0 / 1 = the finger servos' open / closed target (gel surface from the TCP
+        # plane; closed lies inside the peg, so a grasp saturates at the grip force)
+        self._finger_closed, self._finger_open = (float(v) for v in m.actuator_ctrlrange[self._finger_act[0]])
+        self._home_key = m.key("home").id
+        self._home = m.key_qpos[self._home_key][[self._jnt[n] for n in HAND_ACTUATORS]].copy()
 
-            spec = SensorSpec.gelsight_mini().scaled(*cfg.tactile_size)
-            flat = np.zeros(cfg.tactile_size, np.float32)
-            quiet_spec = dataclasses.replace(spec, noise_std=0.0)
-            for k, s in enumerate(SENSORS):
-                quiet = TactileSensor(quiet_spec, optics=cfg.tactile_optics)
-                self._sensors[s] = TactileSensor(spec, optics=cfg.tactile_optics, seed=k) if cfg.tactile_noise else quiet
-                self._rays[s] = PadRays(m, self.data, f"{s}_sensor", cfg.tactile_size, spec.pad_size_mm,
-                                        cfg.ray_stride)
-                # no-contact frame = the optics over a flat gel without noise (the optics' flat-gel
-                # response is not exactly the raw background for every optics model)
-                self._backgrounds[s] = quiet.render_penetration(flat)
-        self._pool = ThreadPoolExecutor(len(SENSORS), thread_name_prefix="tactile") if cfg.tactile else None
-        self._rng = np.random.default_rng()
-        self._episode_seed = 0
-        self.hole_xy = np.zeros(2)
-        self.grip_force_n = 0.0
-        self.in_hand_offset_m: float | None = None
-        self._target = np.array([*HOME, 0.0])
-        self._steps = 0
-        self._warnings = 0
+    def _spaces(self) -> tuple[spaces.Box, spaces.Dict]:
+        """Action space from the actuators' ctrlrange; observation space of the keys ``_observe`` returns."""
+        cfg = self.config
+        ctrl = self.model.actuator_ctrlrange[self._pose_act]
+        action = spaces.Box(np.array([*ctrl[:, 0], 0.0]), np.array([*ctrl[:, 1], 1.0]), dtype=np.float64)
+        inf = np.inf
+        obs = {"qpos": spaces.Box(np.array([-inf, -inf, -inf, -inf, 0.0], np.float32),
+                                  np.array([inf, inf, inf, inf, 1.0], np.float32), dtype=np.float32)}
+        for cam in cfg.cameras:
+            obs[f"images/{cam}"] = spaces.Box(0, 255, (*cfg.camera_size, 3), dtype=np.uint8)
+        for s in SENSORS:
+            if cfg.tactile:
+                obs[f"tactile/{s}"] = spaces.Box(0, 255, (*cfg.tactile_size, 3), dtype=np.uint8)
+            obs[f"force/{s}"] = spaces.Box(-inf, inf, (3,), dtype=np.float32)
+        return action, spaces.Dict(obs)
+
+    def _init_tactile(self) -> None:
+        """One sensor model, ray caster and no-contact background per finger."""
+        from controltac_il.tactile import SensorSpec, TactileSensor
+
+        cfg = self.config
+        spec = SensorSpec.gelsight_mini().scaled(*cfg.tactile_size)
+        flat = np.zeros(cfg.tactile_size, np.float32)
+        quiet_spec = dataclasses.replace(spec, noise_std=0.0)
+        for k, s in enumerate(SENSORS):
+            quiet = TactileSensor(quiet_spec, optics=cfg.tactile_optics)
+            self._sensors[s] = TactileSensor(spec, optics=cfg.tactile_optics, seed=k) if cfg.tactile_noise else quiet
+            self._rays[s] = PadRays(self.model, self.data, f"{s}_sensor", cfg.tactile_size, spec.pad_size_mm,
+                                    cfg.ray_stride)
+            # no-contact frame = the optics over a flat gel without noise (the optics' flat-gel
+            # response is not exactly the raw background for every optics model)
+            self._backgrounds[s] = quiet.render_penetration(flat)
 
     # ------------------------------------------------------------------ episode
-    def reset(self, seed: int | None = None) -> tuple[dict, dict]:
-        """Start an episode; returns (observation, info). ``seed`` fixes every random draw."""
-        if seed is not None:
-            self._rng = np.random.default_rng(seed)
-            self._episode_seed = int(seed)
-        else:
-            self._episode_seed = int(self._rng.integers(2**31))
+    def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        """Start an episode; returns (observation, info). ``seed`` seeds ``np_random`` and so fixes
+        every random draw (None: continue the current generator). No ``options`` are defined."""
+        if options:
+            raise ValueError(f"PegInHoleEnv.reset takes no options, got {options!r}")
+        super().reset(seed=seed)
+        self._episode_seed = int(seed) if seed is not None else int(self.np_random.integers(2**31))
+        self._start_episode()
+        self._steps = 0
+        self._warnings = self._warning_count()
+        info = {"success": False, "clipped": False, "grip_force_n": self.grip_force_n,
+                "insertion_mm": self.insertion_mm(), "max_penetration_mm": 0.0, "episode_seed": self._episode_seed}
+        if self.config.peg_in_hand:
+            info["in_hand_offset_mm"] = self.in_hand_offset_m * 1000.0
+        return self._observe(), info
+
+    def _start_episode(self) -> None:
+        """Draw the episode from ``np_random``, pose the scene from the home keyframe, let it settle."""
         cfg, m, d = self.config, self.model, self.data
-        rng = self._rng
+        rng = self.np_random
         peg_xy = np.array([rng.uniform(*cfg.peg_xy_range_m[0]), rng.uniform(*cfg.peg_xy_range_m[1])])
         peg_yaw = rng.uniform(*cfg.peg_yaw_range_rad)
         self.hole_xy = np.array([rng.uniform(*cfg.hole_xy_range_m[0]), rng.uniform(*cfg.hole_xy_range_m[1])])
         self.grip_force_n = float(rng.uniform(*cfg.grip_force_range_n))
-        mujoco.mj_resetData(m, d)
+        mujoco.mj_resetDataKeyframe(m, d, self._home_key)  # hand at home, fingers open, peg upright
         m.body_pos[self._receptacle] = [*self.hole_xy, 0.0]
         for s in SENSORS:
             m.actuator_forcerange[self._act[f"{s}_finger"]] = [-self.grip_force_n, self.grip_force_n]
@@ -127,36 +177,30 @@ class PegInHoleEnv:
         if cfg.peg_in_hand:
             # hand over the start point, peg between the closed fingers, its axis off the TCP along the gel
             self.in_hand_offset_m = float(rng.choice((-1.0, 1.0)) * rng.uniform(*cfg.in_hand_offset_mm)) / 1000.0
-            home = (*peg_xy, HOME[2], 0.0)
-            top = HOME[2] + cfg.grasp_depth_mm / 1000.0
+            home = np.array([*peg_xy, self._home[2], self._home[3]])
+            top = home[2] + cfg.grasp_depth_mm / 1000.0
             d.qpos[q:q + 3] = [peg_xy[0] + self.in_hand_offset_m, peg_xy[1], top - PEG_HALF_LENGTH_M]
-            fingers, closing = PEG_RADIUS_M, 1.0
+            d.qpos[self._jnt["left_finger"]] = d.qpos[self._jnt["right_finger"]] = PEG_RADIUS_M
+            closing = 1.0
         else:
             self.in_hand_offset_m = None
-            home = HOME
+            home = self._home
             d.qpos[q:q + 3] = [*peg_xy, PEG_HALF_LENGTH_M]
-            fingers, closing = FINGER_OPEN_M, 0.0
-        for name, value in zip(("hand_x", "hand_y", "hand_z", "hand_yaw"), home):
+            closing = 0.0  # the keyframe's fingers are open
+        for name, value in zip(HAND_ACTUATORS, home):
             d.qpos[self._jnt[name]] = value
-        d.qpos[self._jnt["left_finger"]] = d.qpos[self._jnt["right_finger"]] = fingers
         self._target = np.array([*home, closing])
         d.ctrl[:] = self._ctrl_vector(self._target)
         mujoco.mj_forward(m, d)
         for _ in range(cfg.substeps):  # let the peg settle on the table or in the grip
             mujoco.mj_step(m, d)
-        self._steps = 0
-        self._warnings = self._warning_count()
-        info = {"success": False, "clipped": False, "grip_force_n": self.grip_force_n,
-                "insertion_mm": self.insertion_mm(), "max_penetration_mm": 0.0, "episode_seed": self._episode_seed}
-        if cfg.peg_in_hand:
-            info["in_hand_offset_mm"] = self.in_hand_offset_m * 1000.0
-        return self._observe(), info
 
     def step(self, action) -> tuple[dict, float, bool, bool, dict]:
         """Apply one control step; returns (observation, reward, terminated, truncated, info).
 
-        Raises ValueError on an action that is not 5 finite numbers. Targets outside the workspace
-        and gripper commands outside [0, 1] are clipped and flagged in ``info["clipped"]``.
+        Raises ValueError on an action that is not 5 finite numbers. An action outside
+        ``action_space`` is clipped to it (the target the servos then hold, ``command``) and flagged
+        in ``info["clipped"]``; the actuators' ctrlrange bounds the controls in the model as well.
         """
         target, clipped = self.check_action(action)
         m, d = self.model, self.data
@@ -182,7 +226,7 @@ class PegInHoleEnv:
         return self._observe(), float(success), success, truncated, info
 
     def check_action(self, action) -> tuple[np.ndarray, bool]:
-        """Validate an action; returns (clipped float64 (5,), whether anything was clipped)."""
+        """Validate an action; returns (float64 (5,) clipped to ``action_space``, whether it was clipped)."""
         try:
             a = np.asarray(action, dtype=np.float64)
         except (TypeError, ValueError):
@@ -191,10 +235,14 @@ class PegInHoleEnv:
             raise ValueError(f"action must have shape (5,) = [x, y, z, yaw, gripper], got shape {a.shape}")
         if not np.isfinite(a).all():
             raise ValueError(f"action must be finite, got {a.tolist()}")
-        out = a.copy()
-        out[:4] = np.clip(a[:4], self._low, self._high)
-        out[4] = min(max(a[4], 0.0), 1.0)
+        out = np.clip(a, self.action_space.low, self.action_space.high)
         return out, bool((out != a).any())
+
+    def render(self) -> np.ndarray | None:
+        """uint8 (H, W, 3) third-view camera image with ``render_mode="rgb_array"``; None without a render mode."""
+        if self.render_mode is None:
+            return None
+        return self.render_camera(RENDER_CAMERA)
 
     def close(self) -> None:
         """Free the renderer (the GL context) and the tactile worker threads."""
@@ -204,12 +252,6 @@ class PegInHoleEnv:
         if self._pool is not None:
             self._pool.shutdown(wait=True)
             self._pool = None
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
 
     # ------------------------------------------------------------------ state
     @property
@@ -224,7 +266,7 @@ class PegInHoleEnv:
     def gripper_closure(self) -> float:
         """Mean finger closure in [0, 1] (0 = fully open)."""
         q = 0.5 * (self.data.qpos[self._jnt["left_finger"]] + self.data.qpos[self._jnt["right_finger"]])
-        return float(np.clip((FINGER_OPEN_M - q) / (FINGER_OPEN_M - FINGER_CLOSED_M), 0.0, 1.0))
+        return float(np.clip((self._finger_open - q) / (self._finger_open - self._finger_closed), 0.0, 1.0))
 
     def peg_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """Peg centre position (3,) m and rotation matrix (3, 3), world frame (privileged)."""
@@ -234,6 +276,27 @@ class PegInHoleEnv:
         """World position (3,) of the centre of the peg's bottom face."""
         pos, rot = self.peg_pose()
         return pos - rot[:, 2] * PEG_HALF_LENGTH_M
+
+    def peg_offset_in_hand(self) -> float:
+        """Offset (m) of the peg's centre from the TCP along the gel: the hand's x axis, the tactile
+        images' columns (privileged; ``in_hand_offset_m`` is the offset the episode started with)."""
+        q, tcp = self._peg_qpos, self.tcp_pose()
+        c, s = math.cos(tcp[3]), math.sin(tcp[3])
+        return float(c * (self.data.qpos[q] - tcp[0]) + s * (self.data.qpos[q + 1] - tcp[1]))
+
+    def set_peg_offset_in_hand(self, offset_m: float) -> None:
+        """Slide the peg along the gel (the hand's x axis) so its centre is ``offset_m`` off the TCP,
+        keeping its height, orientation and position across the gel, and nothing else changed: velocities
+        are zeroed and positions, contacts and sensors recomputed (``mj_forward``) without advancing
+        time. For probes that render one hand pose with the held peg at several offsets
+        (``benchmarks.touch_il.vision_check``). ``in_hand_offset_m`` keeps the episode's drawn value."""
+        q, tcp, d = self._peg_qpos, self.tcp_pose(), self.data
+        c, s = math.cos(tcp[3]), math.sin(tcp[3])
+        across = -s * (d.qpos[q] - tcp[0]) + c * (d.qpos[q + 1] - tcp[1])
+        d.qpos[q] = tcp[0] + c * offset_m - s * across
+        d.qpos[q + 1] = tcp[1] + s * offset_m + c * across
+        d.qvel[:] = 0.0
+        mujoco.mj_forward(self.model, d)
 
     def insertion_mm(self) -> float:
         """How far the peg's bottom is below the rim (mm) while it is inside the hole's radius; else 0."""
@@ -347,7 +410,7 @@ class PegInHoleEnv:
         """Actuator controls (nu,) for an action [x, y, z, yaw, gripper]."""
         ctrl = np.empty(self.model.nu)
         ctrl[self._pose_act] = target[:4]
-        ctrl[self._finger_act] = FINGER_OPEN_M - target[4] * (FINGER_OPEN_M - FINGER_CLOSED_M)
+        ctrl[self._finger_act] = self._finger_open - target[4] * (self._finger_open - self._finger_closed)
         return ctrl
 
     def _peg_static_penetration(self) -> float:
@@ -357,3 +420,8 @@ class PegInHoleEnv:
 
     def _warning_count(self) -> int:
         return int(self.data.warning.number.sum())
+
+
+# gymnasium.make("envs.peg_in_hole:PegInHole-v0", config=..., render_mode=...) imports this module and
+# builds the env (episodes end by the env's own success / max_steps, so no TimeLimit is added)
+gym.register(id="PegInHole-v0", entry_point="envs.peg_in_hole:PegInHoleEnv")

@@ -1,4 +1,10 @@
-"""Build the peg-in-hole MuJoCo model: the MJCF asset plus a receptacle sized from the config.
+"""Build the peg-in-hole MuJoCo model: the MJCF assets plus a receptacle sized from the config.
+
+assets/peg_in_hole.xml is the scene (table, peg, third-view camera, the "home" keyframe); it includes
+assets/tactile_gripper.xml, the robot on its own (hand servos, fingers, gels, wrist camera, sites
+"tcp" and "<finger>_sensor"), in the MuJoCo Menagerie layout: default classes for visual and
+collision geoms, actuator ``ctrlrange`` bounding every command (``build_model`` writes the config's
+workspace into the hand servos' ranges).
 
 The receptacle is a base plate and a ring of ``ring_segments`` wall boxes whose inner faces are
 tangent to a circle of the hole's diameter (a regular polygon inscribed around the hole): boxes
@@ -22,6 +28,7 @@ ASSET = Path(__file__).resolve().parent / "assets" / "peg_in_hole.xml"
 
 WALL_THICKNESS_M = 0.012  # radial thickness of each wall box
 BASE_THICKNESS_M = 0.008  # plate under the hole (its top is the hole's floor)
+HAND_ACTUATORS = ("hand_x", "hand_y", "hand_z", "hand_yaw")  # the gripper's pose servos, in action order
 
 
 def build_model(
@@ -31,38 +38,48 @@ def build_model(
     render_size: tuple[int, int] = (96, 128),
     chamfer_mm: float = 0.0,
     camera_layout: str = "side",
+    workspace: tuple[tuple[float, ...], tuple[float, ...]] | None = None,
 ) -> mujoco.MjModel:
-    """Compile the scene, filling the MJCF's ``receptacle`` body (at the origin; moved per episode).
+    """Compile the scene (assets/peg_in_hole.xml, which includes the gripper, assets/tactile_gripper.xml),
+    filling the MJCF's ``receptacle`` body (at the origin; moved per episode).
 
     hole_diameter_mm: diameter of the inscribed circle of the wall polygon (mm).
     hole_depth_mm: from the rim to the floor (mm).
     chamfer_mm: width (= height) of the 45° lead-in chamfer at the rim (mm); 0 = a sharp rim.
     render_size: largest (height, width) any camera renders, sizes the offscreen buffer.
     camera_layout: "side" (the MJCF's cameras) or "occluding" (see ``occlude_held_peg``).
+    workspace: ((x, y, z, yaw) low, (x, y, z, yaw) high) bounds of the hand's servo targets, written
+        into the hand actuators' ``ctrlrange``; None keeps the gripper MJCF's reach.
     """
     spec = mujoco.MjSpec.from_file(str(ASSET))
     if camera_layout == "occluding":
         occlude_held_peg(spec)
     elif camera_layout != "side":
         raise ValueError(f"camera_layout must be 'side' or 'occluding', got {camera_layout!r}")
-    r = hole_diameter_mm / 2000.0
-    depth = hole_depth_mm / 1000.0
+    if workspace is not None:
+        for k, name in enumerate(HAND_ACTUATORS):
+            spec.actuator(name).ctrlrange = [float(workspace[0][k]), float(workspace[1][k])]
+    add_receptacle(spec, hole_diameter_mm / 2000.0, hole_depth_mm / 1000.0, ring_segments, chamfer_mm / 1000.0)
+    h, w = render_size
+    spec.visual.global_.offheight = max(int(h), 1)
+    spec.visual.global_.offwidth = max(int(w), 1)
+    return spec.compile()
+
+
+def add_receptacle(spec: mujoco.MjSpec, r: float, depth: float, ring_segments: int, c: float) -> None:
+    """Fill the ``receptacle`` body: floor plate, wall ring (and chamfer ring when ``c`` > 0) of
+    collision boxes (class "static", group 3) and the visual tube. r: hole radius, depth: rim to
+    floor, c: chamfer width (m)."""
     body = spec.body("receptacle")
     outer = r + WALL_THICKNESS_M
     static = spec.find_default("static")
-    body.add_geom(
-        name="hole_floor", type=mujoco.mjtGeom.mjGEOM_BOX, size=[outer, outer, BASE_THICKNESS_M / 2],
-        pos=[0.0, 0.0, BASE_THICKNESS_M / 2], contype=1, conaffinity=0, priority=1,
-        solref=static.geom.solref, solimp=static.geom.solimp, friction=static.geom.friction,
-        rgba=[0.45, 0.35, 0.28, 1.0],
-    )
+    body.add_geom(default=static, name="hole_floor", type=mujoco.mjtGeom.mjGEOM_BOX,
+                  size=[outer, outer, BASE_THICKNESS_M / 2], pos=[0.0, 0.0, BASE_THICKNESS_M / 2],
+                  rgba=[0.45, 0.35, 0.28, 1.0])
     # half length so neighbouring boxes meet exactly at the outer polygon's vertices (a clean outer
     # 16-gon) and overlap towards the hole (no gaps in the inner polygon the peg slides along)
     half_len = (r + WALL_THICKNESS_M) * math.tan(math.pi / ring_segments)
-    c = chamfer_mm / 1000.0
-    wall = dict(type=mujoco.mjtGeom.mjGEOM_BOX, contype=1, conaffinity=0, priority=1, group=3,
-                solref=static.geom.solref, solimp=static.geom.solimp, friction=static.geom.friction,
-                rgba=[0.55, 0.45, 0.35, 1.0])
+    wall = dict(default=static, type=mujoco.mjtGeom.mjGEOM_BOX, group=3)
     for k in range(ring_segments):
         a = 2 * math.pi * k / ring_segments
         radial, yaw = np.array([math.cos(a), math.sin(a)]), [math.cos(a / 2), 0.0, 0.0, math.sin(a / 2)]
@@ -86,12 +103,9 @@ def build_model(
                           pos=[*(mid[0] * radial), mid[1]], quat=quat, **wall)
     vertices, faces = tube_mesh(r, r + WALL_THICKNESS_M, BASE_THICKNESS_M, BASE_THICKNESS_M + depth, 32, chamfer=c)
     spec.add_mesh(name="receptacle_tube", uservert=vertices.ravel().tolist(), userface=faces.ravel().tolist())
-    body.add_geom(name="receptacle_visual", type=mujoco.mjtGeom.mjGEOM_MESH, meshname="receptacle_tube",
-                  contype=0, conaffinity=0, group=2, density=0.0, rgba=[0.55, 0.45, 0.35, 1.0])
-    h, w = render_size
-    spec.visual.global_.offheight = max(int(h), 1)
-    spec.visual.global_.offwidth = max(int(w), 1)
-    return spec.compile()
+    body.add_geom(default=spec.find_default("scene_visual"), name="receptacle_visual",
+                  type=mujoco.mjtGeom.mjGEOM_MESH, meshname="receptacle_tube", density=0.0,
+                  rgba=[0.55, 0.45, 0.35, 1.0])
 
 
 def occlude_held_peg(spec: mujoco.MjSpec) -> None:
