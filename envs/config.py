@@ -65,8 +65,9 @@ class PegInHoleConfig:
         the cpu-preset ACT learns from 50 demos in minutes: with the peg over 60 x 120 mm at any
         yaw and the hole over 20 x 20 mm it missed the grasp in about half the episodes after
         4000 steps (20 epochs; ACT trains for thousands). Widen them for a GPU-sized study.
-    workspace_low / workspace_high: bounds of the end-effector target (x, y, z, yaw); targets
-        outside are clipped and flagged in ``info["clipped"]``.
+    workspace_low / workspace_high: bounds of the end-effector target (x, y, z, yaw): the hand
+        actuators' ``ctrlrange`` in the model and so the env's ``action_space``; targets outside are
+        clipped and flagged in ``info["clipped"]``.
     success_depth_mm: the peg counts as inserted when its bottom is this far below the rim and
         its axis is inside the hole.
     tactile_noise: add the sensor model's pixel noise (seeded per episode and step).
