@@ -135,7 +135,7 @@ def test_checkpoint_round_trip(tmp_path):
     bg = {s: ds.background.numpy().transpose(1, 2, 0).copy() for s in ("left", "right")}
     save_checkpoint(tmp_path / "ckpt", model, backgrounds=bg, meta={"step": 1}, optimizer=opt)
     assert sorted(p.name for p in (tmp_path / "ckpt").iterdir()) == [
-        "config.json", "model.safetensors", "optimizer.json", "optimizer.safetensors", "stats.json",
+        "config.json", "model.safetensors", "model_card.json", "optimizer.json", "optimizer.safetensors", "stats.json",
         "tactile_background.safetensors"]
     loaded, backgrounds, meta = load_checkpoint(tmp_path / "ckpt")
     assert meta == {"step": 1} and loaded.config == model.config
@@ -168,6 +168,15 @@ def test_corrupted_or_mismatched_checkpoints_are_refused(tmp_path):
     save_checkpoint(ckpt, model)
     (ckpt / "stats.json").unlink()
     with pytest.raises(CheckpointError, match="stats.json"):
+        load_checkpoint(ckpt)
+    save_checkpoint(ckpt, model)
+    (ckpt / "model_card.json").unlink()
+    with pytest.raises(CheckpointError, match="model_card.json"):
+        load_checkpoint(ckpt)
+    with torch.no_grad():
+        model.action_head.bias.fill_(float("nan"))
+    save_checkpoint(ckpt, model)
+    with pytest.raises(CheckpointError, match=r"model.safetensors: tensors \['action_head.bias'\] contain NaN"):
         load_checkpoint(ckpt)
 
 

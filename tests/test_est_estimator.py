@@ -69,7 +69,8 @@ def test_preprocess_maps_offset_to_zero_and_resizes():
 def test_save_load_round_trip_is_exact(est, tmp_path):
     r = np.random.default_rng(3).integers(0, 256, (4, 128, 160, 3), dtype=np.uint8)
     est.save(tmp_path / "ck", card="# card\n")
-    assert sorted(p.name for p in (tmp_path / "ck").iterdir()) == ["README.md", "config.json", "model.safetensors"]
+    assert sorted(p.name for p in (tmp_path / "ck").iterdir()) == ["README.md", "config.json", "model.safetensors",
+                                                                    "model_card.json"]
     loaded = ForceEstimator.from_pretrained(tmp_path / "ck")
     assert loaded.config == est.config
     np.testing.assert_array_equal(loaded.predict(r), est.predict(r))
@@ -84,8 +85,22 @@ def test_from_pretrained_missing_folder_is_clear(tmp_path):
         ForceEstimator.from_pretrained(tmp_path)
 
 
+def test_checkpoint_is_verified_against_its_card(est, tmp_path):
+    from controltac_il.checkpoint import CheckpointError
+    from controltac_il.estimators.estimator import DEFAULT_CHECKPOINT
+
+    assert ForceEstimator.from_pretrained().checkpoint_hash == "3e2ad5833ea17e75"  # unchanged by the model card
+    assert EstimatorConfig().residual_offset == 127.0
+    est.save(tmp_path / "ck")
+    weights = tmp_path / "ck" / "model.safetensors"
+    weights.write_bytes(weights.read_bytes()[:-4] + b"\x00\x00\x80\x7f")  # last float -> inf: another hash
+    with pytest.raises(CheckpointError, match="model.safetensors is corrupted"):
+        ForceEstimator.from_pretrained(tmp_path / "ck")
+    assert (DEFAULT_CHECKPOINT / "model_card.json").is_file()
+
+
 def test_config_rejects_unknown_and_bad_fields(tmp_path):
-    with pytest.raises(ValueError, match="unknown EstimatorConfig fields"):
+    with pytest.raises(ValueError, match=r"colour\n  Unexpected keyword argument"):
         EstimatorConfig.from_dict({"input_height": 64, "colour": 1})
     with pytest.raises(ValueError, match="force_std"):
         EstimatorConfig(force_std=(1.0, 0.0, 1.0))

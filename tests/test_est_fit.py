@@ -1,7 +1,10 @@
 """Estimator training: learning on a synthetic task, exact resume after a crash, data helpers."""
 
+import math
+
 import numpy as np
 import pytest
+import torch
 
 from controltac_il.estimators import EstimatorConfig, TrainConfig, fit
 from controltac_il.estimators.data import (
@@ -86,11 +89,22 @@ def test_train_config_validation_and_schedule():
         TrainConfig(steps=0)
     with pytest.raises(ValueError, match="min_lr"):
         TrainConfig(lr=1e-3, min_lr=1e-2)
+    with pytest.raises(ValueError, match="lr"):
+        TrainConfig(lr=float("inf"))
     t = TrainConfig(steps=100, lr=1e-3, min_lr=1e-5, warmup=10)
-    assert t.lr_at(0) == pytest.approx(1e-4)
-    assert t.lr_at(9) == pytest.approx(1e-3)
-    assert t.lr_at(99) == pytest.approx(1e-5, rel=0.05)
-    assert all(t.lr_at(s) >= t.lr_at(s + 1) for s in range(10, 99))
+    opt = torch.optim.AdamW(torch.nn.Linear(2, 2).parameters(), lr=t.lr)
+    sched, lrs = t.schedule(opt), []
+    for _ in range(t.steps):
+        lrs.append(opt.param_groups[0]["lr"])
+        opt.step()
+        sched.step()
+    # the hand-written schedule it replaced: warm-up (s + 1) / warmup, then cosine to min_lr
+    old = [t.lr * (s + 1) / t.warmup if s < t.warmup else
+           t.min_lr + 0.5 * (t.lr - t.min_lr) * (1 + math.cos(math.pi * (s - t.warmup) / (t.steps - t.warmup)))
+           for s in range(t.steps)]
+    np.testing.assert_allclose(lrs, old, rtol=1e-12)
+    assert lrs[0] == pytest.approx(1e-4) and lrs[9] == pytest.approx(1e-3)
+    assert lrs[99] == pytest.approx(1e-5, rel=0.05)
 
 
 def test_no_contact_frames_and_noise_estimates():

@@ -2,21 +2,20 @@
 
 from __future__ import annotations
 
-import hashlib
 from pathlib import Path
 
 import numpy as np
 import torch
 import torch.nn.functional as F
-from safetensors.torch import load_file, save_file
 
+from controltac_il.checkpoint import (CARD_FILE, CONFIG_FILE, HASH_KEY, CheckpointError, load_folder, load_into, read_json,
+                                      save_folder)
 from controltac_il.estimators.config import EstimatorConfig
 from controltac_il.estimators.model import ForceCNN
-from controltac_il.io import atomic_dir, atomic_path, write_json
 
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parent / "checkpoints" / "default"
 WEIGHTS_FILE = "model.safetensors"
-CONFIG_FILE = "config.json"
+MODEL_NAME = "controltac-il force estimator (compact CNN: tactile residual -> [Fx, Fy, Fz] N)"
 
 
 def validate_residuals(residuals, name: str = "residuals") -> np.ndarray:
@@ -107,31 +106,26 @@ class ForceEstimator:
             forces[~self.contact_visible(residuals)] = 0.0
         return forces
 
-    # ---- checkpoints (safetensors + JSON, atomic, no pickle)
+    # ---- checkpoints (the project's convention: controltac_il.checkpoint)
     def save(self, path: str | Path, card: str | None = None) -> Path:
-        """Write ``model.safetensors`` + ``config.json`` (+ ``README.md`` if ``card``) as one folder, atomically."""
-        path = Path(path)
-        with atomic_dir(path) as tmp:
-            state = {k: v.detach().cpu().contiguous() for k, v in self.model.state_dict().items()}
-            save_file(state, str(tmp / WEIGHTS_FILE))
-            write_json(tmp / CONFIG_FILE, self.config.to_dict())
-            if card is not None:
-                with atomic_path(tmp / "README.md") as t:
-                    t.write_text(card)
-        return path
+        """Write ``model.safetensors`` + ``config.json`` + ``model_card.json`` (the weights' hash) and, if
+        ``card``, ``README.md`` (the human-readable card) as one folder, atomically."""
+        return save_folder(path, self.config.to_dict(), {WEIGHTS_FILE: self.model}, card={"model": MODEL_NAME},
+                           files={"README.md": card} if card is not None else None)
 
     @classmethod
     def from_pretrained(cls, path: str | Path | None = None, device: str = "cpu") -> "ForceEstimator":
-        """Load a checkpoint folder; ``None`` loads the shipped default checkpoint."""
+        """Load a checkpoint folder (weights verified against its model card); ``None`` loads the shipped default."""
         path = Path(path) if path is not None else DEFAULT_CHECKPOINT
-        weights, cfg = path / WEIGHTS_FILE, path / CONFIG_FILE
-        if not weights.is_file() or not cfg.is_file():
-            raise FileNotFoundError(f"{path} is not a force-estimator checkpoint: expected {WEIGHTS_FILE} and {CONFIG_FILE}")
-        config = EstimatorConfig.load(cfg)
+        d, weights = load_folder(path, (WEIGHTS_FILE,))
+        try:
+            config = EstimatorConfig.from_dict(d)
+        except ValueError as e:
+            raise CheckpointError(f"{path / CONFIG_FILE}: invalid estimator config: {e}") from None
         est = cls(config, device=device)
-        est.model.load_state_dict(load_file(str(weights), device=str(est.device)))
+        load_into(est.model, weights[WEIGHTS_FILE], path / WEIGHTS_FILE)
         est.model.eval()
-        est.checkpoint_hash = hashlib.sha256(weights.read_bytes()).hexdigest()[:16]
+        est.checkpoint_hash = read_json(path / CARD_FILE)[HASH_KEY][WEIGHTS_FILE][:16]  # verified by load_folder
         return est
 
     checkpoint_hash: str | None = None

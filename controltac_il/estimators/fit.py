@@ -1,38 +1,38 @@
 """Training loop for the force estimator on in-memory arrays, with resumable state.
 
-``fit`` is what both the train CLI and the data-scaling benchmark call. Resume state is written as
-safetensors (model, AdamW moments, sampler RNG) + JSON (step, hyper-parameters), never pickle.
+``fit`` is what both the train CLI and the data-scaling benchmark call. Resume state is a run state of
+``controltac_il.checkpoint`` (model, AdamW moments, LR schedule, sampler RNG), never pickle.
 """
 
 from __future__ import annotations
 
-import json
-import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
-from typing import Callable
+from typing import Annotated, Callable
 
 import numpy as np
 import torch
 import torch.nn.functional as F
-from safetensors.torch import load_file, save_file
+from pydantic import ConfigDict, Field, model_validator
+from pydantic.dataclasses import dataclass
 from tqdm.auto import tqdm
 
+from controltac_il.checkpoint import load_run_state, lr_schedule, read_json, save_run_state
 from controltac_il.estimators.config import EstimatorConfig
 from controltac_il.estimators.estimator import ForceEstimator, preprocess, validate_residuals
-from controltac_il.io import atomic_dir, write_json
+from controltac_il.io import atomic_dir
 
 STATE_DIR = "train_state"
 
 
-@dataclass
+@dataclass(config=ConfigDict(extra="forbid"))
 class TrainConfig:
-    """Optimisation settings.
+    """Optimisation settings (pydantic: validated at construction, ValueError naming the field).
 
     Fields:
         steps: number of AdamW updates (fixed budget, independent of the data size).
         batch_size: images per update.
-        lr, min_lr: peak and final learning rate of the cosine schedule (after ``warmup`` steps).
+        lr, min_lr: peak and final learning rate of the cosine schedule (after ``warmup`` steps), 0 <= min_lr <= lr.
         warmup: linear warm-up steps.
         weight_decay: AdamW weight decay.
         seed: seeds the weights and the batch sampler.
@@ -40,34 +40,25 @@ class TrainConfig:
         eval_every: evaluate on the validation arrays every this many steps (0 = only at the end).
     """
 
-    steps: int = 3000
-    batch_size: int = 64
-    lr: float = 2e-3
-    min_lr: float = 2e-5
-    warmup: int = 100
-    weight_decay: float = 1e-4
+    steps: Annotated[int, Field(ge=1)] = 3000
+    batch_size: Annotated[int, Field(ge=1)] = 64
+    lr: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 2e-3
+    min_lr: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 2e-5
+    warmup: Annotated[int, Field(ge=0)] = 100
+    weight_decay: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 1e-4
     seed: int = 0
-    checkpoint_every: int = 250
-    eval_every: int = 500
+    checkpoint_every: Annotated[int, Field(ge=0)] = 250
+    eval_every: Annotated[int, Field(ge=0)] = 500
 
-    def __post_init__(self) -> None:
-        for name in ("steps", "batch_size"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"TrainConfig.{name} must be a positive int, got {getattr(self, name)!r}")
-        for name in ("warmup", "checkpoint_every", "eval_every"):
-            if int(getattr(self, name)) < 0:
-                raise ValueError(f"TrainConfig.{name} must be >= 0, got {getattr(self, name)!r}")
-        if not (self.lr > 0 and 0 <= self.min_lr <= self.lr):
-            raise ValueError(f"TrainConfig needs lr > 0 and 0 <= min_lr <= lr, got lr={self.lr}, min_lr={self.min_lr}")
-        if self.weight_decay < 0:
-            raise ValueError(f"TrainConfig.weight_decay must be >= 0, got {self.weight_decay}")
+    @model_validator(mode="after")
+    def _floor(self):
+        if self.min_lr > self.lr:
+            raise ValueError(f"min_lr={self.min_lr} must be <= lr={self.lr}")
+        return self
 
-    def lr_at(self, step: int) -> float:
-        """Learning rate for update ``step`` (0-based): linear warm-up, then cosine to ``min_lr``."""
-        if step < self.warmup:
-            return self.lr * (step + 1) / self.warmup
-        t = (step - self.warmup) / max(1, self.steps - self.warmup)
-        return self.min_lr + 0.5 * (self.lr - self.min_lr) * (1 + math.cos(math.pi * min(t, 1.0)))
+    def schedule(self, opt: torch.optim.Optimizer, resume: dict | None = None, step: int = 0):
+        """Linear warm-up, then cosine decay to ``min_lr`` (torch schedulers; see ``controltac_il.checkpoint.lr_schedule``)."""
+        return lr_schedule(opt, [self.lr], self.steps, self.warmup, self.min_lr, resume, step)
 
 
 def force_stats(forces: np.ndarray) -> tuple[tuple[float, ...], tuple[float, ...]]:
@@ -82,35 +73,19 @@ def mae_per_axis(est: ForceEstimator, residuals: np.ndarray, forces: np.ndarray)
     return np.abs(est.predict(residuals) - forces).mean(axis=0)
 
 
-def _save_state(path: Path, est: ForceEstimator, opt: torch.optim.Optimizer, gen: torch.Generator,
+def _save_state(path: Path, est: ForceEstimator, opt: torch.optim.Optimizer, sched, gen: torch.Generator,
                 step: int, train: TrainConfig, history: list) -> None:
-    tensors = {f"model.{k}": v.detach().cpu().contiguous() for k, v in est.model.state_dict().items()}
-    sd = opt.state_dict()
-    for idx, st in sd["state"].items():
-        for k, v in st.items():
-            tensors[f"opt.{idx}.{k}"] = torch.as_tensor(v).detach().cpu().contiguous()
-    tensors["rng"] = gen.get_state()
-    meta = {"step": step, "train": asdict(train), "model": est.config.to_dict(),
-            "param_groups": sd["param_groups"], "history": history}
+    meta = {"step": step, "train": asdict(train), "model": est.config.to_dict(), "history": history}
     with atomic_dir(path) as tmp:
-        save_file(tensors, str(tmp / "state.safetensors"))
-        write_json(tmp / "state.json", meta)
+        save_run_state(tmp / "state", {"model": est.model}, meta, opt, sched, tensors={"rng": gen.get_state()})
 
 
-def _load_state(path: Path, est: ForceEstimator, opt: torch.optim.Optimizer, gen: torch.Generator) -> tuple[int, list]:
-    meta = json.loads((path / "state.json").read_text())
-    tensors = load_file(str(path / "state.safetensors"))
-    if meta["model"] != est.config.to_dict():
+def _load_state(path: Path, est: ForceEstimator, opt: torch.optim.Optimizer, gen: torch.Generator) -> dict:
+    if read_json(path / "state.json")["model"] != est.config.to_dict():
         raise ValueError(f"resume state in {path} was made for another model config; start a fresh run or use the same config")
-    est.model.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model.")})
-    state: dict[int, dict] = {}
-    for k, v in tensors.items():
-        if k.startswith("opt."):
-            _, idx, name = k.split(".", 2)
-            state.setdefault(int(idx), {})[name] = v
-    opt.load_state_dict({"state": state, "param_groups": meta["param_groups"]})
+    meta, tensors = load_run_state(path / "state", {"model": est.model}, opt)
     gen.set_state(tensors["rng"])
-    return int(meta["step"]), list(meta["history"])
+    return meta
 
 
 def fit(
@@ -148,12 +123,14 @@ def fit(
     y_all = est.normalise_forces(torch.from_numpy(forces))
     opt = torch.optim.AdamW(est.model.parameters(), lr=train.lr, weight_decay=train.weight_decay)
     gen = torch.Generator().manual_seed(train.seed)
-    step, history = 0, []
+    step, history, meta = 0, [], {}
     state_path = Path(state_dir) if state_dir is not None else None
     if resume:
         if state_path is None or not (state_path / "state.json").is_file():
             raise FileNotFoundError(f"--resume: no training state found in {state_path}")
-        step, history = _load_state(state_path, est, opt, gen)
+        meta = _load_state(state_path, est, opt, gen)
+        step, history = int(meta["step"]), list(meta["history"])
+    sched = train.schedule(opt, meta.get("lr_schedule") if resume else None, step)
 
     def evaluate(at: int) -> None:
         if val is not None:
@@ -168,18 +145,17 @@ def fit(
         idx = torch.randint(0, n, (min(train.batch_size, n),), generator=gen)
         x = x_all[idx].float().sub_(cfg.residual_offset).div_(cfg.residual_scale)
         loss = F.l1_loss(est.model(x), y_all[idx])
-        for g in opt.param_groups:
-            g["lr"] = train.lr_at(step)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
+        sched.step()
         step += 1
         bar.update(1)
         bar.set_postfix(loss=f"{loss.item():.4f}")
         if train.eval_every and step % train.eval_every == 0 and step < train.steps:
             evaluate(step)
         if state_path is not None and train.checkpoint_every and step % train.checkpoint_every == 0 and step < train.steps:
-            _save_state(state_path, est, opt, gen, step, train, history)
+            _save_state(state_path, est, opt, sched, gen, step, train, history)
             if on_checkpoint is not None:
                 on_checkpoint(est, step, history)
     bar.close()
@@ -187,7 +163,7 @@ def fit(
         evaluate(step)
     est.model.eval()
     if state_path is not None:
-        _save_state(state_path, est, opt, gen, step, train, history)
+        _save_state(state_path, est, opt, sched, gen, step, train, history)
     return est, history
 
 

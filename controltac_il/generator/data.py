@@ -13,9 +13,12 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import torch
 from tqdm.auto import tqdm
 
 from controltac_il.generator.config import FZ_RANGE, SHEAR_MAX
+from controltac_il.generator.pipeline import residual_to_unit
+from controltac_il.tactile.residual import contact_mask
 
 # ΔF range of the random no-contact pairs, per component (N): the validated range's span.
 NO_CONTACT_DELTA = np.array([2 * SHEAR_MAX, 2 * SHEAR_MAX, FZ_RANGE[1] - FZ_RANGE[0]], dtype=np.float32)
@@ -98,3 +101,27 @@ def sample_pairs(data: PairData, batch: int, rng: np.random.Generator, no_contac
             tgt[nc] = rng.choice(data.no_contact, size=m)
             delta[nc] = rng.uniform(-1, 1, size=(m, 3)).astype(np.float32) * NO_CONTACT_DELTA
     return ref, tgt, delta.astype(np.float32)
+
+
+def crop_batch(data: PairData, rng: np.random.Generator, batch: int, crop: tuple[int, int]) -> torch.Tensor:
+    """Random crops (with random flips) of random residuals, float (B, 3, ch, cw) in [-1, 1]; half of
+    them centred on a contact pixel."""
+    idx = rng.integers(0, len(data.residuals), size=batch)
+    H, W = data.residuals.shape[1:3]
+    ch, cw = crop
+    out = np.empty((batch, ch, cw, 3), np.uint8)
+    for k, i in enumerate(idx):
+        y, x = rng.integers(0, H - ch + 1), rng.integers(0, W - cw + 1)
+        if rng.random() < 0.5:  # half the crops centred on a contact pixel (contacts cover little of the pad)
+            ys, xs = np.nonzero(contact_mask(data.residuals[i], threshold=12.0))
+            if len(ys):
+                j = rng.integers(0, len(ys))
+                y = int(np.clip(ys[j] - ch // 2, 0, H - ch))
+                x = int(np.clip(xs[j] - cw // 2, 0, W - cw))
+        c = data.residuals[i, y:y + ch, x:x + cw]
+        if rng.random() < 0.5:
+            c = c[:, ::-1]
+        if rng.random() < 0.5:
+            c = c[::-1]
+        out[k] = c
+    return residual_to_unit(torch.from_numpy(out))

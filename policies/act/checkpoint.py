@@ -1,10 +1,11 @@
-"""ACT checkpoints: a folder written atomically, nothing pickled.
+"""ACT checkpoints: the project's checkpoint convention (``controltac_il.checkpoint``), nothing pickled.
 
     config.json                     {"format", "version", "act": ACTConfig fields, "meta": {...}}
     model.safetensors               network weights
     stats.json                      normalisation statistics (qpos and action mean/std)
     tactile_background.safetensors  one uint8 (H, W, 3) no-contact frame per tactile sensor (optional)
-    optimizer.safetensors + optimizer.json   AdamW state for ``--resume`` (optional)
+    optimizer.safetensors + optimizer.json   AdamW + LR-schedule state for ``--resume`` (optional)
+    model_card.json                 the SHA-256 of every .safetensors file, verified at load
 
 Loading validates every file and raises :class:`CheckpointError` (a ValueError) with the file
 and the problem, so a bad checkpoint is refused before a robot moves.
@@ -12,98 +13,60 @@ and the problem, so a bad checkpoint is refused before a robot moves.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 import torch
-from safetensors import SafetensorError
-from safetensors.torch import load_file, save_file
 
-from controltac_il.io import atomic_dir
+from controltac_il.checkpoint import (CONFIG_FILE, CheckpointError, MissingCheckpointFile, load_folder, load_into,
+                                      load_run_state, read_json, save_folder, save_run_state)
 from policies.act.configuration_act import ACTConfig
 from policies.act.modeling_act import ACT
 
 FORMAT = "controltac-il/act"
 VERSION = 1
-
-
-class CheckpointError(ValueError):
-    """A checkpoint folder is missing, corrupted or does not fit the model / data."""
+WEIGHTS_FILE = "model.safetensors"
+BACKGROUND_FILE = "tactile_background.safetensors"
+__all__ = ["CheckpointError", "load_checkpoint", "load_optimizer_state", "read_config", "save_checkpoint"]
 
 
 def save_checkpoint(out_dir: str | Path, model: ACT, *, backgrounds: dict[str, np.ndarray] | None = None,
-                    meta: dict | None = None, optimizer: torch.optim.Optimizer | None = None) -> Path:
-    """Write ``model`` (+ its stats, tactile backgrounds, optimizer state) to ``out_dir`` atomically."""
-    out_dir = Path(out_dir)
-    with atomic_dir(out_dir) as tmp:
-        (tmp / "config.json").write_text(json.dumps(
-            {"format": FORMAT, "version": VERSION, "act": model.config.to_dict(), "meta": meta or {}}, indent=2))
-        state = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
-        save_file(state, str(tmp / "model.safetensors"))
-        (tmp / "stats.json").write_text(json.dumps(model.get_stats(), indent=2))
-        if backgrounds:
-            save_file({k: torch.from_numpy(np.ascontiguousarray(v, dtype=np.uint8)) for k, v in backgrounds.items()},
-                      str(tmp / "tactile_background.safetensors"))
-        if optimizer is not None:
-            _save_optimizer(tmp, optimizer)
-    return out_dir
+                    meta: dict | None = None, optimizer: torch.optim.Optimizer | None = None, scheduler=None) -> Path:
+    """Write ``model`` (+ its stats, tactile backgrounds, optimizer and LR-schedule state) to ``out_dir`` atomically."""
+    weights = {WEIGHTS_FILE: model}
+    if backgrounds:
+        weights[BACKGROUND_FILE] = {k: torch.from_numpy(np.ascontiguousarray(v, dtype=np.uint8)) for k, v in backgrounds.items()}
+    config = {"format": FORMAT, "version": VERSION, "act": model.config.to_dict(), "meta": meta or {}}
+    return save_folder(out_dir, config, weights, card={"model": "controltac-il ACT policy"},
+                       files={"stats.json": model.get_stats()},
+                       write_more=None if optimizer is None else
+                       lambda tmp: save_run_state(tmp / "optimizer", {}, {}, optimizer, scheduler))
 
 
-def _save_optimizer(folder: Path, optimizer: torch.optim.Optimizer) -> None:
-    sd = optimizer.state_dict()
-    tensors, scalars = {}, {}
-    for idx, st in sd["state"].items():
-        for name, value in st.items():
-            if torch.is_tensor(value):
-                tensors[f"{idx}.{name}"] = value.detach().cpu().contiguous()
-            else:
-                scalars[f"{idx}.{name}"] = value
-    save_file(tensors, str(folder / "optimizer.safetensors"))
-    (folder / "optimizer.json").write_text(json.dumps({"param_groups": sd["param_groups"], "scalars": scalars}))
-
-
-def load_optimizer_state(ckpt_dir: str | Path, optimizer: torch.optim.Optimizer) -> None:
-    """Restore the AdamW state saved with :func:`save_checkpoint` into ``optimizer``."""
+def load_optimizer_state(ckpt_dir: str | Path, optimizer: torch.optim.Optimizer) -> dict | None:
+    """Restore the AdamW state saved with :func:`save_checkpoint` into ``optimizer``; returns the saved
+    LR-schedule state (None if none was saved)."""
     ckpt_dir = Path(ckpt_dir)
-    try:
-        tensors = load_file(str(ckpt_dir / "optimizer.safetensors"))
-        doc = json.loads((ckpt_dir / "optimizer.json").read_text())
-    except (OSError, SafetensorError, json.JSONDecodeError) as e:
-        raise CheckpointError(f"{ckpt_dir}: cannot read the optimizer state for --resume: {e}") from None
-    state: dict[int, dict] = {}
-    for key, value in list(tensors.items()) + list(doc.get("scalars", {}).items()):
-        idx, name = key.split(".", 1)
-        state.setdefault(int(idx), {})[name] = value
-    try:
-        optimizer.load_state_dict({"state": state, "param_groups": doc["param_groups"]})
-    except (KeyError, ValueError) as e:
-        raise CheckpointError(f"{ckpt_dir}: optimizer state does not fit this model: {e}") from None
-
-
-def _read_json(path: Path) -> dict:
-    if not path.is_file():
-        raise CheckpointError(f"checkpoint file missing: {path}")
-    try:
-        return json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise CheckpointError(f"checkpoint file is not valid JSON: {path}: {e}") from None
+    if not (ckpt_dir / "optimizer.json").is_file():
+        raise CheckpointError(f"{ckpt_dir}: no optimizer state (optimizer.json) for --resume")
+    meta, _ = load_run_state(ckpt_dir / "optimizer", {}, optimizer)
+    return meta.get("lr_schedule")
 
 
 def read_config(ckpt_dir: str | Path) -> tuple[ACTConfig, dict]:
     """The checkpoint's :class:`ACTConfig` and its ``meta`` dict, validated."""
     ckpt_dir = Path(ckpt_dir)
     if not ckpt_dir.is_dir():
-        raise CheckpointError(f"checkpoint folder not found: {ckpt_dir}")
-    doc = _read_json(ckpt_dir / "config.json")
+        raise MissingCheckpointFile(f"checkpoint folder not found: {ckpt_dir}")
+    doc = read_json(ckpt_dir / CONFIG_FILE)
     if doc.get("format") != FORMAT:
-        raise CheckpointError(f"{ckpt_dir / 'config.json'}: format is {doc.get('format')!r}, expected {FORMAT!r}")
+        raise CheckpointError(f"{ckpt_dir / CONFIG_FILE}: format is {doc.get('format')!r}, expected {FORMAT!r}")
     if doc.get("version") != VERSION:
-        raise CheckpointError(f"{ckpt_dir / 'config.json'}: version {doc.get('version')!r}, expected {VERSION}")
+        raise CheckpointError(f"{ckpt_dir / CONFIG_FILE}: version {doc.get('version')!r}, expected {VERSION}")
     try:
         config = ACTConfig.from_dict(doc.get("act"))
-    except (TypeError, ValueError) as e:
-        raise CheckpointError(f"{ckpt_dir / 'config.json'}: invalid ACT config: {e}") from None
+    except ValueError as e:
+        raise CheckpointError(f"{ckpt_dir / CONFIG_FILE}: invalid ACT config: {e}") from None
     return config, doc.get("meta") or {}
 
 
@@ -112,37 +75,14 @@ def load_checkpoint(ckpt_dir: str | Path, device: str | torch.device = "cpu"
     """Load (model in eval mode, tactile backgrounds by sensor, meta) from a checkpoint folder."""
     ckpt_dir = Path(ckpt_dir)
     config, meta = read_config(ckpt_dir)
+    _, files = load_folder(ckpt_dir, (WEIGHTS_FILE,), optional=(BACKGROUND_FILE,))
     model = ACT(config)
-    weights = ckpt_dir / "model.safetensors"
-    if not weights.is_file():
-        raise CheckpointError(f"checkpoint file missing: {weights}")
+    load_into(model, files[WEIGHTS_FILE], ckpt_dir / WEIGHTS_FILE)
     try:
-        state = load_file(str(weights))
-    except (SafetensorError, OSError) as e:
-        raise CheckpointError(f"{weights} is corrupted or not a safetensors file: {e}") from None
-    expected = model.state_dict()
-    missing, unexpected = sorted(set(expected) - set(state)), sorted(set(state) - set(expected))
-    if missing or unexpected:
-        raise CheckpointError(f"{weights} does not match config.json: missing {missing[:5]}, "
-                              f"unexpected {unexpected[:5]}")
-    for k, v in expected.items():
-        if state[k].shape != v.shape:
-            raise CheckpointError(f"{weights}: {k} has shape {tuple(state[k].shape)}, config.json implies "
-                                  f"{tuple(v.shape)}")
-        if state[k].is_floating_point() and not torch.isfinite(state[k]).all():
-            raise CheckpointError(f"{weights}: {k} contains NaN or inf")
-    model.load_state_dict(state)
-    try:
-        model.set_stats(_read_json(ckpt_dir / "stats.json"))
+        model.set_stats(read_json(ckpt_dir / "stats.json"))
     except CheckpointError:
         raise
     except ValueError as e:
         raise CheckpointError(f"{ckpt_dir / 'stats.json'}: {e}") from None
-    backgrounds: dict[str, np.ndarray] = {}
-    bg_file = ckpt_dir / "tactile_background.safetensors"
-    if bg_file.is_file():
-        try:
-            backgrounds = {k: v.numpy() for k, v in load_file(str(bg_file)).items()}
-        except (SafetensorError, OSError) as e:
-            raise CheckpointError(f"{bg_file} is corrupted: {e}") from None
+    backgrounds = {k: v.numpy() for k, v in files.get(BACKGROUND_FILE, {}).items()}
     return model.to(device).eval(), backgrounds, meta

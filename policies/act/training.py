@@ -17,58 +17,52 @@ from __future__ import annotations
 import math
 import os
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 import torch
 import torch.distributed as dist
 from torch.utils.data import DataLoader, Dataset
 from torch.utils.data.distributed import DistributedSampler
+from pydantic import ConfigDict, Field
+from pydantic.dataclasses import dataclass
 from tqdm import tqdm
 
+from controltac_il.checkpoint import lr_schedule
 from controltac_il.io import write_json
 from policies.act.checkpoint import CheckpointError, load_checkpoint, load_optimizer_state, save_checkpoint
 from policies.act.configuration_act import ACTConfig
 from policies.act.modeling_act import ACT
 
+PosInt = Annotated[int, Field(gt=0)]
 
-@dataclass
+@dataclass(config=ConfigDict(extra="forbid"))
 class TrainConfig:
-    """Optimisation schedule.
+    """Optimisation schedule (pydantic: validated at construction, ValueError naming the field).
 
-    steps: optimiser steps in total (a resumed run continues up to this number).
+    steps: optimiser steps in total, >= 1 (a resumed run continues up to this number).
     batch_size: samples per step and per process (global batch = batch_size * world size).
     val_every: run validation (and keep ``best``) every this many steps, and at the end.
     save_every: write ``last`` (with optimizer state) every this many steps, and at the end.
-    warmup_steps: linear learning-rate warm-up from 0, then constant (ACT uses a constant rate).
+    warmup_steps: linear learning-rate warm-up (update i at (i + 1) / warmup_steps of the rate), then
+        constant (ACT uses a constant rate); 0 = none.
     grad_clip: max gradient L2 norm (0 = no clipping).
     num_workers: DataLoader worker processes (0 = load in the training process).
     max_val_batches: cap on validation batches per evaluation (keeps validation cheap on CPU).
     seed: seeds the model initialisation, the sampling order and the CVAE noise.
     """
 
-    steps: int = 2000
-    batch_size: int = 16
-    val_every: int = 250
-    save_every: int = 500
-    warmup_steps: int = 50
-    grad_clip: float = 10.0
-    num_workers: int = 0
-    max_val_batches: int = 20
+    steps: PosInt = 2000
+    batch_size: PosInt = 16
+    val_every: PosInt = 250
+    save_every: PosInt = 500
+    warmup_steps: Annotated[int, Field(ge=0)] = 50
+    grad_clip: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 10.0
+    num_workers: Annotated[int, Field(ge=0)] = 0
+    max_val_batches: PosInt = 20
     seed: int = 0
-
-    def __post_init__(self) -> None:
-        for name in ("steps", "batch_size", "val_every", "save_every", "max_val_batches"):
-            v = getattr(self, name)
-            if not isinstance(v, int) or isinstance(v, bool) or v <= 0:
-                raise ValueError(f"TrainConfig.{name} must be a positive int, got {v!r}")
-        for name in ("warmup_steps", "num_workers"):
-            v = getattr(self, name)
-            if not isinstance(v, int) or v < 0:
-                raise ValueError(f"TrainConfig.{name} must be an int >= 0, got {v!r}")
-        if not self.grad_clip >= 0:
-            raise ValueError(f"TrainConfig.grad_clip must be >= 0, got {self.grad_clip!r}")
 
 
 def _dist_info() -> tuple[int, int]:
@@ -143,7 +137,7 @@ def train(act_config: ACTConfig, train_config: TrainConfig, train_set: Dataset, 
     model.set_stats(stats)
     optimizer = _optimizer(model)
     step, log = 0, {"train": [], "val": []}
-    best = math.inf
+    best, schedule_state = math.inf, None
     if resume:
         if not (out_dir / "last").is_dir():
             raise CheckpointError(f"--resume: no checkpoint to continue from at {out_dir / 'last'}")
@@ -156,10 +150,12 @@ def train(act_config: ACTConfig, train_config: TrainConfig, train_set: Dataset, 
             raise CheckpointError(f"--resume: {out_dir / 'last'} was trained with different augmentation ({change}); "
                                   "use a new --out folder or the same --augment options and generator")
         model.load_state_dict(loaded.state_dict())
-        load_optimizer_state(out_dir / "last", optimizer)
+        schedule_state = load_optimizer_state(out_dir / "last", optimizer)
         step = int(last_meta.get("step", 0))
         best = float(last_meta.get("best_val_l1", math.inf))
         log = last_meta.get("log", log)
+    scheduler = lr_schedule(optimizer, [act_config.lr, act_config.lr_backbone], train_config.steps,
+                            train_config.warmup_steps, resume=schedule_state, step=step)
     model.train()
     ddp = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
     sampler = DistributedSampler(train_set, world, rank, shuffle=True, seed=train_config.seed) if world > 1 else None
@@ -173,7 +169,7 @@ def train(act_config: ACTConfig, train_config: TrainConfig, train_set: Dataset, 
 
     def save(final: bool) -> None:
         m = {**run_meta, "step": step, "best_val_l1": best, "log": log}
-        save_checkpoint(out_dir / "last", model, backgrounds=backgrounds, meta=m, optimizer=optimizer)
+        save_checkpoint(out_dir / "last", model, backgrounds=backgrounds, meta=m, optimizer=optimizer, scheduler=scheduler)
         if final:
             write_json(out_dir / "train_log.json", {k: v for k, v in m.items()})
 
@@ -183,15 +179,13 @@ def train(act_config: ACTConfig, train_config: TrainConfig, train_set: Dataset, 
     batches = _batches(loader, sampler, start_epoch=step // max(len(loader), 1))
     while step < train_config.steps:
         batch = next(batches)
-        lr_scale = min(1.0, (step + 1) / train_config.warmup_steps) if train_config.warmup_steps else 1.0
-        for group, base in zip(optimizer.param_groups, (act_config.lr, act_config.lr_backbone)):
-            group["lr"] = base * lr_scale
         out = ddp(batch)
         optimizer.zero_grad(set_to_none=True)
         out["loss"].backward()
         if train_config.grad_clip:
             torch.nn.utils.clip_grad_norm_(model.parameters(), train_config.grad_clip)
         optimizer.step()
+        scheduler.step()
         step += 1
         samples += batch["observation.qpos"].shape[0] * world
         if rank == 0:

@@ -1,0 +1,131 @@
+"""Arguments of a generator training run (``TrainConfig``, a pydantic dataclass saved as ``train_config.json``)
+and the provenance a run records: the command that reproduces it and its dataset."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import Field, model_validator
+from pydantic.dataclasses import dataclass
+
+from controltac_il.generator.config import STRICT, AutoencoderConfig, DiffusionConfig, DiTConfig, PosInt, Positive
+
+DIT_PRESETS = {"small": DiTConfig.small, "tiny": DiTConfig.tiny, "base": DiTConfig.base}
+STAGES = ("all", "autoencoder", "denoiser")
+Count = Annotated[int, Field(ge=0)]
+Share = Annotated[float, Field(ge=0, lt=1)]
+
+
+@dataclass(config=STRICT)
+class TrainConfig:
+    """Arguments of one training run.
+
+    data: dataset folder written by ``controltac_il.tactile.dataset.write_dataset``.
+    out: run folder (states, latents, final checkpoint).
+    stage: "all", "autoencoder" or "denoiser" (the latter needs a trained autoencoder).
+    autoencoder_from: run folder or checkpoint whose trained autoencoder is reused (skips stage 1).
+    denoiser_from: run folder or checkpoint whose DiT (EMA weights) starts this run's DiT: fine-tuning,
+        e.g. on freshly rendered poses. Its DiT architecture and autoencoder config must match this
+        run's, and its latent and ΔF scales are kept (the weights were trained on them). The model
+        card's ``denoiser.lineage`` lists the source's own trainings, so a chain of fine-tunes stays
+        reproducible.
+    image_size: (H, W) of the model; dataset images are resized to it.
+    ae_channels, latent_channels: autoencoder stage widths (f = 2**len) and latent channels.
+    dit_preset: "small" (default teacher), "tiny" (faster variant) or "base"; dit_patch: latent pixels per token side.
+    dit_conv_head: width of the DiT's local refinement head (0 = none; see DiTConfig.conv_head_width).
+    prediction_type: "epsilon" (paper) or "sample"; default_steps: DDIM steps stored as the default.
+    ae_steps, ae_batch, ae_lr, ae_crop: autoencoder optimisation (crop (H, W) of the training patches, within image_size).
+    ae_contact_weight: extra loss weight on contact pixels of the autoencoder's targets.
+    dit_steps, dit_batch, dit_lr: DiT optimisation (global batch, split across processes).
+    one_step_fraction: share of each DiT batch drawn at the last training timestep (the only one a
+        1-step DDIM sampler visits); the rest is uniform over all timesteps, as in the paper.
+    min_lr_ratio: cosine decay floor as a fraction of the peak LR; warmup_steps: linear warm-up.
+    ema_decay: EMA of the DiT weights (the shipped weights).
+    no_contact_prob: share of no-contact pairs; no_contact_frames: how many bare frames to render.
+    anchor_to_reference, detail_gate: inference settings stored in the config (see GeneratorConfig).
+    checkpoint_every: steps between periodic state saves. seed: data order, noise, init.
+    threads: torch intra-op threads per process (None = torch's default).
+    """
+
+    data: str
+    out: str
+    stage: Literal["all", "autoencoder", "denoiser"] = "all"
+    autoencoder_from: str | None = None
+    denoiser_from: str | None = None
+    image_size: tuple[PosInt, PosInt] = (128, 160)
+    ae_channels: Annotated[tuple[PosInt, ...], Field(min_length=1)] = (16, 48, 96)
+    latent_channels: PosInt = 8
+    dit_preset: Literal["small", "tiny", "base"] = "small"
+    dit_patch: PosInt = 2
+    dit_conv_head: Count = 0
+    prediction_type: Literal["epsilon", "sample"] = "epsilon"
+    default_steps: PosInt = 10
+    ae_steps: Count = 1500
+    ae_batch: PosInt = 32
+    ae_lr: Positive = 2e-3
+    ae_crop: tuple[PosInt, PosInt] = (64, 80)
+    ae_contact_weight: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 4.0
+    dit_steps: Count = 4000
+    dit_batch: PosInt = 128
+    dit_lr: Positive = 5e-4
+    one_step_fraction: Annotated[float, Field(ge=0, le=1)] = 0.0
+    min_lr_ratio: Annotated[float, Field(gt=0, le=1)] = 0.1
+    warmup_steps: Count = 100
+    ema_decay: Share = 0.999
+    no_contact_prob: Share = 0.05
+    no_contact_frames: Count = 32
+    anchor_to_reference: bool = False
+    detail_gate: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
+    checkpoint_every: PosInt = 250
+    seed: int = 0
+    threads: PosInt | None = None
+
+    @model_validator(mode="after")
+    def _consistent(self):
+        AutoencoderConfig(image_size=self.image_size, channels=self.ae_channels, latent_channels=self.latent_channels)
+        DiffusionConfig(prediction_type=self.prediction_type, default_steps=self.default_steps)
+        if self.detail_gate > 0 and not self.anchor_to_reference:
+            raise ValueError(f"detail_gate={self.detail_gate} needs --anchor-to-reference")
+        if any(c > s for c, s in zip(self.ae_crop, self.image_size)):
+            raise ValueError(f"ae_crop {self.ae_crop} must fit in image_size {self.image_size}")
+        if self.stage == "denoiser" and self.autoencoder_from is None and not (Path(self.out) / "autoencoder_state.json").is_file():
+            raise ValueError("stage 'denoiser' needs --autoencoder-from or a trained autoencoder in --out")
+        return self
+
+
+def cli_args(cfg: TrainConfig) -> list[str]:
+    """The command-line arguments that reproduce ``cfg`` (defaults and ``threads`` left out)."""
+    args = []
+    for f in dataclasses.fields(cfg):
+        v = getattr(cfg, f.name)
+        if v == f.default or v is None or (f.name == "threads"):
+            continue
+        flag = "--" + f.name.replace("_", "-")
+        if isinstance(v, bool):
+            args.append(flag)
+        elif isinstance(v, tuple):
+            args += [flag, *map(str, v)]
+        else:
+            args += [flag, str(v)]
+    return args
+
+
+def provenance(cfg: TrainConfig) -> dict:
+    """The command that reproduces ``cfg`` and its dataset (path, seed, image count from its meta.json)."""
+    meta_path = Path(cfg.data) / "meta.json"
+    meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
+    return {"command": "python -m controltac_il.generator.train " + " ".join(cli_args(cfg)),
+            "data": {"path": str(cfg.data), "seed": meta.get("seed"), "images": meta.get("count")}}
+
+
+def legacy_provenance(run: Path) -> dict | None:
+    """``provenance`` rebuilt from a run folder's ``train_config.json`` (its latest invocation's arguments;
+    None without one). Fields added to TrainConfig since take their defaults."""
+    path = run / "train_config.json"
+    if not path.is_file():
+        return None
+    saved = json.loads(path.read_text())
+    return provenance(TrainConfig(**{f.name: saved[f.name] for f in dataclasses.fields(TrainConfig) if f.name in saved}))
