@@ -3,8 +3,8 @@
     python -m controltac_il.estimators.train --data DATA_DIR --out runs/estimator
     python -m controltac_il.estimators.train --data DATA_DIR --out runs/estimator --resume
 
-The checkpoint folder (model.safetensors + config.json + README.md) is rewritten atomically at
-every checkpoint; the resumable optimiser state lives beside it in ``<out>.train_state/``.
+The checkpoint folder (model.safetensors + config.json + model_card.json with the weights' hash +
+README.md) is rewritten atomically at every checkpoint; the resumable optimiser state lives beside it in ``<out>.train_state/``.
 """
 
 from __future__ import annotations

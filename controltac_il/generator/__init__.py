@@ -1,8 +1,9 @@
 """Stage-1 force-control generator (ControlTac): reference tactile residual + ΔF -> residual at the target force.
 
-Modules: ``config`` (dataclasses), ``autoencoder`` (compact residual codec), ``dit`` (ΔF-conditioned
-diffusion transformer), ``sampler`` (DDIM via diffusers), ``checkpoint`` (safetensors + JSON),
-``pipeline`` (``ForceGenerator``, the inference API), ``data`` and ``train`` (training CLI).
+Modules: ``config`` (pydantic dataclasses), ``autoencoder`` (compact residual codec), ``dit`` (ΔF-conditioned
+diffusion transformer), ``sampler`` (DDIM via diffusers), ``checkpoint`` (safetensors + JSON + model card,
+``controltac_il.checkpoint``), ``pipeline`` (``ForceGenerator``, the inference API), ``data``, ``train_config``
+and ``train`` (training CLI).
 """
 
 from controltac_il.generator.config import (
