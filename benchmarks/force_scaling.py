@@ -144,17 +144,15 @@ def generate_frames(work: Path, x: np.ndarray, f: np.ndarray, refs: np.ndarray, 
     """Generated residuals for the plan and their labels (targets clamped to the generator's
     validated range, as it does), cached in ``work`` by generator hash and plan."""
     from controltac_il.generator import ForceGenerator
-    from controltac_il.generator.config import FZ_RANGE, SHEAR_MAX
 
     gen = ForceGenerator.from_pretrained(generator_path)
     steps = gen.config.default_steps if setup.gen_steps is None else setup.gen_steps
     key = hashlib.sha256(json.dumps([gen.checkpoint_hash, steps, refs.tolist(), targets.tolist(),
                                      hashlib.sha256(x[refs].tobytes()).hexdigest()]).encode()).hexdigest()[:16]
     cache = work / f"generated_{key}.npz"
-    lo = np.array([-SHEAR_MAX, -SHEAR_MAX, FZ_RANGE[0]], np.float32)
-    hi = np.array([SHEAR_MAX, SHEAR_MAX, FZ_RANGE[1]], np.float32)
-    labels = np.clip(f[targets], lo, hi).astype(np.float32)
-    clamped = int(np.any(labels != f[targets], axis=1).sum())
+    decision = gen.resolve_targets(f[targets], "clamp")  # the generator's own range decision
+    labels = decision.target.astype(np.float32)
+    clamped = int(decision.clamped.sum())
     info = {"generator_hash": gen.checkpoint_hash, "ddim_steps": int(steps), "frames": int(len(refs)),
             "targets_clamped_to_validated_range": clamped}
     if cache.is_file():

@@ -30,11 +30,12 @@ from tqdm.auto import tqdm
 
 from benchmarks.common import base_parser, median_time, print_table, write_results
 from controltac_il.generator import ForceGenerator
+from controltac_il.generator.forces import VALIDATED_RANGE
 from controltac_il.generator.pipeline import CHECKPOINT_ROOT
 from controltac_il.io import atomic_path, write_json
 from controltac_il.metrics import mse, ssim
 from controltac_il.tactile import HELDOUT_OBJECTS, TRAIN_OBJECTS, SensorSpec, TactileSensor, from_residual
-from controltac_il.tactile.residual import residual_magnitude
+from controltac_il.tactile.residual import OFFSET, residual_magnitude
 from controltac_il.tactile.dataset import load_dataset, write_dataset
 from controltac_il.tactile.inverse import rerender
 
@@ -49,7 +50,7 @@ def eval_pairs(cache: Path, split: str, poses: int, forces: int, max_pairs: int,
     root = cache / f"{split}_p{poses}_f{forces}_s{data_seed}"
     if not (root / "manifest.csv").is_file():
         write_dataset(root, objects, poses_per_object=poses, forces_per_pose=forces, seed=data_seed,
-                      spec=SensorSpec.gelsight_mini().scaled(*RENDER_SIZE), fz_range=(1.0, 10.0), progress=False)
+                      spec=SensorSpec.gelsight_mini().scaled(*RENDER_SIZE), fz_range=VALIDATED_RANGE.fz, progress=False)
     ds = load_dataset(root)
     pairs = [(i, j) for g in ds.pose_groups().values() for i in g for j in g if i != j]
     rng = np.random.default_rng(seed)
@@ -91,7 +92,7 @@ def _vm_hwm_mb() -> float:
 
 def _peak_worker(method: str, ckpt: str | None, steps: int | None, threads: int, q) -> None:
     torch.set_num_threads(threads)
-    ref = np.full((32, *RENDER_SIZE, 3), 127, np.uint8)
+    ref = np.full((32, *RENDER_SIZE, 3), OFFSET, np.uint8)
     df = np.tile([[0.0, 0.0, 2.0]], (32, 1))
     if method == "generator":
         gen = ForceGenerator.from_pretrained(ckpt)

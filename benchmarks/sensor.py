@@ -17,7 +17,7 @@ import numpy as np
 
 from benchmarks.common import base_parser, median_time, print_table, write_results
 from controltac_il.tactile import HELDOUT_OBJECTS, TRAIN_OBJECTS, SensorSpec, TactileSensor, to_residual
-from controltac_il.tactile.residual import residual_magnitude
+from controltac_il.tactile.residual import OFFSET, residual_magnitude
 from controltac_il.tactile.sheet import save_png
 
 REAL_CONTACTS = ("bead.png", "key.png", "seed.png", "ball_image.png")
@@ -28,7 +28,7 @@ def residual_stats(residual: np.ndarray) -> dict:
     """Statistics of one residual (uint8 (H, W, 3)): magnitude percentiles, contact fraction, channel spread."""
     mag = residual_magnitude(residual)
     contact = mag > 15
-    d = residual.astype(np.float32) - 127
+    d = residual.astype(np.float32) - OFFSET
     inside = d[contact] if contact.any() else d.reshape(-1, 3)
     return {
         "max_abs": float(mag.max()),

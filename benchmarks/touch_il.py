@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from controltac_il.tactile.residual import OFFSET
 from envs.config import EVAL_SEED
 
 BUDGETS = (20, 35, 50)
@@ -202,7 +203,7 @@ def plot(cells: list[dict], path: Path, budgets: list[int], image_aug_copies: in
 
 def _stripe_column(residual: np.ndarray) -> float:
     """Column centroid (px) of the contact in a tactile residual uint8 (H, W, 3)."""
-    cols = np.abs(residual.astype(np.float32) - 127.0).sum(axis=2).mean(axis=0)
+    cols = np.abs(residual.astype(np.float32) - OFFSET).sum(axis=2).mean(axis=0)
     cols = np.clip(cols - np.median(cols), 0, None)
     return float((cols * np.arange(cols.size)).sum() / cols.sum())
 
@@ -234,7 +235,7 @@ def vision_check(seeds=range(20), offsets_mm=(-8.0, -5.0, 5.0, 8.0)) -> dict:
                     for c in cfg.cameras:
                         images[c].append(env.render_camera(c).astype(np.int16))
                     residual = np.clip(env.render_tactile("left").astype(np.int16)
-                                       - env.tactile_background("left") + 127, 0, 255)
+                                       - env.tactile_background("left") + OFFSET, 0, 255)
                     cols.append(_stripe_column(residual))
                 for c in cfg.cameras:
                     diffs[c] = max(diffs[c], max(int(np.abs(images[c][0] - im).max()) for im in images[c][1:]))
@@ -248,7 +249,7 @@ def vision_check(seeds=range(20), offsets_mm=(-8.0, -5.0, 5.0, 8.0)) -> dict:
 
 def _contact_stats(residuals: np.ndarray, threshold: float = 6.0) -> tuple[float, float]:
     """(contact area as a fraction of the pad, mean |residual - 127| summed over RGB) of uint8 (N, H, W, 3)."""
-    mag = np.abs(residuals.astype(np.float32) - 127.0).sum(axis=-1)
+    mag = np.abs(residuals.astype(np.float32) - OFFSET).sum(axis=-1)
     return float((mag > threshold).mean()), float(mag.mean())
 
 

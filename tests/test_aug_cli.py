@@ -60,3 +60,22 @@ def test_cli_help(capsys):
         main(["--help"])
     out = capsys.readouterr().out
     assert exc.value.code == 0 and "--copies" in out and "torchrun" in out
+
+
+def test_cli_flags_come_from_the_config(capsys):
+    import dataclasses
+
+    from controltac_il.augment import ForceAugmentConfig
+    from controltac_il.augment.cli import parser
+
+    flags = {f.name: f for f in dataclasses.fields(ForceAugmentConfig) if f.metadata["cli"] is not None}
+    assert {"copies", "offset_range", "jitter", "out_of_range", "seed", "steps", "batch_size"} <= set(flags)
+    args = parser().parse_args(["--dataset", "d", "--out", "o"])
+    for name, f in flags.items():
+        value = getattr(args, name)
+        assert (tuple(value) if isinstance(value, list) else value) == f.default, name
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    for name, f in flags.items():
+        assert "--" + name.replace("_", "-") in out and " ".join(f.metadata["help"].split())[:30] in out, name

@@ -228,7 +228,7 @@ def test_interrupted_build_resumes_to_the_clean_result(data, gen, tmp_path):
         pass
 
     calls = {"n": 0}
-    real = gen.generate
+    real = gen.generate_at
 
     def crashing(*args, **kw):
         calls["n"] += 1
@@ -236,12 +236,12 @@ def test_interrupted_build_resumes_to_the_clean_result(data, gen, tmp_path):
             raise Crash()
         return real(*args, **kw)
 
-    gen.generate = crashing
+    gen.generate_at = crashing
     try:
         with pytest.raises(Crash):
             first.build_cache(progress=False)
     finally:
-        del gen.generate
+        del gen.generate_at
     assert not any(p.name.endswith(".tmp") for p in (tmp_path / "part" / "chunks").iterdir())
     assert len(first.missing_chunks()) == 3
     resumed = aug(data, gen, tmp_path, "part")
@@ -414,3 +414,28 @@ def test_zero_copies_is_the_real_data(data, gen, tmp_path):
     assert torch.equal(item["observation.tactile.left"], data[3]["observation.tactile.left"])
     with pytest.raises(IndexError):
         a[len(a)]
+
+
+def test_the_generator_alone_decides_out_of_range_targets(data, gen, tmp_path):
+    """ForceAugment asks for reference + offset + jitter unclamped; what the generator did is recorded."""
+    asked = []
+    real = gen.generate_at
+
+    def spy(residuals, reference_force, target_force, **kw):
+        asked.append((np.array(reference_force), np.array(target_force), kw["out_of_range"]))
+        return real(residuals, reference_force, target_force, **kw)
+
+    gen.generate_at = spy
+    try:
+        a = aug(data, gen, tmp_path, copies=4, seed=1)
+    finally:
+        del gen.generate_at
+    targets = np.concatenate([t for _, t, _ in asked])
+    assert (targets[:, 2] > 10.0).any() and {p for *_, p in asked} == {"clamp"}  # unclamped on the way in
+    recs = [r for r in a.provenance() if r["status"] != "no_contact"]
+    assert len(recs) == len(targets)
+    for r, want in zip(recs, targets):
+        used = np.clip(want, [-1, -1, 1], [1, 1, 10])
+        assert r["target_force"] == used.tolist()
+        assert (r["status"] == "clamped") == bool((used != want).any())
+        np.testing.assert_allclose(want[2], r["reference_force"][2] + r["offset"] + r["jitter"])

@@ -208,6 +208,49 @@ def test_out_of_range_targets_can_be_refused(gen, contacts):
         gen.generate(ref[:1], [[0.0, 0.0, 1.0]], out_of_range="ignore")
 
 
+def test_generate_at_decides_each_target_once_and_says_what_it_did(gen, contacts):
+    """Targets in, the generator alone clamps (or skips), and the decision comes back per sample."""
+    import warnings
+
+    ref, _ = contacts
+    rf = np.tile([[0.0, 0.0, 4.0]], (3, 1))
+    asked = np.array([[0.0, 0.0, 7.0], [0.0, 0.0, 13.0], [1.5, 0.0, 4.0]])  # in range, Fz 13 N, Fx 1.5 N
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the decision is returned, not warned about
+        res = gen.generate_at(ref, rf, asked, steps=STEPS, seed=[1, 2, 3])
+    d = res.decision
+    assert d.clamped.tolist() == [False, True, True] and not d.skipped.any()
+    np.testing.assert_array_equal(d.requested, asked)
+    np.testing.assert_array_equal(d.target, [[0.0, 0.0, 7.0], [0.0, 0.0, 10.0], [1.0, 0.0, 4.0]])
+    assert gen.last_range_report.clamped == 2 and gen.last_range_report.clamped_indices == [1, 2]
+    same = gen.generate(ref, d.target - rf, steps=STEPS, seed=[1, 2, 3], reference_force=rf)
+    np.testing.assert_array_equal(res.residuals, same)  # conditioned on ΔF = target used - reference
+    skip = gen.generate_at(ref, rf, asked, steps=STEPS, seed=[1, 2, 3], out_of_range="skip")
+    assert skip.decision.skipped.tolist() == [False, True, True] and not skip.decision.clamped.any()
+    np.testing.assert_array_equal(skip.residuals[1:], ref[1:])  # not generated: the reference, unchanged
+    np.testing.assert_array_equal(skip.decision.target, asked)
+    assert gen.last_range_report.skipped == 2
+    planned = gen.resolve_targets(asked, "skip")
+    np.testing.assert_array_equal(planned.skipped, skip.decision.skipped)
+    with pytest.raises(ValueError, match="validated range"):
+        gen.generate_at(ref, rf, asked, out_of_range="error")
+
+
+def test_the_validated_range_and_residual_offset_have_one_owner():
+    from controltac_il.generator import config, pipeline
+    from controltac_il.generator.forces import VALIDATED_RANGE, decide_targets
+    from controltac_il.tactile.residual import OFFSET
+
+    assert VALIDATED_RANGE.card() == {"fz_n": [1.0, 10.0], "abs_shear_n": 1.0}
+    assert (config.FZ_RANGE, config.SHEAR_MAX) == (VALIDATED_RANGE.fz, VALIDATED_RANGE.shear_max)
+    np.testing.assert_array_equal(pipeline.MAX_DELTA, [2.0, 2.0, 9.0])
+    assert pipeline.RESIDUAL_OFFSET == OFFSET == 127
+    d = decide_targets([[0.0, 0.0, 10.0 + 5e-7], [0.0, 0.0, 0.5]])  # within the tolerance / below the range
+    assert d.clamped.tolist() == [False, True] and d.target[1].tolist() == [0.0, 0.0, 1.0]
+    with pytest.raises(ValueError, match="out_of_range"):
+        decide_targets([[0.0, 0.0, 5.0]], "wrap")
+
+
 # -- bad input ----------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("bad, match", [

@@ -21,16 +21,18 @@ import torch
 
 from controltac_il.generator.autoencoder import TactileAutoencoder
 from controltac_il.generator.checkpoint import checkpoint_hash, load_checkpoint
-from controltac_il.generator.config import DETAIL_GATE_SIGMA_PX, FZ_RANGE, SHEAR_MAX, GeneratorConfig
+from controltac_il.generator.config import DETAIL_GATE_SIGMA_PX, GeneratorConfig
 from controltac_il.generator.dit import ForceDiT
+from controltac_il.generator.forces import RANGE_POLICIES, VALIDATED_RANGE, TargetDecision, decide_targets
 from controltac_il.generator.sampler import ddim_sample, make_scheduler, seeded_noise
+from controltac_il.tactile.residual import OFFSET
 
 CHECKPOINT_ROOT = Path(__file__).resolve().parent / "checkpoints"
 SHIPPED = ("default", "fast")
-OUT_OF_RANGE_POLICIES = ("clamp", "error")
+OUT_OF_RANGE_POLICIES = RANGE_POLICIES
 # Largest |ΔF| between two forces of the validated range, per component [Fx, Fy, Fz] (N).
-MAX_DELTA = np.array([2 * SHEAR_MAX, 2 * SHEAR_MAX, FZ_RANGE[1] - FZ_RANGE[0]], dtype=np.float64)
-RESIDUAL_OFFSET = 127.0
+MAX_DELTA = VALIDATED_RANGE.span
+RESIDUAL_OFFSET = float(OFFSET)
 
 
 def residual_to_unit(residual: torch.Tensor) -> torch.Tensor:
@@ -43,13 +45,26 @@ class RangeReport:
     """Validated-range bookkeeping of one ``generate`` call (and, summed, of a generator's life).
 
     total: samples seen; clamped: samples whose target force (or ΔF) was moved into the validated
-    range (Fz in [1, 10] N, |Fx|, |Fy| <= 1 N; without reference forces |ΔF| is bounded by the
-    range's span, [2, 2, 9] N).
+    range (``forces.VALIDATED_RANGE``; without reference forces |ΔF| is bounded by the range's span);
+    skipped: samples left ungenerated (``out_of_range="skip"``).
     """
 
     total: int = 0
     clamped: int = 0
     clamped_indices: list[int] = field(default_factory=list)
+    skipped: int = 0
+
+
+@dataclass(frozen=True)
+class Generation:
+    """What ``generate_at`` returns: the residuals and what was done with each requested target.
+
+    residuals: uint8 (B, H, W, 3); a skipped sample's is its reference residual, unchanged.
+    decision: the ``TargetDecision`` (requested and used target force, clamped, skipped per sample).
+    """
+
+    residuals: np.ndarray
+    decision: TargetDecision
 
 
 def _resize_each(images: np.ndarray, size_wh: tuple[int, int]) -> np.ndarray:
@@ -123,35 +138,41 @@ class ForceGenerator:
         return cls(config, ae, dit, device=device, dtype=dtype, checkpoint_hash=checkpoint_hash(path))
 
     # -- force range -------------------------------------------------------------------------
+    def resolve_targets(self, target_force, out_of_range: str = "clamp") -> TargetDecision:
+        """What ``generate_at`` would do with these target forces (B, 3) N, without generating or counting."""
+        n = np.shape(target_force)[0] if np.ndim(target_force) else -1
+        return decide_targets(_validate_forces(target_force, n, "target_force"), out_of_range)
+
+    def _count(self, decision: TargetDecision) -> None:
+        bad = np.flatnonzero(decision.clamped)
+        self.last_range_report = RangeReport(total=len(decision.clamped), clamped=len(bad),
+                                             clamped_indices=bad.tolist(), skipped=int(decision.skipped.sum()))
+        self.range_report.total += self.last_range_report.total
+        self.range_report.clamped += self.last_range_report.clamped
+        self.range_report.skipped += self.last_range_report.skipped
+
     def _apply_range(self, delta: np.ndarray, reference_force: np.ndarray | None, out_of_range: str) -> np.ndarray:
-        if out_of_range not in OUT_OF_RANGE_POLICIES:
-            raise ValueError(f"out_of_range must be one of {OUT_OF_RANGE_POLICIES}, got {out_of_range!r}")
-        tol = 1e-6  # N: float32 round trips of in-range values are not clamps
+        """ΔF of ``generate`` after the range policy (see ``_resolve_delta``)."""
+        return self._resolve_delta(delta, reference_force, out_of_range)[0]
+
+    def _resolve_delta(self, delta: np.ndarray, reference_force: np.ndarray | None,
+                       out_of_range: str) -> tuple[np.ndarray, np.ndarray]:
+        """(ΔF to condition on, bool (B,) samples to generate) of ``generate``: with reference forces the
+        target reference + ΔF goes through ``decide_targets`` (components it moved get the new ΔF, the
+        others keep theirs exactly); without, ΔF is bounded by the range's span. Counts; warns on clamps."""
         if reference_force is not None:
-            target = reference_force + delta
-            lo = np.array([-SHEAR_MAX, -SHEAR_MAX, FZ_RANGE[0]])
-            hi = np.array([SHEAR_MAX, SHEAR_MAX, FZ_RANGE[1]])
-            outside = (target < lo - tol) | (target > hi + tol)
-            fixed = np.where(outside, np.clip(target, lo, hi) - reference_force, delta)
             what = "target force reference_force + delta_force"
+            decision = decide_targets(reference_force + delta, out_of_range, what=what)
+            fixed = np.where(decision.target != decision.requested, decision.target - reference_force, delta)
         else:
-            outside = np.abs(delta) > MAX_DELTA + tol
-            fixed = np.where(outside, np.clip(delta, -MAX_DELTA, MAX_DELTA), delta)
             what = "delta_force"
-        bad = np.flatnonzero(outside.any(axis=1))
-        report = RangeReport(total=len(delta), clamped=len(bad), clamped_indices=bad.tolist())
-        if len(bad) and out_of_range == "error":
-            raise ValueError(
-                f"{len(bad)} of {len(delta)} samples have a {what} outside the validated range "
-                f"(Fz in {list(FZ_RANGE)} N, |Fx|, |Fy| <= {SHEAR_MAX} N), e.g. index {bad[0]}; "
-                "pass out_of_range='clamp' to move them into range")
-        if len(bad):
-            warnings.warn(f"clamped {len(bad)} of {len(delta)} samples whose {what} was outside the validated range",
-                          stacklevel=3)
-        self.last_range_report = report
-        self.range_report.total += report.total
-        self.range_report.clamped += report.clamped
-        return fixed
+            decision = decide_targets(delta, out_of_range, VALIDATED_RANGE.delta_range(), what=what)
+            fixed = decision.target
+        self._count(decision)
+        if decision.clamped.any():
+            warnings.warn(f"clamped {int(decision.clamped.sum())} of {len(delta)} samples whose {what} was outside "
+                          "the validated range", stacklevel=3)
+        return fixed, decision.generated
 
     # -- model steps ---------------------------------------------------------------------------
     @torch.no_grad()
@@ -189,28 +210,66 @@ class ForceGenerator:
         steps: DDIM steps (>= 1), default ``config.default_steps``. seed: one int (every sample uses the
             same noise, so a sample's output never depends on its batch-mates) or B ints (one per sample).
         batch_size: samples per forward pass (memory only; results do not depend on it).
-        reference_force: optional (B, 3) N; then targets outside the validated range are handled by
-            ``out_of_range`` ("clamp" moves the target into range, "error" raises); without it the
-            same applies to ΔF beyond the range's span. Either way the count is kept in
-            ``last_range_report`` / ``range_report``.
+        reference_force: optional (B, 3) N; then targets outside the validated range
+            (``forces.VALIDATED_RANGE``) are handled by ``out_of_range`` ("clamp" moves the target into
+            range, "error" raises, "skip" returns the reference unchanged); without it the same applies
+            to ΔF beyond the range's span. Either way the count is kept in ``last_range_report`` /
+            ``range_report``. ``generate_at`` takes target forces and says what it did per sample.
         """
         ref = _validate_residuals(reference_residuals, "reference_residuals")
         n = ref.shape[0]
         delta = _validate_forces(delta_force, n, "delta_force")
         ref_f = None if reference_force is None else _validate_forces(reference_force, n, "reference_force")
+        steps, seeds = self._check_options(steps, seed, batch_size, n)
+        delta, keep = self._resolve_delta(delta, ref_f, out_of_range)
+        return self._sample_where(ref, delta, seeds, steps, batch_size, keep)
+
+    def generate_at(self, reference_residuals, reference_force, target_force, steps: int | None = None,
+                    seed: int | Sequence[int] = 0, batch_size: int = 32, out_of_range: str = "clamp") -> Generation:
+        """Residuals at ``target_force`` (B, 3) N from residuals at ``reference_force`` (B, 3) N, and what was done.
+
+        Each requested target goes through ``forces.decide_targets`` once: "clamp" (default) moves a target
+        outside the validated range into it, "skip" leaves that sample ungenerated (its reference residual
+        is returned), "error" raises. The model is conditioned on ΔF = target used - reference. Other
+        arguments as ``generate``; no warning is issued (the returned decision says what was clamped).
+        """
+        ref = _validate_residuals(reference_residuals, "reference_residuals")
+        n = ref.shape[0]
+        ref_f = _validate_forces(reference_force, n, "reference_force")
+        target = _validate_forces(target_force, n, "target_force")
+        steps, seeds = self._check_options(steps, seed, batch_size, n)
+        decision = decide_targets(target, out_of_range)
+        self._count(decision)
+        out = self._sample_where(ref, decision.target - ref_f, seeds, steps, batch_size, decision.generated)
+        return Generation(residuals=out, decision=decision)
+
+    def _check_options(self, steps, seed, batch_size, n: int) -> tuple[int, list[int]]:
         steps = self.config.default_steps if steps is None else steps
         if not isinstance(steps, (int, np.integer)) or isinstance(steps, bool) or not 1 <= steps <= self.config.diffusion.num_train_timesteps:
             raise ValueError(f"steps must be an int in [1, {self.config.diffusion.num_train_timesteps}], got {steps!r}")
         if not isinstance(batch_size, (int, np.integer)) or isinstance(batch_size, bool) or batch_size < 1:
             raise ValueError(f"batch_size must be a positive int, got {batch_size!r}")
         if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
-            seeds = [int(seed)] * n
-        else:
-            seeds = [int(s) for s in seed]
-            if len(seeds) != n:
-                raise ValueError(f"seed must be one int or {n} ints (one per sample), got {len(seeds)}")
-        delta = self._apply_range(delta, ref_f, out_of_range)
+            return int(steps), [int(seed)] * n
+        seeds = [int(s) for s in seed]
+        if len(seeds) != n:
+            raise ValueError(f"seed must be one int or {n} ints (one per sample), got {len(seeds)}")
+        return int(steps), seeds
 
+    def _sample_where(self, ref: np.ndarray, delta: np.ndarray, seeds: list[int], steps: int, batch_size: int,
+                      keep: np.ndarray) -> np.ndarray:
+        """``_sample`` on the rows ``keep`` selects (batched among themselves); the other rows stay ``ref``."""
+        if keep.all():
+            return self._sample(ref, delta, seeds, steps, batch_size)
+        out = ref.copy()
+        rows = np.flatnonzero(keep)
+        if len(rows):
+            out[rows] = self._sample(ref[rows], delta[rows], [seeds[i] for i in rows], steps, batch_size)
+        return out
+
+    def _sample(self, ref: np.ndarray, delta: np.ndarray, seeds: list[int], steps: int, batch_size: int) -> np.ndarray:
+        """The model: residuals uint8 (B, H, W, 3) conditioned on ΔF (B, 3) N -> residuals, same size."""
+        n = ref.shape[0]
         h_in, w_in = ref.shape[1:3]
         H, W = self.config.image_size
         resized = (h_in, w_in) != (H, W)

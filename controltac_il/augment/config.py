@@ -1,0 +1,107 @@
+"""``ForceAugmentConfig``: every setting of ForceAugment, each field with its help (the CLI is built from it)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+MODES = ("cache", "online")
+OUT_OF_RANGE = ("clamp", "skip")
+BUILD = ("now", "require", "manual")
+
+
+def _setting(default, help: str, flag: bool = True, **argparse_kwargs):
+    """A config field: its default, its help, and how the CLI reads it (``flag=False`` keeps it off the
+    command line; ``argparse_kwargs``: type, nargs, choices, metavar of its flag)."""
+    return field(default=default, metadata={"help": help, "cli": argparse_kwargs if flag else None})
+
+
+def _int(value, name: str, low: int, none_ok: bool = False) -> int | None:
+    if value is None and none_ok:
+        return None
+    if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < low:
+        raise ValueError(f"{name}: expected {'None or ' if none_ok else ''}an int >= {low}, got {value!r}")
+    return int(value)
+
+
+def _floats(value, name: str, what: str) -> tuple[float, ...]:
+    try:
+        out = tuple(float(v) for v in value)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: expected {what}, got {value!r}") from exc
+    return out
+
+
+@dataclass
+class ForceAugmentConfig:
+    """Settings of ForceAugment (everything that decides the augmented frames is recorded in the cache).
+
+    Each field's help is in its metadata (``ForceAugmentConfig.help()``); the list follows."""
+
+    copies: int = _setting(4, "augmented copies per episode (>= 0); the wrapper has (copies + 1) x the wrapped length",
+                           type=int)
+    offset_range: tuple[float, float] = _setting(
+        (-3.0, 10.0), "(low, high) N: the per-copy normal-force offset is drawn from U[low, high]",
+        type=float, nargs=2, metavar=("LOW", "HIGH"))
+    jitter: tuple[float, ...] = _setting((-1.0, -0.5, 0.0, 0.5, 1.0),
+                                         "per-frame normal-force jitter values (N), one drawn uniformly per frame",
+                                         type=float, nargs="+")
+    tactile_keys: tuple[str, ...] | None = _setting(
+        None, "item keys of the tactile images; None = every key containing 'tactile' (but not "
+              "'tactile_background'); a plain sensor name s means observation.tactile.s", nargs="+")
+    mode: str = _setting("cache", "'cache' (generate once, store, read back) or 'online' (generate on access)",
+                         flag=False)
+    cache_dir: str | None = _setting(None, "cache folder (mode 'cache'); None = a folder named after the settings "
+                                           "under controltac_il.io.cache_root()/augment", flag=False)
+    out_of_range: str = _setting("clamp", "target outside the generator's validated force range: 'clamp' (the "
+                                          "generator moves it into range) or 'skip' (keep the real frame); both "
+                                          "are counted", choices=OUT_OF_RANGE)
+    seed: int = _setting(0, "root of every random draw (int >= 0)", type=int)
+    steps: int | None = _setting(None, "sampler steps; None = the generator's default", type=int)
+    contact_force: float = _setting(0.2, "with force labels, a frame is in contact when Fz >= this (N)", type=float)
+    min_contact_area: float = _setting(
+        0.002, "without force labels, a frame is in contact when at least this fraction of its pixels are "
+               "contact pixels of contact_mask on the residual", type=float)
+    batch_size: int = _setting(32, "frames per generator call while building the cache", type=int)
+
+    def __post_init__(self):
+        self.copies = _int(self.copies, "copies", 0)
+        rng = _floats(self.offset_range, "offset_range", "(low, high) in N")
+        if len(rng) != 2 or not all(math.isfinite(v) for v in rng):
+            raise ValueError(f"offset_range: expected two finite numbers (low, high) in N, got {self.offset_range!r}")
+        if rng[0] > rng[1]:
+            raise ValueError(f"offset_range: inverted, low {rng[0]} > high {rng[1]}")
+        self.offset_range = rng
+        jit = _floats(self.jitter, "jitter", "a sequence of numbers in N")
+        if not jit or not all(math.isfinite(v) for v in jit):
+            raise ValueError(f"jitter: expected a non-empty sequence of finite numbers in N, got {self.jitter!r}")
+        self.jitter = jit
+        if self.tactile_keys is not None:
+            keys = (self.tactile_keys,) if isinstance(self.tactile_keys, str) else tuple(self.tactile_keys)
+            if not keys or not all(isinstance(k, str) and k for k in keys):
+                raise ValueError(f"tactile_keys: expected non-empty key names, got {self.tactile_keys!r}")
+            self.tactile_keys = keys
+        for name, allowed in (("mode", MODES), ("out_of_range", OUT_OF_RANGE)):
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"{name}: expected one of {allowed}, got {getattr(self, name)!r}")
+        self.seed = _int(self.seed, "seed", 0)
+        if self.steps is not None and (not isinstance(self.steps, (int, np.integer)) or self.steps < 1):
+            raise ValueError(f"steps: expected None or an int >= 1, got {self.steps!r}")
+        if not self.contact_force >= 0:
+            raise ValueError(f"contact_force: expected a number >= 0 (N), got {self.contact_force!r}")
+        if not 0 <= self.min_contact_area < 1:
+            raise ValueError(f"min_contact_area: expected a fraction in [0, 1), got {self.min_contact_area!r}")
+        if not isinstance(self.batch_size, int) or self.batch_size < 1:
+            raise ValueError(f"batch_size: expected an int >= 1, got {self.batch_size!r}")
+
+    @classmethod
+    def help(cls) -> dict[str, str]:
+        """Field name -> its documented help."""
+        return {f.name: f.metadata["help"] for f in dataclasses.fields(cls)}
+
+
+ForceAugmentConfig.__doc__ += "\n" + "".join(
+    f"\n    {name}: {text}." for name, text in ForceAugmentConfig.help().items()) + "\n"

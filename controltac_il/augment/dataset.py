@@ -1,0 +1,268 @@
+"""``ForceAugment``: the dataset wrapper (indexing, set-up, the cache's life cycle, summaries)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import sys
+import time
+from collections import OrderedDict
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+from torch.utils.data import Dataset
+from tqdm import tqdm
+
+from controltac_il.augment import items as adapters
+from controltac_il.augment.config import BUILD, ForceAugmentConfig
+from controltac_il.augment.online import check_online_items, generate_item
+from controltac_il.augment.provenance import chunk_done, check_manifest, write_manifest
+from controltac_il.augment.reader import ChunkReader
+from controltac_il.augment.records import STATUS, FrameOutcome, KeyOutcome, annotate, info
+from controltac_il.augment.reference import EpisodeFrames, ReferenceForces
+from controltac_il.augment.writer import CacheWriter
+from controltac_il.io import cache_root
+
+
+class ForceAugment(Dataset):
+    """Wrap ``dataset`` with ``copies`` force-augmented virtual copies of every episode.
+
+    dataset: the project's EpisodeDataset or any map-style dataset whose items are dicts with
+        ``episode_index``, ``frame_index`` (ints >= 0) and tactile image tensors (LeRobot convention).
+    generator: a ForceGenerator (controltac_il.generator); None = the shipped checkpoint.
+    estimator: a ForceEstimator for reference forces where the items carry no force labels
+        (``<key with tactile -> force>``); None = the shipped estimator, loaded only when needed.
+    build: cache mode only: "now" generates the missing part of the cache at construction (this
+        rank's share under torchrun, then waits for the other ranks); "require" expects a complete
+        cache (error otherwise); "manual" leaves it to ``build_cache()`` (the CLI).
+    Other arguments: see ForceAugmentConfig.
+    """
+
+    def __init__(self, dataset, generator=None, copies=4, offset_range=(-3.0, 10.0),
+                 jitter=(-1.0, -0.5, 0.0, 0.5, 1.0), tactile_keys=None, mode="cache", cache_dir=None,
+                 out_of_range="clamp", seed=0, steps=None, *, estimator=None, contact_force=0.2,
+                 min_contact_area=0.002, batch_size=32, build="now", progress=True):
+        self.config = ForceAugmentConfig(
+            copies=copies, offset_range=offset_range, jitter=jitter, tactile_keys=tactile_keys, mode=mode,
+            cache_dir=None if cache_dir is None else str(cache_dir), out_of_range=out_of_range, seed=seed,
+            steps=steps, contact_force=contact_force, min_contact_area=min_contact_area, batch_size=batch_size)
+        self.dataset = dataset
+        self.n_base = len(dataset)
+        if self.n_base == 0:
+            raise ValueError("dataset: is empty")
+        probe = dataset[0]
+        adapters.check_probe(probe)
+        self.tactile_keys = adapters.resolve_tactile_keys(probe, self.config.tactile_keys)
+        self.labelled = {k: adapters.force_key(k) in probe for k in self.tactile_keys}
+        self.references = ReferenceForces(self.labelled, self.config.contact_force, self.config.min_contact_area,
+                                          estimator)
+        self.progress = progress
+        if generator is None:
+            from controltac_il.generator import ForceGenerator
+
+            generator = ForceGenerator.from_pretrained()
+        self.generator = generator
+        self.steps = int(self.config.steps if self.config.steps is not None else generator.config.default_steps)
+        self._frames = None  # (episode, frame) per index, when known without reading items
+        self._source, self._source_index = None, None  # EpisodeDataset read directly (cache mode)
+        self.cache_dir, self._reader = None, None
+        if self.config.mode == "online":
+            check_online_items(probe, self.tactile_keys)
+            return
+        self.cache_dir = Path(self.config.cache_dir) if self.config.cache_dir else self._default_cache_dir()
+        self._reader = ChunkReader(self.cache_dir, self.tactile_keys)
+        self._source, self._source_index = adapters.episode_source(dataset)
+        if self._source is not None:
+            self._frames = dataset.frame_table()
+        check_manifest(self.cache_dir, self.settings())
+        if build not in BUILD:
+            raise ValueError(f"build: expected one of {BUILD}, got {build!r}")
+        if build == "now":
+            self.build_cache(progress=progress)
+            self._wait_complete()
+        if build != "manual":
+            self._require_complete()
+
+    # --- set-up ---------------------------------------------------------------------------------
+    @property
+    def estimator(self):
+        """The force estimator (loaded on first use); a clear error when it is not available."""
+        return self.references.estimator
+
+    def settings(self) -> dict:
+        """Everything that decides the augmented frames (compared against a cache's manifest)."""
+        cfg = asdict(self.config)
+        for k in ("mode", "cache_dir", "batch_size"):  # do not change the frames
+            cfg.pop(k)
+        cfg["steps"] = self.steps
+        cfg["tactile_keys"] = list(self.tactile_keys)
+        cfg["generator_hash"] = str(self.generator.checkpoint_hash)
+        cfg["reference_force"] = {k: ("labels" if v else "estimator") for k, v in self.labelled.items()}
+        if not all(self.labelled.values()):
+            cfg["estimator_hash"] = str(getattr(self.estimator, "checkpoint_hash", None))
+        source, index = adapters.episode_source(self.dataset)
+        fp = getattr(source if source is not None else self.dataset, "fingerprint", None)
+        data = dict(fp()) if callable(fp) else {}
+        data.pop("root", None)
+        if index is not None:
+            data["subset_sha256"] = hashlib.sha256(np.asarray(index, np.int64).tobytes()).hexdigest()[:16]
+        cfg["data"] = {"type": type(self.dataset).__name__, "length": self.n_base, **data}
+        return json.loads(json.dumps(cfg))
+
+    def _default_cache_dir(self) -> Path:
+        digest = hashlib.sha256(json.dumps(self.settings(), sort_keys=True).encode()).hexdigest()[:16]
+        return cache_root() / "augment" / digest
+
+    # --- size and indexing ----------------------------------------------------------------------
+    def __len__(self) -> int:
+        return (self.config.copies + 1) * self.n_base
+
+    def __getitem__(self, index: int) -> dict:
+        n = len(self)
+        if not -n <= index < n:
+            raise IndexError(f"index {index} out of range for {n} items")
+        copy, base = divmod(int(index) % n, self.n_base)
+        if copy and self._frames is not None:  # the project's dataset: do not read frames about to be replaced
+            episode, frame = int(self._frames[0][base]), int(self._frames[1][base])
+            outcome = self._reader.chunk(episode, copy).frames.get(frame)
+            regenerated = [k for k, o in zip(self.tactile_keys, outcome.keys) if o.row >= 0] if outcome else []
+            src = base if self._source_index is None else int(self._source_index[base])
+            return self._from_cache(self._source.item(src, skip_keys=regenerated), episode, copy, frame)
+        item = dict(self.dataset[base])
+        if copy == 0:
+            real = FrameOutcome(0.0, 0.0, tuple(KeyOutcome(STATUS["real"]) for _ in self.tactile_keys))
+            return self._annotate(item, 0, real)
+        episode, frame = adapters.episode_frame(item)
+        if self.config.mode == "cache":
+            return self._from_cache(item, episode, copy, frame)
+        item, outcome = generate_item(item, episode, copy, frame, generator=self.generator, config=self.config,
+                                      steps=self.steps, tactile_keys=self.tactile_keys, references=self.references)
+        return self._annotate(item, copy, outcome)
+
+    def _from_cache(self, item: dict, episode: int, copy: int, frame: int) -> dict:
+        outcome, files = self._reader.frame(episode, copy, frame)
+        for j, (k, o) in enumerate(zip(self.tactile_keys, outcome.keys)):
+            if o.row >= 0:
+                adapters.replace_image(item, k, files[j].read(o.row), o.target)
+        return self._annotate(item, copy, outcome)
+
+    def _annotate(self, item: dict, copy: int, outcome: FrameOutcome) -> dict:
+        labels = {k: adapters.force_key(k) if v else None for k, v in self.labelled.items()}
+        return annotate(item, copy, outcome, self.tactile_keys, labels)
+
+    def info(self, item: dict) -> dict:
+        """Named columns of ``item["augment"]`` (an item's (K, 10) or a batch's (B, K, 10)), for logging:
+        copy, offset, jitter, augmented (any key regenerated), and per tactile key ``status.<key>``,
+        ``reference_force.<key>`` (..., 3), ``target_force.<key>`` (..., 3)."""
+        return info(item, self.tactile_keys)
+
+    # --- episodes and chunks --------------------------------------------------------------------
+    def _episodes(self) -> "OrderedDict[int, list[tuple[int, int]]]":
+        """episode -> [(frame, dataset index)] sorted by frame (from ``frame_table()`` when the dataset has it)."""
+        if getattr(self, "_episode_cache", None) is not None:
+            return self._episode_cache
+        table = getattr(self.dataset, "frame_table", None)
+        if callable(table):
+            eps, frames = table()
+        else:
+            eps, frames = np.empty(self.n_base, np.int64), np.empty(self.n_base, np.int64)
+            for i in tqdm(range(self.n_base), desc="scanning", disable=not self.progress, file=sys.stderr):
+                eps[i], frames[i] = adapters.episode_frame(self.dataset[i])
+        out: OrderedDict = OrderedDict()
+        for i in np.lexsort((frames, eps)):
+            out.setdefault(int(eps[i]), []).append((int(frames[i]), int(i)))
+        self._episode_cache = out
+        return out
+
+    def chunk_list(self) -> list[tuple[int, int]]:
+        """Every (episode, copy) chunk of the cache, in build order."""
+        return [(e, k) for e in self._episodes() for k in range(1, self.config.copies + 1)]
+
+    def missing_chunks(self) -> list[tuple[int, int]]:
+        return [c for c in self.chunk_list() if not chunk_done(self.cache_dir, *c)]
+
+    def _load_episode(self, episode: int) -> EpisodeFrames:
+        rows = self._episodes()[episode]
+        items = [self.dataset[i] for _, i in rows]
+        for (t, _), it in zip(rows, items):
+            if adapters.episode_frame(it) != (episode, t):
+                raise ValueError(f"dataset: item order changed while building (episode {episode}, frame {t})")
+        return self.references.load_episode(items, self.tactile_keys, episode)
+
+    def _writer(self) -> CacheWriter:
+        return CacheWriter(self.cache_dir, self.generator, self.config, self.steps, self.tactile_keys,
+                           self._episodes(), self._load_episode)
+
+    # --- cache mode: build ----------------------------------------------------------------------
+    def build_cache(self, rank: int | None = None, world_size: int | None = None, progress: bool = True,
+                    stop_after: int | None = None) -> dict:
+        """Generate this rank's missing chunks (rank/world_size default to torchrun's RANK/WORLD_SIZE).
+
+        Chunk j of ``chunk_list()`` belongs to rank ``j * world_size // len(chunks)``; each chunk is
+        written atomically, so an interrupted build resumes where it stopped and equals a clean one.
+        stop_after: stop after writing this many chunks (to split a build). Returns counts of the run.
+        """
+        if self.config.mode != "cache":
+            raise ValueError("build_cache: only in mode='cache'")
+        rank = int(os.environ.get("RANK", 0)) if rank is None else int(rank)
+        world_size = int(os.environ.get("WORLD_SIZE", 1)) if world_size is None else int(world_size)
+        if not 0 <= rank < world_size:
+            raise ValueError(f"rank: expected 0 <= rank < world_size={world_size}, got {rank}")
+        settings = self.settings()
+        check_manifest(self.cache_dir, settings)
+        chunks = self.chunk_list()
+        write_manifest(self.cache_dir, settings, chunks)
+        return self._writer().build(chunks, rank, world_size, progress, stop_after)
+
+    def plan(self, progress: bool = False) -> list[dict]:
+        """Provenance records of every augmented frame without generating (reads the whole dataset once).
+
+        Lets a user count contact / clamped / skipped frames before building, or in online mode.
+        """
+        writer, out = self._writer(), []
+        for e in tqdm(list(self._episodes()), desc="planning", disable=not progress, file=sys.stderr):
+            ep = self._load_episode(e)
+            for k in range(1, self.config.copies + 1):
+                out.extend(r.to_json() for r in writer.plan_chunk(e, k, ep))
+        return out
+
+    def _wait_complete(self, poll_s: float = 2.0) -> None:
+        """Under torchrun, wait until the other ranks have written their chunks."""
+        if int(os.environ.get("WORLD_SIZE", 1)) <= 1:
+            return
+        import torch.distributed as dist
+
+        if dist.is_available() and dist.is_initialized():
+            dist.barrier()
+            return
+        while self.missing_chunks():
+            time.sleep(poll_s)
+
+    def _require_complete(self) -> None:
+        missing = self.missing_chunks()
+        if missing:
+            raise ValueError(f"cache {self.cache_dir}: {len(missing)} chunk(s) missing, e.g. episode {missing[0][0]} "
+                             f"copy {missing[0][1]}; build it (python -m controltac_il.augment) or pass build='now'")
+
+    # --- what was done --------------------------------------------------------------------------
+    def provenance(self) -> list[dict]:
+        """Every augmented frame's record (cache mode): episode, copy, frame, key, offset, jitter,
+        reference and target force, status, generator hash, steps, noise seed."""
+        if self.config.mode != "cache":
+            raise ValueError("provenance: only in mode='cache'")
+        return [r for e, k in self.chunk_list() for r in self._reader.chunk(e, k).records]
+
+    def summary(self) -> dict:
+        """Counts over the augmented copies: tactile frames, no_contact, regenerated, clamped, skipped.
+
+        From the cache's provenance in cache mode; from ``plan()`` (one pass over the data) online.
+        """
+        recs = self.provenance() if self.config.mode == "cache" else self.plan()
+        counts = {name: 0 for name in ("no_contact", "regenerated", "clamped", "skipped")}
+        for r in recs:
+            counts[r["status"]] += 1
+        total = len(recs)
+        return {"tactile_frames": total, **counts,
+                "fraction_regenerated": (counts["regenerated"] + counts["clamped"]) / total if total else 0.0}

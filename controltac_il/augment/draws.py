@@ -1,0 +1,48 @@
+"""The draws of a virtual trajectory, pure functions of (seed, episode, copy, frame), and its target force."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from controltac_il.augment.records import STATUS
+
+
+def _stream(seed: int, *key: int) -> np.random.Generator:
+    return np.random.Generator(np.random.Philox(np.random.SeedSequence(seed, spawn_key=key)))
+
+
+def copy_offset(seed: int, episode: int, copy: int, offset_range: tuple[float, float]) -> float:
+    """Normal-force offset (N) of copy ``copy`` of episode ``episode``: U[offset_range]."""
+    return float(_stream(seed, episode, copy, 0).uniform(*offset_range))
+
+
+def frame_jitter(seed: int, episode: int, copy: int, frame: int, jitter: tuple[float, ...]) -> float:
+    """Jitter (N) of one frame of a copy: uniform over the ``jitter`` values."""
+    return float(jitter[int(_stream(seed, episode, copy, 1, frame).integers(len(jitter)))])
+
+
+def noise_seed(seed: int, episode: int, copy: int, frame: int, key_index: int) -> int:
+    """Generator noise seed of one tactile image of one frame of a copy (63-bit int)."""
+    return int(np.random.SeedSequence(seed, spawn_key=(episode, copy, 2, frame, key_index)).generate_state(1, np.uint64)[0] >> 1)
+
+
+def requested_target(reference, delta_fz: float) -> np.ndarray:
+    """The target force (3,) N asked of the generator: reference + (0, 0, offset + jitter). Not clamped:
+    the generator decides what to do with a target outside its validated range."""
+    return np.asarray(reference, np.float64) + np.array([0.0, 0.0, delta_fz])
+
+
+def resolve_target(reference: np.ndarray, delta_fz: float, out_of_range: str) -> tuple[np.ndarray, int]:
+    """Target force (3,) N the generator uses for reference + (0, 0, delta_fz), and its STATUS
+    (regenerated / clamped / skipped), as decided by ``controltac_il.generator.forces.decide_targets``."""
+    from controltac_il.generator.forces import decide_targets
+
+    decision = decide_targets(requested_target(reference, delta_fz)[None], out_of_range)
+    return decision.target[0], status_of(decision, 0)
+
+
+def status_of(decision, i: int) -> int:
+    """STATUS code of sample ``i`` of a generator ``TargetDecision``."""
+    if decision.skipped[i]:
+        return STATUS["skipped"]
+    return STATUS["clamped"] if decision.clamped[i] else STATUS["regenerated"]

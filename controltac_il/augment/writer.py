@@ -1,0 +1,119 @@
+"""Building the cache: each (episode, copy) chunk planned, generated in one generator call and written
+atomically with its provenance; chunks shared out among ranks (torchrun) and resumed where a build stopped."""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+from tqdm import tqdm
+
+from controltac_il.augment.config import ForceAugmentConfig
+from controltac_il.augment.draws import copy_offset, frame_jitter, noise_seed, requested_target, status_of
+from controltac_il.augment.provenance import FrameRecord, chunk_dir, chunk_done, provenance_text
+from controltac_il.augment.records import STATUS_NAME
+from controltac_il.augment.reference import EpisodeFrames
+from controltac_il.io import atomic_dir
+from controltac_il.tactile.residual import from_residual
+
+
+class CacheWriter:
+    """Writes chunks of ``cache_dir``. episodes: episode -> [(frame, dataset index)] sorted by frame;
+    load_episode: episode -> EpisodeFrames."""
+
+    def __init__(self, cache_dir: Path, generator, config: ForceAugmentConfig, steps: int, tactile_keys,
+                 episodes: dict, load_episode: Callable[[int], EpisodeFrames]):
+        self.cache_dir, self.generator, self.config, self.steps = cache_dir, generator, config, steps
+        self.tactile_keys, self.episodes, self.load_episode = tuple(tactile_keys), episodes, load_episode
+
+    def draft(self, episode: int, copy: int, ep: EpisodeFrames) -> tuple[list[FrameRecord], list[int]]:
+        """Records of one chunk (every tactile key x frame) with the requested target of each frame in
+        contact, and the positions of those records (what the generator is asked for)."""
+        cfg = self.config
+        offset = copy_offset(cfg.seed, episode, copy, cfg.offset_range)
+        records, asked = [], []
+        for j, k in enumerate(self.tactile_keys):
+            for i, (t, _) in enumerate(self.episodes[episode]):
+                jitter = frame_jitter(cfg.seed, episode, copy, t, cfg.jitter)
+                rec = FrameRecord(episode, copy, t, k, offset, jitter, None, None, "no_contact", -1, None,
+                                  str(self.generator.checkpoint_hash), self.steps, ep.background_source[k])
+                if ep.contact[k][i]:
+                    ref = ep.reference[k][i]
+                    rec.reference_force = ref.tolist()
+                    rec.target_force = requested_target(ref, offset + jitter).tolist()
+                    rec.noise_seed = noise_seed(cfg.seed, episode, copy, t, j)
+                    asked.append(len(records))
+                records.append(rec)
+        return records, asked
+
+    @staticmethod
+    def settle(records: list[FrameRecord], asked: list[int], decision) -> list[FrameRecord]:
+        """Fill in what the generator did (its ``TargetDecision`` for the ``asked`` records): status, target
+        force used, and the row of each generated image in its key's file."""
+        rows: dict[str, int] = {}
+        for n, i in enumerate(asked):
+            rec = records[i]
+            rec.status = STATUS_NAME[status_of(decision, n)]
+            rec.target_force = decision.target[n].tolist()
+            if decision.skipped[n]:
+                rec.noise_seed = None
+            else:
+                rec.row = rows.get(rec.key, 0)
+                rows[rec.key] = rec.row + 1
+        return records
+
+    def plan_chunk(self, episode: int, copy: int, ep: EpisodeFrames) -> list[FrameRecord]:
+        """Records of one chunk as the generator would settle them, without generating."""
+        records, asked = self.draft(episode, copy, ep)
+        targets = np.asarray([records[i].target_force for i in asked], np.float64).reshape(-1, 3)
+        return self.settle(records, asked, self.generator.resolve_targets(targets, self.config.out_of_range))
+
+    def write_chunk(self, episode: int, copy: int, ep: EpisodeFrames) -> int:
+        """Generate and write one chunk atomically; returns the number of generated images."""
+        records, asked = self.draft(episode, copy, ep)
+        position = {t: i for i, (t, _) in enumerate(self.episodes[episode])}
+        out = None
+        if asked:  # every key of the chunk in one generator call
+            todo = [records[i] for i in asked]
+            res = self.generator.generate_at(
+                np.stack([ep.residuals[r.key][position[r.frame]] for r in todo]),
+                np.asarray([r.reference_force for r in todo]), np.asarray([r.target_force for r in todo]),
+                steps=self.steps, seed=[r.noise_seed for r in todo], batch_size=self.config.batch_size,
+                out_of_range=self.config.out_of_range)
+            self.settle(records, asked, res.decision)
+            out = res.residuals
+        with atomic_dir(chunk_dir(self.cache_dir, episode, copy)) as tmp:
+            for j, k in enumerate(self.tactile_keys):
+                mine = [n for n, i in enumerate(asked) if records[i].key == k and records[i].row >= 0]
+                h, w = ep.residuals[k].shape[1:3]
+                images = from_residual(out[mine], ep.backgrounds[k]) if mine else np.empty((0, h, w, 3), np.uint8)
+                np.save(tmp / f"tactile_{j}.npy", images)
+            (tmp / "provenance.json").write_text(provenance_text(episode, copy, records))
+        return sum(r.row >= 0 for r in records)
+
+    def build(self, chunks: list[tuple[int, int]], rank: int, world_size: int, progress: bool,
+              stop_after: int | None) -> dict:
+        """Write this rank's missing chunks (chunk j belongs to rank j * world_size // len(chunks))."""
+        mine = [c for j, c in enumerate(chunks) if j * world_size // max(len(chunks), 1) == rank]
+        todo = [c for c in mine if not chunk_done(self.cache_dir, *c)]
+        if stop_after is not None:
+            todo = todo[:stop_after]
+        lengths = {e: len(v) for e, v in self.episodes.items()}
+        counts = {"chunks": 0, "frames": 0, "generated": 0, "seconds": 0.0}
+        t0 = time.perf_counter()
+        bar = tqdm(total=sum(lengths[e] for e, _ in todo), unit="frame", desc=f"ForceAugment cache (rank {rank})",
+                   disable=not progress, file=sys.stderr)
+        current, frames = None, None
+        for e, k in todo:
+            if e != current:
+                current, frames = e, self.load_episode(e)
+            counts["generated"] += self.write_chunk(e, k, frames)
+            counts["chunks"] += 1
+            counts["frames"] += lengths[e]
+            bar.update(lengths[e])
+        bar.close()
+        counts["seconds"] = time.perf_counter() - t0
+        return counts

@@ -1,0 +1,103 @@
+"""The generator's validated force range, and what it does with a target outside it (the only place that decides).
+
+The paper validates stage 1 for target forces Fz in [1, 10] N and |Fx|, |Fy| <= 1 N. ``VALIDATED_RANGE``
+is that range; ``decide_targets`` is the one function that clamps, skips or refuses a requested target
+force, and ``ForceGenerator`` applies it to every sample it generates. Callers pass the reference force
+and the target force they want and receive a ``TargetDecision`` saying what was done.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+RANGE_POLICIES = ("clamp", "skip", "error")
+
+
+@dataclass(frozen=True)
+class ForceRange:
+    """A box of forces [Fx, Fy, Fz] in N: Fz in ``fz``, |Fx|, |Fy| <= ``shear_max``.
+
+    tolerance: N by which a target may lie beyond a bound and still count as inside (float32 round
+        trips of in-range values are not out of range).
+    """
+
+    fz: tuple[float, float] = (1.0, 10.0)
+    shear_max: float = 1.0
+    tolerance: float = 1e-6
+
+    @property
+    def low(self) -> np.ndarray:
+        return np.array([-self.shear_max, -self.shear_max, self.fz[0]], np.float64)
+
+    @property
+    def high(self) -> np.ndarray:
+        return np.array([self.shear_max, self.shear_max, self.fz[1]], np.float64)
+
+    @property
+    def span(self) -> np.ndarray:
+        """Largest |ΔF| between two forces of the range, per component (N)."""
+        return self.high - self.low
+
+    def outside(self, force) -> np.ndarray:
+        """bool (..., 3): components of ``force`` (..., 3) beyond the range (by more than the tolerance)."""
+        f = np.asarray(force, np.float64)
+        return (f < self.low - self.tolerance) | (f > self.high + self.tolerance)
+
+    def clamp(self, force) -> np.ndarray:
+        return np.clip(np.asarray(force, np.float64), self.low, self.high)
+
+    def delta_range(self) -> "ForceRange":
+        """The box of ΔF between two forces of this range: |ΔFx|, |ΔFy| <= 2 shear_max, |ΔFz| <= the Fz span."""
+        s = self.fz[1] - self.fz[0]
+        return ForceRange(fz=(-s, s), shear_max=2 * self.shear_max, tolerance=self.tolerance)
+
+    def describe(self) -> str:
+        return f"Fz in [{self.fz[0]:g}, {self.fz[1]:g}] N, |Fx|, |Fy| <= {self.shear_max:g} N"
+
+    def card(self) -> dict:
+        """The range as recorded in a checkpoint's model card."""
+        return {"fz_n": [float(self.fz[0]), float(self.fz[1])], "abs_shear_n": float(self.shear_max)}
+
+
+VALIDATED_RANGE = ForceRange()
+
+
+@dataclass(frozen=True)
+class TargetDecision:
+    """What the generator does with each requested target of a batch.
+
+    requested: (B, 3) N, the target forces asked for. target: (B, 3) N, the force each generated sample
+    shows (the requested one, or clamped into range; for a skipped sample the requested one, not
+    generated). clamped, skipped: bool (B,).
+    """
+
+    requested: np.ndarray
+    target: np.ndarray
+    clamped: np.ndarray
+    skipped: np.ndarray
+
+    @property
+    def generated(self) -> np.ndarray:
+        """bool (B,): samples the generator draws (not skipped)."""
+        return ~self.skipped
+
+
+def decide_targets(target_force, out_of_range: str = "clamp", force_range: ForceRange = VALIDATED_RANGE,
+                   what: str = "target force") -> TargetDecision:
+    """Apply ``out_of_range`` to requested targets (B, 3) N: "clamp" moves a target outside the range into
+    it, "skip" leaves it ungenerated, "error" raises ValueError. Nothing else clamps a target."""
+    if out_of_range not in RANGE_POLICIES:
+        raise ValueError(f"out_of_range must be one of {RANGE_POLICIES}, got {out_of_range!r}")
+    requested = np.asarray(target_force, np.float64)
+    bad = force_range.outside(requested).any(axis=-1)
+    if bad.any() and out_of_range == "error":
+        first = int(np.flatnonzero(bad)[0])
+        raise ValueError(
+            f"{int(bad.sum())} of {len(bad)} samples have a {what} outside the validated range "
+            f"({force_range.describe()}), e.g. index {first}; pass out_of_range='clamp' to move them into range")
+    clamped = bad if out_of_range == "clamp" else np.zeros_like(bad)
+    skipped = bad if out_of_range == "skip" else np.zeros_like(bad)
+    target = np.where(clamped[:, None], force_range.clamp(requested), requested)
+    return TargetDecision(requested=requested, target=target, clamped=clamped, skipped=skipped)
