@@ -2,7 +2,11 @@
 
     gen = ForceGenerator.from_pretrained()                 # shipped default checkpoint
     out = gen.generate(reference_residuals, delta_force)   # uint8 (B, H, W, 3) in and out
+    res = gen.generate_at(residuals, reference_force, target_force)  # res.residuals, res.decision
     imgs = gen.generate_images(images, background, delta_force)
+
+Targets outside the validated range (``forces.VALIDATED_RANGE``) are decided here and only here
+(``forces.decide_targets``: clamp, skip or error); ``generate_at`` returns the decision per sample.
 
 Pipeline: residual -> [-1, 1] -> encoder -> z_ref; DDIM samples the normalised latent delta
 Δz = (z_target - z_ref) / delta_scale conditioned on (z_ref, ΔF); decode(z_ref + Δz) -> residual.
