@@ -118,7 +118,9 @@ def load_folder(path: str | Path, weight_files: tuple[str, ...], optional: tuple
         raise MissingCheckpointFile(f"checkpoint folder not found: {path}")
     missing = [n for n in (CONFIG_FILE, CARD_FILE, *weight_files) if not (path / n).is_file()]
     if missing:
-        raise MissingCheckpointFile(f"checkpoint files not found in {path}: {', '.join(missing)}")
+        hint = (f"; a folder written before checkpoints carried a model card can be signed after checking it: "
+                f"python -m controltac_il.checkpoint sign {path}") if missing == [CARD_FILE] else ""
+        raise MissingCheckpointFile(f"checkpoint files not found in {path}: {', '.join(missing)}{hint}")
     config = read_json(path / CONFIG_FILE)
     hashes = read_json(path / CARD_FILE).get(HASH_KEY)
     if not isinstance(hashes, dict):
@@ -203,6 +205,9 @@ def load_run_state(stem: str | Path, modules: Mapping[str, torch.nn.Module],
     if optimizer is not None:
         state: dict[int, dict] = {}
         items = [(k[len("optimizer."):], v) for k, v in tensors.items() if k.startswith("optimizer.")]
+        if not items and "optimizer_scalars" not in meta:  # another layout: resuming would silently reset AdamW
+            raise CheckpointError(f"{stem}: no optimizer state in the layout this version reads (written by an older "
+                                  "version?); start a new run")
         for key, v in items + list(meta.get("optimizer_scalars", {}).items()):
             pid, name = key.split(".", 1)
             state.setdefault(int(pid), {})[name] = v

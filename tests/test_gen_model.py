@@ -337,3 +337,12 @@ def test_ema_model_matches_the_old_ema_update():
             o.lerp_(p.detach(), 1 - min(0.9, (1 + n) / (10 + n)))
     for a, b in zip(ema.shadow_params, old):
         torch.testing.assert_close(a, b)
+
+
+def test_run_state_without_optimizer_state_is_refused_when_resuming(tmp_path):
+    """A state in another layout (e.g. the estimator's old ``opt.*`` keys) must not resume with a reset AdamW."""
+    m, opt = _adam()
+    save_run_state(tmp_path / "s", {"m": m}, {"step": 3, "param_groups": opt.state_dict()["param_groups"]})
+    with pytest.raises(CheckpointError, match="no optimizer state"):
+        load_run_state(tmp_path / "s", {"m": m}, opt)
+    assert load_run_state(tmp_path / "s", {"m": m})[0]["step"] == 3
