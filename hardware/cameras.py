@@ -7,6 +7,11 @@ up under ``/dev/v4l/by-id``) or a video file (replay, tests), crops a border fra
 :class:`~hardware.interfaces.SensorError` saying so. ``GelSightMini`` adds the usual 15 % border crop,
 240 x 320 output, a no-contact background averaged over the first frames, and residuals with the 127
 offset (``controltac_il.tactile.residual.to_residual``).
+
+Stamps, ages, the playback rate of a video file and the waits for a frame follow the injected
+:class:`~hardware.interfaces.Clock` (the wall clock by default). The reader thread is attached to it, so
+with a :class:`~hardware.interfaces.VirtualClock` a file plays frame by frame in virtual time and a
+test that attaches its own thread sees every frame, exactly stamped, without sleeping.
 """
 
 from __future__ import annotations
@@ -15,7 +20,7 @@ import glob
 import os
 import re
 import threading
-import time
+import time  # perf_counter only: per-frame processing time, a measurement
 
 import cv2
 import numpy as np
@@ -69,8 +74,11 @@ class OpenCVFrameSource(FrameSource):
     removed before resizing (0 <= f < 0.5). fps: requested camera rate (files play at their own rate).
     max_age_s: ``latest`` raises when the newest frame is older than this (None = never; the control
     loop's watchdog also checks ages). loop_file: restart a video file at its end instead of failing.
-    open_timeout_s: wait for the first frame in ``start``.
+    open_timeout_s: wait for the first frame in ``start`` (clock seconds). clock: time of the stamps,
+    the ages, the file's playback and the waits (default: the wall clock).
     """
+
+    POLL_S = 0.002  # on a virtual clock, waits for a frame check every this many clock seconds
 
     def __init__(self, name: str, device: str | int, size: tuple[int, int] = (240, 320), crop_fraction: float = 0.0,
                  fps: float | None = None, max_age_s: float | None = None, loop_file: bool = False,
@@ -114,12 +122,19 @@ class OpenCVFrameSource(FrameSource):
         if not self._cap.isOpened():
             raise SensorError(f"{self.name}: cannot open video source {self.device!r}")
         self._thread = threading.Thread(target=self._read_loop, name=f"frames-{self.name}", daemon=True)
+        self.clock.attach(self._thread)
         self._thread.start()
         self.wait_for_frame(0, self.open_timeout_s)
 
     def _read_loop(self) -> None:
+        try:
+            self._read_frames()
+        finally:
+            self.clock.detach()
+
+    def _read_frames(self) -> None:
         period = 1.0 / (self._cap.get(cv2.CAP_PROP_FPS) or 30.0) if self.is_file else 0.0
-        next_t, index = time.monotonic(), 0
+        next_t, index = self.clock.now(), 0
         while not self._stop.is_set():
             ok, bgr = self._cap.read()
             if not ok and self.is_file and self.loop_file and index > 0:
@@ -137,15 +152,30 @@ class OpenCVFrameSource(FrameSource):
             rgb = crop_and_resize(bgr, self.crop_fraction, self.size)
             self.process_s.append(time.perf_counter() - t0)
             index += 1
+            frame = Frame(rgb, self.clock.now(), index)
             with self._lock:
-                self._latest = Frame(rgb, self.clock.now(), index)
+                self._latest = frame
                 self._new_frame.notify_all()
             if period:  # a file plays at its recorded rate, like the camera it stands in for
                 next_t += period
-                time.sleep(max(0.0, next_t - time.monotonic()))
+                self.clock.wait(self._stop, max(0.0, next_t - self.clock.now()))
+
+    def _frame_after(self, after_index: int) -> Frame | None:
+        with self._lock:
+            if self._error is not None:
+                raise SensorError(self._error)
+            return self._latest if self._latest is not None and self._latest.index > after_index else None
 
     def wait_for_frame(self, after_index: int, timeout_s: float) -> Frame:
-        """Block until a frame newer than ``after_index`` exists; raise SensorError on failure or timeout."""
+        """Block until a frame newer than ``after_index`` exists; raise SensorError on failure or timeout
+        (``timeout_s`` clock seconds)."""
+        if not self.clock.realtime:  # sleep on the clock, so the reader thread gets the time to deliver
+            deadline = self.clock.now() + timeout_s
+            while (frame := self._frame_after(after_index)) is None:
+                if self.clock.now() >= deadline:
+                    raise SensorError(f"{self.name}: no frame from {self.device!r} within {timeout_s} s")
+                self.clock.sleep_until(min(deadline, self.clock.now() + self.POLL_S))
+            return frame
         with self._lock:
             ok = self._new_frame.wait_for(
                 lambda: self._error is not None or (self._latest is not None and self._latest.index > after_index),

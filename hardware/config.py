@@ -1,68 +1,61 @@
 """One YAML file per robot setup: robot, gripper, cameras, tactile sensors, safety limits, loop timing.
 
-``load_setup(path)`` reads and validates it; every error names the file and the field
-(``setup.yaml: gripper.port: required for a dynamixel gripper``). ``open_setup(cfg)`` connects the
-devices it describes and closes them again (arm stopped first). Example files: ``hardware/configs/``.
+``load_setup(path)`` reads and validates it (pydantic models, checked at construction); every error is
+one line naming the file and the field (``setup.yaml: gripper.port: required for a dynamixel gripper``).
+Duplicated keys and a missing ``limits`` section (the workspace box is the user's to state) are errors.
+``open_setup(cfg)`` connects the devices it describes and closes them again (arm stopped first).
+Example files: ``hardware/configs/``.
 """
 
 from __future__ import annotations
 
 import contextlib
-import dataclasses
-import types
-import typing
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
+from typing import Iterator, Literal
 
 import numpy as np
 import yaml
+from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
 
 from hardware.control_loop import ControlLoopConfig
+from hardware.fields import SETTINGS, Bool, Device, Float, Int, IPAddress, Size, Str, Vec2, Vec3, error_line
 from hardware.interfaces import Arm, FrameSource, Gripper
 from hardware.safety import SafetyLimits
 
 
 class ConfigError(ValueError):
-    """A setup file is malformed; the message names the file and the field."""
+    """A setup file is malformed; the one-line message names the file and the field."""
 
 
-@dataclass
-class RobotConfig:
+class _Section(BaseModel):
+    model_config = SETTINGS
+
+
+class RobotConfig(_Section):
     """type: "xarm", "ur" or "sim" (the MuJoCo scene; built by the deploy script, not here).
-    ip: controller address (xarm, ur). tool_rpy: xArm tool (roll, pitch) at yaw 0, rad.
+    ip: controller IP address (xarm, ur). tool_rpy: xArm tool (roll, pitch) at yaw 0, rad.
     tool_rotvec: UR tool orientation at yaw 0 as a rotation vector. lookahead_time, gain: UR servoL
     settings. stream_hz: rate of the interpolated xArm servo points between two control targets.
     stop_on_warning: xArm controller warnings stop the run too."""
 
-    type: str
-    ip: str | None = None
-    tool_rpy: list[float] = field(default_factory=lambda: [float(np.pi), 0.0])
-    tool_rotvec: list[float] = field(default_factory=lambda: [float(np.pi), 0.0, 0.0])
-    lookahead_time: float = 0.1
-    gain: float = 300.0
-    stream_hz: float = 100.0
-    stop_on_warning: bool = False
+    type: Literal["xarm", "ur", "sim"]
+    ip: IPAddress | None = None
+    tool_rpy: Vec2 = (float(np.pi), 0.0)
+    tool_rotvec: Vec3 = (float(np.pi), 0.0, 0.0)
+    lookahead_time: Float = Field(0.1, ge=0.03, le=0.2)
+    gain: Float = Field(300.0, ge=100, le=2000)
+    stream_hz: Float = Field(100.0, ge=10, le=250)
+    stop_on_warning: Bool = False
 
-    def __post_init__(self):
-        if self.type not in ("xarm", "ur", "sim"):
-            raise ValueError(f"type: expected 'xarm', 'ur' or 'sim', got {self.type!r}")
-        if self.type in ("xarm", "ur") and not self.ip:
-            raise ValueError(f"ip: required for robot type {self.type!r} (the controller's address)")
-        if len(self.tool_rpy) != 2:
-            raise ValueError(f"tool_rpy: expected [roll, pitch] in radians, got {self.tool_rpy!r}")
-        if len(self.tool_rotvec) != 3:
-            raise ValueError(f"tool_rotvec: expected [rx, ry, rz] (rotation vector, rad), got {self.tool_rotvec!r}")
-        if not 0.03 <= self.lookahead_time <= 0.2:
-            raise ValueError(f"lookahead_time: expected 0.03 to 0.2 s, got {self.lookahead_time}")
-        if not 100 <= self.gain <= 2000:
-            raise ValueError(f"gain: expected 100 to 2000, got {self.gain}")
-        if not 10 <= self.stream_hz <= 250:
-            raise ValueError(f"stream_hz: expected 10 to 250 Hz, got {self.stream_hz}")
+    @model_validator(mode="after")
+    def _ip_for_a_real_arm(self):
+        if self.type in ("xarm", "ur") and self.ip is None:
+            raise ValueError(f"ip: required for robot type {self.type!r} (the controller's IP address)")
+        return self
 
 
-@dataclass
-class GripperConfig:
+class GripperConfig(_Section):
     """type: "none", "xarm" (needs an xarm robot), "dynamixel" or "robotiq".
     port: serial device (dynamixel, robotiq), preferably /dev/serial/by-id/....
     baudrate: bus speed (default 57600 dynamixel, 115200 robotiq).
@@ -71,175 +64,125 @@ class GripperConfig:
     slave_id, force: Robotiq Modbus address (9) and grip force (0-255).
     speed: Robotiq 0-255 (default 255); xArm gripper pulse/s (default 5000)."""
 
-    type: str = "none"
-    port: str | None = None
-    baudrate: int | None = None
-    dxl_id: int = 1
-    open_position: float | None = None
-    closed_position: float | None = None
-    goal_current: int = 300
-    slave_id: int = 9
-    speed: int | None = None
-    force: int = 150
+    type: Literal["none", "xarm", "dynamixel", "robotiq"] = "none"
+    port: Str | None = None
+    baudrate: Int | None = Field(None, gt=0)
+    dxl_id: Int = Field(1, ge=0, le=252)
+    open_position: Float | None = None
+    closed_position: Float | None = None
+    goal_current: Int = Field(300, gt=0, lt=2048)
+    slave_id: Int = Field(9, ge=1, le=247)
+    speed: Int | None = Field(None, ge=0)
+    force: Int = Field(150, ge=0, le=255)
 
-    def __post_init__(self):
-        if self.type not in ("none", "xarm", "dynamixel", "robotiq"):
-            raise ValueError(f"type: expected 'none', 'xarm', 'dynamixel' or 'robotiq', got {self.type!r}")
+    @model_validator(mode="after")
+    def _per_type(self):
         if self.type in ("dynamixel", "robotiq") and not self.port:
             raise ValueError(f"port: required for a {self.type} gripper (e.g. /dev/serial/by-id/usb-...)")
         if self.type == "dynamixel" and (self.open_position is None or self.closed_position is None):
-            raise ValueError("open_position: open_position and closed_position (Goal Position ticks) are required "
-                             "for a dynamixel gripper")
+            raise ValueError("open_position: open_position and closed_position (Goal Position ticks) are "
+                             "required for a dynamixel gripper")
+        if self.open_position is not None and self.open_position == self.closed_position:
+            raise ValueError("closed_position: must differ from open_position")
+        if self.type == "robotiq" and self.speed is not None and self.speed > 255:
+            raise ValueError(f"speed: a Robotiq speed is 0-255, got {self.speed}")
+        return self
 
 
-@dataclass
-class CameraConfig:
+class CameraConfig(_Section):
     """device: /dev/videoN, an index, a name fragment under /dev/v4l/by-id, or a video file.
     size: output [H, W]. fps: requested rate. crop_fraction: border removed from each side.
     max_age_s: the newest frame may be this old before the camera counts as stalled (None: loop watchdog only)."""
 
-    device: str | int
-    size: list[int] = field(default_factory=lambda: [240, 320])
-    fps: float | None = 30.0
-    crop_fraction: float = 0.0
-    max_age_s: float | None = None
-
-    def __post_init__(self):
-        if len(self.size) != 2 or min(self.size) < 1:
-            raise ValueError(f"size: expected [H, W] with positive integers, got {self.size!r}")
-        if not 0.0 <= self.crop_fraction < 0.5:
-            raise ValueError(f"crop_fraction: expected a number in [0, 0.5), got {self.crop_fraction!r}")
+    device: Device
+    size: Size = (240, 320)
+    fps: Float | None = Field(30.0, gt=0, le=1000)
+    crop_fraction: Float = Field(0.0, ge=0, lt=0.5)
+    max_age_s: Float | None = Field(None, gt=0)
 
 
-@dataclass
 class TactileConfig(CameraConfig):
     """A GelSight Mini: as a camera, with the 15 % crop, 25 fps and a background over ``background_frames``
     no-contact frames at start (default device: the only "GelSight Mini" under /dev/v4l/by-id)."""
 
-    device: str | int = "GelSight Mini"
-    fps: float | None = 25.0
-    crop_fraction: float = 0.15
-    background_frames: int = 30
-
-    def __post_init__(self):
-        super().__post_init__()
-        if self.background_frames < 1:
-            raise ValueError(f"background_frames: expected an integer >= 1, got {self.background_frames!r}")
+    device: Device = "GelSight Mini"
+    fps: Float | None = Field(25.0, gt=0, le=1000)
+    crop_fraction: Float = Field(0.15, ge=0, lt=0.5)
+    background_frames: Int = Field(30, ge=1)
 
 
-@dataclass
-class SetupConfig:
+class SetupConfig(_Section):
     """A whole setup. name: free text. robot / gripper: see their classes. cameras / tactile: name ->
-    device (observation keys images/<name>, tactile/<name>). limits: SafetyLimits fields.
-    control: ControlLoopConfig fields (rate_hz, inference, inference_deadline_s, ...)."""
+    device (observation keys images/<name>, tactile/<name>). limits: SafetyLimits fields (required, with
+    the workspace box). control: ControlLoopConfig fields (rate_hz, inference, inference_deadline_s, ...)."""
 
     robot: RobotConfig
-    name: str = "setup"
-    gripper: GripperConfig = field(default_factory=GripperConfig)
-    cameras: dict[str, CameraConfig] = field(default_factory=dict)
-    tactile: dict[str, TactileConfig] = field(default_factory=dict)
-    limits: SafetyLimits = field(default_factory=SafetyLimits)
-    control: ControlLoopConfig = field(default_factory=ControlLoopConfig)
+    limits: SafetyLimits
+    name: Str = "setup"
+    gripper: GripperConfig = GripperConfig()
+    cameras: dict[Str, CameraConfig] = {}
+    tactile: dict[Str, TactileConfig] = {}
+    control: ControlLoopConfig = ControlLoopConfig()
 
-    def __post_init__(self):
+    @field_validator("limits", mode="before")
+    @classmethod
+    def _box_stated(cls, v):
+        if v is None:
+            raise ValueError("the section is required: state workspace_min and workspace_max (x, y, z in m, base frame)")
+        for key in ("workspace_min", "workspace_max"):
+            if isinstance(v, dict) and key not in v:
+                raise ValueError(f"{key}: required: the box (x, y, z in m, base frame) the end effector must stay in")
+        return v
+
+    @model_validator(mode="after")
+    def _gripper_fits_robot(self):
         if self.gripper.type == "xarm" and self.robot.type != "xarm":
             raise ValueError("gripper.type: an xarm gripper needs robot.type xarm")
+        return self
 
 
-# -- parsing with field paths in the errors ----------------------------------------------------------
-
-def _is_optional(tp) -> bool:
-    return typing.get_origin(tp) in (typing.Union, types.UnionType) and type(None) in typing.get_args(tp)
-
-
-def _convert(value, tp, path: str):
-    """Check ``value`` against the annotation ``tp``; return it converted (lists of numbers, nested dataclasses)."""
-    origin, args = typing.get_origin(tp), typing.get_args(tp)
-    if value is None:
-        if _is_optional(tp):
-            return None
-        raise ConfigError(f"{path}: a value is required")
-    if origin in (typing.Union, types.UnionType):
-        expected = []
-        for arg in (a for a in args if a is not type(None)):
-            try:
-                return _convert(value, arg, path)
-            except ConfigError as exc:
-                expected.append(str(exc).split(": ", 1)[-1].split(", got")[0].removeprefix("expected "))
-        raise ConfigError(f"{path}: expected {' or '.join(expected)}, got {value!r}")
-    if dataclasses.is_dataclass(tp):
-        return _build(tp, value, path)
-    if origin is dict:
-        if not isinstance(value, dict):
-            raise ConfigError(f"{path}: expected a mapping of name -> settings, got {type(value).__name__}")
-        return {str(k): _convert(v, args[1], f"{path}.{k}") for k, v in value.items()}
-    if origin in (list, tuple):
-        if not isinstance(value, (list, tuple)):
-            raise ConfigError(f"{path}: expected a list, got {value!r}")
-        return [_convert(v, args[0], f"{path}[{i}]") for i, v in enumerate(value)]
-    if tp is bool:
-        if not isinstance(value, bool):
-            raise ConfigError(f"{path}: expected true or false, got {value!r}")
-        return value
-    if tp is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{path}: expected an integer, got {value!r}")
-        return value
-    if tp is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{path}: expected a number, got {value!r}")
-        return float(value)
-    if tp is str:
-        if not isinstance(value, str):
-            raise ConfigError(f"{path}: expected a string, got {value!r}")
-        return value
-    return value
-
-
-def _build(cls, data, path: str):
-    if not isinstance(data, dict):
-        raise ConfigError(f"{path}: expected a mapping of settings, got {data!r}")
-    hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
-    unknown = sorted(set(map(str, data)) - set(fields))
-    if unknown:
-        raise ConfigError(f"{path}.{unknown[0]}: unknown field; expected one of {', '.join(sorted(fields))}")
-    kwargs = {}
-    for name, f in fields.items():
-        sub = f"{path}.{name}" if path else name
-        if name in data:
-            kwargs[name] = _convert(data[name], hints[name], sub)
-        elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
-            raise ConfigError(f"{sub}: required field is missing")
-    try:
-        return cls(**kwargs)
-    except ConfigError:
-        raise
-    except (ValueError, TypeError) as exc:
-        msg = str(exc)
-        first = msg.split(":", 1)[0].split()[0] if msg else ""
-        if first.split(".")[0] in fields:  # the message starts with the field name
-            raise ConfigError(f"{path + '.' if path else ''}{msg}") from None
-        raise ConfigError(f"{path or 'setup'}: {msg}") from None
-
+# -- reading ---------------------------------------------------------------------------------------
 
 def parse_setup(data: dict, source: str = "setup") -> SetupConfig:
-    """Validate a parsed YAML mapping; errors read ``<source>: <field path>: <problem>``."""
+    """Validate a parsed YAML mapping; the error is one line, ``<source>: <field path>: <problem>``."""
     try:
-        return _build(SetupConfig, data, "")
-    except ConfigError as exc:
-        raise ConfigError(f"{source}: {exc}") from None
+        return SetupConfig.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(error_line(exc, source)) from None
+
+
+def _refuse_duplicate_keys(node: yaml.Node, source: str, path: str = "") -> None:
+    """Raise ConfigError at the first mapping key written twice (YAML would silently keep the last)."""
+    if isinstance(node, yaml.MappingNode):
+        seen: dict[tuple, int] = {}
+        for key_node, value in node.value:
+            key = (key_node.tag, key_node.value) if isinstance(key_node, yaml.ScalarNode) else None
+            sub = f"{path}.{key_node.value}" if path else str(key_node.value)
+            line = key_node.start_mark.line + 1
+            if key is not None and key_node.value != "<<":
+                if key in seen:
+                    raise ConfigError(f"{source}: {sub}: duplicated key (lines {seen[key]} and {line})")
+                seen[key] = line
+            _refuse_duplicate_keys(value, source, sub)
+    elif isinstance(node, yaml.SequenceNode):
+        for i, value in enumerate(node.value):
+            _refuse_duplicate_keys(value, source, f"{path}[{i}]")
 
 
 def load_setup(path: str | Path) -> SetupConfig:
     """Read and validate a setup YAML file."""
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
+        text = path.read_text()
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read the setup file: {exc}") from None
+    try:
+        node = yaml.compose(text, Loader=yaml.SafeLoader)
+        if node is not None:
+            _refuse_duplicate_keys(node, str(path))
+        data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+        raise ConfigError(f"{path}: not valid YAML: {' '.join(str(exc).split())}") from None
     return parse_setup(data if data is not None else {}, str(path))
 
 

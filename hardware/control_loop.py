@@ -15,8 +15,8 @@ late policy; then the exception propagates with a message that says what happene
 the deadline statistics of the run either way. The loop knows only the interfaces in
 :mod:`hardware.interfaces`: the same code drives MuJoCo, an xArm or a UR.
 
-Policy protocol: ``policy.predict_chunk(observation: dict[str, np.ndarray]) -> (chunk, 5)`` actions
-``[x, y, z, yaw, gripper]``. Observation keys: ``qpos`` float32 (5,) = measured ``[x, y, z, yaw, gripper]``;
+Policy protocol: any callable ``policy(observation: dict[str, np.ndarray]) -> (chunk, 5)`` array of actions
+``[x, y, z, yaw, gripper]`` (a function, a closure, or an object with ``__call__``). Observation keys: ``qpos`` float32 (5,) = measured ``[x, y, z, yaw, gripper]``;
 ``images/<camera>`` and ``tactile/<sensor>`` uint8 (H, W, 3) RGB; ``tactile_background/<sensor>`` uint8
 (H, W, 3) for sensors that captured a no-contact background.
 """
@@ -27,13 +27,16 @@ import itertools
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Callable, Mapping, Protocol
+from typing import Callable, Literal, Mapping, Protocol
 
 import numpy as np
+from pydantic import Field
+from pydantic.dataclasses import dataclass as pydantic_dataclass
 
+from hardware.fields import DATACLASS_SETTINGS, Float, Int
 from hardware.interfaces import ACTION_DIM, Arm, ArmState, Clock, FrameSource, Gripper, HardwareError, WallClock
 from hardware.safety import SafetyCounts, SafetyFilter, SafetyLimits, Watchdog, WatchdogTimeout
-from policies.temporal_ensembling import TemporalEnsembler
+from hardware.temporal_ensembling import TemporalEnsembler
 
 
 class PolicyError(HardwareError):
@@ -45,12 +48,14 @@ class PolicyLateError(HardwareError):
 
 
 class Policy(Protocol):
-    def predict_chunk(self, observation: dict[str, np.ndarray]) -> np.ndarray: ...
+    """Any callable from an observation dict to an action chunk (L, 5), 1 <= L <= chunk_size."""
+
+    def __call__(self, observation: dict[str, np.ndarray]) -> np.ndarray: ...
 
 
-@dataclass
+@pydantic_dataclass(frozen=True, config=DATACLASS_SETTINGS)
 class ControlLoopConfig:
-    """Timing and inference settings of :class:`ControlLoop`.
+    """Timing and inference settings of :class:`ControlLoop`; validated at construction (ValueError naming the field).
 
     rate_hz: control rate, Hz (paper: 10).
     chunk_size: largest action chunk the policy returns (ACT N_a = 20).
@@ -65,28 +70,14 @@ class ControlLoopConfig:
         trips the watchdog (issue: two periods).
     """
 
-    rate_hz: float = 10.0
-    chunk_size: int = 20
-    ensemble_k: float = 0.01
-    inference: str = "async"
-    query_every: int = 1
-    inference_deadline_s: float = 0.5
-    warmup_timeout_s: float = 60.0
-    stale_after_periods: float = 2.0
-
-    def __post_init__(self):
-        for name in ("rate_hz", "inference_deadline_s", "warmup_timeout_s", "stale_after_periods"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a positive number, got {v!r}")
-        for name in ("chunk_size", "query_every"):
-            v = getattr(self, name)
-            if not (isinstance(v, int) and v >= 1):
-                raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
-        if self.inference not in ("async", "sync"):
-            raise ValueError(f"inference must be 'async' or 'sync', got {self.inference!r}")
-        if not (np.isfinite(self.ensemble_k) and self.ensemble_k >= 0):
-            raise ValueError(f"ensemble_k must be a number >= 0, got {self.ensemble_k!r}")
+    rate_hz: Float = Field(10.0, gt=0, le=1000)
+    chunk_size: Int = Field(20, ge=1)
+    ensemble_k: Float = Field(0.01, ge=0)
+    inference: Literal["async", "sync"] = "async"
+    query_every: Int = Field(1, ge=1)
+    inference_deadline_s: Float = Field(0.5, gt=0)
+    warmup_timeout_s: Float = Field(60.0, gt=0)
+    stale_after_periods: Float = Field(2.0, gt=0)
 
     @property
     def period_s(self) -> float:
@@ -143,19 +134,23 @@ def _validate_chunk(chunk, chunk_size: int) -> np.ndarray:
     try:
         a = np.asarray(chunk, dtype=np.float64)
     except (TypeError, ValueError) as exc:
-        raise PolicyError(f"policy.predict_chunk returned {type(chunk).__name__}, not an array: {exc}") from None
+        raise PolicyError(f"policy returned {type(chunk).__name__}, not an array: {exc}") from None
     if a.ndim != 2 or a.shape[1] != ACTION_DIM or not 1 <= a.shape[0] <= chunk_size:
         raise PolicyError(
-            f"policy.predict_chunk returned shape {a.shape}, expected (L, {ACTION_DIM}) with 1 <= L <= {chunk_size} "
+            f"policy returned shape {a.shape}, expected (L, {ACTION_DIM}) with 1 <= L <= {chunk_size} "
             "(actions [x, y, z, yaw, gripper])"
         )
     if not np.isfinite(a).all():
-        raise PolicyError("policy.predict_chunk returned NaN or inf")
+        raise PolicyError("policy returned NaN or inf")
     return a
 
 
 class _PolicyWorker:
-    """Runs the policy in a daemon thread on one submitted observation at a time."""
+    """Runs the policy in a daemon thread on one submitted observation at a time.
+
+    The thread is attached to the clock from a submission until its chunk is filed, so on a
+    :class:`~hardware.interfaces.VirtualClock` time waits for the call (it takes no virtual time
+    unless the policy sleeps on the clock); on the wall clock the loop never waits for it."""
 
     def __init__(self, policy: Policy, ensembler: TemporalEnsembler, clock: Clock, stats: LoopStats):
         self.policy, self.ensembler, self.clock, self.stats = policy, ensembler, clock, stats
@@ -176,6 +171,7 @@ class _PolicyWorker:
                 return False
             self.busy_since, self.busy_step = self.clock.now(), step
             self._request = (step, observation)
+            self.clock.attach(self._thread)
             self._cv.notify()
             return True
 
@@ -190,17 +186,19 @@ class _PolicyWorker:
                 self._request = None
             t0 = self.clock.now()
             try:
-                chunk = _validate_chunk(self.policy.predict_chunk(obs), self.ensembler.chunk_size)
+                chunk = _validate_chunk(self.policy(obs), self.ensembler.chunk_size)
                 self.ensembler.add_chunk(step, chunk)
             except BaseException as exc:  # handed to the control thread, which stops the arm
                 self.error = exc
                 self.chunk_ready.set()
+                self.clock.detach(self._thread)
                 return
             finally:
                 self.stats.inference_s.append(self.clock.now() - t0)
             with self._cv:
                 self.busy_since = self.busy_step = None
             self.chunk_ready.set()
+            self.clock.detach(self._thread)
 
     def close(self) -> None:
         with self._cv:
@@ -211,7 +209,7 @@ class _PolicyWorker:
 def _policy_error(exc: BaseException) -> PolicyError:
     if isinstance(exc, PolicyError):
         return exc
-    err = PolicyError(f"policy.predict_chunk raised {type(exc).__name__}: {exc}")
+    err = PolicyError(f"policy raised {type(exc).__name__}: {exc}")
     err.__cause__ = exc
     return err
 
@@ -224,6 +222,8 @@ class ControlLoop:
     limits: safety limits between policy and arm. config: timing and inference settings.
     clock: time source; ``WallClock()`` for a robot, a :class:`~hardware.interfaces.VirtualClock` shared
         with a simulated robot's frame sources to run faster than real time.
+    watchdog_thread: also check the watchdog from its own thread, which stops the arm while the control
+        thread hangs in a device call (default: on a real-time clock only; tests turn it on with a VirtualClock).
     """
 
     def __init__(
@@ -237,12 +237,14 @@ class ControlLoop:
         limits: SafetyLimits | None = None,
         config: ControlLoopConfig | None = None,
         clock: Clock | None = None,
+        watchdog_thread: bool | None = None,
     ):
         self.arm, self.policy, self.gripper = arm, policy, gripper
         self.cameras, self.tactile = dict(cameras or {}), dict(tactile or {})
         self.limits = limits or SafetyLimits()
         self.config = config or ControlLoopConfig()
         self.clock = clock or WallClock()
+        self.watchdog_thread = self.clock.realtime if watchdog_thread is None else watchdog_thread
         self.stats = LoopStats(self.config.period_s)
         self._device_lock = threading.Lock()
         self._last_grip = 0.0
@@ -292,53 +294,28 @@ class ControlLoop:
         if max_steps is not None and (not isinstance(max_steps, int) or max_steps < 1):
             raise ValueError(f"max_steps must be a positive integer or None, got {max_steps!r}")
         cfg, clock = self.config, self.clock
-        period = cfg.period_s
-        self.stats = stats = LoopStats(period)
+        self.stats = stats = LoopStats(cfg.period_s)
         ensembler = TemporalEnsembler(cfg.chunk_size, ACTION_DIM, cfg.ensemble_k)
         safety = SafetyFilter(self.limits)
         stats.safety = safety.counts
-        watchdog = Watchdog(cfg.stale_after_periods * period, clock)
+        watchdog = Watchdog(cfg.stale_after_periods * cfg.period_s, clock)
         worker: _PolicyWorker | None = None
+        clock.attach()  # on a virtual clock, time moves only while this thread sleeps on it
         try:
             obs, state = self._observe(watchdog)
             safety.reset(state.pose)
             if cfg.inference == "async":
                 worker = _PolicyWorker(self.policy, ensembler, clock, stats)
                 worker.submit(0, obs)
-                if not worker.chunk_ready.wait(cfg.warmup_timeout_s):
+                if not clock.wait(worker.chunk_ready, cfg.warmup_timeout_s):
                     raise PolicyLateError(f"no first chunk within warmup_timeout_s = {cfg.warmup_timeout_s} s")
                 if worker.error is not None:
                     raise _policy_error(worker.error)
             else:
                 self._predict_sync(0, obs, ensembler, stats, deadline=cfg.warmup_timeout_s)
-            if clock.realtime:
+            if self.watchdog_thread:
                 watchdog.start(self._watchdog_trip)
-            next_start = clock.now()
-            steps = range(max_steps) if max_steps is not None else itertools.count()
-            for step in steps:
-                start = clock.now()
-                stats.cycle_starts.append(start)
-                obs, state = self._observe(watchdog)  # fresh at step 0 too: the warm-up may have taken seconds
-                safety.check_state(state.pose)
-                watchdog.check(start)
-                if worker is not None:
-                    self._poll_worker(worker, step, obs, start)
-                elif step > 0 and step % cfg.query_every == 0:
-                    self._predict_sync(step, obs, ensembler, stats, deadline=cfg.inference_deadline_s)
-                target = self._action(ensembler, step, safety)
-                self._command(target, watchdog)
-                stats.work_s.append(clock.now() - start)
-                if on_step is not None and on_step(step, obs, target):
-                    stats.stop_reason = f"on_step ended the run at step {step}"
-                    break
-                next_start += period
-                now = clock.now()
-                if now > next_start:
-                    stats.deadline_misses += 1
-                    next_start = now
-                clock.sleep_until(next_start)
-            else:
-                stats.stop_reason = f"finished {max_steps} steps"
+            self._cycles(max_steps, on_step, ensembler, safety, watchdog, worker)
         except BaseException as exc:
             problems = self._stop_devices()
             stats.stop_reason = (
@@ -355,7 +332,38 @@ class ControlLoop:
             watchdog.stop()
             if worker is not None:
                 worker.close()
+            clock.detach()
         return stats
+
+    def _cycles(self, max_steps, on_step, ensembler: TemporalEnsembler, safety: SafetyFilter, watchdog: Watchdog,
+                worker: _PolicyWorker | None) -> None:
+        """The periodic part of :meth:`run`: observe, infer, act, command, wait for the next period."""
+        cfg, clock, stats = self.config, self.clock, self.stats
+        next_start = clock.now()
+        steps = range(max_steps) if max_steps is not None else itertools.count()
+        for step in steps:
+            start = clock.now()
+            stats.cycle_starts.append(start)
+            obs, state = self._observe(watchdog)  # fresh at step 0 too: the warm-up may have taken seconds
+            safety.check_state(state.pose)
+            watchdog.check(start)
+            if worker is not None:
+                self._poll_worker(worker, step, obs, start)
+            elif step > 0 and step % cfg.query_every == 0:
+                self._predict_sync(step, obs, ensembler, stats, deadline=cfg.inference_deadline_s)
+            target = self._action(ensembler, step, safety)
+            self._command(target, watchdog)
+            stats.work_s.append(clock.now() - start)
+            if on_step is not None and on_step(step, obs, target):
+                stats.stop_reason = f"on_step ended the run at step {step}"
+                return
+            next_start += cfg.period_s
+            now = clock.now()
+            if now > next_start:
+                stats.deadline_misses += 1
+                next_start = now
+            clock.sleep_until(next_start)
+        stats.stop_reason = f"finished {max_steps} steps"
 
     def _poll_worker(self, worker: _PolicyWorker, step: int, obs: dict, now: float) -> None:
         if worker.error is not None:
@@ -364,7 +372,7 @@ class ControlLoop:
         if busy_since is None:
             if step > 0:
                 worker.submit(step, obs)
-        elif self.clock.realtime and now - busy_since > self.config.inference_deadline_s:
+        elif now - busy_since > self.config.inference_deadline_s:
             raise PolicyLateError(
                 f"policy inference on the observation of step {busy_step} has run {now - busy_since:.3f} s, "
                 f"past inference_deadline_s = {self.config.inference_deadline_s} s"
@@ -372,14 +380,16 @@ class ControlLoop:
 
     def _predict_sync(self, step: int, obs: dict, ensembler: TemporalEnsembler, stats: LoopStats,
                       deadline: float) -> None:
-        t0 = time.perf_counter()
+        """Call the policy in the loop thread. The deadline is checked in clock seconds (a virtual clock
+        counts only what the policy spends sleeping on it); ``stats.inference_s`` holds wall seconds."""
+        t0, c0 = time.perf_counter(), self.clock.now()
         try:
-            chunk = _validate_chunk(self.policy.predict_chunk(obs), ensembler.chunk_size)
+            chunk = _validate_chunk(self.policy(obs), ensembler.chunk_size)
         except Exception as exc:
             raise _policy_error(exc) from exc
-        elapsed = time.perf_counter() - t0
-        stats.inference_s.append(elapsed)
-        if self.clock.realtime and elapsed > deadline:
+        stats.inference_s.append(time.perf_counter() - t0)
+        elapsed = self.clock.now() - c0
+        if elapsed > deadline:
             raise PolicyLateError(f"policy inference at step {step} took {elapsed:.3f} s, past its deadline of {deadline} s")
         ensembler.add_chunk(step, chunk)
 

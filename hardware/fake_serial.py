@@ -6,7 +6,9 @@ byte stuffing; CRC-16 polynomial 0x8005 checked on every instruction, a bad one 
 CRC error status). ``FakeRobotiq2F85``: a Robotiq 2F-85 on Modbus RTU (function codes 16 and 4, slave
 9, CRC-16/MODBUS checked on every request). Both move their fingers at a fixed speed, can block on
 an object, and take injected faults: garbage bytes instead of a reply, silence, device fault codes.
-Use as a context manager; ``port`` is the path a client opens.
+Use as a context manager; ``port`` is the path a client opens. The mechanics (finger motion, activation
+time) follow the injected ``clock`` (wall clock by default): with a
+:class:`~hardware.interfaces.VirtualClock`, a test moves the fingers by advancing it, without sleeping.
 """
 
 from __future__ import annotations
@@ -14,18 +16,19 @@ from __future__ import annotations
 import os
 import select
 import threading
-import time
 import tty
 
 import numpy as np
 
+from hardware.interfaces import Clock, WallClock
 from hardware.robotiq import crc16_modbus
 
 
 class PtyDevice:
     """A pseudo-terminal pair with a thread answering whatever the client writes to ``port``."""
 
-    def __init__(self):
+    def __init__(self, clock: Clock | None = None):
+        self.clock = clock or WallClock()
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)  # no echo / line editing before the client configures the port
         self.port = os.ttyname(self._slave)
@@ -77,7 +80,7 @@ class PtyDevice:
                     os.write(self._master, reply)
 
     def _tick(self) -> None:
-        """Advance the emulated mechanics (called about every 20 ms and on each request)."""
+        """Advance the emulated mechanics to ``clock.now()`` (called about every 20 ms and on each request)."""
 
     def _take_request(self) -> bytes | None:
         """Parse one request from ``self._buf``: the reply bytes (b"" for none), or None if incomplete."""
@@ -117,8 +120,9 @@ class FakeDynamixelServo(PtyDevice):
 
     MODEL_XM430_W350 = 1020
 
-    def __init__(self, dxl_id: int = 1, speed_ticks_s: float = 20000.0, start_position: int = 0):
-        super().__init__()
+    def __init__(self, dxl_id: int = 1, speed_ticks_s: float = 20000.0, start_position: int = 0,
+                 clock: Clock | None = None):
+        super().__init__(clock)
         self.dxl_id = dxl_id
         self.table = bytearray(256)
         self.table[0:2] = self.MODEL_XM430_W350.to_bytes(2, "little")
@@ -130,7 +134,7 @@ class FakeDynamixelServo(PtyDevice):
         self.speed_ticks_s = speed_ticks_s
         self.object_at: int | None = None
         self.hardware_error = 0
-        self._last_tick = time.monotonic()
+        self._last_tick = self.clock.now()
         self.writes: list[tuple[int, bytes]] = []
 
     def _get_i32(self, addr: int) -> int:
@@ -140,7 +144,7 @@ class FakeDynamixelServo(PtyDevice):
         self.table[addr:addr + 4] = int(v).to_bytes(4, "little", signed=True)
 
     def _tick(self) -> None:
-        now = time.monotonic()
+        now = self.clock.now()
         dt, self._last_tick = now - self._last_tick, now
         if self.table[64] != 1:  # torque off: fingers stay
             return
@@ -212,21 +216,22 @@ class FakeRobotiq2F85(PtyDevice):
     object_at: position where the fingers meet an object (gOBJ = 2), or None.
     """
 
-    def __init__(self, slave_id: int = 9, activation_s: float = 0.05, speed_units_s: float = 2000.0):
-        super().__init__()
+    def __init__(self, slave_id: int = 9, activation_s: float = 0.05, speed_units_s: float = 2000.0,
+                 clock: Clock | None = None):
+        super().__init__(clock)
         self.slave_id, self.activation_s, self.speed_units_s = slave_id, activation_s, speed_units_s
         self.out = bytearray(6)  # ACTION REQUEST, reserved, reserved, POSITION REQUEST, SPEED, FORCE
         self.position = 0.0
         self.fault = 0
         self.object_at: float | None = None
         self._activated_at: float | None = None
-        self._last_tick = time.monotonic()
+        self._last_tick = self.clock.now()
 
     def _frame(self, payload: bytes) -> bytes:
         return payload + crc16_modbus(payload).to_bytes(2, "little")
 
     def _tick(self) -> None:
-        now = time.monotonic()
+        now = self.clock.now()
         dt, self._last_tick = now - self._last_tick, now
         if self._activated_at is None or now - self._activated_at < self.activation_s or not self.out[0] & 0x08:
             return
@@ -238,7 +243,7 @@ class FakeRobotiq2F85(PtyDevice):
         self.position = new
 
     def status_bytes(self) -> bytes:
-        now = time.monotonic()
+        now = self.clock.now()
         act = self.out[0] & 0x01
         gsta = 0
         if act and self._activated_at is not None:
@@ -277,7 +282,7 @@ class FakeRobotiq2F85(PtyDevice):
                 return self._frame(bytes([self.slave_id, 0x90, 0x02]))  # illegal data address
             self.out[:] = frame[7:13]
             if self.out[0] & 0x01 and self._activated_at is None:
-                self._activated_at = time.monotonic()
+                self._activated_at = self.clock.now()
             elif not self.out[0] & 0x01:
                 self._activated_at = None
             return self._frame(frame[:6])

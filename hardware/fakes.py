@@ -9,7 +9,6 @@ the loop's clock and can be made to freeze (a sensor that stops delivering). Eve
 from __future__ import annotations
 
 import threading
-import time
 
 import numpy as np
 
@@ -30,7 +29,8 @@ from hardware.interfaces import (
 
 class FakeArm(Arm):
     """Arm whose pose jumps to every target. ``error_code`` != 0 makes ``state``/``servo`` raise ArmFault;
-    ``servo_delay_s`` makes each ``servo`` block that long (wall seconds), like a hung controller."""
+    ``servo_delay_s`` makes each ``servo`` block that long (clock seconds: a VirtualClock lets the loop's
+    watchdog thread run meanwhile), like a hung controller."""
 
     def __init__(self, pose=(0.4, 0.0, 0.2, 0.0), clock: Clock | None = None, log: list | None = None):
         self.pose = np.asarray(pose, dtype=np.float64).copy()
@@ -54,7 +54,7 @@ class FakeArm(Arm):
         self._check()
         self.log.append(("servo", np.asarray(target, dtype=np.float64).copy()))
         if self.servo_delay_s:
-            time.sleep(self.servo_delay_s)
+            self.clock.sleep_until(self.clock.now() + self.servo_delay_s)
             self.log.append(("servo-returned", None))
         self.pose = np.asarray(target, dtype=np.float64).copy()
         self.stopped = False

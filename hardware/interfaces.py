@@ -69,7 +69,13 @@ class Frame:
 
 
 class Clock(abc.ABC):
-    """Time source of the control loop. ``realtime`` is True when ``now`` follows the wall clock."""
+    """Time source of the control loop and the adapters. ``realtime`` is True when ``now`` follows the wall clock.
+
+    Threads that must finish their work before time moves on (policy worker, watchdog, streaming and
+    reader threads) are registered with :meth:`attach` / :meth:`detach`, and wait with :meth:`wait`
+    or :meth:`sleep_until`; on the wall clock these are plain waits, on a :class:`VirtualClock` they
+    make multi-threaded runs deterministic.
+    """
 
     realtime: bool = True
 
@@ -80,6 +86,16 @@ class Clock(abc.ABC):
     @abc.abstractmethod
     def sleep_until(self, t: float) -> None:
         """Return once ``now() >= t`` (immediately if already past)."""
+
+    def wait(self, event: threading.Event, timeout_s: float) -> bool:
+        """Wait until ``event`` is set or ``timeout_s`` clock seconds passed; True when it is set."""
+        return event.wait(timeout_s)
+
+    def attach(self, thread: threading.Thread | None = None) -> None:
+        """Register ``thread`` (default: the caller) as one whose work time waits for (no-op on the wall clock)."""
+
+    def detach(self, thread: threading.Thread | None = None) -> None:
+        """Undo one :meth:`attach` of ``thread`` (default: the caller)."""
 
 
 class WallClock(Clock):
@@ -99,31 +115,86 @@ class WallClock(Clock):
 
 
 class VirtualClock(Clock):
-    """Simulated time: ``sleep_until`` jumps forward at once, so a simulation runs faster than real time.
+    """Simulated time, deterministic with several threads.
 
-    Thread-safe; share one instance between a simulated robot (to stamp its frames) and the loop.
+    ``sleep_until`` / ``wait`` never wait on the wall clock for time to pass: time jumps to the earliest
+    wake-up asked for as soon as no *attached* thread is running (every attached thread is sleeping
+    in this clock or waiting on an event that is not set). With no attached thread, ``sleep_until``
+    jumps at once, as a single-threaded simulation expects. A test that checks state between steps
+    attaches its own thread too, so time moves only when it sleeps. Thread-safe; share one instance
+    between a simulated robot (to stamp its frames) and the loop. :meth:`advance` moves time by hand.
     """
 
     realtime = False
+    _POLL_S = 0.01  # events set by other threads are noticed within this many wall seconds
 
     def __init__(self, start: float = 0.0):
         self._t = float(start)
-        self._lock = threading.Lock()
+        self._cv = threading.Condition()
+        self._attached: dict[threading.Thread, int] = {}
+        self._sleepers: list[tuple[threading.Thread, float, threading.Event | None]] = []
 
     def now(self) -> float:
-        with self._lock:
-            return self._t
+        return self._t
+
+    def attach(self, thread: threading.Thread | None = None) -> None:
+        thread = thread or threading.current_thread()
+        with self._cv:
+            self._attached[thread] = self._attached.get(thread, 0) + 1
+            self._cv.notify_all()
+
+    def detach(self, thread: threading.Thread | None = None) -> None:
+        thread = thread or threading.current_thread()
+        with self._cv:
+            n = self._attached.get(thread, 0) - 1
+            if n > 0:
+                self._attached[thread] = n
+            else:
+                self._attached.pop(thread, None)
+            self._cv.notify_all()
+
+    def _asleep(self, entry) -> bool:
+        _, t, event = entry
+        return t > self._t and (event is None or not event.is_set())
+
+    def _try_advance(self) -> bool:
+        """(lock held) Jump to the earliest wake-up when no attached thread runs; True if time moved."""
+        sleeping = [e for e in self._sleepers if self._asleep(e)]
+        asleep_threads = {e[0] for e in sleeping}
+        if not sleeping or any(th not in asleep_threads for th in self._attached):
+            return False
+        self._t = max(self._t, min(e[1] for e in sleeping))
+        self._cv.notify_all()
+        return True
+
+    def _sleep(self, t: float, event: threading.Event | None) -> bool:
+        entry = (threading.current_thread(), float(t), event)
+        with self._cv:
+            self._sleepers.append(entry)
+            try:
+                while self._asleep(entry):
+                    if not self._try_advance():
+                        self._cv.wait(self._POLL_S)
+                return event is not None and event.is_set()
+            finally:
+                self._sleepers.remove(entry)
+                self._cv.notify_all()
 
     def sleep_until(self, t: float) -> None:
-        with self._lock:
-            self._t = max(self._t, float(t))
+        self._sleep(t, None)
+
+    def wait(self, event: threading.Event, timeout_s: float) -> bool:
+        if event.is_set():
+            return True
+        return self._sleep(self._t + timeout_s, event)
 
     def advance(self, dt: float) -> None:
         """Move time forward by ``dt`` seconds (>= 0)."""
         if dt < 0:
             raise ValueError(f"dt must be >= 0 seconds, got {dt}")
-        with self._lock:
+        with self._cv:
             self._t += float(dt)
+            self._cv.notify_all()
 
 
 class _Device(abc.ABC):

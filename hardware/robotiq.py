@@ -9,8 +9,6 @@ low byte first; every reply's CRC is checked.
 
 from __future__ import annotations
 
-import time
-
 import serial
 
 from hardware.interfaces import Clock, Gripper, GripperState, HardwareError, WallClock
@@ -44,7 +42,8 @@ class RobotiqGripper(Gripper):
 
     port: serial device, e.g. /dev/ttyUSB0 (prefer /dev/serial/by-id/...). slave_id: Modbus address (9).
     speed / force: 0..255 for every move. timeout_s: wait for one reply. retries: extra attempts after a
-    corrupt or missing reply. activation_timeout_s: wait for "activation complete" on connect.
+    corrupt or missing reply. activation_timeout_s: wait for "activation complete" on connect (clock
+    seconds; the status is polled every 10 ms of ``clock``). clock: time of the stamps and that wait.
     """
 
     def __init__(self, port: str, slave_id: int = 9, baudrate: int = 115200, speed: int = 255, force: int = 150,
@@ -113,17 +112,17 @@ class RobotiqGripper(Gripper):
         self._ser = serial.Serial(self.port, self.baudrate, bytesize=8, parity="N", stopbits=1, timeout=self.timeout_s)
         self._write_request(0x00, 0)  # clear rACT
         self._write_request(0x01, 0)  # activate
-        deadline = time.monotonic() + self.activation_timeout_s
+        deadline = self.clock.now() + self.activation_timeout_s
         while True:
             st = self.read_status()
             self._raise_fault(st)
             if st["sta"] == 3:
                 return
-            if time.monotonic() > deadline:
+            if self.clock.now() > deadline:
                 raise HardwareError(
                     f"robotiq on {self.port}: activation not complete after {self.activation_timeout_s} s (gSTA={st['sta']})"
                 )
-            time.sleep(0.01)
+            self.clock.sleep_until(self.clock.now() + 0.01)
 
     def command(self, closing: float) -> None:
         if not 0.0 <= closing <= 1.0:

@@ -15,6 +15,10 @@ from typing import Callable
 
 import numpy as np
 
+from pydantic import Field, model_validator
+from pydantic.dataclasses import dataclass as pydantic_dataclass
+
+from hardware.fields import DATACLASS_SETTINGS, Float, Vec3
 from hardware.interfaces import ACTION_DIM, POSE_DIM, Clock, HardwareError
 
 
@@ -32,47 +36,39 @@ def wrap_angle(a):
     return np.where((a >= -np.pi) & (a < np.pi), a, (a + np.pi) % (2 * np.pi) - np.pi)
 
 
-@dataclass
+@pydantic_dataclass(frozen=True, config=DATACLASS_SETTINGS)
 class SafetyLimits:
-    """Limits enforced on every command.
+    """Limits enforced on every command; validated at construction (ValueError naming the field).
 
     workspace_min / workspace_max: corners (x, y, z) of the allowed end-effector box, metres, base frame.
     yaw_min / yaw_max: allowed yaw range, radians (within [-pi, pi]).
-    max_step_m: largest translation between two consecutive commands, metres (per control period).
-    max_rotation_rad: largest yaw change between two consecutive commands, radians.
+    max_step_m: largest translation between two consecutive commands, metres per control period
+        (at most 0.1 m: 1 m/s at 10 Hz).
+    max_rotation_rad: largest yaw change between two consecutive commands, radians (at most 0.5).
     gripper_min / gripper_max: allowed gripper command range within [0, 1] (0 open, 1 closed).
     state_tolerance_m: a measured pose further than this outside the box is a violation (arm stopped).
     """
 
-    workspace_min: tuple[float, float, float] = (0.2, -0.3, 0.0)
-    workspace_max: tuple[float, float, float] = (0.7, 0.3, 0.5)
-    yaw_min: float = -np.pi
-    yaw_max: float = np.pi
-    max_step_m: float = 0.02
-    max_rotation_rad: float = 0.1
-    gripper_min: float = 0.0
-    gripper_max: float = 1.0
-    state_tolerance_m: float = 0.02
+    workspace_min: Vec3 = (0.2, -0.3, 0.0)
+    workspace_max: Vec3 = (0.7, 0.3, 0.5)
+    yaw_min: Float = Field(-np.pi, ge=-np.pi, le=np.pi)
+    yaw_max: Float = Field(np.pi, ge=-np.pi, le=np.pi)
+    max_step_m: Float = Field(0.02, gt=0, le=0.1)
+    max_rotation_rad: Float = Field(0.1, gt=0, le=0.5)
+    gripper_min: Float = Field(0.0, ge=0, le=1)
+    gripper_max: Float = Field(1.0, ge=0, le=1)
+    state_tolerance_m: Float = Field(0.02, gt=0, le=0.2)
 
-    def __post_init__(self):
-        lo = np.asarray(self.workspace_min, dtype=float)
-        hi = np.asarray(self.workspace_max, dtype=float)
-        for name, v in (("workspace_min", lo), ("workspace_max", hi)):
-            if v.shape != (3,) or not np.isfinite(v).all():
-                raise ValueError(f"{name} must be three finite numbers (x, y, z) in metres, got {getattr(self, name)!r}")
-        if not (lo < hi).all():
-            raise ValueError(f"workspace_min must be below workspace_max on every axis, got {lo.tolist()} / {hi.tolist()}")
-        self.workspace_min, self.workspace_max = tuple(lo.tolist()), tuple(hi.tolist())
-        if not -np.pi <= self.yaw_min < self.yaw_max <= np.pi:
-            raise ValueError(f"yaw_min < yaw_max within [-pi, pi] radians required, got {self.yaw_min}, {self.yaw_max}")
-        for name in ("max_step_m", "max_rotation_rad", "state_tolerance_m"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a positive number, got {v!r}")
-        if not 0.0 <= self.gripper_min < self.gripper_max <= 1.0:
-            raise ValueError(
-                f"gripper_min < gripper_max within [0, 1] required, got {self.gripper_min}, {self.gripper_max}"
-            )
+    @model_validator(mode="after")
+    def _ordered(self):
+        if not all(lo < hi for lo, hi in zip(self.workspace_min, self.workspace_max)):
+            raise ValueError(f"workspace_min: must be below workspace_max on every axis, got "
+                             f"{list(self.workspace_min)} / {list(self.workspace_max)}")
+        if not self.yaw_min < self.yaw_max:
+            raise ValueError(f"yaw_min: must be below yaw_max, got {self.yaw_min} / {self.yaw_max}")
+        if not self.gripper_min < self.gripper_max:
+            raise ValueError(f"gripper_min: must be below gripper_max, got {self.gripper_min} / {self.gripper_max}")
+        return self
 
 
 @dataclass
@@ -189,18 +185,23 @@ class Watchdog:
                 raise WatchdogTimeout(self.tripped)
 
     def start(self, on_trip: Callable[[], None], interval_s: float | None = None) -> None:
-        """Check in a daemon thread every ``interval_s`` (default timeout/4); call ``on_trip`` once on a trip."""
+        """Check in a daemon thread every ``interval_s`` clock seconds (default timeout/4); call ``on_trip``
+        once on a trip. The thread waits on ``clock``, so a virtual clock drives it deterministically."""
         interval = self.timeout_s / 4 if interval_s is None else interval_s
 
         def run():
-            while not self._stop.wait(interval):
-                try:
-                    self.check()
-                except WatchdogTimeout:
-                    on_trip()
-                    return
+            try:
+                while not self.clock.wait(self._stop, interval):
+                    try:
+                        self.check()
+                    except WatchdogTimeout:
+                        on_trip()
+                        return
+            finally:
+                self.clock.detach(self._thread)
 
         self._thread = threading.Thread(target=run, name="watchdog", daemon=True)
+        self.clock.attach(self._thread)
         self._thread.start()
 
     def stop(self) -> None:

@@ -10,6 +10,11 @@ non-zero API return code (also from the streaming thread) or a lost connection r
 warnings are cleared and motion enabled; ``stop`` halts the stream and puts the arm in the stop state
 (4); after a stop, ``servo`` refuses until ``connect`` is called again; ``close`` disconnects.
 
+Interpolation and streaming run on the injected :class:`~hardware.interfaces.Clock` (the wall clock by
+default): :meth:`XArm.stream_tick` sends one point for ``clock.now()``; the streaming thread calls it
+every ``1 / stream_hz`` clock seconds, so on a :class:`~hardware.interfaces.VirtualClock` the stream
+is exact and tests need no sleeps.
+
 Tests replace ``XArmAPI`` at the SDK boundary (the ``api`` argument): its controller needs a real arm
 or UFACTORY's simulator, which cannot run here.
 """
@@ -17,7 +22,6 @@ or UFACTORY's simulator, which cannot run here.
 from __future__ import annotations
 
 import threading
-import time
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -48,6 +52,7 @@ class XArm(Arm):
     stream_hz: rate of the interpolated points (None: send each target as it comes, one point per
     ``servo``). api: an ``xarm.wrapper.XArmAPI`` (created from ``ip`` on connect when None).
     stop_on_warning: treat controller warnings as faults too (default: report them in ArmState only).
+    clock: time of the state stamps, the segments and the stream (default: the wall clock).
     """
 
     def __init__(self, ip: str, tool_rpy: tuple[float, float] = (np.pi, 0.0), period_s: float = 0.1,
@@ -93,6 +98,7 @@ class XArm(Arm):
         if self.stream_hz is not None and self._streamer is None:
             self._stream_stop.clear()
             self._streamer = threading.Thread(target=self._stream, name=f"xarm-stream-{self.ip}", daemon=True)
+            self.clock.attach(self._streamer)
             self._streamer.start()
 
     def check(self) -> tuple[int, int]:
@@ -136,8 +142,8 @@ class XArm(Arm):
                 start = self.state().pose
             else:  # from wherever the current segment has got to
                 s, e, t0 = self._segment
-                start = s + min(1.0, (time.monotonic() - t0) / self.period_s) * self._delta(s, e)
-            self._segment = (start, target, time.monotonic())
+                start = s + min(1.0, (self.clock.now() - t0) / self.period_s) * self._delta(s, e)
+            self._segment = (start, target, self.clock.now())
 
     @staticmethod
     def _delta(s: np.ndarray, e: np.ndarray) -> np.ndarray:
@@ -145,20 +151,31 @@ class XArm(Arm):
         d[3] = float(wrap_angle(d[3]))  # yaw the short way round
         return d
 
+    def stream_tick(self) -> None:
+        """Send the point of the current segment for ``clock.now()`` (nothing before the first target or
+        after a stop); a non-zero API code is kept and raised by the next :meth:`check`."""
+        with self._lock:
+            seg = None if self._stopped else self._segment
+            if seg is None:
+                return
+            s, e, t0 = seg
+            alpha = min(1.0, (self.clock.now() - t0) / self.period_s)
+            code = self._send(s + alpha * self._delta(s, e))
+            if code != 0 and self._stream_error is None:
+                self._stream_error = f"set_servo_cartesian returned API code {code} while streaming"
+
     def _stream(self) -> None:
+        """Streaming thread: one :meth:`stream_tick` every 1 / stream_hz clock seconds."""
         dt = 1.0 / self.stream_hz
-        next_t = time.monotonic()
-        while not self._stream_stop.is_set():
-            with self._lock:
-                seg = None if self._stopped else self._segment
-                if seg is not None:
-                    s, e, t0 = seg
-                    alpha = min(1.0, (time.monotonic() - t0) / self.period_s)
-                    code = self._send(s + alpha * self._delta(s, e))
-                    if code != 0 and self._stream_error is None:
-                        self._stream_error = f"set_servo_cartesian returned API code {code} while streaming"
-            next_t = max(next_t + dt, time.monotonic())
-            self._stream_stop.wait(max(0.0, next_t - time.monotonic()))
+        next_t = self.clock.now()
+        try:
+            while True:
+                next_t = max(next_t + dt, self.clock.now())
+                if self.clock.wait(self._stream_stop, max(0.0, next_t - self.clock.now())):
+                    return
+                self.stream_tick()
+        finally:
+            self.clock.detach()
 
     def stop(self) -> None:
         """Halt the point stream, then the stop state (4): the controller drops the servo target and halts."""

@@ -1,9 +1,10 @@
 """xArm and UR adapters with their SDK objects replaced at the boundary (the controllers need a real
 arm or the vendor simulator, which cannot run here): command sequences, unit and orientation
-conversion, error codes checked every cycle, stop order on exit, and a fault inside the control loop."""
+conversion, error codes checked every cycle, stop order on exit, and a fault inside the control loop.
+The xArm's streaming thread runs on a virtual clock that only this test's thread moves: exact points,
+no sleeps."""
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -125,12 +126,11 @@ def test_xarm_warning_policy_and_api_codes():
 def test_xarm_fault_mid_run_stops_the_arm_in_the_loop():
     api = StubXArmAPI()
 
-    class Hold:
-        def predict_chunk(self, obs):
-            return np.tile(np.r_[obs["qpos"][:4] + [0.001, 0, 0, 0], 0.0], (10, 1))
+    def hold(obs):  # any callable is a policy
+        return np.tile(np.r_[obs["qpos"][:4] + [0.001, 0, 0, 0], 0.0], (10, 1))
 
     with XArm("ip", api=api, stream_hz=None) as arm:
-        loop = ControlLoop(arm, Hold(), config=ControlLoopConfig(inference="sync", chunk_size=10),
+        loop = ControlLoop(arm, hold, config=ControlLoopConfig(inference="sync", chunk_size=10),
                            clock=VirtualClock(), limits=SafetyLimits())
         with pytest.raises(ArmFault, match="error code 22"):
             loop.run(max_steps=20, on_step=lambda s, o, t: s == 3 and setattr(api, "err", 22))
@@ -144,30 +144,65 @@ def _streamed(api):
     return [np.array(c[1][0]) for c in list(api.calls) if c[0] == "set_servo_cartesian"]
 
 
-def test_xarm_streams_small_steps_along_the_segment_and_arrives_in_one_period():
+@pytest.fixture
+def clock():
+    """A virtual clock moved only when this test's thread sleeps on it (the streaming thread is attached too)."""
+    c = VirtualClock()
+    c.attach()
+    yield c
+    c.detach()
+
+
+def test_xarm_streams_small_steps_along_the_segment_and_arrives_in_one_period(clock):
     api = StubXArmAPI()
-    with XArm("ip", api=api, period_s=0.5, stream_hz=20) as arm:
-        arm.servo([0.45, 0.02, 0.2, 0.0])  # 5.4 cm from the measured (0.4, 0, 0.2)
-        time.sleep(0.8)
+    with XArm("ip", api=api, period_s=0.5, stream_hz=20, clock=clock) as arm:
+        arm.servo([0.45, 0.02, 0.2, 0.0])  # 5.4 cm from the measured (0.4, 0, 0.2), at t = 0
+        clock.sleep_until(0.775)  # points every 50 ms: t = 0.05 .. 0.75
         points = _streamed(api)
     start, end = np.array([400.0, 0.0, 200.0]), np.array([450.0, 20.0, 200.0])
     alphas = [float(np.dot(p[:3] - start, end - start) / np.dot(end - start, end - start)) for p in points]
     for p, a in zip(points, alphas):
         np.testing.assert_allclose(p[:3], start + a * (end - start), atol=1e-6)  # on the straight segment
-    assert alphas == sorted(alphas) and alphas[-1] == pytest.approx(1.0)
-    assert sum(0.0 < a < 1.0 for a in alphas) >= 2  # intermediate points, not one jump
+    # a tenth of the segment per point, the target reached after one period (0.5 s), then held
+    assert alphas == pytest.approx([0.1 * k for k in range(1, 11)] + [1.0] * 5)
 
 
-def test_xarm_stop_halts_the_stream_and_refuses_more_targets():
+def test_xarm_new_target_starts_from_where_the_segment_has_got_to(clock):
     api = StubXArmAPI()
-    arm = XArm("ip", api=api, period_s=0.2, stream_hz=50)
+    with XArm("ip", api=api, period_s=0.1, stream_hz=100, clock=clock) as arm:
+        arm.servo([0.5, 0.0, 0.2, 0.0])  # 10 cm in x over 0.1 s
+        clock.sleep_until(0.045)  # points at 10 .. 40 ms
+        arm.servo([0.4, 0.0, 0.2, 0.0])  # back: from x = 0.445 (t = 0.045) to 0.4 over the next 0.1 s
+        clock.sleep_until(0.095)  # points at 50 .. 90 ms
+        xs = [p[0] for p in _streamed(api)]
+    back = [445 - 450 * (0.005 + 0.01 * k) for k in range(5)]  # 45 mm in 0.1 s, first point 5 ms in
+    assert xs == pytest.approx([410, 420, 430, 440] + back)
+
+
+def test_xarm_stream_tick_sends_the_point_for_now(clock):
+    api = StubXArmAPI()
+    arm = XArm("ip", api=api, period_s=0.2, stream_hz=50, clock=clock)
+    arm.stream_tick()  # no target yet: nothing to send
+    assert _streamed(api) == []
+    api.connected = True
     arm.connect()
     arm.servo([0.5, 0.0, 0.2, 0.0])
-    time.sleep(0.05)
+    clock.advance(0.05)  # by hand, between two thread ticks: a quarter of the segment
+    arm.stream_tick()
+    assert _streamed(api)[-1][0] == pytest.approx(425.0)
+    arm.close()
+
+
+def test_xarm_stop_halts_the_stream_and_refuses_more_targets(clock):
+    api = StubXArmAPI()
+    arm = XArm("ip", api=api, period_s=0.2, stream_hz=50, clock=clock)
+    arm.connect()
+    arm.servo([0.5, 0.0, 0.2, 0.0])
+    clock.sleep_until(0.05)
     arm.stop()
-    n = len(_streamed(api))
-    time.sleep(0.1)
-    assert len(_streamed(api)) == n and names(api.calls)[-1] == "set_state"
+    assert len(_streamed(api)) == 2  # t = 0.02, 0.04
+    clock.sleep_until(0.15)
+    assert len(_streamed(api)) == 2 and names(api.calls)[-1] == "set_state"
     with pytest.raises(ArmFault, match="stopped; call connect"):
         arm.servo([0.5, 0.0, 0.2, 0.0])
     arm.connect()  # re-enables motion
@@ -175,12 +210,13 @@ def test_xarm_stop_halts_the_stream_and_refuses_more_targets():
     arm.close()
 
 
-def test_xarm_streaming_error_code_surfaces_on_the_next_cycle():
+def test_xarm_streaming_error_code_surfaces_on_the_next_cycle(clock):
     api = StubXArmAPI()
-    with XArm("ip", api=api, period_s=0.2, stream_hz=50) as arm:
+    with XArm("ip", api=api, period_s=0.2, stream_hz=50, clock=clock) as arm:
         api.servo_code = 9
         arm.servo([0.41, 0.0, 0.2, 0.0])
-        time.sleep(0.1)
+        arm.state()  # no point streamed yet
+        clock.sleep_until(0.03)  # the first point went at t = 0.02
         with pytest.raises(ArmFault, match="set_servo_cartesian returned API code 9 while streaming"):
             arm.state()
 
@@ -271,13 +307,12 @@ def test_ur_exit_calls_servostop_then_stopscript():
 def test_ur_faults_are_named_and_stop_the_loop(fault, match):
     rtde = StubRTDE()
 
-    class Hold:
-        def predict_chunk(self, obs):
-            return np.tile(np.r_[obs["qpos"][:4], 1.0], (5, 1))
+    def hold(obs):
+        return np.tile(np.r_[obs["qpos"][:4], 1.0], (5, 1))
 
     arm = URArm("ip", control=rtde, receive=rtde)
     arm.connect()
-    loop = ControlLoop(arm, Hold(), config=ControlLoopConfig(inference="sync", chunk_size=5), clock=VirtualClock())
+    loop = ControlLoop(arm, hold, config=ControlLoopConfig(inference="sync", chunk_size=5), clock=VirtualClock())
 
     def inject(step, obs, target):
         if step == 2:
@@ -292,11 +327,26 @@ def test_ur_faults_are_named_and_stop_the_loop(fault, match):
 
 
 def test_ur_reduced_mode_still_moves():
+    # reduced mode (safety mode 2: the controller's slower, safety-limited mode) is not a fault: state is
+    # read and every target still reaches servoL with the configured timing; only the other modes stop
     rtde = StubRTDE()
     rtde.safety_mode = 2
-    arm = URArm("ip", control=rtde, receive=rtde)
+    arm = URArm("ip", period_s=0.1, lookahead_time=0.05, gain=400, control=rtde, receive=rtde)
     arm.connect()
-    arm.servo([0.4, 0, 0.2, 0])
+    assert arm.state().pose == pytest.approx([0.4, 0.0, 0.2, 0.0])
+    arm.servo([0.42, -0.01, 0.25, 0.3])
+    arm.servo([0.43, -0.02, 0.26, 0.35])
+    assert [c[0] for c in rtde.calls] == ["servoL", "servoL"]
+    for call, (x, y, z, yaw) in zip(rtde.calls, [(0.42, -0.01, 0.25, 0.3), (0.43, -0.02, 0.26, 0.35)]):
+        _, pose, t, lookahead, gain = call
+        assert pose[:3] == pytest.approx([x, y, z]) and (t, lookahead, gain) == (0.1, 0.05, 400)
+        r = Rotation.from_rotvec(pose[3:]) * (Rotation.from_euler("z", yaw) * Rotation.from_rotvec([math.pi, 0, 0])).inv()
+        assert r.magnitude() == pytest.approx(0.0, abs=1e-9)
+    assert arm.state().pose == pytest.approx([0.43, -0.02, 0.26, 0.35])
+    rtde.safety_mode = 3  # protective stop: now it is a fault and nothing more is sent
+    with pytest.raises(ArmFault, match=r"safety mode 3 \(protective stop\)"):
+        arm.servo([0.44, -0.02, 0.26, 0.35])
+    assert [c[0] for c in rtde.calls] == ["servoL", "servoL"]
 
 
 @pytest.mark.parametrize("kwargs, field", [(dict(lookahead_time=0.5), "lookahead_time"), (dict(gain=50), "gain"),

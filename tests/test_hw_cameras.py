@@ -1,9 +1,9 @@
 """GelSight / camera reader through the real OpenCV path on video files written here from the tactile
 sensor model: device lookup by name, border crop and resize, background, residuals, pacing,
-stale and unplugged sensors (also inside the control loop)."""
+stale and unplugged sensors (also inside the control loop). Files play on a virtual clock that the
+test's own thread holds (attached), so every frame is seen and stamped exactly, without sleeping."""
 
 import os
-import time
 
 import cv2
 import numpy as np
@@ -54,6 +54,15 @@ def mae(a, b):
     return float(np.abs(a.astype(np.int16) - b.astype(np.int16)).mean())
 
 
+@pytest.fixture
+def clock():
+    """Virtual time that moves only while this test's thread (or the loop it runs) sleeps on it."""
+    c = VirtualClock()
+    c.attach()
+    yield c
+    c.detach()
+
+
 def test_crop_and_resize_removes_exactly_the_border():
     bgr = np.zeros((100, 200, 3), np.uint8)
     bgr[:15] = bgr[85:] = 255
@@ -80,10 +89,9 @@ def test_find_video_device_by_name(tmp_path):
         find_video_device("DIGIT", str(by_id))
 
 
-def test_gelsight_background_residual_and_frames(gelsight_video, sensor_frames):
+def test_gelsight_background_residual_and_frames(gelsight_video, sensor_frames, clock):
     background, contacts = sensor_frames
-    t_start = time.monotonic()
-    with GelSightMini("left", gelsight_video, background_frames=5) as gs:
+    with GelSightMini("left", gelsight_video, background_frames=5, clock=clock) as gs:
         assert gs.background.shape == (240, 320, 3) and gs.background.dtype == np.uint8
         assert mae(gs.background, background) < 2.0  # averaged no-contact frames, through crop + resize
         assert not (gs.background == (255, 0, 255)).all(-1).any()  # no border pixel left
@@ -92,30 +100,31 @@ def test_gelsight_background_residual_and_frames(gelsight_video, sensor_frames):
         while len(seen) < 3:
             frame = gs.wait_for_frame(frame.index, 2.0)
             seen.append(frame)
-        assert [f.index for f in seen] == list(range(seen[0].index, seen[0].index + 3))
+        assert [f.index for f in seen] == [6, 7, 8]  # frames 6, 7, 8, ... are the contacts, 1-5 the background
         # the file plays at its recorded 25 fps like the camera it stands in for, not as fast as it decodes
-        assert all(f.timestamp - t_start >= (f.index - 1) / 25.0 for f in seen)
-        assert seen[0].index >= 6  # frames 6, 7, 8, ... are the contacts, 1-5 the background
+        assert [f.timestamp for f in seen] == pytest.approx([0.2, 0.24, 0.28])
         for f in seen:
             expected = to_residual(contacts[(f.index - 6) % 3], background)
             assert mae(gs.residual(f), expected) < 2.5
         assert mae(gs.residual(seen[0]), np.full_like(background, 127)) > 1.0  # there is a contact
 
 
-def test_end_of_stream_is_reported_as_unplugged(gelsight_video):
-    with GelSightMini("left", gelsight_video, background_frames=5) as gs:
+def test_end_of_stream_is_reported_as_unplugged(gelsight_video, clock):
+    with GelSightMini("left", gelsight_video, background_frames=5, clock=clock) as gs:
         with pytest.raises(SensorError, match="left: capture stopped delivering frames after 11 frames"):
             for _ in range(100):
                 gs.wait_for_frame(gs.latest().index, 2.0)
 
 
-def test_stale_frame_by_age(gelsight_video):
-    clock = VirtualClock()
-    with OpenCVFrameSource("wrist", gelsight_video, max_age_s=0.2, clock=clock) as cam:
+def test_stale_frame_by_age(tmp_path, sensor_frames, clock):
+    video = write_video(tmp_path / "slow.avi", sensor_frames[1], fps=1.0)  # the next frame is due at t = 1 s
+    with OpenCVFrameSource("wrist", video, max_age_s=0.2, clock=clock) as cam:
         frame = cam.wait_for_frame(0, 2.0)
-        assert cam.latest().index >= frame.index
-        clock.advance(0.5)
-        with pytest.raises(SensorError, match=r"wrist: newest frame is 0\.5\d\d s old \(limit 0\.2 s\): stalled"):
+        assert frame.index == 1 and frame.timestamp == 0.0 and clock.now() < 0.01  # start() polled for it
+        clock.advance(0.19)
+        assert cam.latest() is frame  # under 0.2 s old: fresh
+        clock.advance(0.3)
+        with pytest.raises(SensorError, match=r"wrist: newest frame is 0\.49\d s old \(limit 0\.2 s\): stalled"):
             cam.latest()
 
 
@@ -131,19 +140,20 @@ def test_bad_settings(kwargs, field):
         OpenCVFrameSource("cam", "x.avi", **kwargs)
 
 
-def test_sensor_unplugged_mid_run_stops_the_arm(tmp_path, sensor_frames):
+def test_sensor_unplugged_mid_run_stops_the_arm(tmp_path, sensor_frames, clock):
     background, contacts = sensor_frames
-    video = write_video(tmp_path / "short.avi", [background] * 3 + contacts, fps=20.0)
+    video = write_video(tmp_path / "short.avi", [background] * 3 + contacts, fps=25.0)
 
-    class Hold:
-        def predict_chunk(self, obs):
-            return np.tile(np.r_[obs["qpos"][:4], 0.0], (20, 1))
+    def hold(obs):
+        return np.tile(np.r_[obs["qpos"][:4], 0.0], (20, 1))
 
     log = []
-    arm = FakeArm(log=log)
-    with GelSightMini("left", video, background_frames=3) as gs:
-        loop = ControlLoop(arm, Hold(), tactile={"left": gs}, config=ControlLoopConfig(inference="sync"))
-        with pytest.raises(SensorError, match="left: capture stopped delivering frames"):
+    arm = FakeArm(log=log, clock=clock)
+    with GelSightMini("left", video, background_frames=3, clock=clock) as gs:
+        # frames 1-3 (t = 0 .. 0.08 s) are the background, the last frame comes at 0.2 s, the end of the file at
+        # 0.24 s: the loop (steps at 0.08, 0.18, 0.28 s) commands twice, then finds the sensor gone
+        loop = ControlLoop(arm, hold, tactile={"left": gs}, config=ControlLoopConfig(inference="sync"), clock=clock)
+        with pytest.raises(SensorError, match="left: capture stopped delivering frames after 6 frames"):
             loop.run(max_steps=100)
     events = [e for e, _ in log]
-    assert 1 <= events.count("servo") < 10 and events[-1] == "arm-stop"
+    assert events.count("servo") == 2 and events[-1] == "arm-stop"

@@ -1,55 +1,64 @@
-"""Control loop with fake devices: exact actions in sync/virtual time, async inference on the wall clock,
-and fault injection (policy raises, late policy, stale frame, arm error, hung arm, Ctrl-C): the arm is
-stopped before the exception reaches the caller, nothing is commanded after the fault, and the error
-says what happened."""
+"""Control loop with fake devices, all on the virtual clock (no test waits on wall-clock time): exact
+actions in sync and async inference, and fault injection (policy raises, late policy, stale frame, arm
+error, hung arm caught by the watchdog thread, Ctrl-C): the arm is stopped before the exception reaches
+the caller, nothing is commanded after the fault, and the error says what happened. Policies are plain
+callables; a slow one sleeps on the virtual clock, so its duration is exact."""
 
 import signal
 import threading
-import time
 
 import numpy as np
 import pytest
 
 from hardware.control_loop import ControlLoop, ControlLoopConfig, PolicyError, PolicyLateError
 from hardware.fakes import FakeArm, FakeGripper, SyntheticFrameSource
-from hardware.interfaces import ArmFault, SensorError, VirtualClock, WallClock
+from hardware.interfaces import ArmFault, SensorError, VirtualClock
 from hardware.safety import SafetyLimits, SafetyViolation, WatchdogTimeout
-from policies.temporal_ensembling import TemporalEnsembler
+from hardware.temporal_ensembling import TemporalEnsembler
 
 START = (0.4, 0.0, 0.2, 0.0)
 LIMITS = SafetyLimits(max_step_m=0.05, max_rotation_rad=0.2)
 
 
 class RampPolicy:
-    """Chunk of targets that creep +1 mm in x per step from the observed pose; records its calls."""
+    """Chunk of targets that creep +1 mm in x per step from the observed pose; records its calls.
+    Delays are clock seconds (``make`` hands it the loop's clock)."""
 
     def __init__(self, chunk=5, delay_s=0.0, fail_on_call=None, late_on_call=None, late_s=1.0):
         self.chunk, self.delay_s = chunk, delay_s
         self.fail_on_call, self.late_on_call, self.late_s = fail_on_call, late_on_call, late_s
         self.calls, self.threads, self.qpos = 0, set(), []
+        self.clock = None
 
-    def predict_chunk(self, obs):
+    def sleep(self, dt):
+        if dt:
+            self.clock.sleep_until(self.clock.now() + dt)
+
+    def __call__(self, obs):
         self.calls += 1
         self.threads.add(threading.current_thread().name)
         self.qpos.append(obs["qpos"].copy())
         if self.fail_on_call == self.calls:
             raise RuntimeError("boom in the policy")
         if self.late_on_call is not None and self.calls >= self.late_on_call:
-            time.sleep(self.late_s)
-        time.sleep(self.delay_s)
+            self.sleep(self.late_s)
+        self.sleep(self.delay_s)
         q = obs["qpos"].astype(np.float64)
         out = np.tile(np.r_[q[:4], 0.8], (self.chunk, 1))
         out[:, 0] += 0.001 * np.arange(1, self.chunk + 1)
         return out
 
 
-def make(clock, policy, inference="sync", tactile=True, **cfg):
+def make(clock, policy, inference="sync", tactile=True, watchdog_thread=None, **cfg):
     log = []
+    if isinstance(policy, RampPolicy):
+        policy.clock = clock
     arm, grip = FakeArm(START, clock, log), FakeGripper(clock, log)
     tac = {"left": SyntheticFrameSource("left", (24, 32), clock, background=True)} if tactile else {}
     cams = {"wrist": SyntheticFrameSource("wrist", (24, 32), clock)}
     loop = ControlLoop(arm, policy, gripper=grip, cameras=cams, tactile=tac, limits=LIMITS,
-                       config=ControlLoopConfig(inference=inference, chunk_size=5, **cfg), clock=clock)
+                       config=ControlLoopConfig(inference=inference, chunk_size=5, **cfg), clock=clock,
+                       watchdog_thread=watchdog_thread)
     return loop, arm, log
 
 
@@ -93,9 +102,9 @@ def test_observation_keys_and_qpos():
     seen = {}
 
     class P(RampPolicy):
-        def predict_chunk(self, obs):
+        def __call__(self, obs):
             seen.update(obs)
-            return super().predict_chunk(obs)
+            return super().__call__(obs)
 
     make(clock, P())[0].run(max_steps=1)
     assert set(seen) == {"qpos", "images/wrist", "tactile/left", "tactile_background/left"}
@@ -123,19 +132,25 @@ def test_deadline_miss_is_counted_and_period_error_exact():
 
 
 def test_async_inference_runs_in_its_own_thread_at_10hz():
-    policy = RampPolicy(chunk=5, delay_s=0.02)
-    loop, arm, log = make(WallClock(), policy, inference="async")
+    clock = VirtualClock()
+    policy = RampPolicy(chunk=5, delay_s=0.02)  # 20 ms of virtual time per call
+    loop, arm, log = make(clock, policy, inference="async")
     stats = loop.run(max_steps=8)
     assert policy.threads == {"policy"}
-    assert stats.steps == 8 and len(commands(log)) == 8 and (np.diff(stats.cycle_starts) > 0).all()
-    assert 2 <= policy.calls <= 9
+    assert stats.steps == 8 and len(commands(log)) == 8
+    # the first chunk (warm-up) is waited for; then one call per step from step 1, none ever late
+    assert policy.calls == 8 and stats.inference_s == pytest.approx([0.02] * 8)
+    assert stats.cycle_starts[0] == pytest.approx(0.02)
+    np.testing.assert_allclose(stats.period_errors_s(), 0.0, atol=1e-9)
+    # the chunk predicted at step s is used from step s + 1 on: step 1 acts on the warm-up chunk only
+    assert commands(log)[1][0] == pytest.approx(START[0] + 0.002)
     assert_stopped_after_last_command(log)
 
 
 def test_policy_exception_stops_arm_and_names_it():
     policy = RampPolicy(fail_on_call=3)
     loop, arm, log = make(VirtualClock(), policy)
-    with pytest.raises(PolicyError, match="policy.predict_chunk raised RuntimeError: boom in the policy"):
+    with pytest.raises(PolicyError, match="policy raised RuntimeError: boom in the policy"):
         loop.run(max_steps=10)
     assert arm.stopped and len(commands(log)) == 2
     assert_stopped_after_last_command(log)
@@ -144,19 +159,21 @@ def test_policy_exception_stops_arm_and_names_it():
 
 def test_async_policy_exception_stops_arm():
     policy = RampPolicy(fail_on_call=2)
-    loop, arm, log = make(WallClock(), policy, inference="async")
+    loop, arm, log = make(VirtualClock(), policy, inference="async")
     with pytest.raises(PolicyError, match="boom"):
         loop.run(max_steps=20)
-    assert arm.stopped
+    assert arm.stopped and len(commands(log)) == 2  # the call from step 1 failed; step 2 stops
     assert_stopped_after_last_command(log)
 
 
 def test_late_async_policy_stops_arm():
+    clock = VirtualClock()
     policy = RampPolicy(chunk=5, late_on_call=2, late_s=1.5)
-    loop, arm, log = make(WallClock(), policy, inference="async", inference_deadline_s=0.25)
-    with pytest.raises(PolicyLateError, match=r"has run 0\.\d+ s, past inference_deadline_s = 0\.25 s"):
+    loop, arm, log = make(clock, policy, inference="async", inference_deadline_s=0.25)
+    # the call submitted at step 1 (t = 0.1 s) is still running at step 4 (t = 0.4 s): 0.3 s > 0.25 s
+    with pytest.raises(PolicyLateError, match=r"step 1 has run 0\.300 s, past inference_deadline_s = 0\.25 s"):
         loop.run(max_steps=50)
-    assert arm.stopped and len(commands(log)) <= 5
+    assert arm.stopped and len(commands(log)) == 4
     assert_stopped_after_last_command(log)
 
 
@@ -171,7 +188,7 @@ def test_chunks_running_out_is_a_late_policy():
 
 def test_malformed_chunk_is_rejected_before_motion():
     class Bad:
-        def predict_chunk(self, obs):
+        def __call__(self, obs):
             return np.zeros((5, 4))
 
     loop, arm, log = make(VirtualClock(), Bad())
@@ -182,8 +199,8 @@ def test_malformed_chunk_is_rejected_before_motion():
 
 def test_nan_action_is_a_safety_violation():
     class NaNAfterTwo(RampPolicy):
-        def predict_chunk(self, obs):
-            out = super().predict_chunk(obs)
+        def __call__(self, obs):
+            out = super().__call__(obs)
             if self.calls >= 3:
                 out[:] = np.nan
             return out
@@ -247,35 +264,43 @@ def test_measured_pose_outside_workspace_stops_arm():
     assert_stopped_after_last_command(log)
 
 
-def test_hung_arm_is_stopped_by_the_watchdog_thread():
-    policy = RampPolicy(chunk=5)
-    loop, arm, log = make(WallClock(), policy, inference="async")
+@pytest.mark.parametrize("inference", ["sync", "async"])
+def test_hung_arm_is_stopped_by_the_watchdog_thread(inference):
+    clock = VirtualClock()
+    loop, arm, log = make(clock, RampPolicy(chunk=5), inference=inference, watchdog_thread=True)
+    stop_times = []
+    arm.stop = lambda: (stop_times.append(clock.now()), FakeArm.stop(arm))
 
     def on_step(step, obs, target):
         if step == 2:
-            arm.servo_delay_s = 0.6  # the next servo call hangs for three periods
+            arm.servo_delay_s = 0.6  # the servo call at step 3 (t = 0.3 s) hangs until t = 0.9 s
         return False
 
-    with pytest.raises(WatchdogTimeout, match="no fresh command"):
+    with pytest.raises(WatchdogTimeout, match=r"no fresh command for 0\.2\d\d s"):
         loop.run(max_steps=20, on_step=on_step)
     events = [e for e, _ in log]
     hung = events.index("servo-returned")
     assert "arm-stop" in events[:hung], "the watchdog thread must stop the arm while servo() hangs"
+    # last command at t = 0.2 s, limit 0.2 s, checked every 0.05 s: stopped at 0.45 s, long before 0.9 s
+    assert stop_times[0] == pytest.approx(0.45) and clock.now() == pytest.approx(0.9)
     assert_stopped_after_last_command(log)
 
 
 def test_ctrl_c_stops_arm_and_propagates():
-    loop, arm, log = make(WallClock(), RampPolicy(), inference="async")
+    loop, arm, log = make(VirtualClock(), RampPolicy(), inference="async")
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
-    timer = threading.Timer(0.4, lambda: signal.pthread_kill(threading.main_thread().ident, signal.SIGINT))
+
+    def on_step(step, obs, target):
+        if step == 3:
+            signal.raise_signal(signal.SIGINT)  # a real SIGINT to this process, handled in this thread
+        return False
+
     try:
-        timer.start()
         with pytest.raises(KeyboardInterrupt):
-            loop.run()  # no max_steps: runs until interrupted
+            loop.run(on_step=on_step)  # no max_steps: runs until interrupted
     finally:
-        timer.cancel()
         signal.signal(signal.SIGINT, previous)
-    assert arm.stopped and loop.stats.stop_reason == "Ctrl-C" and loop.stats.steps >= 2
+    assert arm.stopped and loop.stats.stop_reason == "Ctrl-C" and loop.stats.steps == 4
     assert_stopped_after_last_command(log)
 
 
@@ -298,11 +323,13 @@ def test_bad_max_steps():
 def test_slow_first_inference_does_not_trip_the_watchdog():
     # the first chunk (model warm-up) takes 0.4 s, twice the 0.2 s frame-age limit: the loop observes afresh
     class SlowFirst(RampPolicy):
-        def predict_chunk(self, obs):
+        def __call__(self, obs):
             if self.calls == 0:
-                time.sleep(0.4)
-            return super().predict_chunk(obs)
+                self.sleep(0.4)
+            return super().__call__(obs)
 
-    loop, arm, log = make(WallClock(), SlowFirst(), inference="async")
+    clock = VirtualClock()
+    loop, arm, log = make(clock, SlowFirst(), inference="async", watchdog_thread=True)
     stats = loop.run(max_steps=3)
     assert stats.steps == 3 and len(commands(log)) == 3
+    assert stats.cycle_starts == pytest.approx([0.4, 0.5, 0.6])

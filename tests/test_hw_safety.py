@@ -77,10 +77,14 @@ def test_filter_requires_reset():
 
 @pytest.mark.parametrize(
     "kwargs, field",
-    [(dict(workspace_min=(0, 0, 1), workspace_max=(1, 1, 0.5)), "workspace_min must be below"),
-     (dict(workspace_min=(0, 0)), "workspace_min must be three"),
-     (dict(max_step_m=0.0), "max_step_m"), (dict(max_rotation_rad=-1), "max_rotation_rad"),
-     (dict(gripper_min=0.5, gripper_max=0.2), "gripper_min"), (dict(yaw_min=-4.0), "yaw_min")],
+    [(dict(workspace_min=(0, 0, 1), workspace_max=(1, 1, 0.5)), "workspace_min: must be below workspace_max"),
+     (dict(workspace_min=(0, 0)), r"workspace_min\n  Value error, expected \[x, y, z\] \(3 values\)"),
+     (dict(workspace_min=(0, 0, float("nan"))), r"workspace_min\.2\n  Input should be a finite number"),
+     (dict(max_step_m=0.0), r"max_step_m\n  Input should be greater than 0"),
+     (dict(max_step_m=0.5), r"max_step_m\n  Input should be less than or equal to 0\.1"),
+     (dict(max_rotation_rad=-1), "max_rotation_rad"), (dict(max_rotation_rad=1.0), "max_rotation_rad"),
+     (dict(gripper_min=0.5, gripper_max=0.2), "gripper_min: must be below gripper_max"),
+     (dict(yaw_min=-4.0), "yaw_min"), (dict(state_tolerance_m="2 cm"), "state_tolerance_m")],
 )
 def test_limits_validation_names_the_field(kwargs, field):
     with pytest.raises(ValueError, match=field):
@@ -105,14 +109,16 @@ def test_watchdog_trips_on_the_silent_feed_only():
 
 def test_watchdog_thread_calls_on_trip():
     import threading
-    import time
 
-    from hardware.interfaces import WallClock
-
-    wd = Watchdog(0.05, WallClock())
-    tripped = threading.Event()
-    wd.feed("command", time.monotonic())
-    wd.start(tripped.set)
-    assert tripped.wait(2.0)
+    clock = VirtualClock()
+    clock.attach()  # time moves only while this thread waits on the clock
+    wd = Watchdog(0.05, clock)
+    tripped, trip_times = threading.Event(), []
+    wd.feed("command", 0.0)
+    wd.start(lambda: trip_times.append(clock.now()) or tripped.set())
+    assert clock.now() == 0.0 and not tripped.is_set()
+    assert clock.wait(tripped, 2.0)  # virtual time runs the watchdog thread's checks every 12.5 ms
     wd.stop()
+    clock.detach()
     assert "no fresh command" in wd.tripped
+    assert trip_times == [pytest.approx(0.0625)]  # the first check past the 0.05 s limit

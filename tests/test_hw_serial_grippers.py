@@ -1,7 +1,9 @@
 """Dynamixel and Robotiq grippers through the real client stacks (dynamixel_sdk / pyserial) against
-emulated devices on a pseudo-terminal: register writes, positions, CRC both ways, faults, garbage."""
+emulated devices on a pseudo-terminal: register writes, positions, CRC both ways, faults, garbage.
 
-import time
+The emulated fingers move on a virtual clock that the tests advance, so nothing waits for them; the
+only wall-clock waits left are serial read timeouts where a test wants no reply (a silent device, a
+frame with a bad CRC, garbage), each a few tens of milliseconds."""
 
 import pytest
 import serial
@@ -13,17 +15,8 @@ from hardware.dynamixel import (
     DynamixelGripper,
 )
 from hardware.fake_serial import FakeDynamixelServo, FakeRobotiq2F85, dxl_crc
-from hardware.interfaces import HardwareError
+from hardware.interfaces import HardwareError, VirtualClock
 from hardware.robotiq import RobotiqGripper, crc16_modbus
-
-
-def wait_for(cond, timeout=2.0):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if cond():
-            return True
-        time.sleep(0.01)
-    return False
 
 
 # -- CRCs against frames printed in the vendors' manuals --------------------------------------------
@@ -64,18 +57,25 @@ def test_dynamixel_connect_sets_current_based_position_mode():
 
 
 def test_dynamixel_positions_map_to_closing_fraction_with_negative_ticks():
-    with FakeDynamixelServo(start_position=-500) as dev:
-        with DynamixelGripper(dev.port, open_position=-500, closed_position=1500) as g:
+    clock = VirtualClock()
+    with FakeDynamixelServo(start_position=-500, speed_ticks_s=20000.0, clock=clock) as dev:
+        with DynamixelGripper(dev.port, open_position=-500, closed_position=1500, clock=clock) as g:
             assert g.state().position == pytest.approx(0.0)
             g.command(0.25)
             assert dev._get_i32(116) == 0  # -500 + 0.25 * 2000
             g.command(1.0)
-            assert wait_for(lambda: g.state().position == pytest.approx(1.0))
+            clock.advance(0.05)  # 1000 of the 2000 ticks at 20000 ticks/s
+            assert g.state().position == pytest.approx(0.5)
+            assert g.state().timestamp == 0.05
+            clock.advance(0.05)
+            assert g.state().position == pytest.approx(1.0)
             g.command(0.0)
-            assert wait_for(lambda: g.state().position == pytest.approx(0.0))
+            clock.advance(0.1)
+            assert g.state().position == pytest.approx(0.0)
             dev.object_at = 700
             g.command(1.0)  # closes on the object: stops at 700 ticks = 0.6, squeezing at the goal current
-            assert wait_for(lambda: g.state().position == pytest.approx(0.6))
+            clock.advance(0.1)
+            assert g.state().position == pytest.approx(0.6)
             assert g.present_current() == g.goal_current
 
 
@@ -132,17 +132,24 @@ def test_dynamixel_command_out_of_range():
 # -- Robotiq --------------------------------------------------------------------------------------
 
 def test_robotiq_activation_move_and_object_detection():
-    with FakeRobotiq2F85(activation_s=0.1) as dev:
-        with RobotiqGripper(dev.port, force=77) as g:
-            assert g.read_status()["sta"] == 3  # connect waited for activation complete
+    clock = VirtualClock()
+    with FakeRobotiq2F85(activation_s=0.1, speed_units_s=2000.0, clock=clock) as dev:
+        with RobotiqGripper(dev.port, force=77, clock=clock) as g:
+            assert g.read_status()["sta"] == 3  # connect waited for activation complete ...
+            assert 0.1 <= clock.now() <= 0.12  # ... polling every 10 ms of the clock
             g.command(1.0)
             assert dev.out[0] == 0x09 and dev.out[3] == 255 and dev.out[5] == 77
-            assert wait_for(lambda: g.state().position == 1.0)
+            clock.advance(0.1)  # 200 of the 255 units
+            assert g.state().position == pytest.approx(200 / 255)
+            clock.advance(0.1)
+            assert g.state().position == 1.0
             dev.object_at = 128
             g.command(0.0)
-            assert wait_for(lambda: g.state().position == 0.0)
+            clock.advance(0.2)
+            assert g.state().position == 0.0
             g.command(1.0)
-            assert wait_for(lambda: g.read_status()["obj"] == 2)
+            clock.advance(0.2)
+            assert g.read_status()["obj"] == 2
             assert g.state().position == pytest.approx(128 / 255)
         assert dev.out[0] == 0x01  # stop on exit cleared rGTO, kept rACT
         assert dev.crc_errors == 0
@@ -159,7 +166,7 @@ def test_robotiq_garbage_on_the_line():
 
 def test_robotiq_device_ignores_bad_crc_and_client_times_out():
     with FakeRobotiq2F85() as dev:
-        with serial.Serial(dev.port, 115200, timeout=0.2) as s:
+        with serial.Serial(dev.port, 115200, timeout=0.05) as s:  # the one wall-clock wait: no reply comes
             bad = bytearray.fromhex("09 04 07 D0 00 03 B1 CE")
             bad[-1] ^= 1
             s.write(bytes(bad))
@@ -171,21 +178,23 @@ def test_robotiq_device_ignores_bad_crc_and_client_times_out():
 
 
 def test_robotiq_fault_and_silence_are_reported():
-    with FakeRobotiq2F85() as dev, RobotiqGripper(dev.port, timeout_s=0.05) as g:
+    with FakeRobotiq2F85() as dev, RobotiqGripper(dev.port, timeout_s=0.02) as g:
         dev.fault = 0x0E
         with pytest.raises(HardwareError, match=r"fault 0x0E: overcurrent"):
             g.state()
-        dev.fault, dev.silent = 0, True
-        with pytest.raises(HardwareError, match=r"no complete reply within 0.05 s"):
+        dev.fault, dev.silent = 0, True  # the client waits its read timeout (wall clock) twice, 40 ms
+        with pytest.raises(HardwareError, match=r"no complete reply within 0.02 s"):
             g.state()
         dev.silent = False  # lets the stop on exit through
 
 
 def test_robotiq_activation_timeout():
-    with FakeRobotiq2F85(activation_s=10.0) as dev:
-        g = RobotiqGripper(dev.port, activation_timeout_s=0.2)
-        with pytest.raises(HardwareError, match=r"activation not complete after 0.2 s"):
+    clock = VirtualClock()
+    with FakeRobotiq2F85(activation_s=10.0, clock=clock) as dev:
+        g = RobotiqGripper(dev.port, activation_timeout_s=0.2, clock=clock)
+        with pytest.raises(HardwareError, match=r"activation not complete after 0.2 s \(gSTA=1\)"):
             g.connect()
+        assert 0.2 < clock.now() <= 0.22  # gave up at the first poll past the timeout, in virtual time
         g.close()
 
 
@@ -203,15 +212,14 @@ def test_garbage_on_the_gripper_line_mid_run_stops_the_arm(kind):
     from hardware.fakes import FakeArm
     from hardware.interfaces import VirtualClock
 
-    class Close:
-        def predict_chunk(self, obs):
-            return np.tile(np.r_[obs["qpos"][:4], 1.0], (5, 1))
+    def close(obs):
+        return np.tile(np.r_[obs["qpos"][:4], 1.0], (5, 1))
 
     device = FakeRobotiq2F85() if kind == "robotiq" else FakeDynamixelServo()
     client = RobotiqGripper if kind == "robotiq" else DynamixelGripper
     log = []
     with device as dev, client(dev.port) as gripper:
-        loop = ControlLoop(FakeArm(log=log), Close(), gripper=gripper, clock=VirtualClock(),
+        loop = ControlLoop(FakeArm(log=log), close, gripper=gripper, clock=VirtualClock(),
                            config=ControlLoopConfig(inference="sync", chunk_size=5))
 
         def inject(step, obs, target):

@@ -6,7 +6,7 @@ import threading
 import numpy as np
 import pytest
 
-from policies.temporal_ensembling import TemporalEnsembler
+from hardware.temporal_ensembling import TemporalEnsembler
 
 
 def test_three_chunks_match_hand_computation():

@@ -75,3 +75,7 @@ class ACTPolicy:
     def predict_chunk(self, observation: dict) -> np.ndarray:
         """(N_a, A) float32 actions (absolute targets in the training data's units)."""
         return self.model.predict(self.to_batch(observation))[0].cpu().numpy().astype(np.float32)
+
+    def __call__(self, observation: dict) -> np.ndarray:
+        """The control loop's policy protocol (any callable observation -> chunk): :meth:`predict_chunk`."""
+        return self.predict_chunk(observation)

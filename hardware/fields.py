@@ -1,0 +1,92 @@
+"""Field types shared by the validated settings (pydantic v2): strict scalars, finite floats, fixed-length
+vectors that YAML writes as lists, and one-line error messages with the field path.
+
+Scalars are strict (no "5" -> 5, no true -> 1, no 2.5 -> int); an integer is accepted where a float is
+expected. Floats must be finite (``allow_inf_nan=False`` in :data:`SETTINGS`).
+"""
+
+from __future__ import annotations
+
+import ipaddress
+from typing import Annotated
+
+from pydantic import AfterValidator, BeforeValidator, ConfigDict, Field, Strict, ValidationError
+
+SETTINGS = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)  # models (BaseModel)
+DATACLASS_SETTINGS = ConfigDict(extra="forbid", allow_inf_nan=False)  # pydantic dataclasses (frozen=True on the decorator)
+
+Float = Annotated[float, Strict()]
+Int = Annotated[int, Strict()]
+Str = Annotated[str, Strict()]
+Bool = Annotated[bool, Strict()]
+
+
+def _sequence(form: str):
+    """Before-validator: a YAML list (or a tuple) of ``len(form.split(','))`` items becomes a tuple."""
+    n = len(form.split(","))
+
+    def check(v):
+        if isinstance(v, (list, tuple)):
+            if len(v) != n:
+                raise ValueError(f"expected {form} ({n} values), got {list(v)!r}")
+            return tuple(v)
+        return v
+
+    return BeforeValidator(check)
+
+
+Vec2 = Annotated[tuple[Float, Float], _sequence("[roll, pitch]")]
+Vec3 = Annotated[tuple[Float, Float, Float], _sequence("[x, y, z]")]
+PosInt = Annotated[Int, Field(ge=1)]
+Size = Annotated[tuple[PosInt, PosInt], _sequence("[H, W]")]  # pixels
+
+
+def _ip(v: str) -> str:
+    try:
+        ipaddress.ip_address(v)
+    except ValueError:
+        raise ValueError(f"expected an IP address such as 192.168.1.221, got {v!r}") from None
+    return v
+
+
+IPAddress = Annotated[Str, AfterValidator(_ip)]
+
+
+def _device(v):
+    if isinstance(v, bool) or not isinstance(v, (str, int)):
+        raise ValueError(f"expected a string (path or name) or an integer index, got {v!r}")
+    return v
+
+
+Device = Annotated[str | int, BeforeValidator(_device)]
+
+
+def _path(loc) -> str:
+    out = ""
+    for part in loc:
+        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+    return out
+
+
+def error_line(exc: ValidationError, source: str) -> str:
+    """``<source>: <field path>: <problem>`` for every error of ``exc``, joined into one line.
+
+    A validator message starting with ``<field>: `` (the field a cross-field check blames) extends the path.
+    """
+    parts = []
+    for err in exc.errors(include_url=False):
+        path, msg = _path(err["loc"]), err["msg"]
+        kind = err["type"]
+        if kind == "value_error":
+            msg = msg.removeprefix("Value error, ")
+            head, sep, rest = msg.partition(": ")
+            if sep and all(part.isidentifier() for part in head.split(".")):
+                path, msg = f"{path}.{head}" if path else head, rest
+        elif kind in ("extra_forbidden", "unexpected_keyword_argument"):
+            msg = "unknown field"
+        elif kind in ("missing", "missing_argument"):
+            msg = "required field is missing"
+        elif "input" in err and not isinstance(err["input"], dict):
+            msg = f"{msg}, got {err['input']!r}"
+        parts.append(f"{path or 'setup'}: {msg}")
+    return f"{source}: " + "; ".join(parts)
