@@ -31,6 +31,7 @@ from typing import Callable, Mapping
 
 import torch
 from safetensors import SafetensorError
+from safetensors.torch import load as load_safetensors
 from safetensors.torch import load_file, save_file
 from torch.optim.lr_scheduler import CosineAnnealingLR, LinearLR, LRScheduler, SequentialLR
 
@@ -135,10 +136,11 @@ def load_folder(path: str | Path, weight_files: tuple[str, ...], optional: tuple
             raise MissingCheckpointFile(f"checkpoint file not found: {f}")
         if name not in hashes:
             raise CheckpointError(f"{f}: no hash for it in {path / CARD_FILE}")
-        if sha256_file(f) != hashes[name]:
+        data = f.read_bytes()  # read once: hashed, then parsed
+        if hashlib.sha256(data).hexdigest() != hashes[name]:
             raise CheckpointError(f"{f} is corrupted or was replaced: its SHA-256 differs from the one in {CARD_FILE}")
         try:
-            tensors = load_file(str(f))
+            tensors = load_safetensors(data)
         except (SafetensorError, OSError) as e:
             raise CheckpointError(f"{f} is corrupted or not a safetensors file: {e}") from None
         bad = [k for k, v in tensors.items() if v.is_floating_point() and not torch.isfinite(v).all()]
