@@ -48,6 +48,7 @@ from controltac_il.generator.checkpoint import load_checkpoint, save_checkpoint
 from controltac_il.generator.config import AutoencoderConfig, DiffusionConfig, GeneratorConfig
 from controltac_il.generator.data import PairData, crop_batch, load_pair_data, sample_pairs
 from controltac_il.generator.dit import ForceDiT
+from controltac_il.generator.forces import VALIDATED_RANGE
 from controltac_il.generator.pipeline import residual_to_unit
 from controltac_il.generator.sampler import make_scheduler
 from controltac_il.generator.train_config import (DIT_PRESETS, STAGES, TrainConfig, cli_args, legacy_provenance,
@@ -316,7 +317,7 @@ def model_card(cfg: TrainConfig, data: PairData, ae: TactileAutoencoder, ae_meta
         "total_wall_s": wall_s,
         "machine": {"cpu_count": os.cpu_count(), "torch": torch.__version__, "python": platform.python_version()},
         "weights_dtype": "float16",
-        "validated_range": __import__("controltac_il.generator.forces", fromlist=["VALIDATED_RANGE"]).VALIDATED_RANGE.card(),
+        "validated_range": VALIDATED_RANGE.card(),
     }
 
 
