@@ -37,13 +37,12 @@ def control_loop(steps: int, policy_ms: float) -> dict:
     from hardware.control_loop import ControlLoop, ControlLoopConfig
     from hardware.fakes import FakeArm, FakeGripper, SyntheticFrameSource
 
-    class SlowHold:
-        def predict_chunk(self, obs):
-            time.sleep(policy_ms / 1e3)
-            return np.tile(np.r_[obs["qpos"][:4] + [0.0005, 0, 0, 0], 0.5], (20, 1))
+    def slow_hold(obs):  # any callable is a policy; this one takes policy_ms of wall time, on purpose
+        time.sleep(policy_ms / 1e3)
+        return np.tile(np.r_[obs["qpos"][:4] + [0.0005, 0, 0, 0], 0.5], (20, 1))
 
     loop = ControlLoop(
-        FakeArm(), SlowHold(), gripper=FakeGripper(),
+        FakeArm(), slow_hold, gripper=FakeGripper(),
         cameras={"third_view": SyntheticFrameSource("third_view")},
         tactile={s: SyntheticFrameSource(s, background=True) for s in ("left", "right")},
         config=ControlLoopConfig(rate_hz=10.0, inference="async"),

@@ -3,11 +3,13 @@
 Modules (one job each):
     interfaces    Arm / Gripper / FrameSource / Clock contracts and their small dataclasses
     safety        workspace box, largest step per period, gripper limits, watchdog
-    control_loop  the 10 Hz loop (async inference, temporal ensembling, deadline stats, stop on fault)
+    control_loop  the 10 Hz loop (any callable policy, async inference, deadline stats, stop on fault)
+    temporal_ensembling  ACT's blend of overlapping action chunks
     xarm, ur      UFACTORY xArm (+ gripper) and Universal Robots arms
     dynamixel, robotiq   serial grippers (Protocol 2.0; Modbus RTU)
     cameras       OpenCV cameras and the GelSight Mini reader
     config, check one YAML file per setup, validated; ``python -m hardware.check setup.yaml``
+    fields        strict, finite pydantic field types and one-line error messages for the settings
     fakes, fake_serial   in-memory devices and pty-served serial devices for tests and benchmarks
 Vendor SDKs are imported by their adapters only, so ``import hardware`` needs none of them.
 """

@@ -6,7 +6,9 @@ for the current step, passes it through :class:`~hardware.safety.SafetyFilter` a
 
 Inference is asynchronous by default (as in the paper): the policy runs in its own thread on the newest
 observation whenever it is idle; its chunk is filed under the step of that observation, so a chunk that
-arrives late contributes from where the loop already is. The loop never waits for the policy; a policy
+arrives late contributes from where the loop already is. The loop never waits for the policy (on a
+:class:`~hardware.interfaces.VirtualClock`, time does not move on while a call runs, which makes async
+runs deterministic: a call lasts exactly what the policy sleeps on that clock); a policy
 call that runs past ``inference_deadline_s``, or a step that no chunk covers, is a late policy.
 
 The arm is stopped (``arm.stop()`` before anything else happens) on Ctrl-C, on any exception (device
@@ -63,9 +65,9 @@ class ControlLoopConfig:
     inference: "async" = policy in its own thread, the loop never waits (robot); "sync" = policy called in
         the loop thread every ``query_every`` steps (deterministic; for simulation with a VirtualClock).
     query_every: steps between policy calls in "sync" mode (1 = every step, as with temporal ensembling).
-    inference_deadline_s: a policy call running longer than this (clock seconds) is late; checked only
-        with a real-time clock.
-    warmup_timeout_s: wall seconds allowed for the first chunk (model warm-up) before the arm moves.
+    inference_deadline_s: a policy call running longer than this (clock seconds) is late. On a
+        VirtualClock a call takes no time unless the policy sleeps on that clock.
+    warmup_timeout_s: clock seconds allowed for the first chunk (model warm-up) before the arm moves.
     stale_after_periods: a sensor frame older than this many periods, or no command sent for that long,
         trips the watchdog (issue: two periods).
     """

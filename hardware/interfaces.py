@@ -123,6 +123,7 @@ class VirtualClock(Clock):
     jumps at once, as a single-threaded simulation expects. A test that checks state between steps
     attaches its own thread too, so time moves only when it sleeps. Thread-safe; share one instance
     between a simulated robot (to stamp its frames) and the loop. :meth:`advance` moves time by hand.
+    Threads woken at the same instant run in no fixed order: tests pick times that do not tie.
     """
 
     realtime = False
