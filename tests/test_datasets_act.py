@@ -157,5 +157,82 @@ def test_bad_input(folder, tmp_path):
     ep = synthetic_episode(3, 5)
     ep.images = {"top": ep.images["wrist"]}
     write_episode(folder / "episode_5.hdf5", ep)
-    with pytest.raises(ValueError, match="episode_5.hdf5: no /observations/images/wrist"):
+    with pytest.raises(ValueError, match=r"episode_5.hdf5 lacks images/wrist, unlike episode_0.hdf5"):
         EpisodeDataset(folder, stats_path=tmp_path / "s.json")
+
+
+def _edit(path, key, value):
+    """Replace (or with None remove) one dataset of an episode file, bypassing the writer's checks."""
+    import h5py
+
+    with h5py.File(path, "r+") as f:
+        del f[key]
+        if value is not None:
+            f[key] = value
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("action", np.zeros((5, 3), np.float32), r"episode_0.hdf5: /action has 5 frames, /observations/qpos has 9"),
+    ("observations/tactile/left", np.zeros((4, H, W, 3), np.uint8), r"episode_0.hdf5: /observations/tactile/left has 4"),
+    ("observations/force/left", np.zeros((8, 3), np.float32), r"episode_0.hdf5: /observations/force/left has 8"),
+    ("action", None, r"episode_0.hdf5: no /action"),
+    ("observations/qpos", None, r"episode_0.hdf5: no /observations/qpos"),
+])
+def test_streams_of_one_episode_must_have_one_length(folder, tmp_path, key, value, message):
+    _edit(folder / "episode_0.hdf5", key, value)
+    with pytest.raises(ValueError, match=message):
+        EpisodeDataset(folder, stats_path=tmp_path / "s.json")
+
+
+def test_a_corrupt_file_is_named(folder, tmp_path):
+    (folder / "episode_1.hdf5").write_bytes(b"not hdf5")
+    with pytest.raises(ValueError, match=r"episode_1.hdf5: not a readable HDF5 episode file"):
+        EpisodeDataset(folder, stats_path=tmp_path / "s.json")
+
+
+@pytest.mark.parametrize("scale, message", [
+    (1000.0, r"episode_0.hdf5: /observations/force/left reaches .* are the labels in mN"),
+    (-1.0, r"episode_0.hdf5: /observations/force/left has a negative median Fz"),
+    (np.nan, r"episode_0.hdf5: /observations/force/left holds NaN or inf \(first at frame 3\)"),
+])
+def test_force_labels_in_the_wrong_unit_or_sign_are_reported(folder, tmp_path, scale, message):
+    ep = synthetic_episode(9, 0)
+    ep.force["left"][3:7] *= scale
+    write_episode(folder / "episode_0.hdf5", ep)
+    with pytest.raises(ValueError, match=message):
+        EpisodeDataset(folder, stats_path=tmp_path / "s.json")
+
+
+def test_nan_actions_are_reported_before_training(folder, tmp_path):
+    ep = synthetic_episode(9, 0)
+    ep.action[2, 1] = np.nan
+    write_episode(folder / "episode_0.hdf5", ep)
+    with pytest.raises(ValueError, match=r"episode_0.hdf5: /action holds NaN or inf \(first at frame 2\)"):
+        EpisodeDataset(folder, stats_path=tmp_path / "s.json")
+
+
+def test_streams_must_match_across_episodes(folder, tmp_path):
+    """A sensor missing from episode 0 (present in the others) is an error, not dropped for every episode."""
+    write_episode(folder / "episode_0.hdf5", synthetic_episode(9, 0, force=False))
+    with pytest.raises(ValueError, match=r"episode_1.hdf5 has force/left, unlike episode_0.hdf5"):
+        EpisodeDataset(folder, stats_path=tmp_path / "s.json")
+    ep = synthetic_episode(9, 0)
+    ep.tactile["right"] = ep.tactile["left"]
+    write_episode(folder / "episode_0.hdf5", ep)
+    with pytest.raises(ValueError, match=r"episode_1.hdf5 lacks tactile/right"):
+        EpisodeDataset(folder, stats_path=tmp_path / "s.json")
+    ds = EpisodeDataset(folder, tactile_sensors=["left"], stats_path=tmp_path / "s.json")  # a chosen subset
+    assert ds.tactile_sensors == ["left"] and ds.force_sensors == ["left"]
+
+
+def test_stats_never_overwrite_a_file_of_the_users(folder, tmp_path):
+    mine = tmp_path / "notes.json"
+    mine.write_text('{"my": "notes"}')
+    with pytest.raises(ValueError, match=r"stats_path: .*notes.json exists and is not a stats file"):
+        EpisodeDataset(folder, stats_path=mine)
+    assert mine.read_text() == '{"my": "notes"}'
+    ours = tmp_path / "stats.json"
+    EpisodeDataset(folder, stats_path=ours)
+    assert json.loads(ours.read_text())["written_by"] == "controltac_il.datasets.EpisodeDataset"
+    write_episode(folder / "episode_1.hdf5", synthetic_episode(6, 1))  # the data changed: its own file is replaced
+    assert EpisodeDataset(folder, stats_path=ours).lengths.tolist() == [9, 6]

@@ -32,22 +32,29 @@ import torch
 from torch.utils.data import Dataset
 
 from controltac_il.datasets.background import estimate_background
+from controltac_il.datasets.checks import check_episode, check_same_streams, open_episode, streams
 from controltac_il.datasets.episodes import episode_index, episode_paths
-from controltac_il.io import write_json
+from controltac_il.io import cache_root, write_json
 
 STD_FLOOR = 1e-2  # ACT's floor on the std used for normalisation (avoids dividing by ~0)
 
 
+STATS_WRITER = "controltac_il.datasets.EpisodeDataset"  # stamped in every stats file this class writes
+
+
 def default_stats_dir() -> Path:
-    """Folder for normalisation stats: $CONTROLTAC_CACHE or $XDG_CACHE_HOME/controltac_il or ~/.cache/controltac_il."""
-    base = os.environ.get("CONTROLTAC_CACHE")
-    if base:
-        return Path(base) / "stats"
-    return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "controltac_il" / "stats"
+    """Folder for normalisation stats: ``controltac_il.io.cache_root() / "stats"``."""
+    return cache_root() / "stats"
 
 
-def _keys(f: h5py.File, group: str) -> list[str]:
-    return sorted(f[f"observations/{group}"].keys()) if f"observations/{group}" in f else []
+def _own_stats_file(path: Path) -> bool:
+    """True when ``path`` is a stats file this class wrote (it may then be replaced)."""
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return False
+    legacy = {"fingerprint", "std_floor", "qpos", "action"} <= set(doc) if isinstance(doc, dict) else False
+    return isinstance(doc, dict) and (doc.get("written_by") == STATS_WRITER or legacy)
 
 
 class EpisodeDataset(Dataset):
@@ -71,26 +78,24 @@ class EpisodeDataset(Dataset):
         if not self.paths:
             raise ValueError(f"root: no episode_<i>.hdf5 files in {self.root}")
         self.episode_ids = [episode_index(p) for p in self.paths]
-        lengths, forces_present, backgrounds, self._digests = [], [], {}, []
+        lengths, backgrounds, self._digests = [], {}, []
         for n, p in enumerate(self.paths):
-            with h5py.File(p, "r") as f:
+            with open_episode(p) as f:
+                lengths.append(check_episode(f, p))
                 if n == 0:
-                    all_cams, all_tactile = _keys(f, "images"), _keys(f, "tactile")
-                    self.cameras = self._select("cameras", cameras, all_cams)
-                    self.tactile_sensors = self._select("tactile_sensors", tactile_sensors, all_tactile)
-                for group, names in (("images", self.cameras), ("tactile", self.tactile_sensors)):
-                    missing = set(names) - set(_keys(f, group))
-                    if missing:
-                        raise ValueError(f"{p.name}: no /observations/{group}/{sorted(missing)[0]} (present in other episodes)")
-                lengths.append(int(f["observations/qpos"].shape[0]))
+                    self.cameras = self._select("cameras", cameras, streams(f, "images"))
+                    self.tactile_sensors = self._select("tactile_sensors", tactile_sensors, streams(f, "tactile"))
+                    self.force_sensors = [s for s in streams(f, "force") if s in self.tactile_sensors]
+                for group, names, exact in (("images", self.cameras, cameras is None),
+                                            ("tactile", self.tactile_sensors, tactile_sensors is None)):
+                    check_same_streams(p, self.paths[0], group, names, streams(f, group), exact)
+                found_force = [s for s in streams(f, "force") if s in self.tactile_sensors]
+                check_same_streams(p, self.paths[0], "force", self.force_sensors, found_force, exact=True)
                 trajectory = f["observations/qpos"][()].tobytes() + f["action"][()].tobytes()
                 self._digests.append(hashlib.sha256(trajectory).hexdigest()[:16])
-                forces_present.append(set(_keys(f, "force")))
                 for s in self.tactile_sensors:
                     key = f"observations/tactile_background/{s}"
                     backgrounds[(n, s)] = f[key][()] if key in f else None
-        # Force labels are returned for a sensor only when every episode has them (collation needs it).
-        self.force_sensors = [s for s in self.tactile_sensors if all(s in fp for fp in forces_present)]
         self.lengths = np.asarray(lengths, dtype=np.int64)
         self.offsets = np.concatenate([[0], np.cumsum(self.lengths)])
         self.backgrounds = self._fill_backgrounds(backgrounds)
@@ -155,9 +160,12 @@ class EpisodeDataset(Dataset):
                 pass
         if self.root in self.stats_path.resolve().parents:
             raise ValueError(f"stats_path: must not be inside the data folder {self.root}")
+        if self.stats_path.exists() and not _own_stats_file(self.stats_path):
+            raise ValueError(f"stats_path: {self.stats_path} exists and is not a stats file written by EpisodeDataset; "
+                             "refusing to overwrite it (pass a new path)")
         qpos, action = [], []
         for p in self.paths:
-            with h5py.File(p, "r") as f:
+            with open_episode(p) as f:
                 qpos.append(f["observations/qpos"][()])
                 action.append(f["action"][()])
         stats = {}
@@ -166,6 +174,7 @@ class EpisodeDataset(Dataset):
             stats[name] = {"mean": arr.mean(0).astype(np.float32),
                            "std": np.maximum(arr.std(0), STD_FLOOR).astype(np.float32)}
         write_json(self.stats_path, {
+            "written_by": STATS_WRITER,
             "fingerprint": fp,
             "std_floor": STD_FLOOR,
             **{k: {m: v.tolist() for m, v in d.items()} for k, d in stats.items()},

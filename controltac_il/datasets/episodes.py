@@ -25,6 +25,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from controltac_il.datasets.checks import open_episode
 from controltac_il.io import atomic_path
 
 EPISODE_PATTERN = re.compile(r"^episode_(\d+)\.hdf5$")
@@ -168,7 +169,7 @@ def read_episode(path: str | os.PathLike) -> Episode:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"episode file not found: {path}")
-    with h5py.File(path, "r") as f:
+    with open_episode(path) as f:
         if "action" not in f or "observations/qpos" not in f:
             raise ValueError(f"{path}: not an ACT episode (needs /action and /observations/qpos)")
         obs = f["observations"]

@@ -1,0 +1,90 @@
+"""What an episode file must satisfy before anything trains on it; every error names the file and the key.
+
+Checked per file (``check_episode``): the file opens as HDF5; ``/action`` and ``/observations/qpos``
+exist; every per-frame stream (action, qpos, qvel, images, tactile, force) has the same number of
+frames; qpos and actions are finite; force labels are finite, in N (|F| <= MAX_PLAUSIBLE_FORCE_N) and
+pressing with Fz > 0. Checked across files (``check_same_streams``): every episode records the same
+cameras, tactile sensors and force labels.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+MAX_PLAUSIBLE_FORCE_N = 60.0  # a GelSight Mini is rated to ~25 N: larger labels are in mN or wrong
+CONTACT_N = 0.05  # |F| above which a label counts as contact when checking the sign of Fz
+PER_FRAME_GROUPS = ("images", "tactile", "force")
+
+
+def open_episode(path: Path) -> h5py.File:
+    """``path`` opened read-only; a file that is not HDF5 (or is truncated) is a ValueError naming it."""
+    try:
+        return h5py.File(path, "r")
+    except OSError as exc:
+        raise ValueError(f"{path}: not a readable HDF5 episode file ({exc})") from None
+
+
+def streams(f: h5py.File, group: str) -> list[str]:
+    """Names under ``/observations/<group>`` (sorted; [] when the group is absent)."""
+    return sorted(f[f"observations/{group}"].keys()) if f"observations/{group}" in f else []
+
+
+def _require(f: h5py.File, path: Path, key: str) -> h5py.Dataset:
+    if key not in f:
+        raise ValueError(f"{path.name}: no /{key} (every episode needs /action and /observations/qpos)")
+    return f[key]
+
+
+def check_force_labels(path: Path, name: str, force: np.ndarray) -> None:
+    """Refuse labels that are not finite, look like mN, or press with a negative Fz."""
+    where = f"{path.name}: /observations/force/{name}"
+    if not np.isfinite(force).all():
+        bad = int(np.flatnonzero(~np.isfinite(force).all(axis=1))[0])
+        raise ValueError(f"{where} holds NaN or inf (first at frame {bad}); labels must be finite [Fx, Fy, Fz] N")
+    peak = float(np.abs(force).max(initial=0.0))
+    if peak > MAX_PLAUSIBLE_FORCE_N:
+        raise ValueError(f"{where} reaches {peak:.4g}, above {MAX_PLAUSIBLE_FORCE_N:g} N: are the labels in mN? "
+                         "Labels must be in N")
+    contact = np.linalg.norm(force, axis=1) > CONTACT_N
+    if contact.any() and float(np.median(force[contact, 2])) < 0:
+        raise ValueError(f"{where} has a negative median Fz in contact; the convention is Fz > 0 pressing "
+                         "(sensor frame): flip the sign of the labels")
+
+
+def check_episode(f: h5py.File, path: Path) -> int:
+    """Validate one open episode file (see the module docstring); returns its number of frames T."""
+    qpos = _require(f, path, "observations/qpos")
+    action = _require(f, path, "action")
+    T = int(qpos.shape[0])
+    per_frame = {"action": action, "observations/qpos": qpos}
+    if "observations/qvel" in f:
+        per_frame["observations/qvel"] = f["observations/qvel"]
+    for group in PER_FRAME_GROUPS:
+        per_frame.update({f"observations/{group}/{s}": f[f"observations/{group}/{s}"] for s in streams(f, group)})
+    wrong = {k: int(d.shape[0]) for k, d in per_frame.items() if d.shape[0] != T}
+    if wrong:
+        key, n = next(iter(wrong.items()))
+        raise ValueError(f"{path.name}: /{key} has {n} frames, /observations/qpos has {T}; every per-frame "
+                         "stream of an episode needs the same length")
+    for key in ("action", "observations/qpos"):
+        values = per_frame[key][()]
+        if not np.isfinite(values).all():
+            bad = int(np.flatnonzero(~np.isfinite(values.reshape(T, -1)).all(axis=1))[0])
+            raise ValueError(f"{path.name}: /{key} holds NaN or inf (first at frame {bad})")
+    for name in streams(f, "force"):
+        check_force_labels(path, name, f[f"observations/force/{name}"][()])
+    return T
+
+
+def check_same_streams(path: Path, first: Path, group: str, expected: list[str], found: list[str],
+                       exact: bool) -> None:
+    """``path`` records the ``expected`` streams of ``group`` (exactly, or at least when a subset was chosen)."""
+    missing = sorted(set(expected) - set(found))
+    extra = sorted(set(found) - set(expected)) if exact else []
+    if missing or extra:
+        what = f"lacks {group}/{missing[0]}" if missing else f"has {group}/{extra[0]}"
+        raise ValueError(f"{path.name} {what}, unlike {first.name} ({group}: {expected}); every episode of a "
+                         "folder must record the same streams")
