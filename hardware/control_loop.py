@@ -183,6 +183,8 @@ class _PolicyWorker:
                 while self._request is None and not self._closing:
                     self._cv.wait()
                 if self._closing:
+                    if self._request is not None:  # submitted, never run: release the clock
+                        self.clock.detach(self._thread)
                     return
                 step, obs = self._request
                 self._request = None

@@ -162,6 +162,9 @@ class VirtualClock(Clock):
         """(lock held) Jump to the earliest wake-up when no attached thread runs; True if time moved."""
         sleeping = [e for e in self._sleepers if self._asleep(e)]
         asleep_threads = {e[0] for e in sleeping}
+        finished = [th for th in self._attached if th.ident is not None and not th.is_alive()]
+        for th in finished:  # a thread that ended without detaching holds time no longer
+            del self._attached[th]
         if not sleeping or any(th not in asleep_threads for th in self._attached):
             return False
         self._t = max(self._t, min(e[1] for e in sleeping))
