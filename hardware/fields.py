@@ -2,7 +2,8 @@
 vectors that YAML writes as lists, and one-line error messages with the field path.
 
 Scalars are strict (no "5" -> 5, no true -> 1, no 2.5 -> int); an integer is accepted where a float is
-expected. Floats must be finite (``allow_inf_nan=False`` in :data:`SETTINGS`).
+expected, and numpy scalars and arrays as their Python values. Floats must be finite
+(``allow_inf_nan=False`` in :data:`SETTINGS`).
 """
 
 from __future__ import annotations
@@ -10,13 +11,18 @@ from __future__ import annotations
 import ipaddress
 from typing import Annotated
 
+import numpy as np
 from pydantic import AfterValidator, BeforeValidator, ConfigDict, Field, Strict, ValidationError
 
 SETTINGS = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)  # models (BaseModel)
 DATACLASS_SETTINGS = ConfigDict(extra="forbid", allow_inf_nan=False)  # pydantic dataclasses (frozen=True on the decorator)
 
-Float = Annotated[float, Strict()]
-Int = Annotated[int, Strict()]
+def _plain(v):
+    return v.item() if isinstance(v, np.generic) else v
+
+
+Float = Annotated[float, Strict(), BeforeValidator(_plain)]
+Int = Annotated[int, Strict(), BeforeValidator(_plain)]
 Str = Annotated[str, Strict()]
 Bool = Annotated[bool, Strict()]
 
@@ -26,7 +32,7 @@ def _sequence(form: str):
     n = len(form.split(","))
 
     def check(v):
-        if isinstance(v, (list, tuple)):
+        if isinstance(v, (list, tuple, np.ndarray)):
             if len(v) != n:
                 raise ValueError(f"expected {form} ({n} values), got {list(v)!r}")
             return tuple(v)
