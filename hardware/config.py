@@ -10,7 +10,7 @@ Example files: ``hardware/configs/``.
 from __future__ import annotations
 
 import contextlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator, Literal
 
@@ -20,7 +20,7 @@ from pydantic import BaseModel, Field, ValidationError, field_validator, model_v
 
 from hardware.control_loop import ControlLoopConfig
 from hardware.fields import SETTINGS, Bool, Device, Float, Int, IPAddress, Size, Str, Vec2, Vec3, error_line
-from hardware.interfaces import Arm, FrameSource, Gripper
+from hardware.interfaces import Arm, Clock, FrameSource, Gripper, WallClock
 from hardware.safety import SafetyLimits
 
 
@@ -188,23 +188,23 @@ def load_setup(path: str | Path) -> SetupConfig:
 
 # -- building devices ------------------------------------------------------------------------------
 
-def build_arm(cfg: SetupConfig) -> Arm:
-    """The arm adapter described by ``cfg.robot`` (not connected)."""
+def build_arm(cfg: SetupConfig, clock: Clock | None = None) -> Arm:
+    """The arm adapter described by ``cfg.robot`` (not connected); ``clock`` defaults to the wall clock."""
     r = cfg.robot
     if r.type == "xarm":
         from hardware.xarm import XArm
 
-        return XArm(r.ip, tool_rpy=tuple(r.tool_rpy), period_s=cfg.control.period_s,
-                    stream_hz=max(r.stream_hz, cfg.control.rate_hz), stop_on_warning=r.stop_on_warning)
+        return XArm(r.ip, tool_rpy=r.tool_rpy, period_s=cfg.control.period_s,
+                    stream_hz=max(r.stream_hz, cfg.control.rate_hz), stop_on_warning=r.stop_on_warning, clock=clock)
     if r.type == "ur":
         from hardware.ur import URArm
 
         return URArm(r.ip, tool_rotvec=r.tool_rotvec, period_s=cfg.control.period_s,
-                     lookahead_time=r.lookahead_time, gain=r.gain)
+                     lookahead_time=r.lookahead_time, gain=r.gain, clock=clock)
     raise ConfigError("robot.type: 'sim' is the MuJoCo scene; it is built by the deploy script (--robot sim)")
 
 
-def build_gripper(cfg: SetupConfig, arm: Arm) -> Gripper | None:
+def build_gripper(cfg: SetupConfig, arm: Arm, clock: Clock | None = None) -> Gripper | None:
     """The gripper adapter described by ``cfg.gripper`` (not connected), or None."""
     g = cfg.gripper
     if g.type == "none":
@@ -213,34 +213,36 @@ def build_gripper(cfg: SetupConfig, arm: Arm) -> Gripper | None:
         from hardware.xarm import XArmGripper
 
         extra = {k: v for k, v in (("open_position", g.open_position), ("closed_position", g.closed_position)) if v is not None}
-        return XArmGripper(arm, speed=float(g.speed or 5000), **extra)
+        return XArmGripper(arm, speed=float(g.speed or 5000), clock=clock, **extra)
     if g.type == "dynamixel":
         from hardware.dynamixel import DynamixelGripper
 
         return DynamixelGripper(g.port, dxl_id=g.dxl_id, baudrate=g.baudrate or 57600,
                                 open_position=int(g.open_position), closed_position=int(g.closed_position),
-                                goal_current=g.goal_current)
+                                goal_current=g.goal_current, clock=clock)
     from hardware.robotiq import RobotiqGripper
 
     return RobotiqGripper(g.port, slave_id=g.slave_id, baudrate=g.baudrate or 115200,
-                          speed=255 if g.speed is None else g.speed, force=g.force)
+                          speed=255 if g.speed is None else g.speed, force=g.force, clock=clock)
 
 
-def build_frame_sources(cfg: SetupConfig) -> tuple[dict[str, FrameSource], dict[str, FrameSource]]:
+def build_frame_sources(cfg: SetupConfig, clock: Clock | None = None
+                        ) -> tuple[dict[str, FrameSource], dict[str, FrameSource]]:
     """(cameras, tactile) frame sources by name (not started)."""
     from hardware.cameras import GelSightMini, OpenCVFrameSource
 
-    cams = {n: OpenCVFrameSource(n, c.device, size=tuple(c.size), crop_fraction=c.crop_fraction, fps=c.fps,
-                                 max_age_s=c.max_age_s) for n, c in cfg.cameras.items()}
-    tac = {n: GelSightMini(n, t.device, background_frames=t.background_frames, size=tuple(t.size),
-                           crop_fraction=t.crop_fraction, fps=t.fps, max_age_s=t.max_age_s)
+    cams = {n: OpenCVFrameSource(n, c.device, size=c.size, crop_fraction=c.crop_fraction, fps=c.fps,
+                                 max_age_s=c.max_age_s, clock=clock) for n, c in cfg.cameras.items()}
+    tac = {n: GelSightMini(n, t.device, background_frames=t.background_frames, size=t.size,
+                           crop_fraction=t.crop_fraction, fps=t.fps, max_age_s=t.max_age_s, clock=clock)
            for n, t in cfg.tactile.items()}
     return cams, tac
 
 
 @dataclass
 class Setup:
-    """Connected devices of a setup, ready for :class:`~hardware.control_loop.ControlLoop`."""
+    """Connected devices of a setup, ready for :class:`~hardware.control_loop.ControlLoop`
+    (``ControlLoop(setup.arm, policy, gripper=setup.gripper, ..., clock=setup.clock)``)."""
 
     arm: Arm
     gripper: Gripper | None
@@ -248,19 +250,21 @@ class Setup:
     tactile: dict[str, FrameSource]
     limits: SafetyLimits
     control: ControlLoopConfig
+    clock: Clock = field(default_factory=WallClock)
 
 
 @contextlib.contextmanager
-def open_setup(cfg: SetupConfig) -> Iterator[Setup]:
-    """Connect the arm, the gripper and start every frame source; on exit close them in reverse order
-    (sensors first, the arm last: stopped, then closed)."""
+def open_setup(cfg: SetupConfig, clock: Clock | None = None) -> Iterator[Setup]:
+    """Connect the arm, the gripper and start every frame source, all on ``clock`` (default: the wall
+    clock); on exit close them in reverse order (sensors first, the arm last: stopped, then closed)."""
+    clock = clock or WallClock()
     with contextlib.ExitStack() as stack:
-        arm = build_arm(cfg)
+        arm = build_arm(cfg, clock)
         stack.enter_context(arm)
-        gripper = build_gripper(cfg, arm)
+        gripper = build_gripper(cfg, arm, clock)
         if gripper is not None:
             stack.enter_context(gripper)
-        cams, tac = build_frame_sources(cfg)
+        cams, tac = build_frame_sources(cfg, clock)
         for src in (*cams.values(), *tac.values()):
             stack.enter_context(src)
-        yield Setup(arm, gripper, cams, tac, cfg.limits, cfg.control)
+        yield Setup(arm, gripper, cams, tac, cfg.limits, cfg.control, clock)

@@ -15,6 +15,7 @@ from hardware.check import main as check_main
 from hardware.config import ConfigError, build_frame_sources, build_gripper, load_setup, parse_setup
 from hardware.dynamixel import DynamixelGripper
 from hardware.fake_serial import FakeDynamixelServo
+from hardware.interfaces import VirtualClock
 
 EXAMPLES = sorted(glob.glob("hardware/configs/*.yaml"))
 BOX = {"workspace_min": [0.2, -0.3, 0.0], "workspace_max": [0.7, 0.3, 0.5]}
@@ -157,14 +158,18 @@ def test_devices_built_from_a_file(tmp_path):
             tactile: {{left: {{device: {video}, background_frames: 2, size: [60, 80]}}}}
         """))
         cfg = load_setup(setup)
-        gripper = build_gripper(cfg, arm=None)
-        assert isinstance(gripper, DynamixelGripper)
+        clock = VirtualClock()
+        clock.attach()  # the file plays in virtual time that moves only while this thread waits
+        gripper = build_gripper(cfg, arm=None, clock=clock)
+        assert isinstance(gripper, DynamixelGripper) and gripper.clock is clock
         with gripper:
             gripper.command(0.5)
             assert dev._get_i32(116) == 500
-        _, tactile = build_frame_sources(cfg)
+        _, tactile = build_frame_sources(cfg, clock)
         with tactile["left"] as gs:
-            assert isinstance(gs, GelSightMini) and gs.background.shape == (60, 80, 3)
+            assert isinstance(gs, GelSightMini) and gs.background.shape == (60, 80, 3) and gs.clock is clock
+            assert gs.latest().timestamp == pytest.approx(0.04)  # the background took frames 1 and 2 (25 fps)
+        clock.detach()
 
 
 def test_build_arm_from_the_file_settings():
@@ -178,5 +183,7 @@ def test_build_arm_from_the_file_settings():
     ur = build_arm(parse_setup({"robot": {"type": "ur", "ip": "fe80::1", "lookahead_time": 0.05, "gain": 600},
                                 "limits": BOX}))
     assert isinstance(ur, URArm) and (ur.ip, ur.period_s, ur.lookahead_time, ur.gain) == ("fe80::1", 0.1, 0.05, 600)
+    clock = VirtualClock()
+    assert build_arm(parse_setup({"robot": {"type": "ur", "ip": "10.0.0.2"}, "limits": BOX}), clock).clock is clock
     with pytest.raises(ConfigError, match="'sim' is the MuJoCo scene"):
         build_arm(parse_setup({"robot": {"type": "sim"}, "limits": BOX}))
