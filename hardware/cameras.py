@@ -122,7 +122,7 @@ class OpenCVFrameSource(FrameSource):
         if not self._cap.isOpened():
             raise SensorError(f"{self.name}: cannot open video source {self.device!r}")
         self._thread = threading.Thread(target=self._read_loop, name=f"frames-{self.name}", daemon=True)
-        self.clock.attach(self._thread)
+        self.clock.attach(self._thread, follows=True)
         self._thread.start()
         self.wait_for_frame(0, self.open_timeout_s)
 

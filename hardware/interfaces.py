@@ -71,10 +71,10 @@ class Frame:
 class Clock(abc.ABC):
     """Time source of the control loop and the adapters. ``realtime`` is True when ``now`` follows the wall clock.
 
-    Threads that must finish their work before time moves on (policy worker, watchdog, streaming and
-    reader threads) are registered with :meth:`attach` / :meth:`detach`, and wait with :meth:`wait`
-    or :meth:`sleep_until`; on the wall clock these are plain waits, on a :class:`VirtualClock` they
-    make multi-threaded runs deterministic.
+    Threads that must finish their work before time moves on (the loop, the policy worker; watchdog,
+    streaming and reader threads as followers) are registered with :meth:`attach` / :meth:`detach`, and
+    wait with :meth:`wait` or :meth:`sleep_until`; on the wall clock these are plain waits, on a
+    :class:`VirtualClock` they make multi-threaded runs deterministic.
     """
 
     realtime: bool = True
@@ -91,8 +91,12 @@ class Clock(abc.ABC):
         """Wait until ``event`` is set or ``timeout_s`` clock seconds passed; True when it is set."""
         return event.wait(timeout_s)
 
-    def attach(self, thread: threading.Thread | None = None) -> None:
-        """Register ``thread`` (default: the caller) as one whose work time waits for (no-op on the wall clock)."""
+    def attach(self, thread: threading.Thread | None = None, follows: bool = False) -> None:
+        """Register ``thread`` (default: the caller) as one whose work time waits for (no-op on the wall clock).
+
+        follows: the thread only follows time (a periodic check, a stream, a frame reader): time waits
+        while it runs but never moves on for its sleeps alone.
+        """
 
     def detach(self, thread: threading.Thread | None = None) -> None:
         """Undo one :meth:`attach` of ``thread`` (default: the caller)."""
@@ -119,11 +123,13 @@ class VirtualClock(Clock):
 
     ``sleep_until`` / ``wait`` never wait on the wall clock for time to pass: time jumps to the earliest
     wake-up asked for as soon as no *attached* thread is running (every attached thread is sleeping
-    in this clock or waiting on an event that is not set). With no attached thread, ``sleep_until``
-    jumps at once, as a single-threaded simulation expects. A test that checks state between steps
-    attaches its own thread too, so time moves only when it sleeps. Thread-safe; share one instance
-    between a simulated robot (to stamp its frames) and the loop. :meth:`advance` moves time by hand.
-    Threads woken at the same instant run in no fixed order: tests pick times that do not tie.
+    in this clock or waiting on an event that is not set) and some thread that does not merely follow
+    time is sleeping. With no attached thread, ``sleep_until`` jumps at once, as a single-threaded
+    simulation expects. A test that checks state between steps attaches its own thread too, so time
+    moves only when it sleeps; a follower (watchdog, stream, reader) left alone never runs time on.
+    Thread-safe; share one instance between a simulated robot (to stamp its frames) and the loop.
+    :meth:`advance` moves time by hand. Threads woken at the same instant run in no fixed order:
+    tests pick times that do not tie.
     """
 
     realtime = False
@@ -133,15 +139,18 @@ class VirtualClock(Clock):
         self._t = float(start)
         self._cv = threading.Condition()
         self._attached: dict[threading.Thread, int] = {}
+        self._followers: set[threading.Thread] = set()
         self._sleepers: list[tuple[threading.Thread, float, threading.Event | None]] = []
 
     def now(self) -> float:
         return self._t
 
-    def attach(self, thread: threading.Thread | None = None) -> None:
+    def attach(self, thread: threading.Thread | None = None, follows: bool = False) -> None:
         thread = thread or threading.current_thread()
         with self._cv:
             self._attached[thread] = self._attached.get(thread, 0) + 1
+            if follows:
+                self._followers.add(thread)
             self._cv.notify_all()
 
     def detach(self, thread: threading.Thread | None = None) -> None:
@@ -152,6 +161,7 @@ class VirtualClock(Clock):
                 self._attached[thread] = n
             else:
                 self._attached.pop(thread, None)
+                self._followers.discard(thread)
             self._cv.notify_all()
 
     def _asleep(self, entry) -> bool:
@@ -165,7 +175,10 @@ class VirtualClock(Clock):
         finished = [th for th in self._attached if th.ident is not None and not th.is_alive()]
         for th in finished:  # a thread that ended without detaching holds time no longer
             del self._attached[th]
-        if not sleeping or any(th not in asleep_threads for th in self._attached):
+            self._followers.discard(th)
+        if any(th not in asleep_threads for th in self._attached):
+            return False
+        if all(e[0] in self._followers for e in sleeping):  # nobody but followers wants time to move
             return False
         self._t = max(self._t, min(e[1] for e in sleeping))
         self._cv.notify_all()

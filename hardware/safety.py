@@ -201,7 +201,7 @@ class Watchdog:
                 self.clock.detach(self._thread)
 
         self._thread = threading.Thread(target=run, name="watchdog", daemon=True)
-        self.clock.attach(self._thread)
+        self.clock.attach(self._thread, follows=True)
         self._thread.start()
 
     def stop(self) -> None:

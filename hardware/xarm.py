@@ -98,7 +98,7 @@ class XArm(Arm):
         if self.stream_hz is not None and self._streamer is None:
             self._stream_stop.clear()
             self._streamer = threading.Thread(target=self._stream, name=f"xarm-stream-{self.ip}", daemon=True)
-            self.clock.attach(self._streamer)
+            self.clock.attach(self._streamer, follows=True)
             self._streamer.start()
 
     def check(self) -> tuple[int, int]:

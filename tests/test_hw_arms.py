@@ -56,13 +56,22 @@ class StubXArmAPI:
         return 0, 0
 
 
+@pytest.fixture
+def clock():
+    """A virtual clock moved only when this test's thread sleeps on it (the streaming thread is attached too)."""
+    c = VirtualClock()
+    c.attach()
+    yield c
+    c.detach()
+
+
 def names(calls):
     return [c[0] for c in calls]
 
 
-def test_xarm_connect_clears_errors_enables_motion_and_servo_mode():
+def test_xarm_connect_clears_errors_enables_motion_and_servo_mode(clock):
     api = StubXArmAPI()
-    with XArm("192.168.1.221", api=api):
+    with XArm("192.168.1.221", api=api, clock=clock):
         pass
     assert names(api.calls) == ["clean_error", "clean_warn", "motion_enable", "set_mode", "set_state",
                                 "set_state", "disconnect"]
@@ -94,15 +103,14 @@ def test_xarm_tilted_tool_keeps_its_tilt_while_yawing():
     assert math.acos(-tool_z[2]) == pytest.approx(0.3)  # tilt of the tool axis from straight down
 
 
-def test_xarm_error_code_names_the_error():
+def test_xarm_error_code_names_the_error(clock):
     api = StubXArmAPI()
-    arm = XArm("10.0.0.7", api=api)
-    arm.connect()
-    api.err = 31
-    with pytest.raises(ArmFault, match=r"xArm 10.0.0.7: controller error code 31 \(Collision Caused Abnormal Current\)"):
-        arm.state()
-    with pytest.raises(ArmFault, match="error code 31"):
-        arm.servo([0.4, 0, 0.2, 0])
+    with XArm("10.0.0.7", api=api, clock=clock) as arm:
+        api.err = 31
+        with pytest.raises(ArmFault, match=r"xArm 10.0.0.7: controller error code 31 \(Collision Caused Abnormal Current\)"):
+            arm.state()
+        with pytest.raises(ArmFault, match="error code 31"):
+            arm.servo([0.4, 0, 0.2, 0])
     assert "set_servo_cartesian" not in names(api.calls)
 
 
@@ -142,15 +150,6 @@ def test_xarm_fault_mid_run_stops_the_arm_in_the_loop():
 
 def _streamed(api):
     return [np.array(c[1][0]) for c in list(api.calls) if c[0] == "set_servo_cartesian"]
-
-
-@pytest.fixture
-def clock():
-    """A virtual clock moved only when this test's thread sleeps on it (the streaming thread is attached too)."""
-    c = VirtualClock()
-    c.attach()
-    yield c
-    c.detach()
 
 
 def test_xarm_streams_small_steps_along_the_segment_and_arrives_in_one_period(clock):
@@ -223,7 +222,7 @@ def test_xarm_streaming_error_code_surfaces_on_the_next_cycle(clock):
 
 def test_xarm_gripper_maps_closing_to_sdk_units():
     api = StubXArmAPI()
-    arm = XArm("ip", api=api)
+    arm = XArm("ip", api=api, stream_hz=None)
     arm.connect()
     g = XArmGripper(arm)
     g.connect()

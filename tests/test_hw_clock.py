@@ -74,6 +74,28 @@ def test_a_finished_thread_no_longer_holds_time():
     assert clock.now() == 2.0
 
 
+def test_a_follower_alone_never_runs_time_on():
+    clock = VirtualClock()
+    stop, ticks = threading.Event(), []
+
+    def follower():  # like the watchdog: a check every 0.1 s of clock time
+        try:
+            while not clock.wait(stop, 0.1):
+                ticks.append(round(clock.now(), 9))
+        finally:
+            clock.detach()
+
+    th = threading.Thread(target=follower)
+    clock.attach(th, follows=True)
+    th.start()
+    sum(i * i for i in range(300_000))  # this thread (not attached) works; the follower must not run time on
+    assert clock.now() == 0.0 and ticks == []
+    clock.sleep_until(0.35)  # a thread that wants time to move: the follower ticks along
+    assert ticks == [0.1, 0.2, 0.3] and clock.now() == 0.35
+    stop.set()
+    th.join()
+
+
 def test_wait_times_out_in_virtual_time():
     clock = VirtualClock()
     assert not clock.wait(threading.Event(), 0.25)
