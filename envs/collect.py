@@ -73,8 +73,23 @@ def record_episode(env: PegInHoleEnv, expert: ScriptedExpert, seed: int, hold_st
     return episode, success_at is not None
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument parser that reports a usage error as one line on stderr and exits 2."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
+# the scene fields the flags set: a config error names the flag
+FLAG_OF_FIELD = {"cameras": "--cameras", "camera_size": "--camera-size", "tactile_size": "--tactile-size",
+                 "tactile_optics": "--optics", "tactile": "--no-tactile", "grip_force_range_n": "--grip-force",
+                 "hole_diameter_mm": "--hole-diameter"}
+
+
 def parse_args(argv=None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(
+    """Parse and validate the command line; ``args.config`` is the scene. Exits 2 with one line naming
+    the flag on any invalid value."""
+    p = _Parser(
         prog="python -m envs.collect",
         description="Record scripted peg-in-hole demonstrations (cameras, tactile, forces) as ACT HDF5 "
                     "episodes episode_<i>.hdf5 in --out.",
@@ -103,13 +118,31 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--hold-steps", type=int, default=3, help="frames recorded after the insertion succeeds (default 3)")
     p.add_argument("--keep-failures", action="store_true", help="also write episodes where the expert failed")
     p.add_argument("--max-attempts", type=int, default=None,
-                   help="give up after this many attempts (default: 2 x episodes + 10)")
+                   help="give up after this many attempts, at least --episodes (default: 2 x episodes + 10)")
     p.add_argument("--compression", default=None, choices=("gzip", "lzf"), help="HDF5 image compression (default none)")
     args = p.parse_args(argv)
     if args.episodes < 1:
-        p.error("--episodes must be >= 1")
+        p.error(f"--episodes must be an int >= 1, got {args.episodes}")
+    if args.seed < 0:
+        p.error(f"--seed must be an int >= 0 (the first scene seed), got {args.seed}")
     if args.hold_steps < 0:
-        p.error("--hold-steps must be >= 0")
+        p.error(f"--hold-steps must be an int >= 0, got {args.hold_steps}")
+    if args.max_attempts is not None and args.max_attempts < args.episodes:
+        p.error(f"--max-attempts must be an int >= --episodes ({args.episodes}), got {args.max_attempts}")
+    if args.out.exists() and not args.out.is_dir():
+        p.error(f"--out {args.out} exists and is not a folder; give a folder for the episode files")
+    try:
+        overrides = dict(cameras=tuple(args.cameras), camera_size=tuple(args.camera_size),
+                         tactile=not args.no_tactile, tactile_size=tuple(args.tactile_size), tactile_optics=args.optics)
+        if args.grip_force is not None:
+            overrides["grip_force_range_n"] = tuple(args.grip_force)
+        if args.hole_diameter is not None:
+            overrides["hole_diameter_mm"] = args.hole_diameter
+        args.config = scene_config(args.scene, **overrides)
+    except ValueError as exc:
+        msg = str(exc)
+        field = next((f for f in sorted(FLAG_OF_FIELD, key=len, reverse=True) if msg.startswith(f)), None)
+        p.error(f"{FLAG_OF_FIELD[field]}: {msg}" if field else f"--scene {args.scene} with these flags: {msg}")
     return args
 
 
@@ -120,22 +153,12 @@ def main(argv=None) -> int:
     from controltac_il.io import write_json
 
     args = parse_args(argv)
-    try:
-        overrides = dict(cameras=tuple(args.cameras), camera_size=tuple(args.camera_size),
-                         tactile=not args.no_tactile, tactile_size=tuple(args.tactile_size), tactile_optics=args.optics)
-        if args.grip_force is not None:
-            overrides["grip_force_range_n"] = tuple(args.grip_force)
-        if args.hole_diameter is not None:
-            overrides["hole_diameter_mm"] = args.hole_diameter
-        config = scene_config(args.scene, **overrides)
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    max_attempts = args.max_attempts or 2 * args.episodes + 10
+    config = args.config
+    max_attempts = 2 * args.episodes + 10 if args.max_attempts is None else args.max_attempts
     existing = episode_paths(args.out) if args.out.is_dir() else []
     if existing and not args.overwrite:
-        print(f"error: {args.out} already holds {len(existing)} episode files; pass --overwrite to replace them",
-              file=sys.stderr)
+        print(f"python -m envs.collect: error: --out {args.out} already holds {len(existing)} episode files; "
+              "pass --overwrite to replace them", file=sys.stderr)
         return 2
     args.out.mkdir(parents=True, exist_ok=True)
     written, attempts, failures = 0, 0, []

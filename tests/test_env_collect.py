@@ -74,13 +74,6 @@ def test_existing_episodes_are_kept_unless_overwrite(tmp_path):
     assert len(read_episode(out / "episode_0.hdf5")) > 10
 
 
-def test_bad_arguments_exit_with_usage_error(tmp_path):
-    with pytest.raises(SystemExit):
-        collect.main(["--episodes", "0", "--out", str(tmp_path)])
-    assert collect.main(["--episodes", "1", "--out", str(tmp_path), "--tactile-size", "60", "60"]) == 2
-    assert collect.main(["--episodes", "1", "--out", str(tmp_path), "--grip-force", "9", "3"]) == 2
-
-
 def test_grip_force_range_and_no_tactile(tmp_path):
     out = tmp_path / "demos"
     assert collect.main(["--episodes", "1", "--out", str(out), "--cameras", "--no-tactile",
@@ -89,3 +82,47 @@ def test_grip_force_range_and_no_tactile(tmp_path):
     assert ep.tactile == {} and ep.tactile_background == {} and ep.images == {}
     assert float(ep.attrs["grip_force_n"]) == 7.5
     assert ep.force["right"][-1, 2] == pytest.approx(7.5, rel=0.03)
+
+
+@pytest.mark.parametrize("argv, flag", [
+    (["--episodes", "0"], "--episodes"),
+    (["--episodes", "-3"], "--episodes"),
+    (["--seed", "-1"], "--seed"),
+    (["--max-attempts", "0"], "--max-attempts"),
+    (["--episodes", "5", "--max-attempts", "2"], "--max-attempts"),
+    (["--hold-steps", "-1"], "--hold-steps"),
+    (["--tactile-size", "60", "60"], "--tactile-size"),
+    (["--camera-size", "0", "0"], "--camera-size"),
+    (["--grip-force", "9", "3"], "--grip-force"),
+    (["--grip-force", "nan", "3"], "--grip-force"),
+    (["--hole-diameter", "inf"], "--hole-diameter"),
+    (["--hole-diameter", "20"], "--hole-diameter"),
+    (["--scene", "kitchen"], "--scene"),
+    (["--episodes", "two"], "--episodes"),
+])
+def test_bad_arguments_are_one_line_naming_the_flag(tmp_path, capsys, argv, flag):
+    out = tmp_path / "demos"
+    with pytest.raises(SystemExit) as exit_:
+        collect.main(["--out", str(out), "--cameras", *argv])
+    err = capsys.readouterr().err.strip()
+    assert exit_.value.code == 2 and "\n" not in err and flag in err and "Traceback" not in err, err
+    assert not out.exists(), "nothing is created for a refused command"
+
+
+def test_out_that_is_a_file_is_refused_by_name(tmp_path, capsys):
+    mine = tmp_path / "notes.txt"
+    mine.write_text("mine")
+    with pytest.raises(SystemExit) as exit_:
+        collect.main(["--episodes", "1", "--out", str(mine), "--cameras"])
+    err = capsys.readouterr().err.strip()
+    assert exit_.value.code == 2 and "\n" not in err and "--out" in err and str(mine) in err, err
+    assert mine.read_text() == "mine"
+
+
+def test_command_line_exits_2_with_one_line_and_no_traceback(tmp_path):
+    import subprocess
+    import sys
+
+    res = subprocess.run([sys.executable, "-m", "envs.collect", "--episodes", "-3", "--out", str(tmp_path / "d")],
+                         capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"}, timeout=120)
+    assert res.returncode == 2 and res.stderr.strip().count("\n") == 0 and "--episodes" in res.stderr, res.stderr

@@ -1,5 +1,6 @@
 """Peg-in-hole scene: physics stability, the jammed peg, bad input, the expert."""
 
+import dataclasses
 import math
 import os
 
@@ -8,7 +9,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import numpy as np
 import pytest
 
-from envs.config import PegInHoleConfig
+from envs.config import PegInHoleConfig, scene_config
 from envs.expert import ExpertConfig, ScriptedExpert, wrap_half_turn
 from envs.peg_in_hole import PegInHoleEnv
 
@@ -133,6 +134,143 @@ def test_reset_is_deterministic_and_randomises_the_scene(physics_env):
 def test_config_rejects_bad_fields(kwargs, field):
     with pytest.raises(ValueError, match=field):
         PegInHoleConfig(**kwargs)
+
+
+INF, NAN = float("inf"), float("nan")
+
+
+@pytest.mark.parametrize("kwargs, fields", [
+    # rates: non-finite, non-positive, implausible, not a number
+    ({"control_hz": INF}, ["control_hz", "Hz"]),
+    ({"control_hz": NAN}, ["control_hz", "Hz"]),
+    ({"control_hz": -10.0}, ["control_hz", "Hz"]),
+    ({"control_hz": 0.0}, ["control_hz", "Hz"]),
+    ({"control_hz": 1000.0}, ["control_hz", "Hz"]),
+    ({"control_hz": 0.5}, ["control_hz", "Hz"]),
+    ({"control_hz": "10"}, ["control_hz", "number"]),
+    # workspace: infinite, NaN, inverted, implausibly large, not numbers
+    ({"workspace_high": (INF, 0.2, 0.4, 3.14)}, ["workspace_high", "finite"]),
+    ({"workspace_low": (-0.16, -0.14, -INF, -1.5)}, ["workspace_low", "finite"]),
+    ({"workspace_low": (-0.16, NAN, 0.012, -1.5)}, ["workspace_low", "finite"]),
+    ({"workspace_low": (0.16, -0.14, 0.012, -1.5), "workspace_high": (-0.16, 0.14, 0.25, 1.5)},
+     ["workspace_low", "workspace_high", "low < high"]),
+    ({"workspace_low": (-100.0, -100.0, 0.012, -1.5), "workspace_high": (100.0, 100.0, 0.25, 1.5)},
+     ["workspace", "table"]),
+    ({"workspace_low": (-0.16, -0.14, -0.1, -1.5)}, ["workspace_low", "z"]),
+    ({"workspace_high": (0.16, 0.14, 0.25, 10.0)}, ["workspace_high", "yaw"]),
+    ({"workspace_high": ("a", 0.14, 0.25, 1.5)}, ["workspace_high", "numbers"]),
+    # booleans given as strings or numbers
+    ({"tactile": "no"}, ["tactile", "True or False"]),
+    ({"tactile": "False"}, ["tactile", "True or False"]),
+    ({"tactile_noise": 1}, ["tactile_noise", "True or False"]),
+    ({"peg_in_hand": "yes"}, ["peg_in_hand", "True or False"]),
+    ({"tactile": None}, ["tactile", "True or False"]),
+    # ints given as booleans or fractions, names as strings
+    ({"max_steps": True}, ["max_steps", "int"]),
+    ({"ray_stride": 2.5}, ["ray_stride", "int"]),
+    ({"camera_size": (96.5, 128)}, ["camera_size", "int"]),
+    ({"cameras": "wrist"}, ["cameras", "tuple"]),
+    # non-finite or non-numeric float fields
+    ({"hole_diameter_mm": NAN}, ["hole_diameter_mm", "finite"]),
+    ({"hole_diameter_mm": "30"}, ["hole_diameter_mm", "number"]),
+    ({"hole_depth_mm": INF}, ["hole_depth_mm", "finite"]),
+    ({"hole_chamfer_mm": NAN}, ["hole_chamfer_mm", "finite"]),
+    ({"success_depth_mm": NAN}, ["success_depth_mm", "finite"]),
+    ({"grasp_depth_mm": INF}, ["grasp_depth_mm", "finite"]),
+    ({"grip_force_range_n": (NAN, 5.0)}, ["grip_force_range_n", "finite"]),
+    ({"grip_force_range_n": ("3", "9")}, ["grip_force_range_n", "numbers"]),
+    ({"peg_yaw_range_rad": (-INF, 0.0)}, ["peg_yaw_range_rad", "finite"]),
+    ({"peg_xy_range_m": ((NAN, 0.0), (0.0, 0.0))}, ["peg_xy_range_m", "finite"]),
+])
+def test_config_refuses_wrong_types_and_non_finite_values_in_one_line(kwargs, fields):
+    with pytest.raises(ValueError) as err:
+        PegInHoleConfig(**kwargs)
+    msg = str(err.value)
+    assert "\n" not in msg.strip()
+    for f in fields:
+        assert f.lower() in msg.lower(), (f, msg)
+
+
+# ranges under which an episode succeeded at reset before the check (the peg placed in or on the
+# receptacle, or the held peg dragged into the hole by a workspace below the hand's start)
+SUCCEED_AT_RESET = {
+    "peg range = hole range": dict(peg_xy_range_m=((0.065, 0.075), (-0.005, 0.005))),
+    "peg 10 mm off the hole's centre": dict(peg_xy_range_m=((0.06, 0.06), (0.0, 0.0)),
+                                            hole_xy_range_m=((0.07, 0.07), (0.0, 0.0))),
+    "overlapping ranges near the origin": dict(peg_xy_range_m=((-0.01, 0.01), (-0.01, 0.01)),
+                                               hole_xy_range_m=((-0.005, 0.005), (-0.005, 0.005))),
+}
+
+
+@pytest.mark.parametrize("case", sorted(SUCCEED_AT_RESET))
+def test_peg_and_hole_ranges_that_succeed_at_reset_are_refused(case):
+    with pytest.raises(ValueError) as err:
+        PegInHoleConfig(cameras=(), tactile=False, **SUCCEED_AT_RESET[case])
+    msg = str(err.value)
+    assert "peg_xy_range_m" in msg and "hole_xy_range_m" in msg and "\n" not in msg
+
+
+@pytest.mark.parametrize("kwargs, fields", [
+    # the hand starts at the home keyframe (0, 0, 0.15 m, yaw 0): a workspace below it drags the hand
+    # (and a held peg) down during the reset's settling step, into the hole
+    (dict(peg_in_hand=True, peg_xy_range_m=((0.07, 0.07), (0.0, 0.0)), hole_xy_range_m=((0.07, 0.07), (0.0, 0.0)),
+          workspace_high=(0.16, 0.14, 0.03, 1.57)), ["workspace_high", "start"]),
+    (dict(workspace_low=(0.02, -0.14, 0.012, -1.57)), ["workspace_low", "start"]),
+    (dict(workspace_low=(-0.16, -0.14, 0.012, 0.1)), ["workspace_low", "start"]),
+    # with the peg in the hand, peg_xy_range_m is where the hand starts: inside the workspace
+    (dict(peg_in_hand=True, peg_xy_range_m=((-0.15, -0.05), (-0.02, 0.02)), workspace_low=(-0.1, -0.14, 0.012, -1.57)),
+     ["peg_xy_range_m", "workspace_low"]),
+])
+def test_a_hand_start_outside_the_workspace_is_refused(kwargs, fields):
+    with pytest.raises(ValueError) as err:
+        PegInHoleConfig(cameras=(), tactile=False, **kwargs)
+    msg = str(err.value)
+    assert "\n" not in msg and all(f in msg for f in fields), msg
+
+
+def test_config_geometry_constants_match_the_model(physics_env):
+    from envs import config, peg_in_hole, scene
+
+    env = physics_env
+    np.testing.assert_allclose(env._home, config.HOME_TCP)
+    assert config.PEG_RADIUS_M == peg_in_hole.PEG_RADIUS_M and config.PEG_HALF_LENGTH_M == peg_in_hole.PEG_HALF_LENGTH_M
+    assert config.WALL_THICKNESS_M == scene.WALL_THICKNESS_M and config.BASE_THICKNESS_M == scene.BASE_THICKNESS_M
+    assert config.PHYSICS_HZ == pytest.approx(1.0 / env.model.opt.timestep)
+    # a held peg starts above every rim the config allows (shallowest grasp, deepest hole)
+    assert config.HOME_TCP[2] + 0.010 - 2 * config.PEG_HALF_LENGTH_M > scene.rim_height_m(60.0)
+    assert config.TABLE_HALF_SIZE_M == pytest.approx(env.model.geom("table").size[:2].max())
+    floor = env.model.geom("hole_floor")
+    assert floor.size[0] == pytest.approx(env.config.hole_diameter_mm / 2000 + config.WALL_THICKNESS_M)
+
+
+def test_closest_allowed_ranges_start_clear_of_the_receptacle():
+    """The nearest peg range the check allows (touching the receptacle's footprint) does not succeed."""
+    from envs.config import PEG_RADIUS_M, WALL_THICKNESS_M
+
+    hole_x, r_out = 0.07, 0.015 + WALL_THICKNESS_M
+    peg_x = hole_x - r_out - PEG_RADIUS_M - 1e-4
+    cfg = PegInHoleConfig(cameras=(), tactile=False, peg_xy_range_m=((peg_x, peg_x), (0.0, 0.0)),
+                          hole_xy_range_m=((hole_x, hole_x), (0.0, 0.0)))
+    with pytest.raises(ValueError, match="peg_xy_range_m"):
+        dataclasses.replace(cfg, peg_xy_range_m=((peg_x + 2e-4, peg_x + 2e-4), (0.0, 0.0)))
+    with PegInHoleEnv(cfg) as env:
+        env.reset(seed=0)
+        _, _, terminated, _, info = env.step(env.command)
+        assert not terminated and not info["success"] and info["insertion_mm"] == 0.0
+
+
+def test_config_repr_is_unchanged():
+    """benchmarks.touch_il hashes the repr: valid configs must keep it."""
+    assert repr(PegInHoleConfig()) == (
+        "PegInHoleConfig(cameras=('third_view', 'wrist'), camera_size=(96, 128), tactile=True, tactile_size=(120, 160), "
+        "tactile_optics='three_light', ray_stride=3, hole_diameter_mm=30.0, hole_depth_mm=40.0, hole_chamfer_mm=3.0, "
+        "control_hz=10.0, max_steps=120, grip_force_range_n=(3.0, 9.0), peg_xy_range_m=((-0.07, -0.05), (-0.02, 0.02)), "
+        "peg_yaw_range_rad=(-0.7853981633974483, 0.7853981633974483), hole_xy_range_m=((0.065, 0.075), (-0.005, 0.005)), "
+        "workspace_low=(-0.16, -0.14, 0.012, -1.5707963267948966), workspace_high=(0.16, 0.14, 0.25, 1.5707963267948966), "
+        "success_depth_mm=30.0, tactile_noise=True, peg_in_hand=False, in_hand_offset_mm=(0.0, 0.0), grasp_depth_mm=18.0, "
+        "camera_layout='side')")
+    tc = PegInHoleConfig.touch_critical()
+    assert dataclasses.replace(tc) == tc and scene_config("touch_critical") == tc
 
 
 def test_expert_config_and_yaw_wrap():

@@ -119,21 +119,48 @@ def test_command_line_writes_the_same_bytes_as_the_call(tmp_path, capsys):
     assert "12 images" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["--size", "60", "60"], "aspect ratio"),
-    (["--objects", "teapot"], "invalid choice"),
-    (["--poses-per-object", "0"], "poses_per_object"),
-    (["--fz-range", "5", "1"], "fz_range"),
+@pytest.mark.parametrize("argv, flag", [
+    (["--size", "60", "60"], "--size"),
+    (["--size", "0", "0"], "--size"),
+    (["--objects", "teapot"], "--objects"),
+    (["--objects", "cross", "cross"], "--objects"),
+    (["--poses-per-object", "0"], "--poses-per-object"),
+    (["--forces-per-pose", "-2"], "--forces-per-pose"),
+    (["--fz-range", "5", "1"], "--fz-range"),
+    (["--fz-range", "-1", "5"], "--fz-range"),
+    (["--fz-range", "nan", "5"], "--fz-range"),
+    (["--fz-range", "1", "inf"], "--fz-range"),
+    (["--shear-max", "nan"], "--shear-max"),
+    (["--shear-max", "-1"], "--shear-max"),
+    (["--seed", "-1"], "--seed"),
+    (["--optics", "raytrace"], "--optics"),
 ])
-def test_command_line_refuses_bad_arguments_by_name(tmp_path, capsys, argv, message):
-    with pytest.raises(SystemExit):
+def test_command_line_refuses_bad_arguments_by_name(tmp_path, capsys, argv, flag):
+    with pytest.raises(SystemExit) as exit_:
         tds.main(["--out", str(tmp_path / "x"), *argv])
-    assert message in capsys.readouterr().err and not (tmp_path / "x").exists()
+    err = capsys.readouterr().err.strip()
+    assert exit_.value.code == 2 and "\n" not in err and flag in err and "Traceback" not in err, err
+    assert not (tmp_path / "x").exists()
+
+
+@pytest.mark.parametrize("kwargs, name", [
+    (dict(objects=("cross", "cross")), "objects"),
+    (dict(shear_max=float("nan")), "shear_max"),
+    (dict(seed=-1), "seed"),
+    (dict(fz_range=(1.0, float("inf"))), "fz_range"),
+    (dict(forces_per_pose=0), "forces_per_pose"),
+])
+def test_write_dataset_refuses_bad_arguments_by_name(tmp_path, kwargs, name):
+    with pytest.raises(ValueError, match=name):
+        _write(tmp_path / "x", **kwargs)
+    assert not (tmp_path / "x").exists()
 
 
 def test_command_line_never_overwrites_a_dataset(tmp_path, capsys):
     existing = _write(tmp_path / "mine")
     before = _digest(existing)
-    with pytest.raises(SystemExit):
+    with pytest.raises(SystemExit) as exit_:
         tds.main(["--out", str(existing), "--poses-per-object", "1", "--forces-per-pose", "1"])
-    assert "exists" in capsys.readouterr().err and _digest(existing) == before
+    err = capsys.readouterr().err.strip()
+    assert exit_.value.code == 2 and "\n" not in err and "--out" in err and "exists" in err, err
+    assert _digest(existing) == before

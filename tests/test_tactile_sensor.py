@@ -182,3 +182,29 @@ def test_sensor_instances_differ_in_background_and_stiffness():
     assert soft.press("big_sphere", force=(0, 0, 5)).depth_mm > mini.press("big_sphere", force=(0, 0, 5)).depth_mm
     with pytest.raises(ValueError, match="background"):
         TactileSensor(dataclasses.replace(QUIET, background="/nonexistent.png"))
+
+
+@pytest.mark.parametrize("pose", [(80.0, 80.0, 0.0), (SPEC.pad_size_mm[1] / 2 + 6.5, 0.0, 0.0)])
+def test_press_that_misses_the_pad_has_no_contact(quiet_sensor, pose):
+    # the Ø16 mm sphere's footprint (radius 6.24 mm) lies entirely beside the pad: nothing touches the gel
+    assert not (INDENTERS["big_sphere"].heightmap(QUIET, pose) > 0).any()
+    c = quiet_sensor.press("big_sphere", pose, (0.5, -0.5, 5.0))
+    assert not c.mask.any() and c.area_mm2 == 0.0 and c.depth_mm == 0.0
+    assert not c.penetration_mm.any() and not c.height_mm.any()
+    assert c.force == (0.0, 0.0, 0.0)  # the pad carries no load
+    np.testing.assert_array_equal(c.image, quiet_sensor.background)
+    assert (c.residual == 127).all()
+
+
+@pytest.mark.parametrize("obj, pose, fz", [
+    ("big_sphere", (SPEC.pad_size_mm[1] / 2 + 5.5, 0.0, 0.0), 5.0),  # a 0.7 mm sliver of the sphere over the pad
+    ("usb_c", (SPEC.pad_size_mm[1] / 2 + 3.5, 2.0, 0.0), 8.0),  # the plug's end over the pad's edge
+    ("slim_cylinder", (0.0, 0.0, 0.3), 11.0),  # pressed deeper than its 1 mm relief
+])
+def test_contact_lies_only_where_the_object_overlaps_the_pad(quiet_sensor, obj, pose, fz):
+    footprint = INDENTERS[obj].heightmap(QUIET, pose) > 0
+    c = quiet_sensor.press(obj, pose, (0.0, 0.0, fz))
+    assert c.mask.any() and not (c.mask & ~footprint).any(), "contact outside the object's footprint"
+    assert c.area_mm2 <= footprint.sum() * QUIET.pixel_area_mm2
+    assert abs(c.force[2] - fz) <= mechanics.FORCE_RTOL * fz + mechanics.FORCE_ATOL
+    assert mechanics.normal_force(c.penetration_mm, QUIET) == pytest.approx(fz, rel=1e-3)

@@ -21,6 +21,7 @@ import argparse
 import csv
 import inspect
 import json
+import numbers
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -69,6 +70,10 @@ def sample_contacts(objects: Sequence[str], poses_per_object: int, forces_per_po
             yield name, pid, pose, forces, [int(n) for n in noise]
 
 
+def _is_int(value) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+
+
 def write_dataset(out_dir, objects: Sequence[str] = TRAIN_OBJECTS, poses_per_object: int = 50,
                   forces_per_pose: int = 8, seed: int = 0, spec: SensorSpec | None = None,
                   optics: str = "three_light", fz_range=(0.5, 11.0), shear_max: float = 1.0,
@@ -77,10 +82,25 @@ def write_dataset(out_dir, objects: Sequence[str] = TRAIN_OBJECTS, poses_per_obj
 
     Every image is a pure function of (seed, object, pose_id, k): the same arguments give the same files.
     """
-    if poses_per_object < 1 or forces_per_pose < 1:
-        raise ValueError("poses_per_object and forces_per_pose must be >= 1")
-    if not (0 <= fz_range[0] < fz_range[1]):
-        raise ValueError(f"fz_range must be (low, high) with 0 <= low < high N, got {fz_range!r}")
+    objects = tuple(objects)
+    if not objects or len(set(objects)) != len(objects):
+        raise ValueError(f"objects must name each indenter once (images are stored per object), got {list(objects)}")
+    for name in objects:
+        get_indenter(name)
+    for name, value in (("poses_per_object", poses_per_object), ("forces_per_pose", forces_per_pose)):
+        if not _is_int(value) or value < 1:
+            raise ValueError(f"{name} must be an int >= 1, got {value!r}")
+    if not _is_int(seed) or seed < 0:
+        raise ValueError(f"seed must be an int >= 0, got {seed!r}")
+    try:
+        lo, hi = (float(v) for v in fz_range)
+    except (TypeError, ValueError):
+        lo = hi = float("nan")
+    if not (np.isfinite([lo, hi]).all() and 0 <= lo < hi):
+        raise ValueError(f"fz_range must be (low, high) finite with 0 <= low < high N, got {fz_range!r}")
+    if not (isinstance(shear_max, numbers.Real) and not isinstance(shear_max, bool) and np.isfinite(shear_max)
+            and shear_max >= 0):
+        raise ValueError(f"shear_max must be a finite number >= 0 N, got {shear_max!r}")
     spec = spec or SensorSpec.gelsight_mini()
     sensor = TactileSensor(spec, optics=optics)
     out_dir = Path(out_dir)
@@ -186,40 +206,65 @@ def load_dataset(root, fz_pressing: str = "auto") -> TactileDataset:
     return TactileDataset(root, records, background, meta)
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument parser that reports a usage error as one line on stderr and exits 2."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
 def main(argv=None) -> Path:
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="python -m controltac_il.tactile.dataset",
         description="Render a sensor-model tactile dataset (manifest.csv, background.png, meta.json, "
                     "images/<object>/). Every image is a pure function of the arguments; the folder appears "
                     "only when complete.")
     p.add_argument("--out", required=True, help="dataset folder to create (must not exist)")
     p.add_argument("--objects", nargs="+", default=list(TRAIN_OBJECTS), choices=sorted(INDENTERS), metavar="NAME",
-                   help=f"indenters to press (default: the six training objects {' '.join(TRAIN_OBJECTS)})")
+                   help=f"indenters to press, each once (default: the six training objects {' '.join(TRAIN_OBJECTS)})")
     d = {k: v.default for k, v in inspect.signature(write_dataset).parameters.items()}
     p.add_argument("--poses-per-object", type=int, default=d["poses_per_object"],
-                   help=f"contact poses per object (default {d['poses_per_object']})")
+                   help=f"contact poses per object, >= 1 (default {d['poses_per_object']})")
     p.add_argument("--forces-per-pose", type=int, default=d["forces_per_pose"],
-                   help=f"forces rendered at each pose (default {d['forces_per_pose']})")
-    p.add_argument("--seed", type=int, default=d["seed"], help=f"seeds poses, forces and sensor noise (default {d['seed']})")
+                   help=f"forces rendered at each pose, >= 1 (default {d['forces_per_pose']})")
+    p.add_argument("--seed", type=int, default=d["seed"],
+                   help=f"seeds poses, forces and sensor noise, >= 0 (default {d['seed']})")
     p.add_argument("--size", type=int, nargs=2, metavar=("H", "W"), default=None,
-                   help="render resolution in pixels, same pad (default: GelSight Mini's native 240 320)")
+                   help="render resolution in pixels, >= 8 at the pad's 3:4 aspect, same pad "
+                        "(default: GelSight Mini's native 240 320)")
     p.add_argument("--optics", choices=("three_light", "polynomial"), default=d["optics"],
                    help=f"sensor optics model (default {d['optics']})")
     p.add_argument("--fz-range", type=float, nargs=2, metavar=("LOW", "HIGH"), default=d["fz_range"],
-                   help="normal force range in N, drawn uniformly (default {} {})".format(*d["fz_range"]))
+                   help="normal force range in N, 0 <= LOW < HIGH, drawn uniformly (default {} {})".format(*d["fz_range"]))
     p.add_argument("--shear-max", type=float, default=d["shear_max"],
-                   help=f"|Fx|, |Fy| bound in N (default {d['shear_max']})")
+                   help=f"|Fx|, |Fy| bound in N, >= 0 (default {d['shear_max']})")
     a = p.parse_args(argv)
     if Path(a.out).exists():
         p.error(f"--out {a.out} exists; choose a new folder (datasets are never overwritten)")
-    try:
-        spec = SensorSpec.gelsight_mini()
-        if a.size is not None:
+    if len(set(a.objects)) != len(a.objects):
+        p.error(f"--objects must name each indenter once, got {' '.join(a.objects)}")
+    for flag, value in (("--poses-per-object", a.poses_per_object), ("--forces-per-pose", a.forces_per_pose)):
+        if value < 1:
+            p.error(f"{flag} must be an int >= 1, got {value}")
+    if a.seed < 0:
+        p.error(f"--seed must be an int >= 0, got {a.seed}")
+    lo, hi = a.fz_range
+    if not (np.isfinite([lo, hi]).all() and 0 <= lo < hi):
+        p.error(f"--fz-range LOW HIGH must be finite newtons with 0 <= LOW < HIGH, got {lo:g} {hi:g}")
+    if not (np.isfinite(a.shear_max) and a.shear_max >= 0):
+        p.error(f"--shear-max must be a finite number >= 0 N, got {a.shear_max:g}")
+    spec = SensorSpec.gelsight_mini()
+    if a.size is not None:
+        try:
             spec = spec.scaled(*a.size)
+        except ValueError:
+            p.error(f"--size H W must be ints >= 8 at the pad's {spec.height}:{spec.width} aspect "
+                    f"(e.g. 120 160), got {a.size[0]} {a.size[1]}")
+    try:
         out = write_dataset(a.out, a.objects, a.poses_per_object, a.forces_per_pose, a.seed, spec, a.optics,
-                            tuple(a.fz_range), a.shear_max)
+                            (lo, hi), a.shear_max)
     except ValueError as e:
-        p.error(str(e))
+        p.error(str(e).splitlines()[0] if str(e).strip() else repr(e))
     print(f"wrote {out} ({len(a.objects) * a.poses_per_object * a.forces_per_pose} images)")
     return out
 

@@ -1,9 +1,10 @@
 """Indenters: rigid objects as height fields (mm) placed at a 2-D pose on the sensor pad.
 
 Each object is a relief h(u, v) ≥ 0 in its own frame (u, v in mm, origin at the object's centre):
-the height by which its surface stands out towards the gel. Outside its footprint h = 0, the plane of
-its holder, which the gel only meets when pressed deeper than the relief. Objects may extend beyond
-the pad; only the part over the pad is sampled.
+the height by which its surface stands out towards the gel. Outside its footprint h = 0: nothing
+there touches the gel (the holder is not modelled), so a press only ever makes contact within the
+object's footprint over the pad, however deep it goes. Objects may extend beyond the pad; only the
+part over the pad is sampled, and one whose footprint misses the pad makes no contact at all.
 
 The six training objects follow FeelAnyForce's indenters (cross, slim / thin / medium cylinder, big
 sphere, triple cylinder); the held-out ones are shapes the generator never sees in training.

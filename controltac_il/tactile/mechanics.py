@@ -37,9 +37,16 @@ class DepthSolution:
 
 
 def penetration(relief: np.ndarray, depth_mm: float) -> np.ndarray:
-    """Penetration map (mm) when the highest visible point of ``relief`` sinks ``depth_mm`` into the gel."""
-    top = float(relief.max()) if relief.size else 0.0
-    return np.maximum(relief - (top - depth_mm), 0.0).astype(np.float32)
+    """Penetration map (mm) when the highest visible point of ``relief`` sinks ``depth_mm`` into the gel.
+
+    Only the object touches the gel: pixels outside its footprint (relief <= 0) never penetrate, however
+    deep it is pressed, so a relief with no footprint on the pad gives all zeros.
+    """
+    footprint = relief > 0
+    if not footprint.any():
+        return np.zeros(relief.shape, np.float32)
+    top = float(relief[footprint].max())
+    return np.where(footprint, np.maximum(relief - (top - depth_mm), 0.0), 0.0).astype(np.float32)
 
 
 def pressure(pen_mm: np.ndarray, spec: SensorSpec) -> np.ndarray:
@@ -57,13 +64,15 @@ def solve_depth(relief: np.ndarray, force_n: float, spec: SensorSpec, max_depth_
     """Depth (mm) at which ``relief`` presses with ``force_n`` newtons.
 
     F(d) is continuous and non-decreasing; the root is bracketed by doubling from a first guess and
-    refined with Brent's method to |F − force| ≤ FORCE_RTOL·force + FORCE_ATOL.
+    refined with Brent's method to |F − force| ≤ FORCE_RTOL·force + FORCE_ATOL. Only the object's
+    footprint (relief > 0) presses (see ``penetration``); a relief with no footprint on the pad (the
+    object misses it) carries no force: depth 0, force 0, whatever ``force_n``.
     """
     if not (np.isfinite(force_n) and force_n >= 0):
         raise ValueError(f"force Fz must be a finite number >= 0 N, got {force_n!r}")
-    if force_n == 0.0:
+    heights = np.sort(relief[relief > 0].astype(np.float64))[::-1]
+    if force_n == 0.0 or heights.size == 0:
         return DepthSolution(0.0, 0.0, 0)
-    heights = np.sort(relief.ravel().astype(np.float64))[::-1]
     top = heights[0]
     area = spec.pixel_area_mm2
 

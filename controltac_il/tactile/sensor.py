@@ -19,8 +19,13 @@ class Contact:
 
     image, residual: uint8 RGB (H, W, 3). height_mm: gel surface displacement into the sensor, float32
     (H, W). penetration_mm: object imprint, float32 (H, W). mask: geometric contact (penetration > 0),
-    bool (H, W). area_mm2: contact area. depth_mm: indentation of the object's highest point.
-    force: [Fx, Fy, Fz] N reached (Fz within the solver tolerance). iterations: force evaluations.
+    bool (H, W), always within the object's footprint over the pad. area_mm2: contact area. depth_mm:
+    indentation of the object's highest point on the pad. force: [Fx, Fy, Fz] N the pad carries (Fz
+    within the solver tolerance). iterations: force evaluations.
+
+    No contact (Fz = 0, or an object whose footprint misses the pad entirely): empty mask, zero
+    penetration, depth 0, the no-contact image (background plus noise) and force (0, 0, 0): a pad that
+    touches nothing carries neither normal force nor shear, whatever force was asked for.
     """
 
     image: np.ndarray
@@ -66,12 +71,18 @@ class TactileSensor:
         self._rng = np.random.default_rng(seed)
 
     def press(self, obj, pose=(0.0, 0.0, 0.0), force=(0.0, 0.0, 5.0), noise_seed: int | None = None) -> Contact:
-        """Press ``obj`` (a name from INDENTERS) at ``pose`` (x_mm, y_mm, theta_rad) with ``force`` [Fx, Fy, Fz] N."""
+        """Press ``obj`` (a name from INDENTERS) at ``pose`` (x_mm, y_mm, theta_rad) with ``force`` [Fx, Fy, Fz] N.
+
+        Only the part of the object over the pad presses; one that misses the pad touches nothing and
+        returns a no-contact ``Contact`` with force (0, 0, 0) (see ``Contact``).
+        """
         fx, fy, fz = check_force(force)
         relief = get_indenter(obj).heightmap(self.spec, pose)
         sol = mechanics.solve_depth(relief, fz, self.spec)
-        pen = mechanics.penetration(relief, sol.depth_mm) if fz > 0 else np.zeros_like(relief)
+        pen = mechanics.penetration(relief, sol.depth_mm) if sol.force > 0 else np.zeros_like(relief)
         mask = pen > 0
+        if not mask.any():  # nothing touches the gel: no load, no shear
+            fx = fy = 0.0
         image, height = self._render(pen, mask, (fx, fy), noise_seed)
         return Contact(
             image=image,
