@@ -156,7 +156,8 @@ def test_robotiq_activation_move_and_object_detection():
 
 
 def test_robotiq_garbage_on_the_line():
-    with FakeRobotiq2F85() as dev, RobotiqGripper(dev.port, retries=1) as g:
+    clock = VirtualClock()  # activation on connect takes 50 ms of virtual time
+    with FakeRobotiq2F85(clock=clock) as dev, RobotiqGripper(dev.port, retries=1, clock=clock) as g:
         dev.garbage_replies = 1
         g.state()
         dev.garbage_replies = 2
@@ -178,7 +179,8 @@ def test_robotiq_device_ignores_bad_crc_and_client_times_out():
 
 
 def test_robotiq_fault_and_silence_are_reported():
-    with FakeRobotiq2F85() as dev, RobotiqGripper(dev.port, timeout_s=0.02) as g:
+    clock = VirtualClock()
+    with FakeRobotiq2F85(clock=clock) as dev, RobotiqGripper(dev.port, timeout_s=0.02, clock=clock) as g:
         dev.fault = 0x0E
         with pytest.raises(HardwareError, match=r"fault 0x0E: overcurrent"):
             g.state()
@@ -210,16 +212,15 @@ def test_garbage_on_the_gripper_line_mid_run_stops_the_arm(kind):
 
     from hardware.control_loop import ControlLoop, ControlLoopConfig
     from hardware.fakes import FakeArm
-    from hardware.interfaces import VirtualClock
-
     def close(obs):
         return np.tile(np.r_[obs["qpos"][:4], 1.0], (5, 1))
 
-    device = FakeRobotiq2F85() if kind == "robotiq" else FakeDynamixelServo()
+    clock = VirtualClock()
+    device = (FakeRobotiq2F85 if kind == "robotiq" else FakeDynamixelServo)(clock=clock)
     client = RobotiqGripper if kind == "robotiq" else DynamixelGripper
     log = []
-    with device as dev, client(dev.port) as gripper:
-        loop = ControlLoop(FakeArm(log=log), close, gripper=gripper, clock=VirtualClock(),
+    with device as dev, client(dev.port, clock=clock) as gripper:
+        loop = ControlLoop(FakeArm(log=log, clock=clock), close, gripper=gripper, clock=clock,
                            config=ControlLoopConfig(inference="sync", chunk_size=5))
 
         def inject(step, obs, target):
