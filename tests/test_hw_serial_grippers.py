@@ -167,7 +167,7 @@ def test_robotiq_garbage_on_the_line():
 
 def test_robotiq_device_ignores_bad_crc_and_client_times_out():
     with FakeRobotiq2F85() as dev:
-        with serial.Serial(dev.port, 115200, timeout=0.05) as s:  # the one wall-clock wait: no reply comes
+        with serial.Serial(dev.port, 115200, timeout=0.05) as s:  # waits 50 ms of wall clock: no reply comes
             bad = bytearray.fromhex("09 04 07 D0 00 03 B1 CE")
             bad[-1] ^= 1
             s.write(bytes(bad))
