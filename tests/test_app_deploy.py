@@ -52,10 +52,11 @@ def test_check_setup_names_what_is_missing(checkpoint):
 
 def test_robot_deploy_refuses_a_setup_without_a_camera_before_connecting(checkpoint, tmp_path):
     setup = tmp_path / "setup.yaml"
-    # 192.0.2.1 is TEST-NET-1: nothing answers there, so reaching the connection would hang or fail
-    setup.write_text("robot: {type: xarm, ip: 192.0.2.1}\ngripper: {type: none}\n"
+    # loopback, where no controller listens: reaching the connection would fail
+    setup.write_text("robot: {type: xarm, ip: 127.0.0.1}\ngripper: {type: none}\n"
                      "cameras: {third_view: {device: /dev/video0}}\n"
-                     "tactile: {left: {device: /dev/video2}, right: {device: /dev/video3}}\n")
+                     "tactile: {left: {device: /dev/video2}, right: {device: /dev/video3}}\n"
+                     "limits: {workspace_min: [0.2, -0.3, 0.0], workspace_max: [0.7, 0.3, 0.5]}\n")
     with pytest.raises(ValueError, match="camera 'wrist'"):
         deploy_on_robot("xarm", checkpoint, setup)
     with pytest.raises(ValueError, match="robot.type 'xarm'"):
@@ -83,3 +84,16 @@ def test_deploy_cli_runs_the_touch_critical_scene(checkpoint, tmp_path):
     result = json.loads(out.read_text())
     assert result["grip_force_range_n"] == [4.0, 7.0] and result["episodes"] == 1
     assert result["outcomes"][0]["steps"] == 60  # an untrained policy never inserts: the variant's limit
+
+
+@pytest.mark.parametrize("flags, named", [
+    (["--episodes", "0"], "--episodes"), (["--episodes", "-3"], "--episodes"), (["--max-steps", "0"], "--max-steps"),
+    (["--threads", "0"], "--threads"), (["--grip-force", "9", "3"], "--grip-force"),
+    (["--grip-force", "-1", "3"], "--grip-force"),
+])
+def test_deploy_cli_validation_errors_are_one_line_naming_the_flag(checkpoint, capsys, flags, named):
+    import deploy_policy
+
+    assert deploy_policy.main(["--robot", "sim", "--checkpoint", str(checkpoint), *flags]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and named in err[0], err
