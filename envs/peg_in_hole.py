@@ -34,6 +34,7 @@ import mujoco  # noqa: E402
 from envs.config import SENSORS, PegInHoleConfig  # noqa: E402
 from envs.scene import HAND_ACTUATORS, build_model, rim_height_m  # noqa: E402
 from envs.tactile_rig import PadRays, group_mask, pad_force  # noqa: E402
+from hardware.interfaces import ACTION_DIM  # noqa: E402
 
 PEG_RADIUS_M = 0.0125
 PEG_HALF_LENGTH_M = 0.04
@@ -56,8 +57,7 @@ class PegInHoleEnv(gym.Env):
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
-    action_dim = 5
-    qpos_dim = 5
+    action_dim = qpos_dim = ACTION_DIM  # hardware.interfaces.ACTION_NAMES: [x, y, z, yaw, gripper]
 
     def __init__(self, config: PegInHoleConfig | None = None, render_mode: str | None = None):
         self.config = config or PegInHoleConfig()
@@ -232,7 +232,7 @@ class PegInHoleEnv(gym.Env):
         except (TypeError, ValueError):
             raise ValueError(f"action must be 5 numbers [x, y, z, yaw, gripper], got {action!r}") from None
         if a.shape != (self.action_dim,):
-            raise ValueError(f"action must have shape (5,) = [x, y, z, yaw, gripper], got shape {a.shape}")
+            raise ValueError(f"action must have shape ({ACTION_DIM},) = [x, y, z, yaw, gripper], got shape {a.shape}")
         if not np.isfinite(a).all():
             raise ValueError(f"action must be finite, got {a.tolist()}")
         out = np.clip(a, self.action_space.low, self.action_space.high)

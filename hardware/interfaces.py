@@ -16,8 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+ACTION_NAMES = ("x", "y", "z", "yaw", "gripper")  # the action and qpos layout everywhere: m, m, m, rad, [0, 1]
 POSE_DIM = 4  # x, y, z (m), yaw (rad)
-ACTION_DIM = 5  # pose + gripper command
+ACTION_DIM = len(ACTION_NAMES)  # pose + gripper command
 
 
 class HardwareError(RuntimeError):

@@ -21,7 +21,7 @@ from envs.peg_in_hole import PegInHoleEnv
 from envs.sim_robot import SimRobot
 from hardware.config import load_setup, open_setup
 from hardware.control_loop import ControlLoop, LoopStats
-from hardware.interfaces import ACTION_DIM
+from hardware.interfaces import ACTION_DIM, ACTION_NAMES
 from policies.act.policy import ACTPolicy
 from policies.act.training import resolve_checkpoint
 
@@ -44,7 +44,7 @@ def check_setup(policy: ACTPolicy, cameras, tactile) -> None:
     for name, dim in (("action_dim", cfg.action_dim), ("state_dim", cfg.state_dim)):
         if dim != ACTION_DIM:
             raise ValueError(f"the checkpoint's {name} is {dim}; the robot's actions and qpos are "
-                             f"[x, y, z, yaw, gripper] ({ACTION_DIM})")
+                             f"[{', '.join(ACTION_NAMES)}] ({ACTION_DIM})")
 
 
 def deploy(setup, policy: ACTPolicy, max_steps: int | None = None, stop_when=None) -> LoopStats:
