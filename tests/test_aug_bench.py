@@ -14,8 +14,9 @@ def test_quick_run_counts_add_up_and_name_the_shipped_generator(tmp_path):
     assert counts["tactile_frames"] == (counts["regenerated"] + counts["clamped"] + counts["skipped"]
                                         + counts["no_contact"])
     assert res["cache_build"]["frames_generated"] == counts["regenerated"] + counts["clamped"]
-    # skip mode draws the same offsets and jitter, so it keeps real exactly the frames clamp mode clamped
-    assert res["skipped_in_skip_mode"] == counts["clamped"] > 0
+    # skip mode draws the same offsets and jitter, so it keeps real exactly the frames clamp mode clamped,
+    # and in both modes the frames whose reference force lies outside the validated range (#20)
+    assert res["skipped_in_skip_mode"] == counts["clamped"] + counts["skipped"] and counts["clamped"] > 0
     assert res["generator_hash"] == ForceGenerator.from_pretrained().checkpoint_hash
     assert set(res["items_per_s"]) == {"bare", "cached", "online"}
     assert all(v > 0 for v in res["items_per_s"].values())

@@ -38,8 +38,11 @@ def test_cli_equals_wrapper_and_resumes(setup, tmp_path, capsys):
     shutil.rmtree(tmp_path / "cli" / "chunks" / "e000001_k002")  # as if interrupted before this chunk
     run_cli(root, ckpt, tmp_path / "cli")
     assert tree_bytes(tmp_path / "cli") == clean
-    with pytest.raises(ValueError, match="seed: cache has 0, now 3"):
-        run_cli(root, ckpt, tmp_path / "cli", "--seed", "3")
+    capsys.readouterr()
+    assert run_cli(root, ckpt, tmp_path / "cli", "--seed", "3") == 2  # a stale cache: refused, one line
+    err = capsys.readouterr().err
+    assert "--out" in err and "seed: cache has 0, now 3" in err and len(err.strip().splitlines()) == 1
+    assert tree_bytes(tmp_path / "cli") == clean
 
 
 def test_cli_shards_by_torchrun_rank(setup, tmp_path, monkeypatch, capsys):
@@ -79,3 +82,88 @@ def test_cli_flags_come_from_the_config(capsys):
     out = " ".join(capsys.readouterr().out.split())
     for name, f in flags.items():
         assert "--" + name.replace("_", "-") in out and " ".join(f.metadata["help"].split())[:30] in out, name
+
+
+def one_line_error(capsys, code, *names):
+    """A refused command: exit 2, one line on stderr naming ``names``, no traceback."""
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    for n in names:
+        assert n in err, (n, err)
+    return err
+
+
+@pytest.mark.parametrize("extra, names", [
+    (["--copies", "0"], ["--copies", ">= 1"]),
+    (["--copies", "x"], ["--copies", "int"]),
+    (["--offset-range", "5", "1"], ["--offset-range", "low 5"]),
+    (["--offset-range", "nan", "1"], ["--offset-range", "finite"]),
+    (["--jitter", "inf"], ["--jitter", "finite"]),
+    (["--seed", "-1"], ["--seed", ">= 0"]),
+    (["--steps", "0"], ["--steps", ">= 1"]),
+    (["--batch-size", "0"], ["--batch-size", ">= 1"]),
+    (["--contact-force", "-1"], ["--contact-force", ">= 0"]),
+    (["--min-contact-area", "2"], ["--min-contact-area", "[0, 1)"]),
+    (["--tactile-keys", "right"], ["--tactile-keys", "right"]),
+    (["--out-of-range", "wrap"], ["--out-of-range", "clamp"]),
+    (["--generator", "nowhere"], ["--generator", "nowhere"]),
+    (["--estimator", "nowhere"], ["--estimator", "nowhere"]),
+    (["--device", "banana"], ["--device", "banana"]),
+])
+def test_cli_bad_flags_are_one_line_errors(setup, tmp_path, capsys, extra, names):
+    root, ckpt = setup
+    code = main(["--dataset", str(root), "--out", str(tmp_path / "c"), "--generator", str(ckpt), "--steps", "1",
+                 "--copies", "2", *extra])
+    one_line_error(capsys, code, *names)
+    assert not (tmp_path / "c").exists()  # nothing written
+
+
+def test_cli_bad_dataset_and_out_are_one_line_errors(setup, tmp_path, capsys):
+    root, ckpt = setup
+    base = ["--generator", str(ckpt), "--steps", "1", "--copies", "1"]
+    one_line_error(capsys, main(["--dataset", str(tmp_path / "nowhere"), "--out", str(tmp_path / "c"), *base]),
+                   "--dataset", "nowhere")
+    (tmp_path / "empty").mkdir()
+    one_line_error(capsys, main(["--dataset", str(tmp_path / "empty"), "--out", str(tmp_path / "c"), *base]),
+                   "--dataset", "episode_")
+    (tmp_path / "file").write_text("x")
+    one_line_error(capsys, main(["--dataset", str(root), "--out", str(tmp_path / "file"), *base]), "--out")
+    one_line_error(capsys, main(["--dataset", str(root), *base]), "--out")  # argparse's own errors too
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("mine")
+    one_line_error(capsys, main(["--dataset", str(root), "--out", str(mine), *base]), "--out", "manifest")
+    assert [p.name for p in mine.iterdir()] == ["notes.txt"]
+
+
+def test_cli_cache_without_manifest_or_with_a_foreign_chunk(setup, tmp_path, capsys):
+    root, ckpt = setup
+    assert run_cli(root, ckpt, tmp_path / "c") == 0
+    chunk = tmp_path / "c" / "chunks" / "e000000_k001" / "provenance.json"
+    text = chunk.read_text()
+    chunk.write_text(text.replace('"generator_hash": "', '"generator_hash": "0123'))
+    capsys.readouterr()
+    one_line_error(capsys, run_cli(root, ckpt, tmp_path / "c"), "--out", "e000000_k001", "generator_hash")
+    chunk.write_text(text)
+    (tmp_path / "c" / "manifest.json").unlink()
+    one_line_error(capsys, run_cli(root, ckpt, tmp_path / "c", "--seed", "7"), "--out", "manifest")
+    assert not (tmp_path / "c" / "manifest.json").exists()  # not re-stamped
+
+
+def test_cli_ctrl_c_says_how_to_resume(setup, tmp_path, capsys, monkeypatch):
+    root, ckpt = setup
+    real = ForceAugment.build_cache
+
+    def interrupted(self, *a, **k):
+        real(self, *a, stop_after=1, **k)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(ForceAugment, "build_cache", interrupted)
+    assert run_cli(root, ckpt, tmp_path / "c") == 130
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "interrupted" in err and "re-run the same command to resume" in err
+    monkeypatch.setattr(ForceAugment, "build_cache", real)
+    assert run_cli(root, ckpt, tmp_path / "c") == 0
+    assert run_cli(root, ckpt, tmp_path / "clean") == 0
+    assert tree_bytes(tmp_path / "c") == tree_bytes(tmp_path / "clean")

@@ -5,7 +5,9 @@ checkpoint's quality; the episodes are synthetic (flat background + a pressed bl
 """
 
 import hashlib
+import json
 import os
+import pickle
 
 import numpy as np
 import pytest
@@ -157,8 +159,11 @@ def test_resolve_target_clamps_or_skips():
     assert s == STATUS["regenerated"] and t.tolist() == [0.2, 0.0, 5.5]
     t, s = resolve_target(np.array([0.2, 0.0, 3.0]), -2.5, "clamp")
     assert s == STATUS["clamped"] and t.tolist() == [0.2, 0.0, 1.0]
+    t, s = resolve_target(np.array([0.2, 0.0, 9.0]), 3.0, "clamp")
+    assert s == STATUS["clamped"] and t.tolist() == [0.2, 0.0, 10.0]
+    # a reference the generator was not validated on (1.5 N shear) cannot be moved: kept real (#20)
     t, s = resolve_target(np.array([1.5, 0.0, 3.0]), 0.0, "clamp")
-    assert s == STATUS["clamped"] and t.tolist() == [1.0, 0.0, 3.0]
+    assert s == STATUS["skipped"] and t.tolist() == [1.5, 0.0, 3.0]
     _, s = resolve_target(np.array([0.0, 0.0, 9.5]), 1.0, "skip")
     assert s == STATUS["skipped"]
 
@@ -439,3 +444,152 @@ def test_the_generator_alone_decides_out_of_range_targets(data, gen, tmp_path):
         assert r["target_force"] == used.tolist()
         assert (r["status"] == "clamped") == bool((used != want).any())
         np.testing.assert_allclose(want[2], r["reference_force"][2] + r["offset"] + r["jitter"])
+
+
+# -- a cache is used only when it provably matches (issue #20) --------------------------------------
+
+def test_cache_without_its_manifest_is_refused(data, gen, tmp_path):
+    a = aug(data, gen, tmp_path, copies=2)
+    (a.cache_dir / "manifest.json").unlink()
+    before = tree_bytes(a.cache_dir)
+    for kw in (dict(seed=7), dict()):  # other settings, or even the same ones: nothing proves it
+        with pytest.raises(StaleCacheError, match=f"{a.cache_dir}.*no manifest.json"):
+            aug(data, gen, tmp_path, copies=2, **kw)
+    with pytest.raises(StaleCacheError, match="no manifest.json"):
+        aug(data, gen, tmp_path, copies=2, build="manual").build_cache(progress=False)
+    assert tree_bytes(a.cache_dir) == before  # not re-stamped
+    own = tmp_path / "mine"
+    own.mkdir()
+    (own / "notes.txt").write_text("the user's")
+    with pytest.raises(StaleCacheError, match="mine.*not a ForceAugment cache"):
+        aug(data, gen, tmp_path, "mine", copies=2)
+    assert sorted(p.name for p in own.iterdir()) == ["notes.txt"]
+    corrupt = aug(data, gen, tmp_path, "corrupt", copies=1)
+    (corrupt.cache_dir / "manifest.json").write_text("{not json")
+    with pytest.raises(StaleCacheError, match="manifest.json"):
+        aug(data, gen, tmp_path, "corrupt", copies=1)
+
+
+def tamper_chunk(cache_dir, edit, name="e000001_k002"):
+    path = cache_dir / "chunks" / name / "provenance.json"
+    doc = json.loads(path.read_text())
+    edit(doc)
+    path.write_text(json.dumps(doc))
+
+
+@pytest.mark.parametrize("edit, match", [
+    (lambda d: [r.update(generator_hash="0123456789abcdef") for r in d["frames"]], "generator_hash"),
+    (lambda d: d["frames"][0].update(generator_hash="other"), "generator_hash"),
+    (lambda d: [r.update(steps=50) for r in d["frames"]], "steps"),
+    (lambda d: d.update(settings_sha256="0" * 16), "settings"),
+    (lambda d: d.pop("settings_sha256"), "settings"),
+    (lambda d: d.update(copy=1), "copy"),
+    (lambda d: d["frames"].pop(), "frame"),
+])
+def test_chunk_that_differs_from_the_manifest_is_refused(data, gen, tmp_path, edit, match):
+    a = aug(data, gen, tmp_path, copies=2)
+    tamper_chunk(a.cache_dir, edit)
+    with pytest.raises(StaleCacheError, match=f"e000001_k002.*{match}"):
+        aug(data, gen, tmp_path, copies=2)
+    worker = pickle.loads(pickle.dumps(a))  # as a DataLoader worker gets it: chunks not opened yet
+    with pytest.raises(StaleCacheError, match=f"e000001_k002.*{match}"):
+        worker[2 * len(data) + 12 + 3]  # refused where the chunk is read, too
+
+
+def test_chunk_copied_from_a_cache_of_other_settings_is_refused(data, gen, tmp_path):
+    import shutil
+
+    a = aug(data, gen, tmp_path, "a", copies=2)
+    b = aug(data, gen, tmp_path, "b", copies=2, seed=5)
+    target = a.cache_dir / "chunks" / "e000000_k001"
+    shutil.rmtree(target)
+    shutil.copytree(b.cache_dir / "chunks" / "e000000_k001", target)
+    with pytest.raises(StaleCacheError, match="e000000_k001.*settings"):
+        aug(data, gen, tmp_path, "a", copies=2)
+
+
+def test_truncated_or_swapped_chunk_images_are_refused(data, gen, tmp_path):
+    a = aug(data, gen, tmp_path, copies=2)
+    f = a.cache_dir / "chunks" / "e000000_k001" / "tactile_0.npy"
+    f.write_bytes(f.read_bytes()[:-10])
+    with pytest.raises(StaleCacheError, match="e000000_k001.*tactile_0.npy"):
+        aug(data, gen, tmp_path, copies=2)
+    b = aug(data, gen, tmp_path, "b", copies=2)
+    np.save(b.cache_dir / "chunks" / "e000000_k001" / "tactile_0.npy", np.zeros((1, H, W, 3), np.uint8))
+    with pytest.raises(StaleCacheError, match="e000000_k001.*tactile_0.npy"):
+        aug(data, gen, tmp_path, "b", copies=2)
+
+
+KILL_INSIDE_A_CHUNK = """
+import os, signal, sys
+sys.path.insert(0, sys.argv[1])
+import numpy as np
+from pathlib import Path
+from controltac_il.augment import ForceAugment, writer
+from controltac_il.datasets import EpisodeDataset
+from test_aug_force_augment import tiny_generator
+saved = {"n": 0}
+real_save = np.save
+def save(path, arr, *a, **k):
+    real_save(path, arr, *a, **k)
+    saved["n"] += 1
+    if saved["n"] == 3:  # inside the third chunk's temporary folder
+        os.kill(os.getpid(), signal.SIG%s)
+writer.np.save = save
+data = EpisodeDataset(sys.argv[2], chunk_size=4, stats_path=Path(sys.argv[3]) / "stats_k.json")
+ForceAugment(data, tiny_generator(), copies=3, cache_dir=Path(sys.argv[3]) / "part", progress=False)
+"""
+
+
+@pytest.mark.parametrize("sig", ["KILL", "INT"])
+def test_killed_build_leaves_nothing_and_resumes_to_the_clean_result(data, gen, tmp_path, sig):
+    import subprocess
+    import sys
+
+    clean = aug(data, gen, tmp_path, "clean")
+    tests = os.path.dirname(__file__)
+    res = subprocess.run([sys.executable, "-c", KILL_INSIDE_A_CHUNK % sig, tests, str(data.root), str(tmp_path)],
+                         cwd=os.path.dirname(tests), capture_output=True, text=True,
+                         env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert res.returncode != 0, res.stdout
+    chunks = tmp_path / "part" / "chunks"
+    assert len([p for p in chunks.iterdir() if not p.name.startswith(".")]) == 2
+    left = [p for p in chunks.iterdir() if p.name.startswith(".")]
+    assert len(left) == (1 if sig == "KILL" else 0), left  # SIGINT cleans up itself; SIGKILL cannot
+    resumed = aug(data, gen, tmp_path, "part")
+    assert sorted(p.name for p in chunks.iterdir() if p.name.startswith(".")) == []  # leftovers cleaned
+    assert tree_bytes(resumed.cache_dir) == tree_bytes(clean.cache_dir)
+
+
+def test_cache_files_get_the_umask_permissions(data, gen, tmp_path):
+    old = os.umask(0o022)
+    try:
+        a = aug(data, gen, tmp_path, copies=1)
+    finally:
+        os.umask(old)
+    modes = {oct(p.stat().st_mode & 0o777) for p in [a.cache_dir, *a.cache_dir.rglob("*")] if p.is_dir()}
+    assert modes == {"0o755"}
+    modes = {oct(p.stat().st_mode & 0o777) for p in a.cache_dir.rglob("*") if p.is_file()}
+    assert modes == {"0o644"}
+
+
+def test_reference_outside_the_validated_range_is_kept_real(tmp_path, gen):
+    """A frame in contact whose reference force the generator was not validated on (0.5 N, 12 N, a 1.5 N
+    shear) is not regenerated: kept real and counted as skipped, in cache and online mode alike."""
+    ep = synthetic_episode(8, 0, range(2, 8))
+    ep.force["left"][2] = (0.0, 0.0, 0.5)
+    ep.force["left"][3] = (0.0, 0.0, 12.0)
+    ep.force["left"][4] = (1.5, 0.0, 4.0)
+    write_episode(tmp_path / "d" / "episode_0.hdf5", ep)
+    ds = EpisodeDataset(tmp_path / "d", chunk_size=4, stats_path=tmp_path / "s.json")
+    for a in (aug(ds, gen, tmp_path, copies=2, seed=3),
+              ForceAugment(ds, gen, copies=2, seed=3, mode="online")):
+        for i in range(len(ds), len(a)):
+            item, src = a[i], ds[i % len(ds)]
+            status = int(a.info(item)["status.observation.tactile.left"])
+            if i % len(ds) in (2, 3, 4):
+                assert status == STATUS["skipped"]
+                assert torch.equal(item["observation.tactile.left"], src["observation.tactile.left"])
+            elif i % len(ds) > 4:
+                assert status in (STATUS["regenerated"], STATUS["clamped"])
+    assert aug(ds, gen, tmp_path, copies=2, seed=3).summary()["skipped"] == 6

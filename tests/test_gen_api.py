@@ -309,3 +309,51 @@ def test_in_range_targets_from_float32_labels_are_not_counted_as_clamped():
     fixed = gen._apply_range(delta, ref.astype(np.float64), "error")
     assert gen.last_range_report.clamped == 0
     np.testing.assert_array_equal(fixed, delta)
+
+
+# -- inputs the generator was not validated on (issue #20) ---------------------------------------------
+
+@pytest.mark.parametrize("reference", [[0.0, 0.0, 40.0], [0.0, 0.0, 0.5], [1.5, 0.0, 4.0], [0.0, -2.0, 4.0]])
+def test_reference_force_outside_the_validated_range_is_refused(gen, contacts, reference):
+    ref, _ = contacts
+    rf = np.tile([[0.0, 0.0, 4.0]], (len(ref), 1))
+    rf[1] = reference
+    target = np.tile([[0.0, 0.0, 5.0]], (len(ref), 1))
+    for policy in ("clamp", "error"):  # a reference cannot be clamped: the image shows that force
+        with pytest.raises(ValueError, match=r"reference_force.*validated range.*index 1.*out_of_range='skip'"):
+            gen.generate_at(ref, rf, target, steps=STEPS, out_of_range=policy)
+        with pytest.raises(ValueError, match=r"reference_force.*validated range.*index 1"):
+            gen.generate(ref, target - rf, steps=STEPS, reference_force=rf, out_of_range=policy)
+    res = gen.generate_at(ref, rf, target, steps=STEPS, seed=[1, 2, 3], out_of_range="skip")
+    assert res.decision.skipped.tolist() == [False, True, False] and not res.decision.clamped.any()
+    assert res.decision.reference_outside.tolist() == [False, True, False]
+    np.testing.assert_array_equal(res.residuals[1], ref[1])  # kept as it was
+    planned = gen.resolve_targets(target, "skip", reference_force=rf)
+    np.testing.assert_array_equal(planned.skipped, res.decision.skipped)
+    # targets clamped, references outside skipped (what ForceAugment asks for)
+    target[2] = (0.0, 0.0, 14.0)
+    mixed = gen.generate_at(ref, rf, target, steps=STEPS, seed=[1, 2, 3], reference_out_of_range="skip")
+    assert mixed.decision.skipped.tolist() == [False, True, False]
+    assert mixed.decision.clamped.tolist() == [False, False, True]
+    np.testing.assert_array_equal(mixed.residuals[:2], res.residuals[:2])
+    with pytest.raises(ValueError, match="reference_out_of_range"):
+        gen.generate_at(ref, rf, target, reference_out_of_range="clamp")
+
+
+@pytest.mark.parametrize("size", [(240, 20), (20, 240), (128, 320), (60, 40)])
+def test_anisotropic_resizes_are_refused(gen, size):
+    h, w = size
+    res = np.full((2, h, w, 3), 127, np.uint8)
+    with pytest.raises(ValueError, match=rf"reference_residuals.*{h}x{w}.*"
+                                         rf"{gen.config.image_size[0]}x{gen.config.image_size[1]}.*aspect"):
+        gen.generate(res, np.zeros((2, 3)), steps=STEPS)
+    with pytest.raises(ValueError, match=rf"{h}x{w}"):
+        gen.generate_at(res, [[0, 0, 4.0]] * 2, [[0, 0, 5.0]] * 2, steps=STEPS)
+    with pytest.raises(ValueError, match=rf"images.*{h}x{w}"):
+        gen.generate_images(res, res[0], np.zeros((2, 3)), steps=STEPS)
+
+
+@pytest.mark.parametrize("size", [(120, 160), (240, 320), (128, 160), (100, 160), (128, 220)])
+def test_moderate_aspect_changes_are_accepted(gen, size):
+    out = gen.generate(np.full((1, *size, 3), 127, np.uint8), np.zeros((1, 3)), steps=1)
+    assert out.shape == (1, *size, 3)

@@ -326,18 +326,19 @@ def _(tmp):
 
 @probe("augment", "a chunk written by another generator")
 def _(tmp):
-    import h5py
-
     data = demo_episodes(tmp / "demos", n=2)
     out = tmp / "cache_b"
     if _augment_cli(tmp, data, out).returncode != 0:
         return UNCLEAR, "could not build the first cache: " + last_line(_augment_cli(tmp, data, tmp / "x").stderr)
-    chunks = sorted(p for p in out.rglob("*") if p.is_file() and p.suffix in (".h5", ".hdf5", ".npz"))
+    # a chunk's provenance.json records the generator hash in every frame record (and its header)
+    chunks = sorted(out.glob("chunks/*/provenance.json"))
     if not chunks:
-        return UNCLEAR, "no chunk files found to tamper with"
-    with h5py.File(chunks[0], "r+") as f:
-        for key in [k for k in f.attrs if "hash" in k]:
-            f.attrs[key] = "0123456789abcdef"
+        return UNCLEAR, "no chunk provenance found to tamper with"
+    doc = json.loads(chunks[0].read_text())
+    for rec in [doc, *doc.get("frames", [])]:
+        if "generator_hash" in rec:
+            rec["generator_hash"] = "0123456789abcdef"
+    chunks[0].write_text(json.dumps(doc))
     res = _augment_cli(tmp, data, out)
     return judge_cli(res, "generator") if res.returncode != 0 else (SILENT, "a chunk of another generator was used")
 
@@ -357,17 +358,40 @@ def _(tmp):
     return (SILENT, f"modes {sorted(modes)} under umask 022") if wrong else (HANDLED, f"modes {sorted(modes)}")
 
 
+_KILLED_BUILD = """
+import os, signal, sys
+import numpy as np
+from controltac_il.augment import main
+real_save, calls = np.save, []
+def save(*a, **k):  # SIGKILL inside the second chunk, after its first file: a half-written chunk folder
+    real_save(*a, **k)
+    calls.append(1)
+    if len(calls) == 3:
+        os.kill(os.getpid(), signal.SIGKILL)
+np.save = save
+main(sys.argv[1:])
+"""
+
+
 @probe("augment", "a temporary folder left by a killed build")
 def _(tmp):
     data = demo_episodes(tmp / "demos", n=2)
     out = tmp / "cache_d"
-    if _augment_cli(tmp, data, out).returncode != 0:
-        return UNCLEAR, "could not build the cache: " + last_line(_augment_cli(tmp, data, tmp / "x").stderr)
-    leftover = out.parent / f".{out.name}.killed.tmp"
-    leftover.mkdir()
-    (leftover / "part.bin").write_bytes(b"x" * 10)
-    res = _augment_cli(tmp, data, tmp / "cache_e")
-    stale = [p.name for p in tmp.glob(".*.tmp")]
+    args = ["--dataset", str(data), "--out", str(out), "--copies", "1"]
+    killed = run_cli(["-c", _KILLED_BUILD, *args], cache=tmp / "cache")
+    if killed.returncode != -9:
+        return UNCLEAR, f"the build to kill exited {killed.returncode}: {last_line(killed.stderr)}"
+    folders = [out, out / "chunks", tmp]
+    left = [p for f in folders for p in f.glob(".*") if p.name.endswith(".tmp")]
+    if not left:
+        return UNCLEAR, "the killed build left no temporary path to clean up"
+    mine = {out / "chunks" / ".e000000_k001.killed.tmp": b"the user's", tmp / ".cache_d.mine.tmp": b"the user's"}
+    for path, content in mine.items():  # lookalikes the tool did not write: never touched
+        path.write_bytes(content)
+    res = _augment_cli(tmp, data, out)
     if res.returncode != 0:
         return judge_cli(res)
-    return (SILENT, f"left behind: {stale}") if stale else (HANDLED, "cleaned up")
+    if any(not p.is_file() or p.read_bytes() != c for p, c in mine.items()):
+        return LOSS, "removed or changed a file the tool did not write"
+    stale = [p.name for f in folders for p in f.glob(".*") if p.name.endswith(".tmp") and p not in mine]
+    return (SILENT, f"left behind: {stale}") if stale else (HANDLED, f"cleaned up {len(left)} leftover(s), resumed")

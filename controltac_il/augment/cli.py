@@ -1,15 +1,37 @@
 """``python -m controltac_il.augment``: build a ForceAugment cache. The settings flags are derived from
-``ForceAugmentConfig`` (each field's default and help); only the I/O flags are written here."""
+``ForceAugmentConfig`` (each field's default and help); only the I/O flags are written here.
+
+Every validation error (a flag's value, the dataset, the checkpoints, a cache that does not provably match)
+is one line on stderr naming the flag and what it expects, exit status 2; a traceback means a bug. Ctrl-C
+stops with status 130; re-running the same command resumes the build."""
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import re
+import sys
 from pathlib import Path
 
 from controltac_il.augment.config import ForceAugmentConfig
 from controltac_il.augment.dataset import ForceAugment
+from controltac_il.augment.provenance import StaleCacheError
 from controltac_il.datasets.act_dataset import EpisodeDataset
+
+PROG = "python -m controltac_il.augment"
+
+
+class UsageError(Exception):
+    """A validation error of the command line: ``flag`` and the one-line message."""
+
+    def __init__(self, flag: str | None, message: str):
+        super().__init__(message)
+        self.flag = flag
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # argparse's errors, as one line (its usage block is what --help is for)
+        raise UsageError(None, f"{message} (see --help)")
 
 
 def _default_text(value) -> str:
@@ -41,8 +63,8 @@ def config_kwargs(args: argparse.Namespace) -> dict:
 
 
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="python -m controltac_il.augment",
+    p = _Parser(
+        prog=PROG,
         description="Build a ForceAugment cache: generate every augmented tactile frame of a folder of ACT "
                     "episodes once (batched), with provenance. Resumable (re-run the same command) and "
                     "shardable (torchrun --nproc_per_node N -m controltac_il.augment ...).")
@@ -68,19 +90,91 @@ def _report(aug: ForceAugment, counts: dict) -> None:
           f"{s['clamped']} clamped, {s['skipped']} skipped (kept real), {s['no_contact']} without contact")
 
 
-def main(argv=None) -> int:
-    args = parser().parse_args(argv)
+def _flag(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+def _field_error(exc: Exception, default_flag: str) -> UsageError:
+    """A ValueError of the config or the wrapper ("<field>: ...") as the error of that field's flag."""
+    text = " ".join(str(exc).split())
+    m = re.match(r"^(\w+): (.*)$", text)
+    fields = {f.name for f in dataclasses.fields(ForceAugmentConfig) if f.metadata.get("cli") is not None}
+    if m and m[1] in fields:
+        return UsageError(_flag(m[1]), m[2])
+    if m and m[1] in ("dataset", "root"):
+        return UsageError("--dataset", m[2])
+    return UsageError(default_flag, text)
+
+
+def _setup(args) -> ForceAugment:
+    """The ForceAugment of the parsed flags; UsageError naming the flag for anything invalid."""
+    kwargs = config_kwargs(args)
+    if kwargs["copies"] < 1:
+        raise UsageError("--copies", f"expected an int >= 1 (copy 0 is the real data: a cache of 0 copies holds "
+                                     f"nothing), got {kwargs['copies']}")
+    try:
+        ForceAugmentConfig(**kwargs)
+    except ValueError as exc:
+        raise _field_error(exc, "--copies") from exc
+    if not args.dataset.is_dir():
+        what = "does not exist" if not args.dataset.exists() else "is not a folder"
+        raise UsageError("--dataset", f"expected a folder of episode_<i>.hdf5 files; {args.dataset} {what}")
+    if args.out.exists() and not args.out.is_dir():
+        raise UsageError("--out", f"expected a cache folder (new, empty, or a cache of these settings); "
+                                  f"{args.out} is a file")
+    import torch
+
+    try:
+        device = torch.device(args.device)
+    except (RuntimeError, ValueError) as exc:
+        raise UsageError("--device", f"expected a torch device such as cpu, cuda or cuda:0, got {args.device!r}") from exc
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise UsageError("--device", f"{args.device!r} asked for, but no CUDA device is available; use --device cpu")
+    try:
+        dataset = EpisodeDataset(args.dataset, chunk_size=1, cameras=[])
+    except (ValueError, OSError) as exc:
+        raise UsageError("--dataset", " ".join(str(exc).split())) from exc
     from controltac_il.generator import ForceGenerator
 
     estimator = None
     if args.estimator:
         from controltac_il.estimators import ForceEstimator
 
-        estimator = ForceEstimator.from_pretrained(args.estimator)
-    dataset = EpisodeDataset(args.dataset, chunk_size=1, cameras=[])
-    aug = ForceAugment(dataset, ForceGenerator.from_pretrained(args.generator, device=args.device),
-                       cache_dir=args.out, estimator=estimator, build="manual", progress=True,
-                       **config_kwargs(args))
-    _report(aug, aug.build_cache())
+        try:
+            estimator = ForceEstimator.from_pretrained(args.estimator)
+        except (ValueError, OSError) as exc:
+            raise UsageError("--estimator", f"expected a force estimator checkpoint folder: "
+                                            f"{' '.join(str(exc).split())}") from exc
+    try:
+        generator = ForceGenerator.from_pretrained(args.generator, device=device)
+    except (ValueError, OSError) as exc:
+        raise UsageError("--generator", f"expected a generator checkpoint folder (or default / fast): "
+                                        f"{' '.join(str(exc).split())}") from exc
+    try:
+        return ForceAugment(dataset, generator, cache_dir=args.out, estimator=estimator, build="manual",
+                            progress=True, **kwargs)
+    except StaleCacheError as exc:
+        raise UsageError("--out", " ".join(str(exc).split())) from exc
+    except ValueError as exc:
+        raise _field_error(exc, "--dataset") from exc
+
+
+def main(argv=None) -> int:
+    """Run the command; returns the exit status (0, 2 for a validation error, 130 when interrupted)."""
+    try:
+        args = parser().parse_args(argv)
+        aug = _setup(args)
+        try:
+            counts = aug.build_cache()
+            _report(aug, counts)
+        except StaleCacheError as exc:  # a chunk that does not provably belong to the cache
+            raise UsageError("--out", " ".join(str(exc).split())) from exc
+    except UsageError as exc:
+        print(f"{PROG}: error: {exc.flag + ': ' if exc.flag else ''}{exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted; every chunk written so far is complete: re-run the same command to resume",
+              file=sys.stderr)
+        return 130
     return 0
 

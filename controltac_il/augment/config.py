@@ -73,7 +73,7 @@ class ForceAugmentConfig:
         if len(rng) != 2 or not all(math.isfinite(v) for v in rng):
             raise ValueError(f"offset_range: expected two finite numbers (low, high) in N, got {self.offset_range!r}")
         if rng[0] > rng[1]:
-            raise ValueError(f"offset_range: inverted, low {rng[0]} > high {rng[1]}")
+            raise ValueError(f"offset_range: inverted, expected low <= high in N, got low {rng[0]:g} > high {rng[1]:g}")
         self.offset_range = rng
         jit = _floats(self.jitter, "jitter", "a sequence of numbers in N")
         if not jit or not all(math.isfinite(v) for v in jit):
@@ -90,8 +90,8 @@ class ForceAugmentConfig:
         self.seed = _int(self.seed, "seed", 0)
         if self.steps is not None and (not isinstance(self.steps, (int, np.integer)) or self.steps < 1):
             raise ValueError(f"steps: expected None or an int >= 1, got {self.steps!r}")
-        if not self.contact_force >= 0:
-            raise ValueError(f"contact_force: expected a number >= 0 (N), got {self.contact_force!r}")
+        if not (isinstance(self.contact_force, (int, float, np.number)) and 0 <= self.contact_force < math.inf):
+            raise ValueError(f"contact_force: expected a finite number >= 0 (N), got {self.contact_force!r}")
         if not 0 <= self.min_contact_area < 1:
             raise ValueError(f"min_contact_area: expected a fraction in [0, 1), got {self.min_contact_area!r}")
         if not isinstance(self.batch_size, int) or self.batch_size < 1:

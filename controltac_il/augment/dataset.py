@@ -18,12 +18,12 @@ from tqdm import tqdm
 from controltac_il.augment import items as adapters
 from controltac_il.augment.config import BUILD, ForceAugmentConfig
 from controltac_il.augment.online import check_online_items, generate_item
-from controltac_il.augment.provenance import chunk_done, check_manifest, write_manifest
+from controltac_il.augment.provenance import CACHE_FORMAT, ChunkSpec, chunk_done, check_manifest, write_manifest
 from controltac_il.augment.reader import ChunkReader
 from controltac_il.augment.records import STATUS, FrameOutcome, KeyOutcome, annotate, info
 from controltac_il.augment.reference import EpisodeFrames, ReferenceForces
 from controltac_il.augment.writer import CacheWriter
-from controltac_il.io import cache_root
+from controltac_il.io import cache_root, remove_leftovers
 
 
 class ForceAugment(Dataset):
@@ -37,6 +37,9 @@ class ForceAugment(Dataset):
     build: cache mode only: "now" generates the missing part of the cache at construction (this
         rank's share under torchrun, then waits for the other ranks); "require" expects a complete
         cache (error otherwise); "manual" leaves it to ``build_cache()`` (the CLI).
+    A cache is used only when it provably matches (else StaleCacheError, naming the folder and what
+    differs): its manifest holds these settings, and every chunk names them (``provenance.check_chunk``);
+    a folder with content but no manifest is never used nor written into.
     Other arguments: see ForceAugmentConfig.
     """
 
@@ -71,14 +74,15 @@ class ForceAugment(Dataset):
         if self.config.mode == "online":
             check_online_items(probe, self.tactile_keys)
             return
-        self.cache_dir = Path(self.config.cache_dir) if self.config.cache_dir else self._default_cache_dir()
-        self._reader = ChunkReader(self.cache_dir, self.tactile_keys)
+        if build not in BUILD:
+            raise ValueError(f"build: expected one of {BUILD}, got {build!r}")
+        settings = self.settings()
+        self.cache_dir = Path(self.config.cache_dir) if self.config.cache_dir else self._default_cache_dir(settings)
+        self._reader = ChunkReader(self.cache_dir, self.tactile_keys, ChunkSpec.of(settings))
         self._source, self._source_index = adapters.episode_source(dataset)
         if self._source is not None:
             self._frames = dataset.frame_table()
-        check_manifest(self.cache_dir, self.settings())
-        if build not in BUILD:
-            raise ValueError(f"build: expected one of {BUILD}, got {build!r}")
+        check_manifest(self.cache_dir, settings)
         if build == "now":
             self.build_cache(progress=progress)
             self._wait_complete()
@@ -111,8 +115,9 @@ class ForceAugment(Dataset):
         cfg["data"] = {"type": type(self.dataset).__name__, "length": self.n_base, **data}
         return json.loads(json.dumps(cfg))
 
-    def _default_cache_dir(self) -> Path:
-        digest = hashlib.sha256(json.dumps(self.settings(), sort_keys=True).encode()).hexdigest()[:16]
+    def _default_cache_dir(self, settings: dict) -> Path:
+        named = {**settings, "cache_format": CACHE_FORMAT}  # a new format gets a new folder
+        digest = hashlib.sha256(json.dumps(named, sort_keys=True).encode()).hexdigest()[:16]
         return cache_root() / "augment" / digest
 
     # --- size and indexing ----------------------------------------------------------------------
@@ -126,7 +131,7 @@ class ForceAugment(Dataset):
         copy, base = divmod(int(index) % n, self.n_base)
         if copy and self._frames is not None:  # the project's dataset: do not read frames about to be replaced
             episode, frame = int(self._frames[0][base]), int(self._frames[1][base])
-            outcome = self._reader.chunk(episode, copy).frames.get(frame)
+            outcome = self._chunk(episode, copy).frames.get(frame)
             regenerated = [k for k, o in zip(self.tactile_keys, outcome.keys) if o.row >= 0] if outcome else []
             src = base if self._source_index is None else int(self._source_index[base])
             return self._from_cache(self._source.item(src, skip_keys=regenerated), episode, copy, frame)
@@ -141,7 +146,14 @@ class ForceAugment(Dataset):
                                       steps=self.steps, tactile_keys=self.tactile_keys, references=self.references)
         return self._annotate(item, copy, outcome)
 
+    def _chunk(self, episode: int, copy: int):
+        """The opened (and checked) chunk; the reader learns each episode's frames first."""
+        if self._reader.frames is None:
+            self._reader.frames = {e: [t for t, _ in rows] for e, rows in self._episodes().items()}
+        return self._reader.chunk(episode, copy)
+
     def _from_cache(self, item: dict, episode: int, copy: int, frame: int) -> dict:
+        self._chunk(episode, copy)
         outcome, files = self._reader.frame(episode, copy, frame)
         for j, (k, o) in enumerate(zip(self.tactile_keys, outcome.keys)):
             if o.row >= 0:
@@ -193,7 +205,8 @@ class ForceAugment(Dataset):
 
     def _writer(self) -> CacheWriter:
         return CacheWriter(self.cache_dir, self.generator, self.config, self.steps, self.tactile_keys,
-                           self._episodes(), self._load_episode)
+                           self._episodes(), self._load_episode,
+                           self._reader.spec if self._reader is not None else ChunkSpec.of(self.settings()))
 
     # --- cache mode: build ----------------------------------------------------------------------
     def build_cache(self, rank: int | None = None, world_size: int | None = None, progress: bool = True,
@@ -211,10 +224,23 @@ class ForceAugment(Dataset):
         if not 0 <= rank < world_size:
             raise ValueError(f"rank: expected 0 <= rank < world_size={world_size}, got {rank}")
         settings = self.settings()
-        check_manifest(self.cache_dir, settings)
+        self._reader.spec = ChunkSpec.of(settings)
         chunks = self.chunk_list()
-        write_manifest(self.cache_dir, settings, chunks)
+        if check_manifest(self.cache_dir, settings, chunks):
+            self.verify_cache()  # the chunks already there: refused unless they provably belong
+        else:
+            write_manifest(self.cache_dir, settings, chunks)
+        remove_leftovers(self.cache_dir)
         return self._writer().build(chunks, rank, world_size, progress, stop_after)
+
+    def verify_cache(self) -> int:
+        """Check every built chunk against the manifest's settings (``provenance.check_chunk``, image file
+        shapes and sizes); StaleCacheError naming the first that does not provably belong. Returns the
+        number of chunks checked."""
+        done = [c for c in self.chunk_list() if chunk_done(self.cache_dir, *c)]
+        for e, k in done:
+            self._chunk(e, k)
+        return len(done)
 
     def plan(self, progress: bool = False) -> list[dict]:
         """Provenance records of every augmented frame without generating (reads the whole dataset once).
@@ -245,6 +271,8 @@ class ForceAugment(Dataset):
         if missing:
             raise ValueError(f"cache {self.cache_dir}: {len(missing)} chunk(s) missing, e.g. episode {missing[0][0]} "
                              f"copy {missing[0][1]}; build it (python -m controltac_il.augment) or pass build='now'")
+        check_manifest(self.cache_dir, self.settings(), self.chunk_list())
+        self.verify_cache()
 
     # --- what was done --------------------------------------------------------------------------
     def provenance(self) -> list[dict]:
@@ -252,7 +280,7 @@ class ForceAugment(Dataset):
         reference and target force, status, generator hash, steps, noise seed."""
         if self.config.mode != "cache":
             raise ValueError("provenance: only in mode='cache'")
-        return [r for e, k in self.chunk_list() for r in self._reader.chunk(e, k).records]
+        return [r for e, k in self.chunk_list() for r in self._chunk(e, k).records]
 
     def summary(self) -> dict:
         """Counts over the augmented copies: tactile frames, no_contact, regenerated, clamped, skipped.

@@ -38,7 +38,8 @@ def generate_item(item: dict, episode: int, copy: int, frame: int, *, generator,
             continue
         res = generator.generate_at(residual[None], ref[None], requested_target(ref, offset + jitter)[None],
                                     steps=steps, seed=[noise_seed(cfg.seed, episode, copy, frame, j)],
-                                    batch_size=cfg.batch_size, out_of_range=cfg.out_of_range)
+                                    batch_size=cfg.batch_size, out_of_range=cfg.out_of_range,
+                                    reference_out_of_range="skip")  # as the cache writer: keep it real
         target, status = res.decision.target[0], status_of(res.decision, 0)
         if status != STATUS["skipped"]:
             replace_image(item, k, from_residual(res.residuals[0], background), target)

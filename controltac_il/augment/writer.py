@@ -1,5 +1,10 @@
 """Building the cache: each (episode, copy) chunk planned, generated in one generator call and written
-atomically with its provenance; chunks shared out among ranks (torchrun) and resumed where a build stopped."""
+atomically with its provenance; chunks shared out among ranks (torchrun) and resumed where a build stopped.
+
+A chunk is written into a temporary folder beside it and renamed into place (``controltac_il.io``), so a
+build killed at any point leaves whole chunks and, at worst, a temporary folder that the next build
+removes. Frames whose reference force lies outside the generator's validated range are not regenerated
+(the generator skips them, ``reference_out_of_range="skip"``): kept real and recorded as skipped."""
 
 from __future__ import annotations
 
@@ -13,21 +18,25 @@ from tqdm import tqdm
 
 from controltac_il.augment.config import ForceAugmentConfig
 from controltac_il.augment.draws import copy_offset, frame_jitter, noise_seed, requested_target, status_of
-from controltac_il.augment.provenance import FrameRecord, chunk_dir, chunk_done, provenance_text
+from controltac_il.augment.provenance import ChunkSpec, FrameRecord, chunk_dir, chunk_done, provenance_text
 from controltac_il.augment.records import STATUS_NAME
 from controltac_il.augment.reference import EpisodeFrames
-from controltac_il.io import atomic_dir
+from controltac_il.io import atomic_dir, remove_leftovers
 from controltac_il.tactile.residual import from_residual
 
 
 class CacheWriter:
     """Writes chunks of ``cache_dir``. episodes: episode -> [(frame, dataset index)] sorted by frame;
-    load_episode: episode -> EpisodeFrames."""
+    load_episode: episode -> EpisodeFrames; spec: what each chunk records of the cache's settings."""
+
+    # A reference force the generator was not validated on cannot be moved: keep the frame real.
+    REFERENCE_OUT_OF_RANGE = "skip"
 
     def __init__(self, cache_dir: Path, generator, config: ForceAugmentConfig, steps: int, tactile_keys,
-                 episodes: dict, load_episode: Callable[[int], EpisodeFrames]):
+                 episodes: dict, load_episode: Callable[[int], EpisodeFrames], spec: ChunkSpec):
         self.cache_dir, self.generator, self.config, self.steps = cache_dir, generator, config, steps
         self.tactile_keys, self.episodes, self.load_episode = tuple(tactile_keys), episodes, load_episode
+        self.spec = spec
 
     def draft(self, episode: int, copy: int, ep: EpisodeFrames) -> tuple[list[FrameRecord], list[int]]:
         """Records of one chunk (every tactile key x frame) with the requested target of each frame in
@@ -69,7 +78,10 @@ class CacheWriter:
         """Records of one chunk as the generator would settle them, without generating."""
         records, asked = self.draft(episode, copy, ep)
         targets = np.asarray([records[i].target_force for i in asked], np.float64).reshape(-1, 3)
-        return self.settle(records, asked, self.generator.resolve_targets(targets, self.config.out_of_range))
+        refs = np.asarray([records[i].reference_force for i in asked], np.float64).reshape(-1, 3)
+        return self.settle(records, asked, self.generator.resolve_targets(
+            targets, self.config.out_of_range, reference_force=refs,
+            reference_out_of_range=self.REFERENCE_OUT_OF_RANGE))
 
     def write_chunk(self, episode: int, copy: int, ep: EpisodeFrames) -> int:
         """Generate and write one chunk atomically; returns the number of generated images."""
@@ -82,7 +94,7 @@ class CacheWriter:
                 np.stack([ep.residuals[r.key][position[r.frame]] for r in todo]),
                 np.asarray([r.reference_force for r in todo]), np.asarray([r.target_force for r in todo]),
                 steps=self.steps, seed=[r.noise_seed for r in todo], batch_size=self.config.batch_size,
-                out_of_range=self.config.out_of_range)
+                out_of_range=self.config.out_of_range, reference_out_of_range=self.REFERENCE_OUT_OF_RANGE)
             self.settle(records, asked, res.decision)
             out = res.residuals
         with atomic_dir(chunk_dir(self.cache_dir, episode, copy)) as tmp:
@@ -91,12 +103,13 @@ class CacheWriter:
                 h, w = ep.residuals[k].shape[1:3]
                 images = from_residual(out[mine], ep.backgrounds[k]) if mine else np.empty((0, h, w, 3), np.uint8)
                 np.save(tmp / f"tactile_{j}.npy", images)
-            (tmp / "provenance.json").write_text(provenance_text(episode, copy, records))
+            (tmp / "provenance.json").write_text(provenance_text(episode, copy, records, self.spec))
         return sum(r.row >= 0 for r in records)
 
     def build(self, chunks: list[tuple[int, int]], rank: int, world_size: int, progress: bool,
               stop_after: int | None) -> dict:
         """Write this rank's missing chunks (chunk j belongs to rank j * world_size // len(chunks))."""
+        remove_leftovers(self.cache_dir / "chunks")  # of a killed build, even when no chunk is left to write
         mine = [c for j, c in enumerate(chunks) if j * world_size // max(len(chunks), 1) == rank]
         todo = [c for c in mine if not chunk_done(self.cache_dir, *c)]
         if stop_after is not None:

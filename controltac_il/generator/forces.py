@@ -3,7 +3,8 @@
 The paper validates stage 1 for target forces Fz in [1, 10] N and |Fx|, |Fy| <= 1 N. ``VALIDATED_RANGE``
 is that range; ``decide_targets`` is the one function that clamps, skips or refuses a requested target
 force, and ``ForceGenerator`` applies it to every sample it generates. Callers pass the reference force
-and the target force they want and receive a ``TargetDecision`` saying what was done.
+and the target force they want and receive a ``TargetDecision`` saying what was done. A reference force
+outside the range is refused (or, under "skip", its sample skipped): the model never saw one.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 RANGE_POLICIES = ("clamp", "skip", "error")
+REFERENCE_POLICIES = ("error", "skip")  # a reference force cannot be clamped: its image shows that force
 
 
 @dataclass(frozen=True)
@@ -70,13 +72,15 @@ class TargetDecision:
 
     requested: (B, 3) N, the target forces asked for. target: (B, 3) N, the force each generated sample
     shows (the requested one, or clamped into range; for a skipped sample the requested one, not
-    generated). clamped, skipped: bool (B,).
+    generated). clamped, skipped: bool (B,). reference_outside: bool (B,), samples whose reference
+    force lies outside the range (skipped: a reference cannot be moved; None when no reference was given).
     """
 
     requested: np.ndarray
     target: np.ndarray
     clamped: np.ndarray
     skipped: np.ndarray
+    reference_outside: np.ndarray | None = None
 
     @property
     def generated(self) -> np.ndarray:
@@ -85,12 +89,35 @@ class TargetDecision:
 
 
 def decide_targets(target_force, out_of_range: str = "clamp", force_range: ForceRange = VALIDATED_RANGE,
-                   what: str = "target force") -> TargetDecision:
+                   what: str = "target force", reference_force=None,
+                   reference_out_of_range: str | None = None) -> TargetDecision:
     """Apply ``out_of_range`` to requested targets (B, 3) N: "clamp" moves a target outside the range into
-    it, "skip" leaves it ungenerated, "error" raises ValueError. Nothing else clamps a target."""
+    it, "skip" leaves it ungenerated, "error" raises ValueError. Nothing else clamps a target.
+
+    reference_force: optional (B, 3) N, the force each reference image shows. The generator was validated
+    only on references inside ``VALIDATED_RANGE``, and a reference cannot be moved (its image shows that
+    force), so a reference outside it is refused (ValueError) or its sample skipped (``reference_outside``
+    says which), as ``reference_out_of_range`` says: "error" or "skip"; None = "skip" under
+    out_of_range="skip", else "error"."""
     if out_of_range not in RANGE_POLICIES:
         raise ValueError(f"out_of_range must be one of {RANGE_POLICIES}, got {out_of_range!r}")
+    if reference_out_of_range is None:
+        reference_out_of_range = "skip" if out_of_range == "skip" else "error"
+    if reference_out_of_range not in REFERENCE_POLICIES:
+        raise ValueError(f"reference_out_of_range must be one of {REFERENCE_POLICIES} or None, "
+                         f"got {reference_out_of_range!r}")
     requested = np.asarray(target_force, np.float64)
+    ref_out = None
+    if reference_force is not None:
+        ref = np.asarray(reference_force, np.float64)
+        ref_out = VALIDATED_RANGE.outside(ref).any(axis=-1)
+        if ref_out.any() and reference_out_of_range == "error":
+            first = int(np.flatnonzero(ref_out)[0])
+            raise ValueError(
+                f"reference_force: {int(ref_out.sum())} of {len(ref_out)} samples lie outside the validated range "
+                f"({VALIDATED_RANGE.describe()}), e.g. index {first}: {np.round(ref[first], 4).tolist()} N; the "
+                "generator was not validated on such references and cannot move them (the image shows that "
+                "force): pass out_of_range='skip' (or reference_out_of_range='skip') to keep those samples unchanged")
     bad = force_range.outside(requested).any(axis=-1)
     if bad.any() and out_of_range == "error":
         first = int(np.flatnonzero(bad)[0])
@@ -99,5 +126,8 @@ def decide_targets(target_force, out_of_range: str = "clamp", force_range: Force
             f"({force_range.describe()}), e.g. index {first}; pass out_of_range='clamp' to move them into range")
     clamped = bad if out_of_range == "clamp" else np.zeros_like(bad)
     skipped = bad if out_of_range == "skip" else np.zeros_like(bad)
+    if ref_out is not None:  # not generated at all: neither clamped nor counted twice
+        skipped, clamped = skipped | ref_out, clamped & ~ref_out
     target = np.where(clamped[:, None], force_range.clamp(requested), requested)
-    return TargetDecision(requested=requested, target=target, clamped=clamped, skipped=skipped)
+    return TargetDecision(requested=requested, target=target, clamped=clamped, skipped=skipped,
+                          reference_outside=ref_out)

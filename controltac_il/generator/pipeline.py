@@ -7,6 +7,10 @@
 
 Targets outside the validated range (``forces.VALIDATED_RANGE``) are decided here and only here
 (``forces.decide_targets``: clamp, skip or error); ``generate_at`` returns the decision per sample.
+Inputs the model was never validated on are refused rather than run: reference forces outside that
+range (``out_of_range="skip"`` keeps such samples unchanged instead), NaN/inf forces, non-uint8 images,
+and images whose aspect ratio differs from the model's by more than ``MAX_ASPECT_CHANGE`` (the resize to
+the model's size would distort every contact).
 
 Pipeline: residual -> [-1, 1] -> encoder -> z_ref; DDIM samples the normalised latent delta
 Δz = (z_target - z_ref) / delta_scale conditioned on (z_ref, ΔF); decode(z_ref + Δz) -> residual.
@@ -37,6 +41,8 @@ OUT_OF_RANGE_POLICIES = RANGE_POLICIES
 # Largest |ΔF| between two forces of the validated range, per component [Fx, Fy, Fz] (N).
 MAX_DELTA = VALIDATED_RANGE.span
 RESIDUAL_OFFSET = float(OFFSET)
+# Largest change of aspect ratio (either way) the resize to the model's image size may make.
+MAX_ASPECT_CHANGE = 1.5
 
 
 def residual_to_unit(residual: torch.Tensor) -> torch.Tensor:
@@ -102,6 +108,20 @@ def _validate_forces(f, n: int, name: str) -> np.ndarray:
     return f
 
 
+def _check_aspect(x: np.ndarray, model_hw: tuple[int, int], name: str) -> None:
+    """Refuse images whose resize to the model's (H, W) would change the aspect ratio by more than
+    ``MAX_ASPECT_CHANGE`` (a 240x20 strip squeezed to 128x160 is a 15x anisotropic resize)."""
+    h, w = x.shape[1:3]
+    mh, mw = model_hw
+    change = (w / h) / (mw / mh)
+    change = max(change, 1.0 / change)
+    if change > MAX_ASPECT_CHANGE:
+        raise ValueError(
+            f"{name}: {h}x{w} (HxW) images would be resized to the model's {mh}x{mw} with a {change:.1f}x aspect "
+            f"change (at most {MAX_ASPECT_CHANGE:g}x is allowed: the model would see distorted contacts); crop or "
+            f"pad them to the model's {mh}:{mw} aspect first")
+
+
 def locate_checkpoint(path: str | Path | None = None) -> Path:
     """The checkpoint folder ``from_pretrained(path)`` loads: ``None``/``"default"`` and ``"fast"`` name the shipped ones."""
     if path is None:
@@ -142,10 +162,14 @@ class ForceGenerator:
         return cls(config, ae, dit, device=device, dtype=dtype, checkpoint_hash=checkpoint_hash(path))
 
     # -- force range -------------------------------------------------------------------------
-    def resolve_targets(self, target_force, out_of_range: str = "clamp") -> TargetDecision:
-        """What ``generate_at`` would do with these target forces (B, 3) N, without generating or counting."""
+    def resolve_targets(self, target_force, out_of_range: str = "clamp", reference_force=None,
+                        reference_out_of_range: str | None = None) -> TargetDecision:
+        """What ``generate_at`` would do with these target forces (B, 3) N (and, when given, these reference
+        forces), without generating or counting."""
         n = np.shape(target_force)[0] if np.ndim(target_force) else -1
-        return decide_targets(_validate_forces(target_force, n, "target_force"), out_of_range)
+        ref_f = None if reference_force is None else _validate_forces(reference_force, n, "reference_force")
+        return decide_targets(_validate_forces(target_force, n, "target_force"), out_of_range,
+                              reference_force=ref_f, reference_out_of_range=reference_out_of_range)
 
     def _count(self, decision: TargetDecision) -> None:
         bad = np.flatnonzero(decision.clamped)
@@ -166,7 +190,7 @@ class ForceGenerator:
         others keep theirs exactly); without, ΔF is bounded by the range's span. Counts; warns on clamps."""
         if reference_force is not None:
             what = "target force reference_force + delta_force"
-            decision = decide_targets(reference_force + delta, out_of_range, what=what)
+            decision = decide_targets(reference_force + delta, out_of_range, what=what, reference_force=reference_force)
             fixed = np.where(decision.target != decision.requested, decision.target - reference_force, delta)
         else:
             what = "delta_force"
@@ -218,9 +242,13 @@ class ForceGenerator:
             (``forces.VALIDATED_RANGE``) are handled by ``out_of_range`` ("clamp" moves the target into
             range, "error" raises, "skip" returns the reference unchanged); without it the same applies
             to ΔF beyond the range's span. Either way the count is kept in ``last_range_report`` /
-            ``range_report``. ``generate_at`` takes target forces and says what it did per sample.
+            ``range_report``. A reference force outside the range is refused (ValueError) unless
+            out_of_range="skip", which returns that sample's reference unchanged. ``generate_at`` takes
+            target forces and says what it did per sample.
+        Images whose aspect ratio differs from the model's by more than ``MAX_ASPECT_CHANGE`` are refused.
         """
         ref = _validate_residuals(reference_residuals, "reference_residuals")
+        _check_aspect(ref, self.config.image_size, "reference_residuals")
         n = ref.shape[0]
         delta = _validate_forces(delta_force, n, "delta_force")
         ref_f = None if reference_force is None else _validate_forces(reference_force, n, "reference_force")
@@ -229,20 +257,27 @@ class ForceGenerator:
         return self._sample_where(ref, delta, seeds, steps, batch_size, keep)
 
     def generate_at(self, reference_residuals, reference_force, target_force, steps: int | None = None,
-                    seed: int | Sequence[int] = 0, batch_size: int = 32, out_of_range: str = "clamp") -> Generation:
+                    seed: int | Sequence[int] = 0, batch_size: int = 32, out_of_range: str = "clamp",
+                    reference_out_of_range: str | None = None) -> Generation:
         """Residuals at ``target_force`` (B, 3) N from residuals at ``reference_force`` (B, 3) N, and what was done.
 
         Each requested target goes through ``forces.decide_targets`` once: "clamp" (default) moves a target
         outside the validated range into it, "skip" leaves that sample ungenerated (its reference residual
-        is returned), "error" raises. The model is conditioned on ΔF = target used - reference. Other
-        arguments as ``generate``; no warning is issued (the returned decision says what was clamped).
+        is returned), "error" raises. The model is conditioned on ΔF = target used - reference. A
+        ``reference_force`` outside the validated range cannot be moved (the image shows that force) and the
+        model was not validated on it: ``reference_out_of_range`` "error" refuses it (ValueError), "skip"
+        returns that sample's reference unchanged (``decision.reference_outside``); None (default) = "skip"
+        under out_of_range="skip", else "error". Other arguments as ``generate``; no warning is issued (the
+        returned decision says what was clamped or skipped).
         """
         ref = _validate_residuals(reference_residuals, "reference_residuals")
+        _check_aspect(ref, self.config.image_size, "reference_residuals")
         n = ref.shape[0]
         ref_f = _validate_forces(reference_force, n, "reference_force")
         target = _validate_forces(target_force, n, "target_force")
         steps, seeds = self._check_options(steps, seed, batch_size, n)
-        decision = decide_targets(target, out_of_range)
+        decision = decide_targets(target, out_of_range, reference_force=ref_f,
+                                  reference_out_of_range=reference_out_of_range)
         self._count(decision)
         out = self._sample_where(ref, decision.target - ref_f, seeds, steps, batch_size, decision.generated)
         return Generation(residuals=out, decision=decision)
@@ -307,6 +342,7 @@ class ForceGenerator:
         from controltac_il.tactile import from_residual, to_residual
 
         images = _validate_residuals(images, "images")
+        _check_aspect(images, self.config.image_size, "images")
         background = np.asarray(background)
         if background.dtype != np.uint8 or background.shape != images.shape[1:]:
             raise ValueError(f"background must be uint8 of shape {images.shape[1:]}, got {background.dtype} {background.shape}")
