@@ -7,9 +7,9 @@ What a writer leaves is what any program would: files ``0o666`` and folders ``0o
 (``tempfile`` alone would leave ``0o600`` / ``0o700``).
 
 A temporary path is named ``.<name>.controltac-<host>-<pid>-<random>.tmp[<suffix>]``, a pattern only this
-module produces. A process killed mid-write (SIGKILL, power loss) leaves one behind; the next atomic
-write into the same folder removes every such leftover of this host whose process is no longer
-running (``remove_leftovers``). Nothing else is ever removed: not a live writer's temporary path, not
+module produces. A process killed mid-write (SIGKILL, power loss) leaves one behind; a process's first
+atomic write into a folder removes every such leftover of this host whose process is no longer
+running (``remove_leftovers``; writers may call it themselves, e.g. when a run starts). Nothing else is ever removed: not a live writer's temporary path, not
 another host's (a shared filesystem), not a file of the user's whatever its name.
 """
 
@@ -103,6 +103,18 @@ def _alive(pid: int) -> bool:
     return True
 
 
+_SWEPT: set[tuple[int, str]] = set()  # (pid, folder) already cleaned by this process's atomic writers
+
+
+def _sweep_once(folder: Path) -> None:
+    """``remove_leftovers(folder)`` on this process's first atomic write there (one scan per folder, not
+    one per file: a cache of 10 000 chunks must not rescan its folder 10 000 times)."""
+    key = (os.getpid(), os.path.abspath(folder))
+    if key not in _SWEPT:
+        remove_leftovers(folder)
+        _SWEPT.add(key)
+
+
 def remove_leftovers(folder: str | os.PathLike) -> list[Path]:
     """Remove the temporary paths that killed writers of this host left in ``folder``; returns them.
 
@@ -163,7 +175,7 @@ def atomic_path(dest: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
     """
     dest = Path(dest)
     dest.parent.mkdir(parents=True, exist_ok=True)
-    remove_leftovers(dest.parent)
+    _sweep_once(dest.parent)
     prefix, end = _temp_affixes(dest, suffix)
     fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=end, dir=dest.parent)
     os.close(fd)
@@ -187,7 +199,7 @@ def atomic_dir(dest: str | os.PathLike) -> Iterator[Path]:
     """
     dest = Path(dest)
     dest.parent.mkdir(parents=True, exist_ok=True)
-    remove_leftovers(dest.parent)
+    _sweep_once(dest.parent)
     prefix, end = _temp_affixes(dest, "")
     tmp = Path(tempfile.mkdtemp(prefix=prefix, suffix=end, dir=dest.parent))
     try:
