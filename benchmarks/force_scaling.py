@@ -150,11 +150,13 @@ def generate_frames(work: Path, x: np.ndarray, f: np.ndarray, refs: np.ndarray, 
     key = hashlib.sha256(json.dumps([gen.checkpoint_hash, steps, refs.tolist(), targets.tolist(),
                                      hashlib.sha256(x[refs].tobytes()).hexdigest()]).encode()).hexdigest()[:16]
     cache = work / f"generated_{key}.npz"
-    decision = gen.resolve_targets(f[targets], "clamp")  # the generator's own range decision
-    labels = decision.target.astype(np.float32)
+    # the generator's own range decision; a reference outside the range is kept as it is (labelled with its force)
+    decision = gen.resolve_targets(f[targets], "clamp", reference_force=f[refs], reference_out_of_range="skip")
+    labels = np.where(decision.skipped[:, None], f[refs], decision.target).astype(np.float32)
     clamped = int(decision.clamped.sum())
     info = {"generator_hash": gen.checkpoint_hash, "ddim_steps": int(steps), "frames": int(len(refs)),
-            "targets_clamped_to_validated_range": clamped}
+            "targets_clamped_to_validated_range": clamped,
+            "references_outside_validated_range_kept": int(decision.skipped.sum())}
     if cache.is_file():
         with np.load(cache) as z:
             info["seconds"] = float(z["seconds"])
@@ -166,9 +168,9 @@ def generate_frames(work: Path, x: np.ndarray, f: np.ndarray, refs: np.ndarray, 
     t0 = time.perf_counter()
     for s in tqdm(range(0, len(refs), chunk), desc="generating", disable=not progress, unit="batch"):
         r = refs[s : s + chunk]
-        out[s : s + chunk] = gen.generate(x[r], labels[s : s + chunk] - f[r], steps=steps,
-                                          seed=[int(v) for v in targets[s : s + chunk]], batch_size=chunk,
-                                          reference_force=f[r], out_of_range="clamp")
+        out[s : s + chunk] = gen.generate_at(x[r], f[r], labels[s : s + chunk], steps=steps,
+                                             seed=[int(v) for v in targets[s : s + chunk]], batch_size=chunk,
+                                             reference_out_of_range="skip").residuals
     seconds = time.perf_counter() - t0
     with atomic_path(cache, suffix=".npz") as tmp:
         with open(tmp, "wb") as fh:

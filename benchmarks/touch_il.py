@@ -277,7 +277,8 @@ def grip_response(bands: dict, seeds=range(12), generator: str | None = None) ->
     ref, f_ref = frames["nominal"], forces["nominal"]
     rows = {}
     for name in bands:
-        fake = gen.generate(ref, forces[name] - f_ref, reference_force=f_ref, out_of_range="clamp")
+        res = gen.generate_at(ref, f_ref, forces[name], reference_out_of_range="skip")
+        fake = res.residuals
         true = frames[name].astype(np.float32)
         area, mag = _contact_stats(frames[name])
         g_area, g_mag = _contact_stats(fake)
@@ -286,7 +287,8 @@ def grip_response(bands: dict, seeds=range(12), generator: str | None = None) ->
                       "true_area": area, "true_intensity": mag, "generated_area": g_area, "generated_intensity": g_mag,
                       "generated_mse": float(((fake.astype(np.float32) - true) ** 2).mean()),
                       "copy_mse": float(((ref.astype(np.float32) - true) ** 2).mean()),
-                      "clamped": gen.last_range_report.clamped}
+                      "clamped": int(res.decision.clamped.sum()),
+                      "reference_outside": int(res.decision.reference_outside.sum())}
     return {"episodes": len(list(seeds)), "sensor": "left", "bands": rows}
 
 
