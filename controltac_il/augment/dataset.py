@@ -40,17 +40,14 @@ class ForceAugment(Dataset):
     A cache is used only when it provably matches (else StaleCacheError, naming the folder and what
     differs): its manifest holds these settings, and every chunk names them (``provenance.check_chunk``);
     a folder with content but no manifest is never used nor written into.
-    Other arguments: see ForceAugmentConfig.
+    settings: the ``ForceAugmentConfig`` fields (copies, offset_range, jitter, tactile_keys, mode, cache_dir,
+        out_of_range, seed, steps, contact_force, min_contact_area, batch_size), by name.
     """
 
-    def __init__(self, dataset, generator=None, copies=4, offset_range=(-3.0, 10.0),
-                 jitter=(-1.0, -0.5, 0.0, 0.5, 1.0), tactile_keys=None, mode="cache", cache_dir=None,
-                 out_of_range="clamp", seed=0, steps=None, *, estimator=None, contact_force=0.2,
-                 min_contact_area=0.002, batch_size=32, build="now", progress=True):
-        self.config = ForceAugmentConfig(
-            copies=copies, offset_range=offset_range, jitter=jitter, tactile_keys=tactile_keys, mode=mode,
-            cache_dir=None if cache_dir is None else str(cache_dir), out_of_range=out_of_range, seed=seed,
-            steps=steps, contact_force=contact_force, min_contact_area=min_contact_area, batch_size=batch_size)
+    def __init__(self, dataset, generator=None, *, estimator=None, build="now", progress=True, **settings):
+        if settings.get("cache_dir") is not None:
+            settings["cache_dir"] = str(settings["cache_dir"])
+        self.config = ForceAugmentConfig(**settings)
         self.dataset = dataset
         self.n_base = len(dataset)
         if self.n_base == 0:
