@@ -6,6 +6,11 @@
 With --connect: connects the arm and gripper, starts every camera and GelSight (capturing the
 backgrounds, so keep the gels untouched), then prints the arm pose, the gripper position and each
 sensor's frame rate and newest-frame age; the arm is stopped and everything closed at the end.
+
+Exit status: 0 valid (and, with --connect, every device answered); 2 the file is invalid (one line on
+stderr naming the file, the field and the expected form: fix the file); 1 a device could not be reached or
+failed while being read (one line naming the setup file and the device's address or port: fix the
+cabling, the power or the network, then run it again).
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ import numpy as np
 from tqdm import tqdm
 
 from hardware.config import ConfigError, load_setup, open_setup
+from hardware.interfaces import HardwareError
 
 
 def main(argv=None) -> int:
@@ -36,6 +42,20 @@ def main(argv=None) -> int:
           f"cameras {sorted(cfg.cameras)}, tactile {sorted(cfg.tactile)}, {cfg.control.rate_hz} Hz")
     if not args.connect:
         return 0
+    try:
+        _connect_and_report(cfg, args.seconds)
+    except ConfigError as exc:  # validated again before anything connects
+        print(f"invalid setup: {exc}", file=sys.stderr)
+        return 2
+    except HardwareError as exc:  # open_setup names the file for a device it cannot reach; later faults get it here
+        msg = " ".join(str(exc).split())
+        print(f"device check failed: {msg if msg.startswith(str(args.config)) else f'{args.config}: {msg}'}",
+              file=sys.stderr)
+        return 1
+    return 0
+
+
+def _connect_and_report(cfg, seconds: float) -> None:
     with open_setup(cfg) as setup:
         print(f"arm pose [x, y, z, yaw]: {np.round(setup.arm.state().pose, 4).tolist()}")
         if setup.gripper is not None:
@@ -43,18 +63,17 @@ def main(argv=None) -> int:
         sources = {**{f"images/{k}": v for k, v in setup.cameras.items()},
                    **{f"tactile/{k}": v for k, v in setup.tactile.items()}}
         first = {k: s.latest() for k, s in sources.items()}
-        end = time.monotonic() + args.seconds
-        with tqdm(total=args.seconds, desc="watching sensors", unit="s") as bar:
+        end = time.monotonic() + seconds
+        with tqdm(total=seconds, desc="watching sensors", unit="s") as bar:
             while (left := end - time.monotonic()) > 0:
                 time.sleep(min(0.1, left))
-                bar.n = round(args.seconds - max(left, 0), 1)
+                bar.n = round(seconds - max(left, 0), 1)
                 bar.refresh()
         for k, s in sources.items():
             last = s.latest()
             fps = (last.index - first[k].index) / max(last.timestamp - first[k].timestamp, 1e-9)
             age = time.monotonic() - last.timestamp
             print(f"{k}: {last.image.shape[1]}x{last.image.shape[0]} at {fps:.1f} fps, newest frame {age * 1e3:.0f} ms old")
-    return 0
 
 
 if __name__ == "__main__":

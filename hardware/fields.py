@@ -9,6 +9,7 @@ expected, and numpy scalars and arrays as their Python values. Floats must be fi
 from __future__ import annotations
 
 import ipaddress
+import re
 from typing import Annotated
 
 import numpy as np
@@ -44,14 +45,19 @@ def _sequence(form: str):
 Vec2 = Annotated[tuple[Float, Float], _sequence("[roll, pitch]")]
 Vec3 = Annotated[tuple[Float, Float, Float], _sequence("[x, y, z]")]
 PosInt = Annotated[Int, Field(ge=1)]
-Size = Annotated[tuple[PosInt, PosInt], _sequence("[H, W]")]  # pixels
+Pixels = Annotated[Int, Field(ge=1, le=4096)]
+Size = Annotated[tuple[Pixels, Pixels], _sequence("[H, W]")]  # pixels
 
 
 def _ip(v: str) -> str:
+    """A literal IPv4 or IPv6 address a controller can have (not 0.0.0.0 / ::, multicast or broadcast)."""
     try:
-        ipaddress.ip_address(v)
+        addr = ipaddress.ip_address(v)
     except ValueError:
         raise ValueError(f"expected an IP address such as 192.168.1.221, got {v!r}") from None
+    if addr.is_unspecified or addr.is_multicast or addr == ipaddress.IPv4Address("255.255.255.255"):
+        raise ValueError(f"{v} is not a controller's address (unspecified, multicast or broadcast); "
+                         "expected the controller's own address such as 192.168.1.221")
     return v
 
 
@@ -77,18 +83,22 @@ def _path(loc) -> str:
 def error_line(exc: ValidationError, source: str) -> str:
     """``<source>: <field path>: <problem>`` for every error of ``exc``, joined into one line.
 
-    A validator message starting with ``<field>: `` (the field a cross-field check blames) extends the path.
+    A validator message starting with ``<field>: `` (the field a cross-field check blames) extends the path;
+    a validator that reports several problems joins them with ``"; "``, each starting with its ``<field>: ``.
     """
     parts = []
     for err in exc.errors(include_url=False):
         path, msg = _path(err["loc"]), err["msg"]
         kind = err["type"]
         if kind == "value_error":
-            msg = msg.removeprefix("Value error, ")
-            head, sep, rest = msg.partition(": ")
-            if sep and all(part.isidentifier() for part in head.split(".")):
-                path, msg = f"{path}.{head}" if path else head, rest
-        elif kind in ("extra_forbidden", "unexpected_keyword_argument"):
+            for problem in _PROBLEMS.split(msg.removeprefix("Value error, ")):
+                head, sep, rest = problem.partition(": ")
+                if sep and all(part.isidentifier() for part in head.split(".")):
+                    parts.append(f"{f'{path}.{head}' if path else head}: {rest}")
+                else:
+                    parts.append(f"{path or 'setup'}: {problem}")
+            continue
+        if kind in ("extra_forbidden", "unexpected_keyword_argument"):
             msg = "unknown field"
         elif kind in ("missing", "missing_argument"):
             msg = "required field is missing"
@@ -96,3 +106,6 @@ def error_line(exc: ValidationError, source: str) -> str:
             msg = f"{msg}, got {err['input']!r}"
         parts.append(f"{path or 'setup'}: {msg}")
     return f"{source}: " + "; ".join(parts)
+
+
+_PROBLEMS = re.compile(r"; (?=[A-Za-z_][\w.]*: )")  # "; field: ..." starts the next problem of a validator

@@ -109,7 +109,11 @@ class RobotiqGripper(Gripper):
     # -- Gripper ---------------------------------------------------------------------------------
     def connect(self) -> None:
         """Open the port, reset and activate the gripper, wait for activation complete (gSTA = 3)."""
-        self._ser = serial.Serial(self.port, self.baudrate, bytesize=8, parity="N", stopbits=1, timeout=self.timeout_s)
+        try:
+            self._ser = serial.Serial(self.port, self.baudrate, bytesize=8, parity="N", stopbits=1, timeout=self.timeout_s)
+        except (serial.SerialException, OSError) as exc:  # unplugged adapter, wrong path, no permission
+            raise HardwareError(f"robotiq on {self.port}: cannot open the port ({' '.join(str(exc).split())}); check "
+                                "the USB adapter and gripper.port (ls /dev/serial/by-id)") from None
         self._write_request(0x00, 0)  # clear rACT
         self._write_request(0x01, 0)  # activate
         deadline = self.clock.now() + self.activation_timeout_s

@@ -43,8 +43,9 @@ class SafetyLimits:
     workspace_min / workspace_max: corners (x, y, z) of the allowed end-effector box, metres, base frame.
     yaw_min / yaw_max: allowed yaw range, radians (within [-pi, pi]).
     max_step_m: largest translation between two consecutive commands, metres per control period
-        (at most 0.1 m: 1 m/s at 10 Hz).
-    max_rotation_rad: largest yaw change between two consecutive commands, radians (at most 0.5).
+        (at most 0.1 m: 1 m/s at 10 Hz; a robot setup file further bounds it to 0.25 m/s at its rate).
+    max_rotation_rad: largest yaw change between two consecutive commands, radians (at most 0.5; a robot
+        setup file: 1 rad/s at its rate).
     gripper_min / gripper_max: allowed gripper command range within [0, 1] (0 open, 1 closed).
     state_tolerance_m: a measured pose further than this outside the box is a violation (arm stopped).
     """

@@ -16,6 +16,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from hardware.interfaces import Arm, ArmFault, ArmState, Clock, WallClock
+from hardware.net import preflight, sdk_text, unreachable
 from hardware.pose import tool_rotation, yaw_of
 
 SAFETY_MODES = {1: "normal", 2: "reduced", 3: "protective stop", 4: "recovery", 5: "safeguard stop",
@@ -23,6 +24,7 @@ SAFETY_MODES = {1: "normal", 2: "reduced", 3: "protective stop", 4: "recovery", 
                 10: "validate joint id", 11: "undefined safety mode", 12: "automatic mode safeguard stop",
                 13: "system three-position enabling stop"}
 MOVING_SAFETY_MODES = (1, 2)
+RTDE_PORT = 30004  # the controller's RTDE port
 
 
 class URArm(Arm):
@@ -33,11 +35,14 @@ class URArm(Arm):
     lookahead_time: servoL smoothing, 0.03-0.2 s. gain: servoL proportional gain, 100-2000.
     speed / acceleration: passed to servoL (unused by the controller in servo mode) and servoStop.
     control / receive: RTDEControlInterface / RTDEReceiveInterface (created from ``ip`` when None).
+    connect_timeout_s: before creating them, ``connect`` checks that the controller accepts a TCP connection
+    on ``port`` (RTDE, 30004) within this many seconds (None: no check); a controller that cannot be
+    reached, or an RTDE interface that fails to connect, is an :class:`ArmFault` naming the address.
     """
 
     def __init__(self, ip: str, tool_rotvec=(np.pi, 0.0, 0.0), period_s: float = 0.1, lookahead_time: float = 0.1,
                  gain: float = 300.0, speed: float = 0.25, acceleration: float = 1.2, control=None, receive=None,
-                 clock: Clock | None = None):
+                 clock: Clock | None = None, connect_timeout_s: float | None = 3.0, port: int = RTDE_PORT):
         if not 0.03 <= lookahead_time <= 0.2:
             raise ValueError(f"lookahead_time must be in [0.03, 0.2] s, got {lookahead_time}")
         if not 100 <= gain <= 2000:
@@ -48,20 +53,26 @@ class URArm(Arm):
         self.speed, self.acceleration = speed, acceleration
         self.r0 = Rotation.from_rotvec(np.asarray(tool_rotvec, dtype=float))
         self.control, self.receive = control, receive
+        self.connect_timeout_s, self.port = connect_timeout_s, port
         self.clock = clock or WallClock()
 
     def _fault(self, msg: str) -> ArmFault:
         return ArmFault(f"UR {self.ip}: {msg}")
 
     def connect(self) -> None:
-        if self.receive is None:
-            import rtde_receive
+        if self.receive is None or self.control is None:
+            preflight("UR", self.ip, self.port, self.connect_timeout_s)
+        try:
+            if self.receive is None:
+                import rtde_receive
 
-            self.receive = rtde_receive.RTDEReceiveInterface(self.ip)
-        if self.control is None:
-            import rtde_control
+                self.receive = rtde_receive.RTDEReceiveInterface(self.ip)
+            if self.control is None:
+                import rtde_control
 
-            self.control = rtde_control.RTDEControlInterface(self.ip)
+                self.control = rtde_control.RTDEControlInterface(self.ip)
+        except (RuntimeError, OSError) as exc:  # ur-rtde raises RuntimeError when it cannot connect
+            raise unreachable("UR", self.ip, sdk_text(exc)) from None
         self.check()
 
     def check(self) -> None:

@@ -27,10 +27,12 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from hardware.interfaces import Arm, ArmFault, ArmState, Clock, Gripper, GripperState, HardwareError, WallClock
+from hardware.net import preflight, sdk_text, unreachable
 from hardware.pose import tool_rotation, yaw_of
 from hardware.safety import wrap_angle
 
 MODE_SERVO = 1
+CONTROL_PORT = 502  # the controller's TCP command port (xarm-python-sdk: XCONF.SocketConf.TCP_CONTROL_PORT)
 STATE_MOTION, STATE_STOP = 0, 4
 
 
@@ -53,16 +55,20 @@ class XArm(Arm):
     ``servo``). api: an ``xarm.wrapper.XArmAPI`` (created from ``ip`` on connect when None).
     stop_on_warning: treat controller warnings as faults too (default: report them in ArmState only).
     clock: time of the state stamps, the segments and the stream (default: the wall clock).
+    connect_timeout_s: when ``api`` is None, ``connect`` first checks that the controller accepts a TCP
+    connection on ``port`` within this many seconds (None: no check); a controller that cannot be
+    reached, or an SDK that fails to connect, is an :class:`ArmFault` naming the address.
     """
 
     def __init__(self, ip: str, tool_rpy: tuple[float, float] = (np.pi, 0.0), period_s: float = 0.1,
                  stream_hz: float | None = 100.0, api=None, stop_on_warning: bool = False,
-                 clock: Clock | None = None):
+                 clock: Clock | None = None, connect_timeout_s: float | None = 3.0, port: int = CONTROL_PORT):
         if not period_s > 0:
             raise ValueError(f"period_s must be positive, got {period_s}")
         if stream_hz is not None and not stream_hz * period_s >= 1:
             raise ValueError(f"stream_hz must be at least the control rate 1/period_s, got {stream_hz}")
         self.ip, self.api, self.stop_on_warning = ip, api, stop_on_warning
+        self.connect_timeout_s, self.port = connect_timeout_s, port
         self.period_s, self.stream_hz = period_s, stream_hz
         self.r0 = Rotation.from_euler("xyz", [tool_rpy[0], tool_rpy[1], 0.0])
         self.clock = clock or WallClock()
@@ -82,11 +88,15 @@ class XArm(Arm):
 
     def connect(self) -> None:
         if self.api is None:
+            preflight("xArm", self.ip, self.port, self.connect_timeout_s)
             from xarm.wrapper import XArmAPI
 
-            self.api = XArmAPI(self.ip, is_radian=True)
+            try:
+                self.api = XArmAPI(self.ip, is_radian=True)
+            except Exception as exc:  # noqa: BLE001 - the SDK raises a bare Exception("connect socket failed")
+                raise unreachable("xArm", self.ip, sdk_text(exc)) from None
         if not self.api.connected:
-            raise self._fault("not connected (check the IP and the network)")
+            raise unreachable("xArm", self.ip, "the SDK reports no connection")
         self.api.clean_error()
         self.api.clean_warn()
         self._ok(self.api.motion_enable(enable=True), "motion_enable")

@@ -19,7 +19,7 @@ from hardware.interfaces import VirtualClock
 
 EXAMPLES = sorted(glob.glob("hardware/configs/*.yaml"))
 BOX = {"workspace_min": [0.2, -0.3, 0.0], "workspace_max": [0.7, 0.3, 0.5]}
-BASE = {"robot": {"type": "ur", "ip": "10.0.0.2"}, "limits": BOX}
+BASE = {"robot": {"type": "ur", "ip": "10.0.0.2", "model": "ur5"}, "limits": BOX}
 
 
 def test_examples_load():
@@ -33,10 +33,11 @@ def test_examples_load():
 
 
 def test_values_reach_the_dataclasses():
-    cfg = parse_setup({**BASE, "limits": {"workspace_min": [0, -1, 0], "workspace_max": [1, 1, 1], "max_step_m": 0.01},
+    cfg = parse_setup({**BASE, "limits": {"workspace_min": [0, -0.5, 0], "workspace_max": [0.5, 0.5, 1], "max_step_m": 0.01,
+                                          "max_rotation_rad": 0.06},
                        "control": {"rate_hz": 15, "inference": "sync"},
                        "tactile": {"left": {"device": "/dev/video2"}}})
-    assert cfg.limits.workspace_min == (0.0, -1.0, 0.0) and cfg.limits.max_step_m == 0.01
+    assert cfg.limits.workspace_min == (0.0, -0.5, 0.0) and cfg.limits.max_step_m == 0.01
     assert cfg.control.period_s == pytest.approx(1 / 15) and cfg.control.inference == "sync"
     t = cfg.tactile["left"]
     assert (t.crop_fraction, t.fps, t.size, t.background_frames) == (0.15, 25.0, (240, 320), 30)
@@ -58,9 +59,9 @@ def limits(**kw):
 @pytest.mark.parametrize("patch, message", [
     ({"robot": {"type": "kuka"}}, r"robot\.type: Input should be 'xarm', 'ur' or 'sim', got 'kuka'"),
     ({"robot": {"type": "xarm"}}, r"robot\.ip: required for robot type 'xarm'"),
-    ({"robot": {"type": "ur", "ip": "192.168.1"}}, r"robot\.ip: expected an IP address such as 192\.168\.1\.221, got '192\.168\.1'"),
-    ({"robot": {"type": "ur", "ip": "10.0.0.2", "gain": 5000}}, r"robot\.gain: Input should be less than or equal to 2000, got 5000"),
-    ({"robot": {"type": "ur", "ip": "10.0.0.2", "iP": "y"}}, r"robot\.iP: unknown field$"),
+    ({"robot": {"type": "ur", "model": "ur5", "ip": "192.168.1"}}, r"robot\.ip: expected an IP address such as 192\.168\.1\.221, got '192\.168\.1'"),
+    ({"robot": {"type": "ur", "model": "ur5", "ip": "10.0.0.2", "gain": 5000}}, r"robot\.gain: Input should be less than or equal to 2000, got 5000"),
+    ({"robot": {"type": "ur", "model": "ur5", "ip": "10.0.0.2", "iP": "y"}}, r"robot\.iP: unknown field$"),
     ({"robot": {"type": "xarm", "ip": "10.0.0.2", "tool_rpy": [3.1, 0, 0]}}, r"robot\.tool_rpy: expected \[roll, pitch\] \(2 values\)"),
     ({"robot": {"type": "xarm", "ip": "10.0.0.2", "stop_on_warning": "yes"}}, r"robot\.stop_on_warning: Input should be a valid boolean"),
     ({"gripper": {"type": "dynamixel"}}, r"gripper\.port: required for a dynamixel gripper"),
@@ -102,7 +103,7 @@ def test_errors_name_the_field(patch, message):
 
 def test_every_error_on_one_line():
     with pytest.raises(ConfigError) as info:
-        parse_setup({"robot": {"type": "ur", "ip": "h"}, "limits": {**BOX, "max_step_m": 1.0}}, "my.yaml")
+        parse_setup({"robot": {"type": "ur", "model": "ur5", "ip": "h"}, "limits": {**BOX, "max_step_m": 1.0}}, "my.yaml")
     assert str(info.value) == ("my.yaml: robot.ip: expected an IP address such as 192.168.1.221, got 'h'; "
                                "limits.max_step_m: Input should be less than or equal to 0.1, got 1.0")
 
@@ -138,7 +139,7 @@ def test_check_cli(tmp_path, capsys):
     assert check_main([EXAMPLES[0]]) == 0
     assert "valid setup" in capsys.readouterr().out
     bad = tmp_path / "bad.yaml"
-    bad.write_text(yaml.safe_dump({"robot": {"type": "ur"}, "limits": BOX}))
+    bad.write_text(yaml.safe_dump({"robot": {"type": "ur", "model": "ur5"}, "limits": BOX}))
     assert check_main([str(bad)]) == 2
     assert "robot.ip: required" in capsys.readouterr().err
 
@@ -152,7 +153,7 @@ def test_devices_built_from_a_file(tmp_path):
     with FakeDynamixelServo(dxl_id=4) as dev:
         setup = tmp_path / "setup.yaml"
         setup.write_text(textwrap.dedent(f"""
-            robot: {{type: ur, ip: 10.0.0.2}}
+            robot: {{type: ur, model: ur5, ip: 10.0.0.2}}
             limits: {{workspace_min: [0.2, -0.3, 0.0], workspace_max: [0.7, 0.3, 0.5]}}
             gripper: {{type: dynamixel, port: {dev.port}, dxl_id: 4, open_position: 100, closed_position: 900}}
             tactile: {{left: {{device: {video}, background_frames: 2, size: [60, 80]}}}}
@@ -177,13 +178,14 @@ def test_build_arm_from_the_file_settings():
     from hardware.ur import URArm
     from hardware.xarm import XArm
 
-    arm = build_arm(parse_setup({"robot": {"type": "xarm", "ip": "1.2.3.4", "stream_hz": 150}, "limits": BOX,
-                                 "control": {"rate_hz": 20}}))
+    arm = build_arm(parse_setup({"robot": {"type": "xarm", "ip": "1.2.3.4", "stream_hz": 150}, "control": {"rate_hz": 20},
+                                 "limits": {"workspace_min": [0.2, -0.3, 0.0], "workspace_max": [0.6, 0.3, 0.5],
+                                            "max_step_m": 0.01, "max_rotation_rad": 0.05}}))
     assert isinstance(arm, XArm) and (arm.ip, arm.period_s, arm.stream_hz) == ("1.2.3.4", 0.05, 150)
-    ur = build_arm(parse_setup({"robot": {"type": "ur", "ip": "fe80::1", "lookahead_time": 0.05, "gain": 600},
+    ur = build_arm(parse_setup({"robot": {"type": "ur", "model": "ur5", "ip": "fe80::1", "lookahead_time": 0.05, "gain": 600},
                                 "limits": BOX}))
     assert isinstance(ur, URArm) and (ur.ip, ur.period_s, ur.lookahead_time, ur.gain) == ("fe80::1", 0.1, 0.05, 600)
     clock = VirtualClock()
-    assert build_arm(parse_setup({"robot": {"type": "ur", "ip": "10.0.0.2"}, "limits": BOX}), clock).clock is clock
+    assert build_arm(parse_setup(BASE), clock).clock is clock
     with pytest.raises(ConfigError, match="'sim' is the MuJoCo scene"):
         build_arm(parse_setup({"robot": {"type": "sim"}, "limits": BOX}))
