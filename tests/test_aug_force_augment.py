@@ -372,8 +372,10 @@ def test_items_without_indices_or_background(gen, tmp_path):
     eps = [synthetic_episode(6, 0, range(1, 4), labels=False)]
     with pytest.raises(ValueError, match="episode_index"):
         ForceAugment(LeRobotLike(eps, with_index=False), gen, copies=1, cache_dir=tmp_path / "c")
-    with pytest.raises(ValueError, match="online mode needs the no-contact background"):
-        ForceAugment(LeRobotLike(eps), gen, copies=1, mode="online")
+    # online mode needs no background key any more (#22): estimated per episode, as the cache does
+    with pytest.warns(UserWarning, match="background estimated"):
+        on = ForceAugment(LeRobotLike(eps), gen, copies=1, mode="online", estimator=tiny_estimator(), progress=False)
+    assert on[len(on) - 1]["observation.images.tactile_left"].dtype == torch.float32
 
 
 class FramedSubset(torch.utils.data.Subset):

@@ -65,7 +65,21 @@ class ForceAugmentConfig:
     min_contact_area: float = _setting(
         0.002, "without force labels, a frame is in contact when at least this fraction of its pixels are "
                "contact pixels of contact_mask on the residual", type=float)
-    batch_size: int = _setting(32, "frames per generator call while building the cache", type=int)
+    batch_size: int = _setting(32, "frames per generator call while building the cache (1: bit-identical to "
+                                   "mode 'online', which generates frame by frame)", type=int)
+    force_keys: dict | None = _setting(
+        None, "{tactile key: item key of its force label [Fx, Fy, Fz] N, or None}; keys left out follow the rule "
+              "observation.tactile.<s> -> observation.force.<s> (keys containing 'tactile' only); no label: the "
+              "force estimator gives the reference force", flag=False)
+    background_keys: dict | None = _setting(
+        None, "{tactile key: item key of its no-contact background image, or None}; keys left out follow the rule "
+              "observation.tactile.<s> -> observation.tactile_background.<s>; none: estimated per episode from "
+              "the episode's own frames", flag=False)
+    window_offsets: dict | None = _setting(
+        None, "{tactile key: frame offsets of its window positions from the item's frame} for keys holding "
+              "(T, C, H, W) windows; default: the dataset's delta_indices, else delta_timestamps x fps", flag=False)
+    fps: float | None = _setting(None, "frame rate turning the dataset's delta_timestamps (s) into frame offsets; "
+                                       "default: the dataset's fps (LeRobot: dataset.fps)", flag=False)
 
     def __post_init__(self):
         self.copies = _int(self.copies, "copies", 0)
@@ -96,6 +110,28 @@ class ForceAugmentConfig:
             raise ValueError(f"min_contact_area: expected a fraction in [0, 1), got {self.min_contact_area!r}")
         if not isinstance(self.batch_size, int) or self.batch_size < 1:
             raise ValueError(f"batch_size: expected an int >= 1, got {self.batch_size!r}")
+        for name in ("force_keys", "background_keys"):
+            self._check_mapping(name)
+        if self.window_offsets is not None:
+            self._check_mapping("window_offsets")
+            try:
+                self.window_offsets = {k: tuple(_int(o, "window_offsets", -10**9) for o in v)
+                                       for k, v in self.window_offsets.items()}
+            except (TypeError, ValueError) as exc:
+                raise ValueError(f"window_offsets: expected {{tactile key: [int frame offsets]}}, got "
+                                 f"{self.window_offsets!r}") from exc
+        if self.fps is not None and not (isinstance(self.fps, (int, float, np.number)) and 0 < self.fps < math.inf):
+            raise ValueError(f"fps: expected None or a frame rate > 0, got {self.fps!r}")
+
+    def _check_mapping(self, name: str) -> None:
+        value = getattr(self, name)
+        if value is None:
+            return
+        if not isinstance(value, dict) or not all(isinstance(k, str) and k for k in value):
+            raise ValueError(f"{name}: expected a dict {{tactile key: item key or None}}, got {value!r}")
+        if name != "window_offsets" and not all(v is None or (isinstance(v, str) and v) for v in value.values()):
+            raise ValueError(f"{name}: expected item keys (str) or None as values, got {value!r}")
+        setattr(self, name, dict(value))
 
     @classmethod
     def help(cls) -> dict[str, str]:

@@ -17,7 +17,8 @@ from tqdm import tqdm
 
 from controltac_il.augment import items as adapters
 from controltac_il.augment.config import BUILD, ForceAugmentConfig
-from controltac_il.augment.online import check_online_items, generate_item
+from controltac_il.augment.keys import resolve_keys
+from controltac_il.augment.online import EpisodeTables, OnlineGenerator
 from controltac_il.augment.provenance import CACHE_FORMAT, ChunkSpec, chunk_done, check_manifest, write_manifest
 from controltac_il.augment.reader import ChunkReader
 from controltac_il.augment.records import STATUS, FrameOutcome, KeyOutcome, annotate, info
@@ -30,10 +31,12 @@ class ForceAugment(Dataset):
     """Wrap ``dataset`` with ``copies`` force-augmented virtual copies of every episode.
 
     dataset: the project's EpisodeDataset or any map-style dataset whose items are dicts with
-        ``episode_index``, ``frame_index`` (ints >= 0) and tactile image tensors (LeRobot convention).
+        ``episode_index``, ``frame_index`` (ints >= 0) and tactile images (LeRobot convention: a tactile
+        stream is a camera ``observation.images.<name>``, named in ``tactile_keys``; float CHW in [0, 1] or
+        uint8, single frames or ``delta_timestamps`` windows with ``<key>_is_pad``; see ``keys``).
     generator: a ForceGenerator (controltac_il.generator); None = the shipped checkpoint.
-    estimator: a ForceEstimator for reference forces where the items carry no force labels
-        (``<key with tactile -> force>``); None = the shipped estimator, loaded only when needed.
+    estimator: a ForceEstimator for reference forces where the items carry no force labels (``force_keys``);
+        None = the shipped estimator, loaded only when needed.
     build: cache mode only: "now" generates the missing part of the cache at construction (this
         rank's share under torchrun, then waits for the other ranks); "require" expects a complete
         cache (error otherwise); "manual" leaves it to ``build_cache()`` (the CLI).
@@ -41,7 +44,10 @@ class ForceAugment(Dataset):
     differs): its manifest holds these settings, and every chunk names them (``provenance.check_chunk``);
     a folder with content but no manifest is never used nor written into.
     settings: the ``ForceAugmentConfig`` fields (copies, offset_range, jitter, tactile_keys, mode, cache_dir,
-        out_of_range, seed, steps, contact_force, min_contact_area, batch_size), by name.
+        out_of_range, seed, steps, contact_force, min_contact_area, batch_size, force_keys, background_keys,
+        window_offsets, fps), by name.
+    Online mode on items without a background, a force label or with windows first reads every episode
+    once (backgrounds, contact and reference forces computed as the cache writer does, kept for the workers).
     """
 
     def __init__(self, dataset, generator=None, *, estimator=None, build="now", progress=True, **settings):
@@ -54,10 +60,10 @@ class ForceAugment(Dataset):
             raise ValueError("dataset: is empty")
         probe = dataset[0]
         adapters.check_probe(probe)
-        self.tactile_keys = adapters.resolve_tactile_keys(probe, self.config.tactile_keys)
-        self.labelled = {k: adapters.force_key(k) in probe for k in self.tactile_keys}
-        self.references = ReferenceForces(self.labelled, self.config.contact_force, self.config.min_contact_area,
-                                          estimator)
+        self.keys = resolve_keys(probe, self.config, dataset)
+        self.tactile_keys = self.keys.tactile_keys
+        self.references = ReferenceForces(self.keys, self.config.contact_force, self.config.min_contact_area, estimator)
+        self.labelled = self.references.labelled
         self.progress = progress
         if generator is None:
             from controltac_il.generator import ForceGenerator
@@ -67,9 +73,12 @@ class ForceAugment(Dataset):
         self.steps = int(self.config.steps if self.config.steps is not None else generator.config.default_steps)
         self._frames = None  # (episode, frame) per index, when known without reading items
         self._source, self._source_index = None, None  # EpisodeDataset read directly (cache mode)
-        self.cache_dir, self._reader = None, None
+        self.cache_dir, self._reader, self._online = None, None, None
         if self.config.mode == "online":
-            check_online_items(probe, self.tactile_keys)
+            self._online = OnlineGenerator(generator, self.config, self.steps, self.keys, self.references)
+            if not all(self.labelled.values()) or any(self.keys.backgrounds[k] is None or self.keys.offsets[k]
+                                                      for k in self.tactile_keys):
+                self._online.tables = self._episode_tables()
             return
         if build not in BUILD:
             raise ValueError(f"build: expected one of {BUILD}, got {build!r}")
@@ -95,12 +104,14 @@ class ForceAugment(Dataset):
     def settings(self) -> dict:
         """Everything that decides the augmented frames (compared against a cache's manifest)."""
         cfg = asdict(self.config)
-        for k in ("mode", "cache_dir", "batch_size"):  # do not change the frames
+        for k in ("mode", "cache_dir", "batch_size", "window_offsets", "fps"):  # do not change the frames
             cfg.pop(k)
+        cfg.pop("force_keys"), cfg.pop("background_keys")  # recorded below, only where given
         cfg["steps"] = self.steps
         cfg["tactile_keys"] = list(self.tactile_keys)
         cfg["generator_hash"] = str(self.generator.checkpoint_hash)
         cfg["reference_force"] = {k: ("labels" if v else "estimator") for k, v in self.labelled.items()}
+        cfg.update(self.keys.settings(self.config.force_keys is not None, self.config.background_keys is not None))
         if not all(self.labelled.values()):
             cfg["estimator_hash"] = str(getattr(self.estimator, "checkpoint_hash", None))
         source, index = adapters.episode_source(self.dataset)
@@ -139,8 +150,7 @@ class ForceAugment(Dataset):
         episode, frame = adapters.episode_frame(item)
         if self.config.mode == "cache":
             return self._from_cache(item, episode, copy, frame)
-        item, outcome = generate_item(item, episode, copy, frame, generator=self.generator, config=self.config,
-                                      steps=self.steps, tactile_keys=self.tactile_keys, references=self.references)
+        item, outcome = self._online.item(item, episode, copy, frame)
         return self._annotate(item, copy, outcome)
 
     def _chunk(self, episode: int, copy: int):
@@ -150,15 +160,20 @@ class ForceAugment(Dataset):
         return self._reader.chunk(episode, copy)
 
     def _from_cache(self, item: dict, episode: int, copy: int, frame: int) -> dict:
+        """The cached images of every frame the item's tactile keys hold (its own, each unpadded window position)."""
         self._chunk(episode, copy)
         outcome, files = self._reader.frame(episode, copy, frame)
-        for j, (k, o) in enumerate(zip(self.tactile_keys, outcome.keys)):
-            if o.row >= 0:
-                adapters.replace_image(item, k, files[j].read(o.row), o.target)
+        for j, k in enumerate(self.tactile_keys):
+            for p, f in self.keys.positions(item, k, frame):
+                o = outcome.keys[j] if f == frame else self._reader.frame(episode, copy, f)[0].keys[j]
+                if o.row >= 0:
+                    adapters.put_image(item, k, files[j].read(o.row), p)
+                    for q in self.keys.label_positions(item, k, frame, f):
+                        adapters.put_force(item, self.keys.labels[k], o.target, q)
         return self._annotate(item, copy, outcome)
 
     def _annotate(self, item: dict, copy: int, outcome: FrameOutcome) -> dict:
-        labels = {k: adapters.force_key(k) if v else None for k, v in self.labelled.items()}
+        labels = {k: self.keys.label(item, k) for k in self.tactile_keys}
         return annotate(item, copy, outcome, self.tactile_keys, labels)
 
     def info(self, item: dict) -> dict:
@@ -172,16 +187,20 @@ class ForceAugment(Dataset):
         """episode -> [(frame, dataset index)] sorted by frame (from ``frame_table()`` when the dataset has it)."""
         if getattr(self, "_episode_cache", None) is not None:
             return self._episode_cache
-        table = getattr(self.dataset, "frame_table", None)
-        if callable(table):
-            eps, frames = table()
+        columns = adapters.index_columns(self.dataset, self.n_base)
+        if columns is not None:
+            eps, frames = columns
         else:
             eps, frames = np.empty(self.n_base, np.int64), np.empty(self.n_base, np.int64)
             for i in tqdm(range(self.n_base), desc="scanning", disable=not self.progress, file=sys.stderr):
                 eps[i], frames[i] = adapters.episode_frame(self.dataset[i])
         out: OrderedDict = OrderedDict()
         for i in np.lexsort((frames, eps)):
-            out.setdefault(int(eps[i]), []).append((int(frames[i]), int(i)))
+            rows = out.setdefault(int(eps[i]), [])
+            if rows and rows[-1][0] == frames[i]:
+                raise ValueError(f"dataset: episode {int(eps[i])} has frame_index {int(frames[i])} twice (items "
+                                 f"{rows[-1][1]} and {int(i)}); episodes are told apart by episode_index alone")
+            rows.append((int(frames[i]), int(i)))
         self._episode_cache = out
         return out
 
@@ -199,6 +218,14 @@ class ForceAugment(Dataset):
             if adapters.episode_frame(it) != (episode, t):
                 raise ValueError(f"dataset: item order changed while building (episode {episode}, frame {t})")
         return self.references.load_episode(items, self.tactile_keys, episode)
+
+    def _episode_tables(self) -> EpisodeTables:
+        """Online mode: every episode's backgrounds, contact and reference forces, as the cache writer has them."""
+        tables = EpisodeTables.empty()
+        for e, rows in tqdm(self._episodes().items(), desc="reading episodes", disable=not self.progress,
+                            file=sys.stderr):
+            tables.add(e, [t for t, _ in rows], self._load_episode(e))
+        return tables
 
     def _writer(self) -> CacheWriter:
         return CacheWriter(self.cache_dir, self.generator, self.config, self.steps, self.tactile_keys,

@@ -1,5 +1,6 @@
-"""Item adapters: the tactile, force and background keys of an item (our ACT HDF5 items or any dict
-items, LeRobot convention), read as uint8 (H, W, 3) and written back in the layout and dtype they came in."""
+"""Item adapters: images read as uint8 (H, W, 3) and written back in the layout and dtype they came in, and
+episode sources read directly. Which item keys are tactile images, force labels and backgrounds (and the
+time windows of LeRobot's ``delta_timestamps``) is decided once, in ``keys.resolve_keys``."""
 
 from __future__ import annotations
 
@@ -10,12 +11,22 @@ from torch.utils.data import Subset
 from controltac_il.datasets.act_dataset import EpisodeDataset
 
 
+def as_array(value) -> np.ndarray:
+    """A tensor or array-like as a NumPy array (no copy for a CPU tensor)."""
+    return value.detach().cpu().numpy() if isinstance(value, torch.Tensor) else np.asarray(value)
+
+
+def is_chw(shape) -> bool:
+    """Whether an RGB image of ``shape`` (3, H, W) or (H, W, 3) is channel-first."""
+    return shape[0] == 3 and shape[-1] != 3
+
+
 def to_hwc_uint8(value, key: str) -> np.ndarray:
     """Tactile image of an item (tensor/array, (3, H, W) or (H, W, 3), uint8 or float in [0, 1]) -> uint8 (H, W, 3)."""
-    arr = value.detach().cpu().numpy() if isinstance(value, torch.Tensor) else np.asarray(value)
+    arr = as_array(value)
     if arr.ndim != 3 or 3 not in (arr.shape[0], arr.shape[-1]):
         raise ValueError(f"{key}: expected an RGB image (3, H, W) or (H, W, 3), got shape {arr.shape}")
-    if arr.shape[0] == 3 and arr.shape[-1] != 3:
+    if is_chw(arr.shape):
         arr = arr.transpose(1, 2, 0)
     if arr.dtype != np.uint8:
         arr = np.clip(np.round(arr.astype(np.float32) * 255.0), 0, 255).astype(np.uint8)
@@ -26,7 +37,7 @@ def like(image: np.ndarray, original):
     """uint8 (H, W, 3) -> the original's container, layout and dtype (None: uint8 (3, H, W) tensor view)."""
     if original is None:
         return torch.from_numpy(image).permute(2, 0, 1)
-    chw = original.shape[0] == 3 and original.shape[-1] != 3
+    chw = is_chw(original.shape)
     if isinstance(original, torch.Tensor):
         out = torch.from_numpy(image)
         out = out.permute(2, 0, 1) if chw else out
@@ -35,14 +46,29 @@ def like(image: np.ndarray, original):
     return arr if original.dtype == np.uint8 else (arr.astype(original.dtype) / 255.0)
 
 
-def force_key(key: str) -> str:
-    """Item key of the force label (3,) N of tactile key ``key``."""
-    return key.replace("tactile", "force", 1)
+def put_image(item: dict, key: str, image: np.ndarray, position: int | None = None) -> None:
+    """Put a uint8 (H, W, 3) image at ``item[key]`` (``position`` of a window (T, ...)), in the layout and
+    dtype of what is there. A window is copied first: the wrapped dataset's tensors are never written to."""
+    if position is None:
+        item[key] = like(image, item.get(key))
+        return
+    window = item[key]
+    window = window.clone() if isinstance(window, torch.Tensor) else np.array(window, copy=True)
+    window[position] = like(image, window[position])
+    item[key] = window
 
 
-def background_key(key: str) -> str:
-    """Item key of the no-contact background image of tactile key ``key``."""
-    return key.replace("tactile", "tactile_background", 1)
+def put_force(item: dict, key: str, target, position: int | None = None) -> None:
+    """Set the force label ``item[key]`` (row ``position`` of a (T, 3) window) to ``target`` (3,) N, same dtype."""
+    orig = item[key]
+    t = as_array(target).astype(np.float64)
+    if isinstance(orig, torch.Tensor):
+        new = orig.clone()
+        new[... if position is None else position] = torch.from_numpy(t).to(orig.dtype)
+    else:
+        new = np.array(orig, copy=True)
+        new[... if position is None else position] = t.astype(new.dtype)
+    item[key] = new
 
 
 def episode_frame(item: dict) -> tuple[int, int]:
@@ -65,40 +91,6 @@ def check_probe(probe) -> None:
             raise ValueError(f"dataset: items have no {k!r}; ForceAugment needs 'episode_index' and 'frame_index' per item")
 
 
-def resolve_tactile_keys(probe: dict, wanted: tuple[str, ...] | None) -> tuple[str, ...]:
-    """The item keys to augment: ``wanted`` (full keys or sensor names) or every tactile image key."""
-    found = [k for k in probe if "tactile" in k and "tactile_background" not in k]
-    if wanted is None:
-        if not found:
-            raise ValueError("tactile_keys: the items have no key containing 'tactile'; pass tactile_keys=")
-        keys = tuple(found)
-    else:
-        keys = []
-        for k in wanted:
-            full = k if k in probe else f"observation.tactile.{k}"
-            if full not in probe:
-                raise ValueError(f"tactile_keys: unknown tactile key {k!r}; the items have {found or list(probe)}")
-            keys.append(full)
-        keys = tuple(keys)
-    for k in keys:
-        to_hwc_uint8(probe[k], k)
-    return keys
-
-
-def replace_image(item: dict, key: str, image: np.ndarray, target) -> None:
-    """Put a generated uint8 (H, W, 3) image at ``key`` (original layout and dtype) and, where the item
-    has a force label for it, set the label to the ``target`` force the image shows."""
-    item[key] = like(image, item.get(key))
-    fk = force_key(key)
-    if fk in item:
-        orig = item[fk]
-        t = target.numpy() if isinstance(target, torch.Tensor) else np.asarray(target)
-        if isinstance(orig, torch.Tensor):
-            item[fk] = torch.from_numpy(t.astype(np.float32)).to(orig.dtype)
-        else:
-            item[fk] = t.astype(np.asarray(orig).dtype)
-
-
 def episode_source(dataset) -> tuple[EpisodeDataset | None, np.ndarray | None]:
     """The EpisodeDataset behind ``dataset`` (itself or a ``Subset`` of one with ``frame_table``) and the
     subset's indices. Those are read directly, skipping the tactile frames the cache replaces."""
@@ -108,3 +100,26 @@ def episode_source(dataset) -> tuple[EpisodeDataset | None, np.ndarray | None]:
             getattr(dataset, "frame_table", None)):
         return dataset.dataset, np.asarray(dataset.indices, np.int64)
     return None, None
+
+
+def index_columns(dataset, n: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """(episode_index, frame_index) of every item without reading images, where the dataset can tell:
+    ``frame_table()`` (ours), or LeRobot's ``hf_dataset`` columns (row i is item i); None otherwise."""
+    table = getattr(dataset, "frame_table", None)
+    if callable(table):
+        eps, frames = table()
+        return np.asarray(eps, np.int64), np.asarray(frames, np.int64)
+    hf = getattr(dataset, "hf_dataset", None)
+    if hf is None:
+        return None
+    try:
+        eps = np.array([int(v) for v in hf["episode_index"]], np.int64)
+        frames = np.array([int(v) for v in hf["frame_index"]], np.int64)
+    except (KeyError, TypeError, ValueError, IndexError):
+        return None
+    if len(eps) != n or len(frames) != n:
+        return None
+    for i in {0, n - 1}:  # the columns must describe the items (a filtered view would not)
+        if episode_frame(dataset[i]) != (int(eps[i]), int(frames[i])):
+            return None
+    return eps, frames

@@ -1,47 +1,107 @@
-"""Online mode: the tactile images of one item of an augmented copy, generated on access."""
+"""Online mode: the tactile images of one item of an augmented copy, generated on access.
+
+Every frame a tactile key holds (the item's own, or each unpadded position of a time window) is generated
+as that frame alone would be: with the copy's offset, that frame's jitter and noise seed. Where the items
+carry no background, no force label, or windows, each episode's backgrounds, contact and reference forces
+are computed once at set-up exactly as the cache writer computes them (``EpisodeTables``), so both modes
+ask the generator the same questions."""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
 from controltac_il.augment.config import ForceAugmentConfig
 from controltac_il.augment.draws import copy_offset, frame_jitter, noise_seed, requested_target, status_of
-from controltac_il.augment.items import background_key, replace_image, to_hwc_uint8
+from controltac_il.augment.items import put_force, put_image, to_hwc_uint8
+from controltac_il.augment.keys import KeyMap
 from controltac_il.augment.records import STATUS, FrameOutcome, KeyOutcome
-from controltac_il.augment.reference import ReferenceForces
+from controltac_il.augment.reference import EpisodeFrames, ReferenceForces
 from controltac_il.tactile.residual import from_residual, to_residual
 
 
-def check_online_items(probe: dict, tactile_keys) -> None:
-    """Online mode needs each item's no-contact background (mode 'cache' estimates it per episode)."""
-    missing = [k for k in tactile_keys if background_key(k) not in probe]
-    if missing:
-        raise ValueError(
-            f"tactile_keys: items carry no {background_key(missing[0])!r}; online mode needs the "
-            "no-contact background in each item (use mode='cache', which estimates it per episode)")
+@dataclass
+class EpisodeTables:
+    """Per episode: frame -> position, and per (episode, key) the background, contact (T,) and reference
+    force (T, 3) of ``ReferenceForces.load_episode`` (residuals dropped)."""
+
+    positions: dict
+    backgrounds: dict
+    contact: dict
+    reference: dict
+
+    @classmethod
+    def empty(cls) -> "EpisodeTables":
+        return cls({}, {}, {}, {})
+
+    def add(self, episode: int, frames: list[int], ep: EpisodeFrames) -> None:
+        self.positions[episode] = {t: i for i, t in enumerate(frames)}
+        for k in ep.backgrounds:
+            self.backgrounds[episode, k] = ep.backgrounds[k]
+            self.contact[episode, k], self.reference[episode, k] = ep.contact[k], ep.reference[k]
+
+    def of(self, episode: int, key: str, frame: int) -> tuple[np.ndarray, bool, np.ndarray]:
+        """(background, in contact, reference force) of one frame; ValueError for a frame not in the dataset."""
+        i = self.positions.get(episode, {}).get(frame)
+        if i is None:
+            raise ValueError(f"dataset: episode {episode} has no frame {frame} (asked for by a window of {key!r})")
+        return self.backgrounds[episode, key], bool(self.contact[episode, key][i]), self.reference[episode, key][i]
 
 
-def generate_item(item: dict, episode: int, copy: int, frame: int, *, generator, config: ForceAugmentConfig,
-                  steps: int, tactile_keys, references: ReferenceForces) -> tuple[dict, FrameOutcome]:
-    """Replace the tactile images of ``item`` (frame ``frame`` of copy ``copy`` of ``episode``) that the
-    generator redraws; returns the item and what was done per key."""
-    cfg = config
-    offset = copy_offset(cfg.seed, episode, copy, cfg.offset_range)
-    jitter = frame_jitter(cfg.seed, episode, copy, frame, cfg.jitter)
-    outcomes = []
-    for j, k in enumerate(tactile_keys):
-        background = to_hwc_uint8(item[background_key(k)], background_key(k))
-        residual = to_residual(to_hwc_uint8(item[k], k), background)
-        ref = references.of_frame(residual, references.label(item, k))
+@dataclass
+class OnlineGenerator:
+    """What online generation needs: the generator and settings, the item keys, reference forces, and the
+    episode tables (None: every item carries its background and labels, single frames)."""
+
+    generator: object
+    config: ForceAugmentConfig
+    steps: int
+    keys: KeyMap
+    references: ReferenceForces
+    tables: EpisodeTables | None = None
+
+    def item(self, item: dict, episode: int, copy: int, frame: int) -> tuple[dict, FrameOutcome]:
+        """Replace the frames of ``item`` (frame ``frame`` of copy ``copy`` of ``episode``) that the generator
+        redraws; returns the item and what was done to its own frame per key."""
+        cfg = self.config
+        offset = copy_offset(cfg.seed, episode, copy, cfg.offset_range)
+        own = []
+        for j, k in enumerate(self.keys.tactile_keys):
+            mine = None
+            for p, f in self.keys.positions(item, k, frame):
+                image = to_hwc_uint8(item[k] if p is None else item[k][p], k)
+                outcome, new = self.frame(item, image, episode, copy, f, j, offset)
+                if new is not None:
+                    put_image(item, k, new, p)
+                    for q in self.keys.label_positions(item, k, frame, f):
+                        put_force(item, self.keys.labels[k], outcome.target, q)
+                if f == frame:
+                    mine = outcome
+            own.append(mine)
+        return item, FrameOutcome(offset, frame_jitter(cfg.seed, episode, copy, frame, cfg.jitter), tuple(own))
+
+    def frame(self, item: dict, image: np.ndarray, episode: int, copy: int, frame: int, j: int,
+              offset: float) -> tuple[KeyOutcome, np.ndarray | None]:
+        """One frame of tactile key ``j``: its outcome and the generated image (None: keep the real one)."""
+        cfg, k = self.config, self.keys.tactile_keys[j]
+        if self.tables is not None:
+            background, touch, ref = self.tables.of(episode, k, frame)
+            residual = to_residual(image, background)
+            ref = ref if touch else None
+        else:
+            background = self.keys.background(item, k)
+            residual = to_residual(image, background)
+            ref = self.references.of_frame(residual, self.references.label(item, k))
         if ref is None:
-            outcomes.append(KeyOutcome(STATUS["no_contact"]))
-            continue
-        res = generator.generate_at(residual[None], ref[None], requested_target(ref, offset + jitter)[None],
-                                    steps=steps, seed=[noise_seed(cfg.seed, episode, copy, frame, j)],
-                                    batch_size=cfg.batch_size, out_of_range=cfg.out_of_range,
-                                    reference_out_of_range="skip")  # as the cache writer: keep it real
+            return KeyOutcome(STATUS["no_contact"]), None
+        jitter = frame_jitter(cfg.seed, episode, copy, frame, cfg.jitter)
+        res = self.generator.generate_at(residual[None], ref[None], requested_target(ref, offset + jitter)[None],
+                                         steps=self.steps, seed=[noise_seed(cfg.seed, episode, copy, frame, j)],
+                                         batch_size=cfg.batch_size, out_of_range=cfg.out_of_range,
+                                         reference_out_of_range="skip")  # as the cache writer: keep it real
         target, status = res.decision.target[0], status_of(res.decision, 0)
-        if status != STATUS["skipped"]:
-            replace_image(item, k, from_residual(res.residuals[0], background), target)
-        outcomes.append(KeyOutcome(status, reference=ref, target=target))
-    return item, FrameOutcome(offset, jitter, tuple(outcomes))
+        outcome = KeyOutcome(status, reference=ref, target=target)
+        if status == STATUS["skipped"]:
+            return outcome, None
+        return outcome, from_residual(res.residuals[0], background)

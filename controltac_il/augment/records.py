@@ -40,13 +40,13 @@ class FrameOutcome:
 
 
 def annotate(item: dict, copy: int, outcome: FrameOutcome, tactile_keys, labels: dict) -> dict:
-    """Add ``augment`` (K, 10) float32 to ``item``; labels: key -> force-label key of the item, or None."""
+    """Add ``augment`` (K, 10) float32 to ``item``; labels: key -> the item's force label (3,) of that key, or None."""
     rows = np.full((len(tactile_keys), len(AUGMENT_FIELDS)), np.nan, np.float32)
     rows[:, :3] = copy, outcome.offset, outcome.jitter
     for i, (k, rec) in enumerate(zip(tactile_keys, outcome.keys)):
         ref = rec.reference
-        if ref is None and labels.get(k):
-            ref = item[labels[k]]
+        if ref is None and labels.get(k) is not None:
+            ref = labels[k]
         rows[i, 3] = rec.status
         if ref is not None:
             rows[i, 4:7] = ref

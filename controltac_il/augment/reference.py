@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controltac_il.augment.items import background_key, force_key, to_hwc_uint8
+from controltac_il.augment.keys import KeyMap
 from controltac_il.datasets.background import estimate_background
 from controltac_il.tactile.residual import contact_mask, to_residual
 
@@ -27,10 +27,12 @@ class EpisodeFrames:
 
 
 class ReferenceForces:
-    """Contact and reference force of tactile frames, per tactile key (``labelled``: key -> has labels)."""
+    """Contact and reference force of tactile frames, per tactile key (``keys``: where labels and
+    backgrounds are found in an item)."""
 
-    def __init__(self, labelled: dict, contact_force: float, min_contact_area: float, estimator=None):
-        self.labelled = labelled
+    def __init__(self, keys: KeyMap, contact_force: float, min_contact_area: float, estimator=None):
+        self.keys = keys
+        self.labelled = {k: keys.labels[k] is not None for k in keys.tactile_keys}
         self.contact_force = contact_force
         self.min_contact_area = min_contact_area
         self._estimator = estimator
@@ -60,7 +62,7 @@ class ReferenceForces:
 
     def label(self, item: dict, key: str) -> np.ndarray | None:
         """Force label (3,) float64 of ``key`` in one item, or None when the items carry none."""
-        return np.asarray(item[force_key(key)], np.float64) if self.labelled[key] else None
+        return self.keys.label(item, key)
 
     def of_frame(self, residual: np.ndarray, label: np.ndarray | None) -> np.ndarray | None:
         """Reference force (3,) float64 of one residual (H, W, 3), or None when it is not in contact."""
@@ -72,16 +74,14 @@ class ReferenceForces:
         """The EpisodeFrames of one episode's items (sorted by frame)."""
         ep = EpisodeFrames({}, {}, {}, {}, {})
         for k in tactile_keys:
-            images = np.stack([to_hwc_uint8(it[k], k) for it in items])
-            labels = np.stack([np.asarray(it[force_key(k)], np.float64) for it in items]) if self.labelled[k] else None
-            bkey = background_key(k)
-            if bkey in items[0]:
-                bg, ep.background_source[k] = to_hwc_uint8(items[0][bkey], bkey), "recorded"
-            else:
+            images = np.stack([self.keys.image(it, k) for it in items])
+            labels = np.stack([self.keys.label(it, k) for it in items]) if self.labelled[k] else None
+            bg = self.keys.background(items[0], k)
+            ep.background_source[k] = "recorded" if bg is not None else "estimated"
+            if bg is None:
                 bg, used = estimate_background(images, labels)
-                ep.background_source[k] = "estimated"
-                warnings.warn(f"episode {episode}: items carry no {bkey!r}; background estimated from "
-                              f"{len(used)} no-contact frames", stacklevel=3)
+                warnings.warn(f"items carry no background for {k!r}; background estimated per episode from "
+                              "its own no-contact frames", stacklevel=3)
             res = to_residual(images, bg)
             touch = self.in_contact(res, labels)
             ref = np.full((len(items), 3), np.nan)

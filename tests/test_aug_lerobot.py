@@ -1,0 +1,288 @@
+"""ForceAugment on LeRobot-convention datasets (issue #22), without LeRobot (it cannot be installed here).
+
+``LeRobotLike`` returns items as ``LeRobotDataset.__getitem__`` does: ``episode_index``, ``frame_index``,
+``index``, ``timestamp`` (0-d tensors), ``task_index``, ``task`` (str), ``observation.state``, ``action``,
+cameras ``observation.images.<name>`` as float32 (C, H, W) in [0, 1], the tactile stream among them; with
+``delta_timestamps`` (s) and ``fps`` a key holds a window (T, ...) of the frames at frame + round(delta x fps),
+clamped to the episode, with ``<key>_is_pad`` (T,) bool marking the clamped positions. No force labels and
+no backgrounds unless asked for. A tiny randomly initialised generator, as in test_aug_force_augment.
+"""
+
+import warnings
+
+import numpy as np
+import pytest
+import torch
+from torch.utils.data import DataLoader, Dataset
+
+pytest.importorskip("controltac_il.generator")
+from test_aug_force_augment import synthetic_episode, tiny_estimator, tiny_generator  # noqa: E402
+
+from controltac_il.augment import STATUS, ForceAugment  # noqa: E402
+
+GEL = "observation.images.gelsight"
+FORCE = "observation.gelsight_force"
+BG = "observation.gelsight_background"
+FPS = 10
+
+
+class LeRobotLike(Dataset):
+    """LeRobot-convention items of synthetic episodes. episodes: {episode_index: Episode}; first: frame_index
+    of each episode's first frame; rows: item order (default: episode after episode, frames in order)."""
+
+    def __init__(self, episodes, *, uint8_hwc=False, labels=False, backgrounds=False, delta_timestamps=None,
+                 fps=FPS, first=None, rows=None, columns=False):
+        self.eps, self.first = episodes, first or {}
+        self.uint8_hwc, self.labels, self.backgrounds = uint8_hwc, labels, backgrounds
+        self.windows = delta_timestamps
+        self.delta_timestamps, self.fps, self.rate = delta_timestamps, fps, fps  # fps: what LeRobot shows
+        table = [(e, self.first.get(e, 0) + t) for e in episodes for t in range(len(episodes[e].qpos))]
+        self.rows = [table[i] for i in rows] if rows is not None else table
+        if columns:  # LeRobot's hf_dataset: the index columns without decoding any image
+            self.hf_dataset = {"episode_index": [e for e, _ in self.rows], "frame_index": [t for _, t in self.rows]}
+
+    def __len__(self):
+        return len(self.rows)
+
+    def image(self, array):
+        t = torch.from_numpy(np.ascontiguousarray(array))
+        return t if self.uint8_hwc else t.permute(2, 0, 1).float() / 255
+
+    def frame(self, e, t):
+        ep, i = self.eps[e], t - self.first.get(e, 0)
+        out = {GEL: self.image(ep.tactile["left"][i]), "observation.images.wrist": self.image(ep.images["wrist"][i]),
+               "observation.state": torch.from_numpy(ep.qpos[i]), "action": torch.from_numpy(ep.action[i])}
+        if self.labels:
+            out[FORCE] = torch.from_numpy(ep.force["left"][i])
+        return out
+
+    def __getitem__(self, idx):
+        e, t = self.rows[idx]
+        item = {"episode_index": torch.tensor(e), "frame_index": torch.tensor(t), "index": torch.tensor(idx),
+                "timestamp": torch.tensor(t / self.rate, dtype=torch.float32), "task_index": torch.tensor(0),
+                "task": "insert the peg", **self.frame(e, t)}
+        if self.backgrounds:
+            item[BG] = self.image(self.eps[e].tactile_background["left"])
+        lo, hi = self.first.get(e, 0), self.first.get(e, 0) + len(self.eps[e].qpos) - 1
+        for key, deltas in (self.windows or {}).items():
+            want = [t + round(d * self.rate) for d in deltas]
+            item[key] = torch.stack([self.frame(e, min(max(f, lo), hi))[key] for f in want])
+            item[f"{key}_is_pad"] = torch.tensor([not lo <= f <= hi for f in want])
+        return item
+
+
+def episodes(labels=True):
+    return {0: synthetic_episode(9, 0, range(3, 8), labels=labels),
+            1: synthetic_episode(7, 1, range(1, 6), labels=labels)}
+
+
+@pytest.fixture(scope="module")
+def gen():
+    return tiny_generator()
+
+
+@pytest.fixture(scope="module")
+def est():
+    return tiny_estimator()
+
+
+def wrap(ds, gen, est, tmp_path=None, name="c", **kw):
+    kw.setdefault("copies", 2)
+    kw.setdefault("tactile_keys", [GEL])
+    if tmp_path is not None:
+        kw.setdefault("cache_dir", tmp_path / name)
+        kw.setdefault("batch_size", 1)  # frame by frame, as online mode: bit-identical outputs
+    else:
+        kw["mode"] = "online"
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", ".*background estimated", UserWarning)
+        return ForceAugment(ds, gen, estimator=est, progress=False, **kw)
+
+
+def same(x, y):
+    if isinstance(x, torch.Tensor):
+        return isinstance(y, torch.Tensor) and x.dtype == y.dtype and x.shape == y.shape and bool(
+            ((x == y) | (x.isnan() & y.isnan())).all())
+    return type(x) is type(y) and x == y
+
+
+def assert_same_items(x, y):
+    assert x.keys() == y.keys()
+    for k in x:
+        assert same(x[k], y[k]), k
+
+
+def by_index(aug, loader_kw):
+    """Every item of ``aug`` through a shuffled 2-worker DataLoader, keyed by (copy, index), unbatched."""
+    out = {}
+    for batch in DataLoader(aug, batch_size=5, shuffle=True, num_workers=2, **loader_kw):
+        for b in range(len(batch["index"])):
+            item = {k: (v[b] if isinstance(v, torch.Tensor) else v[b]) for k, v in batch.items()}
+            out[int(item["augment"][0, 0]), int(item["index"])] = item
+    return out
+
+
+@pytest.mark.parametrize("uint8_hwc", [False, True], ids=["float_chw", "uint8_hwc"])
+@pytest.mark.parametrize("labels", [False, True], ids=["no_labels", "labels"])
+@pytest.mark.parametrize("backgrounds", [False, True], ids=["no_bg", "bg"])
+def test_single_frames_cache_equals_online_and_everything_else_passes_through(
+        gen, est, tmp_path, uint8_hwc, labels, backgrounds):
+    ds = LeRobotLike(episodes(), uint8_hwc=uint8_hwc, labels=labels, backgrounds=backgrounds)
+    maps = dict(force_keys={GEL: FORCE} if labels else None, background_keys={GEL: BG} if backgrounds else None)
+    cached, online = wrap(ds, gen, est, tmp_path, **maps), wrap(ds, gen, est, **maps)
+    assert cached.settings()["reference_force"] == {GEL: "labels" if labels else "estimator"}
+    n, regenerated = len(ds), 0
+    for i in range(len(cached)):
+        x, y, src = cached[i], online[i], ds[i % n]
+        assert_same_items(x, y)  # identical in the two modes
+        assert x.keys() == src.keys() | {"augment"}
+        for k in src:
+            if k not in (GEL, FORCE):
+                assert same(x[k], src[k]), k  # passed through unchanged
+        assert x[GEL].dtype == src[GEL].dtype and x[GEL].shape == src[GEL].shape  # as it came in
+        status = int(cached.info(x)[f"status.{GEL}"])
+        if status in (STATUS["regenerated"], STATUS["clamped"]):
+            regenerated += 1
+            assert i >= n and not torch.equal(x[GEL], src[GEL])
+            if not uint8_hwc:
+                assert 0.0 <= float(x[GEL].min()) and float(x[GEL].max()) <= 1.0
+            if labels:  # the label follows the image
+                np.testing.assert_allclose(x[FORCE].numpy(), cached.info(x)[f"target_force.{GEL}"].numpy(), rtol=1e-6)
+        else:
+            assert torch.equal(x[GEL], src[GEL]) and (not labels or torch.equal(x[FORCE], src[FORCE]))
+    assert regenerated > 0
+
+
+def window_dataset(**kw):
+    return LeRobotLike(episodes(), delta_timestamps={GEL: [-0.2, -0.1, 0.0], "action": [0.0, 0.1, 0.2]}, **kw)
+
+
+@pytest.mark.parametrize("uint8_hwc", [False, True], ids=["float_chw", "uint8_hwc"])
+def test_window_frames_equal_the_same_frames_alone(gen, est, tmp_path, uint8_hwc):
+    """Each unpadded window position is augmented as that (episode, copy, frame) alone; pads stay as they came."""
+    single, windows = LeRobotLike(episodes(labels=False), uint8_hwc=uint8_hwc), window_dataset(uint8_hwc=uint8_hwc)
+    alone = wrap(single, gen, est, tmp_path, "alone")
+    for aug in (wrap(windows, gen, est, tmp_path, "win"), wrap(windows, gen, est)):
+        assert aug.keys.offsets[GEL] == (-2, -1, 0)  # from delta_timestamps x the dataset's fps
+        n, pads = len(windows), 0
+        for i in range(len(aug)):
+            x, src = aug[i], windows[i % n]
+            copy, (e, t) = i // n, windows.rows[i % n]
+            assert x[GEL].shape == src[GEL].shape and x[GEL].dtype == src[GEL].dtype
+            for k in ("action", "action_is_pad", f"{GEL}_is_pad", "timestamp", "index", "task"):
+                assert same(x[k], src[k]), k
+            for p, pad in enumerate(src[f"{GEL}_is_pad"].tolist()):
+                if pad:
+                    pads += 1
+                    assert torch.equal(x[GEL][p], src[GEL][p])
+                    continue
+                f = t + (p - 2)
+                ref = alone[copy * n + single.rows.index((e, f))]
+                assert torch.equal(x[GEL][p], ref[GEL]), (i, p)
+            assert same(x["augment"], alone[i]["augment"])  # what was done to the item's own frame
+        assert pads == 2 * 3 * 3  # first two frames of 2 episodes: 2 + 1 pads each, in 3 copies
+
+
+@pytest.mark.parametrize("variant", ["windows_no_labels_no_bg", "uint8_labels_bg"])
+def test_shuffled_two_worker_loader_is_deterministic(gen, est, tmp_path, variant):
+    if variant.startswith("windows"):
+        ds, maps = window_dataset(), {}
+    else:
+        ds, maps = LeRobotLike(episodes(), uint8_hwc=True, labels=True, backgrounds=True), dict(
+            force_keys={GEL: FORCE}, background_keys={GEL: BG})
+    cached, online = wrap(ds, gen, est, tmp_path, **maps), wrap(ds, gen, est, **maps)
+    want = {(i // len(ds), int(ds[i % len(ds)]["index"])): i for i in range(len(cached))}
+    for aug, seed in ((cached, 1), (cached, 2), (online, 3)):  # two epochs (other orders), the other mode
+        got = by_index(aug, {"generator": torch.Generator().manual_seed(seed)})
+        assert set(got) == set(want)
+        for key, i in want.items():
+            direct = cached[i]
+            for k in direct:
+                if k != "task":
+                    assert same(got[key][k], direct[k]), (key, k)
+            assert got[key]["task"] == direct["task"]
+
+
+def test_episode_order_first_frame_and_index_columns(gen, est, tmp_path):
+    """Episodes told apart by episode_index alone, in any row order, frame_index not starting at 0."""
+    eps = {7: synthetic_episode(6, 0, range(2, 6), labels=False), 3: synthetic_episode(5, 1, range(1, 4), labels=False)}
+    rng = np.random.default_rng(0)
+    shuffled = LeRobotLike(eps, first={7: 4}, rows=rng.permutation(11).tolist(), columns=True)
+    plain = LeRobotLike(eps, first={7: 4})
+    a, b = wrap(shuffled, gen, est, tmp_path, "a"), wrap(plain, gen, est, tmp_path, "b")
+    assert list(a._episodes()) == [3, 7] and [t for t, _ in a._episodes()[7]] == list(range(4, 10))
+    assert a.chunk_list() == b.chunk_list() and a.summary() == b.summary()
+    on = wrap(shuffled, gen, est)
+    for i in range(len(a)):
+        j = (i // 11) * 11 + plain.rows.index(shuffled.rows[i % 11])
+        assert_same_items({k: v for k, v in a[i].items() if k != "index"}, {k: v for k, v in b[j].items() if k != "index"})
+        assert_same_items(a[i], on[i])
+    calls = {"n": 0}
+    real = LeRobotLike.__getitem__
+
+    def counting(self, i):
+        calls["n"] += 1
+        return real(self, i)
+
+    LeRobotLike.__getitem__ = counting
+    try:
+        wrap(shuffled, gen, est, tmp_path, "a")  # the cache exists: the hf_dataset columns give the episodes
+    finally:
+        LeRobotLike.__getitem__ = real
+    assert calls["n"] <= 4  # the probe and two spot checks, not a scan
+    twice = LeRobotLike(eps, rows=[0, 1, 2, 2, 3, 4])
+    with pytest.raises(ValueError, match="dataset: episode 7 has frame_index 2 twice"):
+        wrap(twice, gen, est, tmp_path, "d")
+
+
+def test_labels_only_under_an_explicit_mapping(gen, est, tmp_path):
+    ds = LeRobotLike(episodes(), labels=True)
+    plain = wrap(ds, gen, est, tmp_path, "plain")  # the issue's crash: the image was read as its own label
+    assert plain.labelled == {GEL: False} and plain.keys.backgrounds == {GEL: None}
+    mapped = wrap(ds, gen, est, tmp_path, "mapped", force_keys={GEL: FORCE})
+    assert mapped.labelled == {GEL: True} and mapped.settings()["force_keys"] == {GEL: FORCE}
+    item = mapped[1]  # copy 0: the reference is the label
+    np.testing.assert_allclose(mapped.info(item)[f"reference_force.{GEL}"].numpy(), ds[1][FORCE].numpy())
+    for bad, match in (({GEL: GEL}, "never read as its own"), ({GEL: "observation.state"}, "not a force label"),
+                       ({GEL: "nope"}, "do not have"), ({"observation.images.wrist": FORCE}, "not tactile keys")):
+        with pytest.raises(ValueError, match=f"force_keys: .*{match}"):
+            ForceAugment(ds, gen, tactile_keys=[GEL], force_keys=bad, mode="online")
+    with pytest.raises(ValueError, match="background_keys: .*not one RGB image"):
+        ForceAugment(ds, gen, tactile_keys=[GEL], background_keys={GEL: "observation.state"}, mode="online")
+
+
+def test_auto_detection_error_lists_the_image_keys(gen):
+    ds = LeRobotLike(episodes())
+    with pytest.raises(ValueError, match=r"tactile_keys: .*\['observation.images.gelsight', 'observation.images.wrist'\]"
+                                         r".*ForceAugment\(dataset, tactile_keys=\['observation.images.gelsight'\]\)"):
+        ForceAugment(ds, gen, mode="online")
+    with pytest.raises(ValueError, match="tactile_keys: .*'observation.state' is not an RGB image"):
+        ForceAugment(ds, gen, tactile_keys=["observation.state"], mode="online")
+    assert ForceAugment(ds, gen, tactile_keys=["gelsight"], estimator=tiny_estimator(), mode="online",
+                        progress=False).tactile_keys == (GEL,)
+
+
+def test_windows_it_cannot_place_are_refused(gen):
+    ds = window_dataset()
+    ds.fps = None
+    with pytest.raises(ValueError, match="fps: .*pass fps="):
+        ForceAugment(ds, gen, tactile_keys=[GEL], mode="online")
+    with pytest.raises(ValueError, match="fps: .*not whole frames at 7"):
+        ForceAugment(ds, gen, tactile_keys=[GEL], mode="online", fps=7)
+    ds.delta_timestamps = None
+    with pytest.raises(ValueError, match=r"window_offsets: .*holds a window of 3 frames.*window_offsets="):
+        ForceAugment(ds, gen, tactile_keys=[GEL], mode="online")
+    with pytest.raises(ValueError, match="window_offsets: .*including 0"):
+        ForceAugment(ds, gen, tactile_keys=[GEL], mode="online", window_offsets={GEL: [-3, -2, -1]})
+
+    class NoPad(LeRobotLike):
+        def __getitem__(self, idx):
+            item = super().__getitem__(idx)
+            item.pop(f"{GEL}_is_pad")
+            return item
+
+    with pytest.raises(ValueError, match="window_offsets: .*_is_pad"):
+        ForceAugment(NoPad(episodes(), delta_timestamps={GEL: [-0.1, 0.0]}), gen, tactile_keys=[GEL], mode="online")
+    given = ForceAugment(ds, gen, tactile_keys=[GEL], mode="online", window_offsets={GEL: [-2, -1, 0]},
+                         estimator=tiny_estimator(), progress=False)
+    assert given.keys.offsets[GEL] == (-2, -1, 0)
