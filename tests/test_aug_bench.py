@@ -20,3 +20,8 @@ def test_quick_run_counts_add_up_and_name_the_shipped_generator(tmp_path):
     assert res["generator_hash"] == ForceGenerator.from_pretrained().checkpoint_hash
     assert set(res["items_per_s"]) == {"bare", "cached", "online"}
     assert all(v > 0 for v in res["items_per_s"].values())
+    # the LeRobot-convention row (#22): same episodes as float CHW cameras, estimated backgrounds, labels by
+    # force_keys: the same frames are in contact and get the same draws as on our HDF5 layout
+    lerobot = res["lerobot"]
+    assert set(lerobot["items_per_s"]) == {"bare", "cached", "online"} and all(v > 0 for v in lerobot["items_per_s"].values())
+    assert lerobot["counts"] == counts and lerobot["cache_build"]["frames_generated"] == res["cache_build"]["frames_generated"]
