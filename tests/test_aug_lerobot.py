@@ -153,18 +153,23 @@ def test_single_frames_cache_equals_online_and_everything_else_passes_through(
     assert regenerated > 0
 
 
-def window_dataset(**kw):
-    return LeRobotLike(episodes(), delta_timestamps={GEL: [-0.2, -0.1, 0.0], "action": [0.0, 0.1, 0.2]}, **kw)
+def window_dataset(labels=False, **kw):
+    deltas = {GEL: [-0.2, -0.1, 0.0], "action": [0.0, 0.1, 0.2], **({FORCE: [-0.1, 0.0]} if labels else {})}
+    return LeRobotLike(episodes(), delta_timestamps=deltas, labels=labels, **kw)
 
 
-@pytest.mark.parametrize("uint8_hwc", [False, True], ids=["float_chw", "uint8_hwc"])
-def test_window_frames_equal_the_same_frames_alone(gen, est, tmp_path, uint8_hwc):
-    """Each unpadded window position is augmented as that (episode, copy, frame) alone; pads stay as they came."""
-    single, windows = LeRobotLike(episodes(labels=False), uint8_hwc=uint8_hwc), window_dataset(uint8_hwc=uint8_hwc)
-    alone = wrap(single, gen, est, tmp_path, "alone")
-    for aug in (wrap(windows, gen, est, tmp_path, "win"), wrap(windows, gen, est)):
+@pytest.mark.parametrize("uint8_hwc, labels", [(False, False), (True, False), (False, True)],
+                         ids=["float_chw", "uint8_hwc", "float_chw_label_windows"])
+def test_window_frames_equal_the_same_frames_alone(gen, est, tmp_path, uint8_hwc, labels):
+    """Each unpadded window position is augmented as that (episode, copy, frame) alone (image, and label
+    where the labels come as a window too); padded positions stay as they came."""
+    maps = {"force_keys": {GEL: FORCE}} if labels else {}
+    single = LeRobotLike(episodes(), uint8_hwc=uint8_hwc, labels=labels)
+    windows = window_dataset(labels, uint8_hwc=uint8_hwc)
+    alone = wrap(single, gen, est, tmp_path, "alone", **maps)
+    for aug in (wrap(windows, gen, est, tmp_path, "win", **maps), wrap(windows, gen, est, **maps)):
         assert aug.keys.offsets[GEL] == (-2, -1, 0)  # from delta_timestamps x the dataset's fps
-        n, pads = len(windows), 0
+        n, pads, moved = len(windows), 0, 0
         for i in range(len(aug)):
             x, src = aug[i], windows[i % n]
             copy, (e, t) = i // n, windows.rows[i % n]
@@ -179,8 +184,14 @@ def test_window_frames_equal_the_same_frames_alone(gen, est, tmp_path, uint8_hwc
                 f = t + (p - 2)
                 ref = alone[copy * n + single.rows.index((e, f))]
                 assert torch.equal(x[GEL][p], ref[GEL]), (i, p)
+                moved += p != 2 and not torch.equal(x[GEL][p], src[GEL][p])
+                if labels and p >= 1:  # the label window holds frames t - 1, t
+                    q = p - 1
+                    want = src[FORCE][q] if src[f"{FORCE}_is_pad"][q] else ref[FORCE]
+                    assert torch.equal(x[FORCE][q], want), (i, p)
             assert same(x["augment"], alone[i]["augment"])  # what was done to the item's own frame
         assert pads == 2 * 3 * 3  # first two frames of 2 episodes: 2 + 1 pads each, in 3 copies
+        assert moved > 0  # earlier frames of the window were regenerated too
 
 
 @pytest.mark.parametrize("variant", ["windows_no_labels_no_bg", "uint8_labels_bg"])
@@ -233,6 +244,29 @@ def test_episode_order_first_frame_and_index_columns(gen, est, tmp_path):
     twice = LeRobotLike(eps, rows=[0, 1, 2, 2, 3, 4])
     with pytest.raises(ValueError, match="dataset: episode 7 has frame_index 2 twice"):
         wrap(twice, gen, est, tmp_path, "d")
+
+
+def test_default_batch_size_differs_from_online_by_at_most_one_grey_level(gen, est, tmp_path):
+    """With the default batch_size (32 frames per generator call) the cache may differ from online mode by
+    the generator's batched arithmetic, at most one grey level (batch_size=1: bit-identical, tests above)."""
+    ds = LeRobotLike(episodes(), uint8_hwc=True)
+    cached, online = wrap(ds, gen, est, tmp_path, batch_size=32), wrap(ds, gen, est)
+    for i in range(len(ds), len(cached)):
+        x, y = cached[i], online[i]
+        assert same(x["augment"], y["augment"])
+        assert int((x[GEL].int() - y[GEL].int()).abs().max()) <= 1
+
+
+def test_the_issue_call_that_crashed(gen, est, tmp_path):
+    """#22: tactile_keys=("observation.images.gelsight",) read the image as its own force label and crashed."""
+    ds = LeRobotLike(episodes(labels=False))
+    for mode in ("online", "cache"):
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", ".*background estimated", UserWarning)
+            aug = ForceAugment(ds, gen, tactile_keys=("observation.images.gelsight",), estimator=est, mode=mode,
+                               cache_dir=tmp_path / "c", progress=False, copies=1)
+        item = aug[len(ds) + 4]
+        assert item[GEL].shape == (3, 32, 32) and item[GEL].dtype == torch.float32
 
 
 def test_labels_only_under_an_explicit_mapping(gen, est, tmp_path):

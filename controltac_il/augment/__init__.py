@@ -27,8 +27,13 @@ processes on its own). ``ForceAugment.info(item_or_batch)`` names the columns fo
 ``mode="cache"`` generates every augmented frame once (batched) into ``cache_dir`` and reads it back;
 ``mode="online"`` generates on access. ``python -m controltac_il.augment --help`` builds a cache.
 
-Modules: ``config`` (ForceAugmentConfig), ``items`` (item adapters), ``reference`` (contact and reference
-forces), ``draws`` (offset, jitter, noise seeds), ``records`` (status codes, the ``augment`` tensor),
+Any map-style dataset of dict items works (LeRobot convention, without importing LeRobot): a tactile stream
+recorded as a camera is named in ``tactile_keys``; force labels and backgrounds are optional and read only
+under ``force_keys`` / ``background_keys`` or our layout's naming rule (module ``keys``); time windows of
+``delta_timestamps`` are augmented frame by frame.
+
+Modules: ``config`` (ForceAugmentConfig), ``keys`` (which item keys are read), ``items`` (item adapters),
+``reference`` (contact and reference forces), ``draws`` (offset, jitter, noise seeds), ``records`` (status codes, the ``augment`` tensor),
 ``online`` (generation on access), ``provenance`` / ``writer`` / ``reader`` (the sharded cache), ``dataset``
 (``ForceAugment``), ``cli`` (``python -m controltac_il.augment``). The generator alone decides what
 happens to a target outside its validated range (``controltac_il.generator.forces``).
