@@ -320,3 +320,20 @@ def test_windows_it_cannot_place_are_refused(gen):
     given = ForceAugment(ds, gen, tactile_keys=[GEL], mode="online", window_offsets={GEL: [-2, -1, 0]},
                          estimator=tiny_estimator(), progress=False)
     assert given.keys.offsets[GEL] == (-2, -1, 0)
+
+
+def test_recorded_backgrounds_that_vary_within_an_episode_give_the_same_frames_in_both_modes(gen, est, tmp_path):
+    """The cache uses one background per episode (its first item's): online mode reads them the same way."""
+
+    class Drifting(LeRobotLike):
+        def __getitem__(self, idx):
+            item = super().__getitem__(idx)
+            item[BG] = (item[BG] + 0.02 * (int(item["frame_index"]) % 3)).clamp(0, 1)
+            return item
+
+    ds = Drifting(episodes(), labels=True, backgrounds=True)
+    maps = dict(force_keys={GEL: FORCE}, background_keys={GEL: BG})
+    cached, online = wrap(ds, gen, est, tmp_path, **maps), wrap(ds, gen, est, **maps)
+    assert online._online.tables is not None
+    for i in range(len(ds), len(cached)):
+        assert_same_items(cached[i], online[i])

@@ -46,8 +46,8 @@ class ForceAugment(Dataset):
     settings: the ``ForceAugmentConfig`` fields (copies, offset_range, jitter, tactile_keys, mode, cache_dir,
         out_of_range, seed, steps, contact_force, min_contact_area, batch_size, force_keys, background_keys,
         window_offsets, fps), by name.
-    Online mode on items without a background, a force label or with windows first reads every episode
-    once (backgrounds, contact and reference forces computed as the cache writer does, kept for the workers).
+    Online mode on other datasets than ours (or ours without labels) first reads every episode once
+    (backgrounds, contact and reference forces computed as the cache writer does, kept for the workers).
     """
 
     def __init__(self, dataset, generator=None, *, estimator=None, build="now", progress=True, **settings):
@@ -76,8 +76,9 @@ class ForceAugment(Dataset):
         self.cache_dir, self._reader, self._online = None, None, None
         if self.config.mode == "online":
             self._online = OnlineGenerator(generator, self.config, self.steps, self.keys, self.references)
-            if not all(self.labelled.values()) or any(self.keys.backgrounds[k] is None or self.keys.offsets[k]
-                                                      for k in self.tactile_keys):
+            per_item = adapters.episode_source(dataset)[0] is not None and all(self.labelled.values()) and all(
+                self.keys.backgrounds[k] is not None and self.keys.offsets[k] is None for k in self.tactile_keys)
+            if not per_item:  # as the cache writer sees each episode (one background per episode, its estimates)
                 self._online.tables = self._episode_tables()
             return
         if build not in BUILD:
