@@ -43,9 +43,27 @@ def parse_args(argv=None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
+def check_args(args: argparse.Namespace) -> None:
+    """ValueError (one line naming the flag and the expected form) for an option out of its range."""
+    for flag, value in (("--episodes", args.episodes), ("--max-steps", args.max_steps), ("--threads", args.threads)):
+        if value is not None and value < 1:
+            raise ValueError(f"{flag} must be an integer >= 1, got {value}")
+    if args.grip_force is not None:
+        low, high = args.grip_force
+        if not (0 < low <= high < float("inf")):
+            raise ValueError(f"--grip-force LOW HIGH must be finite newtons with 0 < LOW <= HIGH, got {low} {high}")
+
+
 def main(argv=None) -> int:
     args = parse_args(argv)
+    try:
+        check_args(args)
+    except ValueError as exc:
+        print(f"deploy_policy.py: error: {exc}", file=sys.stderr)
+        return 2
     import torch
+
+    from controltac_il.checkpoint import one_line
 
     from controltac_il.io import write_json
     from policies.act import CheckpointError
@@ -61,13 +79,16 @@ def main(argv=None) -> int:
                   f"Wilson 95 % interval [{lo:.0%}, {hi:.0%}]  (grip force {result['grip_force_range_n']} N)")
         else:
             if args.config is None:
-                print("error: --config setup.yaml is required with --robot xarm|ur", file=sys.stderr)
+                print("deploy_policy.py: error: --config setup.yaml is required with --robot xarm|ur", file=sys.stderr)
                 return 2
             result = deploy_on_robot(args.robot, args.checkpoint, args.config, max_steps=args.max_steps)
             print(json.dumps(result, indent=2))
-    except (CheckpointError, ValueError, FileNotFoundError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
+    except (CheckpointError, ValueError, OSError) as exc:  # bad checkpoint, set-up or option: one line
+        print(f"deploy_policy.py: error: {one_line(exc)}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("deploy_policy.py: interrupted (Ctrl-C); the control loop stopped the devices", file=sys.stderr)
+        return 130
     if args.out is not None:
         write_json(args.out, result)
     return 0

@@ -6,7 +6,11 @@
     python train_act.py --dataset DEMOS --augment force --copies 2 --out runs/act_aug
     torchrun --nproc_per_node 2 train_act.py --dataset DEMOS --out runs/act   # data parallel (gloo on CPU)
 
-Writes OUT/last (resumable, --resume), OUT/best (lowest validation L1) and OUT/train_log.json.
+Writes OUT/last (resumable, --resume), OUT/best (lowest validation L1) and OUT/train_log.json. An OUT that
+holds a previous run needs --resume (continue it) or --overwrite (replace it; only what this tool wrote is
+removed); files of the user's are never replaced. Ctrl-C saves the current step to OUT/last before exiting;
+a NaN / inf loss stops the run (exit 1) with OUT/last at the last good step. Bad options or data: one line
+on stderr, exit 2.
 """
 
 from __future__ import annotations
@@ -35,38 +39,86 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--copies", type=int, default=2, help="ForceAugment copies per episode, 1-9 (default 2)")
     p.add_argument("--generator", type=Path, default=None, help="generator checkpoint (default: the shipped one)")
     p.add_argument("--demos", type=int, default=20, help="episodes collected for the embedded default (default 20)")
-    p.add_argument("--resume", action="store_true", help="continue from OUT/last")
+    p.add_argument("--resume", action="store_true", help="continue from OUT/last (same dataset and options)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace a previous run in OUT (only the last/, best/ and train_log.json this tool wrote)")
+    p.add_argument("--checkpoint-every", type=int, default=500,
+                   help="write OUT/last (resumable) every N steps, and at the end and on Ctrl-C (default 500)")
     p.add_argument("--workers", type=int, default=0, help="DataLoader worker processes (default 0)")
     p.add_argument("--seed", type=int, default=0, help="seed of initialisation, split and sampling (default 0)")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads per process (default: torch's)")
     return p.parse_args(argv)
 
 
+# TrainConfig field -> the flag that sets it (validation errors name the flag)
+FLAGS = {"steps": "--steps", "batch_size": "--batch-size", "val_every": "--val-every", "save_every": "--checkpoint-every",
+         "num_workers": "--workers", "seed": "--seed"}
+
+
+def check_args(args: argparse.Namespace):
+    """The run's TrainConfig; ValueError (one line naming the flag and the expected form) for a bad option."""
+    from controltac_il.checkpoint import one_line
+    from policies.act.training import TrainConfig
+
+    if args.resume and args.overwrite:
+        raise ValueError("--resume and --overwrite exclude each other: continue the run in --out, or replace it")
+    if not 0.0 <= args.val_fraction < 1.0:
+        raise ValueError(f"--val-fraction must be in [0, 1) (a share of the episodes), got {args.val_fraction}")
+    for flag, value, low in (("--chunk-size", args.chunk_size, 1), ("--demos", args.demos, 1),
+                             ("--threads", args.threads, 1)):
+        if value is not None and value < low:
+            raise ValueError(f"{flag} must be an integer >= {low}, got {value}")
+    if args.augment == "force" and not 1 <= args.copies <= 9:
+        raise ValueError(f"--copies must be in 1..9 (ForceAugment copies per episode), got {args.copies}")
+    if args.dataset is not None and not args.dataset.is_dir():
+        raise ValueError(f"--dataset {args.dataset}: episode folder not found")
+    try:
+        return TrainConfig(steps=args.steps, batch_size=args.batch_size, val_every=args.val_every,
+                           save_every=args.checkpoint_every, num_workers=args.workers, seed=args.seed)
+    except ValueError as exc:  # pydantic: one line naming the flag
+        raise ValueError(one_line(exc, FLAGS)) from None
+
+
 def main(argv=None) -> int:
+    from controltac_il.checkpoint import NonFiniteLoss, TrainingInterrupted, one_line
+
     args = parse_args(argv)
     try:
-        summary = run(args)
-    except (ValueError, FileNotFoundError) as exc:  # bad options, data or checkpoint: CheckpointError is a ValueError
-        print(f"error: {exc}", file=sys.stderr)
+        train_config = check_args(args)
+    except ValueError as exc:
+        print(f"train_act.py: error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        summary = run(args, train_config)
+    except TrainingInterrupted as exc:
+        print(f"train_act.py: {exc}", file=sys.stderr)
+        return 130
+    except KeyboardInterrupt:
+        print("train_act.py: interrupted before training started; nothing was written", file=sys.stderr)
+        return 130
+    except NonFiniteLoss as exc:
+        print(f"train_act.py: error: {exc}", file=sys.stderr)
+        return 1
+    except (ValueError, OSError) as exc:  # bad options, data, output folder or checkpoint (CheckpointError)
+        print(f"train_act.py: error: {one_line(exc)}", file=sys.stderr)
         return 2
     if os.environ.get("RANK", "0") == "0":
         print(json.dumps(summary, indent=2))
     return 0
 
 
-def run(args: argparse.Namespace) -> dict:
+def run(args: argparse.Namespace, train_config=None) -> dict:
     import torch
 
     from controltac_il.app.train import train_act
-    from policies.act.training import TrainConfig
 
     if args.threads:
         torch.set_num_threads(args.threads)
-    train_config = TrainConfig(steps=args.steps, batch_size=args.batch_size, val_every=args.val_every,
-                               num_workers=args.workers, seed=args.seed)
+    train_config = train_config or check_args(args)
     return train_act(args.out, args.dataset, demos=args.demos, preset=args.preset, train_config=train_config,
                      copies=args.copies if args.augment == "force" else 0, generator=args.generator,
-                     val_fraction=args.val_fraction, chunk_size=args.chunk_size, resume=args.resume)
+                     val_fraction=args.val_fraction, chunk_size=args.chunk_size, resume=args.resume,
+                     overwrite=args.overwrite)
 
 
 if __name__ == "__main__":

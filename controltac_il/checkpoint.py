@@ -16,6 +16,12 @@ Run states (resumable training) are ``<stem>.safetensors`` (module weights, opti
 weights) + ``<stem>.json`` (step and the rest), written by :func:`save_run_state`. The learning-rate
 schedule of every training is :func:`lr_schedule` (torch's schedulers), restored with the run state.
 
+Training runs share three guards (:func:`claim_output`, :class:`StopOnInterrupt`, :func:`check_loss`): an output
+folder is only written where it holds nothing or this tool's own output of a run being resumed (``--overwrite``
+replaces only files the tool wrote), Ctrl-C saves the current step before stopping, and a NaN / inf loss stops
+the run with the last good state kept. :func:`one_line` turns a pydantic ValidationError into one line naming
+the fields (or the CLI flags).
+
 ``python -m controltac_il.checkpoint sign FOLDER`` records the weights' hashes in a folder's model card
 (for checkpoints written before the card carried them: check their contents first).
 """
@@ -25,6 +31,9 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import math
+import shutil
+import signal
 import warnings
 from pathlib import Path
 from typing import Callable, Mapping
@@ -48,6 +57,52 @@ class CheckpointError(ValueError):
 
 class MissingCheckpointFile(CheckpointError, FileNotFoundError):
     """A checkpoint folder or one of its files does not exist."""
+
+
+class OutputInUse(ValueError):
+    """An output folder holds files this run would replace: a previous run, or files of the user's."""
+
+
+class NonFiniteLoss(RuntimeError):
+    """The training loss became NaN or infinite; the run stopped, its last saved state is the last good one."""
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Ctrl-C during training, after the current step was saved; ``str()`` says where and how to continue."""
+
+    def __init__(self, message: str):
+        super().__init__(message)
+        self.message = message
+
+    def __str__(self) -> str:
+        return self.message
+
+
+def one_line(exc: BaseException, flags: Mapping[str, str] | None = None) -> str:
+    """One line for an error: a pydantic ValidationError becomes ``field: problem (got value)`` per error, the
+    field spelled as its CLI flag where ``flags`` maps it (``{"steps": "--steps"}``); other errors their message
+    with line breaks folded."""
+    errors = getattr(exc, "errors", None)
+    if callable(errors) and type(exc).__name__ == "ValidationError":
+        grouped: dict[tuple[str, str], tuple[list[str], str]] = {}
+        for err in exc.errors():
+            loc = [str(x) for x in err.get("loc", ())]
+            items = []
+            while len(loc) > 1 and loc[-1].isdigit():  # latent_scale.0 .. latent_scale.7 -> one entry
+                items.insert(0, loc.pop())
+            if loc and flags and loc[0] in flags:
+                name = ".".join([flags[loc[0]], *loc[1:]])
+            else:
+                name = ".".join(loc) or exc.title
+            msg = err.get("msg", "invalid").removeprefix("Value error, ")
+            plain = err.get("loc") and err.get("type") != "missing" and not isinstance(err.get("input"), dict)
+            shown = f" (got {err.get('input')!r})" if plain else ""
+            entry = grouped.setdefault((name, msg), ([], shown))
+            entry[0].extend(items)
+        parts = [f"{name}{'[' + ', '.join(items) + ']' if items else ''}: {msg}{shown}"
+                 for (name, msg), (items, shown) in grouped.items()]
+        return "; ".join(parts)
+    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 def sha256_file(path: str | Path) -> str:
@@ -248,6 +303,141 @@ def lr_schedule(optimizer: torch.optim.Optimizer, peaks: list[float], total: int
             for _ in range(step):
                 sched.step()
     return sched
+
+
+# -- guards of a training run ---------------------------------------------------------------------
+
+def own_json(*keys: str) -> Callable[[Path], str | None]:
+    """Recogniser of a JSON file this tool wrote: a JSON object holding every one of ``keys``."""
+    def check(path: Path) -> str | None:
+        if not path.is_file():
+            return "not a file"
+        try:
+            doc = json.loads(path.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+            return "not JSON"
+        missing = [k for k in keys if not isinstance(doc, dict) or k not in doc]
+        return f"it lacks {missing}" if missing else None
+    return check
+
+
+def own_safetensors(*prefixes: str) -> Callable[[Path], str | None]:
+    """Recogniser of a safetensors file this tool wrote: readable, every tensor name starting with one of
+    ``prefixes``."""
+    def check(path: Path) -> str | None:
+        from safetensors import safe_open
+
+        if not path.is_file():
+            return "not a file"
+        try:
+            with safe_open(str(path), "pt") as f:
+                names = list(f.keys())
+        except Exception:  # noqa: BLE001 - any unreadable file is not ours
+            return "not a safetensors file"
+        odd = [n for n in names if not n.startswith(prefixes)]
+        return f"it holds tensors {odd[:3]}" if odd else None
+    return check
+
+
+def own_checkpoint(files: tuple[str, ...], config_check: Callable[[dict], bool] | None = None
+                   ) -> Callable[[Path], str | None]:
+    """Recogniser of a checkpoint folder this tool wrote: only the names in ``files``, among them config.json and
+    a model card recording the weights' hashes, and a config ``config_check`` accepts."""
+    def check(path: Path) -> str | None:
+        if not path.is_dir():
+            return "not a folder"
+        foreign = sorted(p.name for p in path.iterdir() if p.name not in files or not p.is_file())
+        if foreign:
+            return f"{path / foreign[0]} is not a file this tool writes"
+        for name in (CONFIG_FILE, CARD_FILE):
+            if not (path / name).is_file():
+                return f"it has no {name}"
+        try:
+            config, card = json.loads((path / CONFIG_FILE).read_text()), json.loads((path / CARD_FILE).read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+            return "its config.json or model card is not JSON"
+        if not isinstance(card, dict) or HASH_KEY not in card:
+            return "its model card records no weights hashes"
+        if config_check is not None and not (isinstance(config, dict) and config_check(config)):
+            return "its config.json is not this model's"
+        return None
+    return check
+
+
+def claim_output(out: str | Path, outputs: Mapping[str, Callable[[Path], str | None]], *, resume: bool = False,
+                 overwrite: bool = False, tool: str = "this tool", label: str | None = None) -> list[str]:
+    """Make sure a training may write ``outputs`` (names under ``out``, each with a recogniser returning None for
+    this tool's own output, else why not) without destroying anything of the user's.
+
+    Anything present that the tool did not write is refused, always (it would be replaced during training).
+    Without ``resume`` or ``overwrite``, a previous run's output is refused, naming the flags; with ``overwrite``
+    it is removed (only the entries recognised, nothing else under ``out``). Returns the names present.
+    Raises :class:`OutputInUse` (a ValueError) naming the folder or the file.
+    """
+    out = Path(out)
+    label = label or str(out)
+    if out.exists() and not out.is_dir():
+        raise OutputInUse(f"--out {label} is a file, not a folder")
+    present = [n for n in outputs if (out / n).exists() or (out / n).is_symlink()]
+    for name in present:
+        why = "a link" if (out / name).is_symlink() else outputs[name](out / name)
+        if why:
+            raise OutputInUse(f"{out / name} was not written by {tool} ({why}); nothing was changed: "
+                              f"choose another --out (it is never deleted, not even with --overwrite)")
+    if present and not resume:
+        if not overwrite:
+            raise OutputInUse(f"--out {label} already holds a previous run ({', '.join(present)}): pass --resume "
+                              "to continue it, --overwrite to replace it (only files this tool wrote), or choose "
+                              "another --out")
+        for name in present:
+            shutil.rmtree(out / name) if (out / name).is_dir() else (out / name).unlink()
+    return present
+
+
+class StopOnInterrupt:
+    """Within the block the first Ctrl-C (SIGINT) only sets ``requested``: the training loop finishes its step,
+    saves and stops (:class:`TrainingInterrupted`); a second Ctrl-C interrupts at once. Left as is where
+    Python's own handler is not installed (SIGINT ignored, or not the main thread)."""
+
+    requested = False
+
+    def __enter__(self) -> "StopOnInterrupt":
+        self.requested, self._old = False, None
+        try:
+            if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+                self._old = signal.signal(signal.SIGINT, self._handle)
+        except ValueError:  # not the main thread
+            self._old = None
+        return self
+
+    def _handle(self, signum, frame) -> None:
+        if self.requested:
+            raise KeyboardInterrupt
+        self.requested = True
+
+    def __exit__(self, *exc) -> None:
+        if self._old is not None:
+            signal.signal(signal.SIGINT, self._old)
+
+
+def agree(*flags: bool) -> list[bool]:
+    """Each flag OR-ed over the processes of a torch.distributed run (as is without one), so every rank stops
+    together."""
+    import torch.distributed as dist
+
+    if not (dist.is_available() and dist.is_initialized()) or dist.get_world_size() == 1:
+        return [bool(f) for f in flags]
+    t = torch.tensor([float(f) for f in flags])
+    dist.all_reduce(t, op=dist.ReduceOp.MAX)
+    return [bool(v) for v in t.tolist()]
+
+
+def check_loss(loss: float, step: int, kept: str) -> None:
+    """Raise :class:`NonFiniteLoss` when ``loss`` (of update ``step``) is NaN or infinite; ``kept`` says which
+    saved state is the last good one."""
+    if not math.isfinite(loss):
+        raise NonFiniteLoss(f"training stopped at step {step}: the loss is {loss}; no update was applied, {kept} "
+                            "(lower the learning rate or check the data for NaN / outliers, then --resume)")
 
 
 def main(argv=None) -> None:

@@ -197,3 +197,18 @@ def test_policy_checks_observations_before_predicting(tmp_path):
     bad = dict(obs, **{"images/wrist": obs["images/wrist"].astype(np.float32)})
     with pytest.raises(ValueError, match="uint8"):
         policy.predict_chunk(bad)
+
+
+def test_a_checkpoint_config_with_bad_values_is_refused_in_one_line(tmp_path):
+    import json
+
+    from policies.act import ACT, CheckpointError, load_checkpoint, save_checkpoint
+    from act_fixtures import tiny_config
+
+    ckpt = save_checkpoint(tmp_path / "ckpt", ACT(tiny_config()))
+    doc = json.loads((ckpt / "config.json").read_text())
+    for field, value in (("lr", float("inf")), ("kl_weight", float("nan")), ("chunk_size", 0)):
+        (ckpt / "config.json").write_text(json.dumps({**doc, "act": {**doc["act"], field: value}}))
+        with pytest.raises(CheckpointError) as info:
+            load_checkpoint(ckpt)
+        assert "\n" not in str(info.value) and field in str(info.value) and "config.json" in str(info.value)

@@ -156,3 +156,159 @@ def test_torchrun_two_process_gloo_smoke(tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     _, _, meta = load_checkpoint(tmp_path / "run" / "last")
     assert meta["world_size"] == 2 and meta["step"] == 3
+
+
+# -- #20: never destroy what the user owns, never compute on garbage ---------------------------------
+
+def _tree(root: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def test_out_holding_a_run_is_refused_without_resume_or_overwrite(tmp_path):
+    from controltac_il.checkpoint import OutputInUse
+
+    ds, cfg = SyntheticACTDataset(16), tiny_config()
+    train(cfg, TrainConfig(steps=2, batch_size=8, val_every=2), ds, ds, tmp_path / "run", stats=ds.stats(),
+          progress=False)
+    before = _tree(tmp_path / "run")
+    with pytest.raises(OutputInUse, match=r"run.*--resume.*--overwrite"):
+        train(cfg, TrainConfig(steps=3, batch_size=8), ds, ds, tmp_path / "run", stats=ds.stats(), progress=False)
+    assert _tree(tmp_path / "run") == before
+    (tmp_path / "run" / "my_notes.txt").write_text("mine")  # a file of the user's beside the run is kept
+    summary = train(cfg, TrainConfig(steps=3, batch_size=8, val_every=3), ds, None, tmp_path / "run",
+                    stats=ds.stats(), overwrite=True, progress=False)
+    assert summary["steps"] == 3 and load_checkpoint(tmp_path / "run" / "last")[2]["step"] == 3
+    assert not (tmp_path / "run" / "best").exists()  # the replaced run's best/ is not passed off as this run's
+    assert (tmp_path / "run" / "my_notes.txt").read_text() == "mine"
+
+
+def test_out_of_the_users_own_is_never_deleted_even_with_overwrite(tmp_path):
+    from controltac_il.checkpoint import OutputInUse
+
+    ds, cfg = SyntheticACTDataset(16), tiny_config()
+    out = tmp_path / "mine"
+    for sub in ("best", "last"):
+        (out / sub).mkdir(parents=True)
+        (out / sub / "notes.txt").write_text("my notes")
+    (out / "train_log.json").write_text('{"mine": true}')
+    before = _tree(out)
+    for kwargs in ({}, {"overwrite": True}, {"resume": True}):
+        with pytest.raises(ValueError, match=str(out)):
+            train(cfg, TrainConfig(steps=2, batch_size=8), ds, None, out, stats=ds.stats(), progress=False, **kwargs)
+        assert _tree(out) == before, kwargs
+    with pytest.raises(OutputInUse, match="not written by"):
+        train(cfg, TrainConfig(steps=2, batch_size=8), ds, None, out, stats=ds.stats(), overwrite=True,
+              progress=False)
+
+
+class _PoisonAfter(torch.utils.data.Dataset):
+    """``ds`` whose actions become NaN after ``good`` items were read (a diverging run, deterministically)."""
+
+    def __init__(self, ds, good):
+        self.ds, self.good, self.reads = ds, good, 0
+
+    def __len__(self):
+        return len(self.ds)
+
+    def __getitem__(self, i):
+        item = dict(self.ds[i])
+        self.reads += 1
+        if self.reads > self.good:
+            item["action"] = torch.full_like(item["action"], float("nan"))
+        return item
+
+
+def test_nonfinite_loss_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path):
+    from controltac_il.checkpoint import NonFiniteLoss
+
+    ds, cfg = SyntheticACTDataset(16), tiny_config()
+    with pytest.raises(NonFiniteLoss, match=r"step 3.*last.*step 2"):
+        train(cfg, TrainConfig(steps=10, batch_size=8, save_every=2), _PoisonAfter(ds, 16), None, tmp_path,
+              stats=ds.stats(), progress=False)
+    model, _, meta = load_checkpoint(tmp_path / "last")  # verified: finite weights
+    assert meta["step"] == 2
+
+
+class _InterruptAt(torch.utils.data.Dataset):
+    """``ds`` that sends this process SIGINT (Ctrl-C) while item ``at`` is read."""
+
+    def __init__(self, ds, at):
+        self.ds, self.at, self.reads = ds, at, 0
+
+    def __len__(self):
+        return len(self.ds)
+
+    def __getitem__(self, i):
+        self.reads += 1
+        if self.reads == self.at:
+            import signal
+            os.kill(os.getpid(), signal.SIGINT)
+        return self.ds[i]
+
+
+def test_ctrl_c_saves_the_current_step_before_stopping(tmp_path):
+    from controltac_il.checkpoint import TrainingInterrupted
+
+    ds, cfg = SyntheticACTDataset(16), tiny_config()
+    with pytest.raises(KeyboardInterrupt) as info:  # during step 3 (items 17-24): step 3 is finished and saved
+        train(cfg, TrainConfig(steps=100, batch_size=8, save_every=50), _InterruptAt(ds, 20), None, tmp_path,
+              stats=ds.stats(), progress=False)
+    assert isinstance(info.value, TrainingInterrupted) and "step 3" in str(info.value)
+    assert load_checkpoint(tmp_path / "last")[2]["step"] == 3
+    assert json.loads((tmp_path / "train_log.json").read_text())["step"] == 3
+    summary = train(cfg, TrainConfig(steps=5, batch_size=8, save_every=50), ds, None, tmp_path, stats=ds.stats(),
+                    resume=True, progress=False)
+    assert summary["steps"] == 5
+
+
+def test_resume_refuses_another_dataset_naming_what_differs(tmp_path):
+    ds, cfg = SyntheticACTDataset(16), tiny_config()
+    train(cfg, TrainConfig(steps=2, batch_size=8), ds, None, tmp_path, stats=ds.stats(), progress=False)
+    before = _tree(tmp_path)
+    other = SyntheticACTDataset(16, seed=5)
+    with pytest.raises(CheckpointError, match=r"another dataset.*action mean"):
+        train(cfg, TrainConfig(steps=4, batch_size=8), other, None, tmp_path, stats=other.stats(), resume=True,
+              progress=False)
+    assert _tree(tmp_path) == before  # stats.json is not replaced
+
+
+def test_chunk_size_longer_than_every_episode_is_refused(tmp_path):
+    root = write_tiny_episodes(tmp_path / "demos", n=2, T=10)
+    with pytest.raises(ValueError, match=r"chunk_size.*--chunk-size.*10"):
+        train_on_folder(root, tmp_path / "run", preset="cpu", train_config=TrainConfig(steps=1, batch_size=2),
+                        stats_path=tmp_path / "stats.json", progress=False, **{**TINY, "chunk_size": 11})
+
+
+@pytest.mark.parametrize("flags, named", [
+    (["--steps", "0"], "--steps"), (["--batch-size", "-4"], "--batch-size"), (["--val-fraction", "1.5"], "--val-fraction"),
+    (["--checkpoint-every", "0"], "--checkpoint-every"), (["--val-every", "-1"], "--val-every"),
+    (["--chunk-size", "0"], "--chunk-size"), (["--workers", "-1"], "--workers"), (["--copies", "0", "--augment", "force"], "--copies"),
+])
+def test_train_cli_validation_errors_are_one_line_naming_the_flag(tmp_path, capsys, monkeypatch, flags, named):
+    monkeypatch.setenv("CONTROLTAC_CACHE", str(tmp_path / "cache"))
+    sys.path.insert(0, str(REPO))
+    import train_act
+
+    root = write_tiny_episodes(tmp_path / "demos", n=2)
+    assert train_act.main(["--dataset", str(root), "--out", str(tmp_path / "run"), *flags]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and named in err[0], err
+    assert not (tmp_path / "run").exists()
+
+
+def test_train_cli_data_errors_are_one_line_exit_2(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("CONTROLTAC_CACHE", str(tmp_path / "cache"))
+    sys.path.insert(0, str(REPO))
+    import train_act
+
+    root = write_tiny_episodes(tmp_path / "demos", n=3)
+    (root / "episode_2.hdf5").write_bytes(b"not an hdf5 file")
+    assert train_act.main(["--dataset", str(root), "--out", str(tmp_path / "run"), "--steps", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and err.startswith("train_act.py: error:") and "episode_2.hdf5" in err
+    out = tmp_path / "mine"
+    (out / "best").mkdir(parents=True)
+    (out / "best" / "notes.txt").write_text("mine")
+    assert train_act.main(["--dataset", str(root), "--out", str(out), "--overwrite"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "notes.txt" in err and (out / "best" / "notes.txt").read_text() == "mine"

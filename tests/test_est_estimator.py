@@ -128,3 +128,26 @@ def test_contact_gate_zeroes_frames_without_visible_contact(est):
         EstimatorConfig(contact_threshold=0.0)
     with pytest.raises(ValueError, match="min_contact_fraction"):
         EstimatorConfig(min_contact_fraction=1.5)
+
+
+def test_nonfinite_weights_and_config_values_are_refused_in_one_line_naming_the_file(est, tmp_path):
+    from safetensors.torch import load_file, save_file
+
+    from controltac_il.checkpoint import CheckpointError, sign
+
+    est.save(tmp_path / "ck")
+    weights = tmp_path / "ck" / "model.safetensors"
+    tensors = load_file(str(weights))
+    next(v for v in tensors.values() if v.is_floating_point()).view(-1)[0] = float("nan")
+    save_file(tensors, str(weights))
+    sign(tmp_path / "ck")  # the hash matches: the NaN itself is refused
+    with pytest.raises(CheckpointError, match="model.safetensors: tensors .* NaN or inf"):
+        ForceEstimator.from_pretrained(tmp_path / "ck")
+    est.save(tmp_path / "ck2")
+    cfg = json.loads((tmp_path / "ck2" / "config.json").read_text())
+    for field, value in (("force_std", [1.0, float("inf"), 1.0]), ("residual_scale", 0.0),
+                         ("force_mean", [float("nan"), 0.0, 0.0])):
+        (tmp_path / "ck2" / "config.json").write_text(json.dumps({**cfg, field: value}))
+        with pytest.raises(CheckpointError) as info:
+            ForceEstimator.from_pretrained(tmp_path / "ck2")
+        assert "\n" not in str(info.value) and field in str(info.value) and "config.json" in str(info.value)

@@ -169,5 +169,118 @@ def test_train_cli_writes_checkpoint_and_resumes(tmp_path, capsys):
     est = ForceEstimator.from_pretrained(out)
     assert (est.config.input_height, est.config.input_width) == (32, 40)
     assert "Validation" in (out / "README.md").read_text()
-    with pytest.raises(ValueError, match="manifest.csv"):
-        main(["--data", str(tmp_path / "nothing"), "--out", str(tmp_path / "x")])
+    assert main(["--data", str(tmp_path / "nothing"), "--out", str(tmp_path / "x")]) == 2
+    assert "manifest.csv" in capsys.readouterr().err
+
+
+# -- #20: never destroy what the user owns, never compute on garbage, one-line errors --------------------
+
+def _tree(root):
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def presses(tmp_path_factory):
+    from controltac_il.tactile import SensorSpec
+    from controltac_il.tactile.dataset import write_dataset
+
+    return write_dataset(tmp_path_factory.mktemp("est") / "data", objects=("big_sphere", "cross"), poses_per_object=3,
+                         forces_per_pose=2, seed=0, spec=SensorSpec.gelsight_mini().scaled(60, 80), progress=False)
+
+
+def _cli(presses, out, *extra):
+    from controltac_il.estimators.train import main
+
+    return main(["--data", str(presses), "--out", str(out), "--input-size", "32", "40", "--batch-size", "4",
+                 "--val-fraction", "0.3", "--steps", "2", *extra])
+
+
+@pytest.mark.parametrize("flags, named", [
+    (["--steps", "-1"], "--steps"), (["--batch-size", "0"], "--batch-size"), (["--lr", "inf"], "--lr"),
+    (["--val-fraction", "1.5"], "--val-fraction"), (["--no-contact-fraction", "1"], "--no-contact-fraction"),
+    (["--input-size", "4", "4"], "--input-size"), (["--checkpoint-every", "-2"], "--checkpoint-every"),
+])
+def test_train_cli_validation_errors_are_one_line_naming_the_flag(presses, tmp_path, capsys, flags, named):
+    assert _cli(presses, tmp_path / "e", *flags) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and named in err[0], err
+    assert not (tmp_path / "e").exists()
+
+
+def test_train_cli_missing_data_is_one_line(tmp_path, capsys):
+    from controltac_il.estimators.train import main
+
+    assert main(["--data", str(tmp_path / "nowhere"), "--out", str(tmp_path / "e")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "nowhere" in err[0] and "--data" in err[0]
+
+
+def test_train_cli_never_replaces_a_folder_of_the_users(presses, tmp_path, capsys):
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    before = _tree(tmp_path)
+    for extra in ([], ["--overwrite"], ["--resume"]):
+        assert _cli(presses, out, *extra) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and str(out) in err[0], (extra, err)
+        assert _tree(tmp_path) == before
+
+
+def test_train_cli_a_previous_run_needs_resume_or_overwrite(presses, tmp_path, capsys):
+    out = tmp_path / "est"
+    assert _cli(presses, out) == 0
+    before = _tree(tmp_path)
+    capsys.readouterr()
+    assert _cli(presses, out) == 2
+    err = capsys.readouterr().err
+    assert "--resume" in err and "--overwrite" in err and _tree(tmp_path) == before
+    assert _cli(presses, out, "--overwrite", "--seed", "1") == 0
+    assert _tree(tmp_path) != before
+
+
+def test_nonfinite_loss_stops_the_fit_keeping_the_last_good_state(tmp_path, monkeypatch):
+    import json
+
+    from controltac_il.checkpoint import NonFiniteLoss
+    import importlib
+    fit_module = importlib.import_module("controltac_il.estimators.fit")
+
+    x, f = blobs(32, 0)
+    calls = []
+
+    def loss(pred, target):
+        calls.append(1)
+        value = torch.nn.functional.l1_loss(pred, target)
+        return value * float("nan") if len(calls) == 4 else value
+
+    monkeypatch.setattr(fit_module, "_loss", loss)
+    with pytest.raises(NonFiniteLoss, match=r"step 4.*holds step 2"):
+        fit(x, f, TINY, TrainConfig(steps=10, batch_size=8, checkpoint_every=2, eval_every=0), state_dir=tmp_path / "s",
+            progress=False)
+    assert json.loads((tmp_path / "s" / "state.json").read_text())["step"] == 2
+
+
+def test_ctrl_c_saves_the_current_step(tmp_path, monkeypatch):
+    import json
+    import os
+    import signal
+
+    from controltac_il.checkpoint import TrainingInterrupted
+    import importlib
+    fit_module = importlib.import_module("controltac_il.estimators.fit")
+
+    x, f = blobs(32, 0)
+    calls, written = [], []
+
+    def loss(pred, target):
+        calls.append(1)
+        if len(calls) == 3:
+            os.kill(os.getpid(), signal.SIGINT)
+        return torch.nn.functional.l1_loss(pred, target)
+
+    monkeypatch.setattr(fit_module, "_loss", loss)
+    with pytest.raises(TrainingInterrupted, match="step 3"):
+        fit(x, f, TINY, TrainConfig(steps=50, batch_size=8, checkpoint_every=20, eval_every=0), state_dir=tmp_path / "s",
+            progress=False, on_checkpoint=lambda est, step, hist: written.append(step))
+    assert json.loads((tmp_path / "s" / "state.json").read_text())["step"] == 3 and written == [3]

@@ -346,3 +346,29 @@ def test_run_state_without_optimizer_state_is_refused_when_resuming(tmp_path):
     with pytest.raises(CheckpointError, match="no optimizer state"):
         load_run_state(tmp_path / "s", {"m": m}, opt)
     assert load_run_state(tmp_path / "s", {"m": m})[0]["step"] == 3
+
+
+@pytest.mark.parametrize("edit, field", [
+    (lambda c: c.update(latent_scale=[float("inf")] * len(c["latent_scale"])), "latent_scale"),
+    (lambda c: c.update(delta_scale=[0.0] * len(c["delta_scale"])), "delta_scale"),
+    (lambda c: c["dit"].update(force_scale=[float("inf")] * 3), "force_scale"),
+    (lambda c: c["dit"].update(mlp_ratio=float("nan")), "mlp_ratio"),
+    (lambda c: c.update(detail_gate=float("inf")), "detail_gate"),
+])
+def test_non_finite_or_non_positive_config_values_are_refused_in_one_line(tmp_path, edit, field):
+    import shutil
+    from pathlib import Path
+
+    from controltac_il.generator import ForceGenerator
+    from controltac_il.generator.checkpoint import CheckpointError as GenCheckpointError
+
+    src = Path(__file__).resolve().parents[1] / "controltac_il" / "generator" / "checkpoints" / "fast"
+    ckpt = tmp_path / "ckpt"
+    shutil.copytree(src, ckpt)
+    cfg = json.loads((ckpt / "config.json").read_text())
+    edit(cfg)
+    (ckpt / "config.json").write_text(json.dumps(cfg))  # json writes Infinity / NaN, as an edited file would hold
+    with pytest.raises(GenCheckpointError) as info:
+        ForceGenerator.from_pretrained(ckpt)
+    msg = str(info.value)
+    assert "\n" not in msg and field in msg and str(ckpt / "config.json") in msg

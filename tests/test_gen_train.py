@@ -2,6 +2,8 @@
 
 import json
 import os
+import re
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -39,7 +41,7 @@ def test_pairs_stay_within_a_contact_pose(dataset):
     assert np.isin(tgt[~contact], data.no_contact).all() and (~contact).sum() > 10
 
 
-def test_train_resume_and_reuse_autoencoder(dataset, tmp_path):
+def test_train_resume_and_reuse_autoencoder(dataset, tmp_path, capsys):
     run = tmp_path / "run"
     main(["--data", str(dataset), "--out", str(run), "--image-size", "64", "80", *TINY])
     final = run / "final"
@@ -97,25 +99,102 @@ def test_train_resume_and_reuse_autoencoder(dataset, tmp_path):
     chain = card5["denoiser"]["lineage"]
     assert [e["command"] for e in chain] == [fast_card["command"], card["command"]]
     assert fast_card["denoiser"]["lineage"] == []
-    with pytest.raises(ValueError, match="another dit config.*conv_head_width"):
-        main([*tune[:-2], "--out", str(tmp_path / "tune3"), "--denoiser-from", str(fast), *TINY])
-    with pytest.raises(FileNotFoundError, match="denoiser_from"):
-        main([*tune, "--out", str(tmp_path / "tune4"), "--denoiser-from", str(tmp_path), *TINY])
+    capsys.readouterr()
+    assert main([*tune[:-2], "--out", str(tmp_path / "tune3"), "--denoiser-from", str(fast), *TINY]) == 2
+    assert re.search("another dit config.*conv_head_width", capsys.readouterr().err)
+    assert main([*tune, "--out", str(tmp_path / "tune4"), "--denoiser-from", str(tmp_path), *TINY]) == 2
+    assert "denoiser_from" in capsys.readouterr().err
 
 
-def test_bad_training_arguments(dataset, tmp_path):
-    with pytest.raises(ValueError, match="ae_crop"):
-        main(["--data", str(dataset), "--out", str(tmp_path / "x"), "--ae-crop", "200", "40"])
-    with pytest.raises(ValueError, match="stage 'denoiser'"):
-        main(["--data", str(dataset), "--out", str(tmp_path / "y"), "--stage", "denoiser"])
-    with pytest.raises(ValueError, match="one_step_fraction"):
-        main(["--data", str(dataset), "--out", str(tmp_path / "z"), "--one-step-fraction", "1.5"])
-    with pytest.raises(ValueError, match="detail_gate.*anchor-to-reference"):
-        main(["--data", str(dataset), "--out", str(tmp_path / "v"), "--detail-gate", "4"])
-    with pytest.raises(ValueError, match="detail_gate"):
-        main(["--data", str(dataset), "--out", str(tmp_path / "u"), "--anchor-to-reference", "--detail-gate", "-1"])
-    with pytest.raises(ValueError, match="dit_conv_head"):
-        main(["--data", str(dataset), "--out", str(tmp_path / "w"), "--dit-conv-head", "-2"])
+def _exit(argv) -> int:
+    try:
+        return main(argv)
+    except SystemExit as e:
+        return e.code
+
+
+@pytest.mark.parametrize("flags, named", [
+    (["--ae-crop", "200", "40"], "ae_crop"), (["--one-step-fraction", "1.5"], "--one-step-fraction"),
+    (["--detail-gate", "4"], "anchor-to-reference"), (["--anchor-to-reference", "--detail-gate", "-1"], "--detail-gate"),
+    (["--dit-conv-head", "-2"], "--dit-conv-head"), (["--ema-decay", "1.5"], "--ema-decay"),
+    (["--dit-steps", "0"], "--dit-steps"), (["--ae-steps", "0"], "--ae-steps"), (["--dit-lr", "inf"], "--dit-lr"),
+    (["--stage", "denoiser"], "stage 'denoiser'"), (["--checkpoint-every", "0"], "--checkpoint-every"),
+])
+def test_bad_training_arguments_are_one_line_naming_the_flag(dataset, tmp_path, capsys, flags, named):
+    assert _exit(["--data", str(dataset), "--out", str(tmp_path / "x"), *flags]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and named in err[0], err
+    assert not (tmp_path / "x").exists()
+
+
+def test_missing_data_is_one_line(tmp_path, capsys):
+    assert _exit(["--data", str(tmp_path / "nowhere"), "--out", str(tmp_path / "g")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "nowhere" in err[0] and "--data" in err[0]
+
+
+def _tree(root: Path) -> dict:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def test_out_of_the_users_own_is_never_replaced(dataset, tmp_path, capsys):
+    out = tmp_path / "mine"
+    (out / "final").mkdir(parents=True)
+    (out / "final" / "notes.txt").write_text("mine")
+    (out / "train_config.json").write_text('{"mine": true}')
+    before = _tree(out)
+    for extra in ([], ["--overwrite"], ["--resume"]):
+        assert _exit(["--data", str(dataset), "--out", str(out), "--image-size", "64", "80", *TINY, *extra]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and str(out) in err[0], (extra, err)
+        assert _tree(out) == before
+
+
+def test_a_previous_run_needs_resume_or_overwrite(dataset, tmp_path, capsys):
+    run = tmp_path / "run"
+    args = ["--data", str(dataset), "--out", str(run), "--image-size", "64", "80", *TINY[:2], "--dit-steps", "1",
+            *TINY[4:]]
+    assert main(args) == 0
+    (run / "my_notes.txt").write_text("mine")
+    before = _tree(run)
+    capsys.readouterr()
+    assert _exit(args) == 2
+    err = capsys.readouterr().err
+    assert "--resume" in err and "--overwrite" in err and _tree(run) == before
+    assert main([*args, "--overwrite"]) == 0
+    assert json.loads((run / "denoiser_state.json").read_text())["step"] == 1 and (run / "my_notes.txt").is_file()
+
+
+def test_nonfinite_loss_stops_before_updating_and_ctrl_c_saves_the_step(tmp_path):
+    from controltac_il.checkpoint import NonFiniteLoss, TrainingInterrupted, lr_schedule
+    from controltac_il.generator.train import optimise
+
+    module = torch.nn.Linear(2, 1)
+    opt = torch.optim.AdamW(module.parameters(), lr=1e-2)
+    saved = []
+
+    def loss_at(bad_step, action):
+        def batch_loss(step):
+            if step == bad_step:
+                action()
+            loss = module(torch.ones(4, 2)).pow(2).mean()
+            return loss * float("nan") if step == bad_step and action is _nothing else loss
+        return batch_loss
+
+    sched = lr_schedule(opt, [1e-2], 10, 0, 1e-3)
+    with pytest.raises(NonFiniteLoss, match=r"step 3.*holds step 2"):
+        optimise(0, 10, loss_at(2, _nothing), opt, sched, module, lambda s, l: saved.append(s), 1, "t", 0,
+                 state=tmp_path / "t_state")
+    assert saved == [1, 2] and all(torch.isfinite(p).all() for p in module.parameters())
+    saved.clear()
+    with pytest.raises(TrainingInterrupted, match="holds step 3 of 10"):
+        optimise(0, 10, loss_at(2, lambda: os.kill(os.getpid(), signal.SIGINT)), opt, sched, module,
+                 lambda s, l: saved.append(s), 100, "t", 0, state=tmp_path / "t_state")
+    assert saved == [3]
+
+
+def _nothing():
+    pass
 
 
 @pytest.mark.slow

@@ -12,16 +12,19 @@ from policies.act.training import TrainConfig, train_on_folder
 
 def train_act(out: str | Path, dataset: str | Path | None = None, *, demos: int = 20, preset: str = "cpu",
               train_config: TrainConfig | None = None, copies: int = 0, generator: str | Path | None = None,
-              val_fraction: float = 0.1, chunk_size: int = 20, resume: bool = False,
+              val_fraction: float = 0.1, chunk_size: int = 20, resume: bool = False, overwrite: bool = False,
               progress: bool = True) -> dict:
     """Train into ``out`` (``last/``, ``best/``, ``train_log.json``); returns the training summary.
 
     dataset: folder of ``episode_<i>.hdf5``; None collects (or reuses) ``demos`` scripted demos.
     copies: ForceAugment copies per training episode (0 = real data only), drawn with the training seed.
+    resume / overwrite: continue the run in ``out`` / replace it (only what the training wrote); without
+    either, an ``out`` holding a run is refused (``policies.act.training.train``).
     """
     train_config = train_config or TrainConfig()
     if dataset is None:
         dataset = default_demos(demos)
     augment = ForceAugmentStage(copies, generator, seed=train_config.seed) if copies else None
     return train_on_folder(dataset, out, preset=preset, train_config=train_config, val_fraction=val_fraction,
-                           augment=augment, resume=resume, chunk_size=chunk_size, progress=progress)
+                           augment=augment, resume=resume, overwrite=overwrite, chunk_size=chunk_size,
+                           progress=progress)

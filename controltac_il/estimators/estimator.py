@@ -8,8 +8,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from controltac_il.checkpoint import (CARD_FILE, CONFIG_FILE, HASH_KEY, CheckpointError, load_folder, load_into, read_json,
-                                      save_folder)
+from controltac_il.checkpoint import (CARD_FILE, CONFIG_FILE, HASH_KEY, CheckpointError, load_folder, load_into, one_line,
+                                      read_json, save_folder)
 from controltac_il.estimators.config import EstimatorConfig
 from controltac_il.estimators.model import ForceCNN
 
@@ -121,7 +121,7 @@ class ForceEstimator:
         try:
             config = EstimatorConfig.from_dict(d)
         except ValueError as e:
-            raise CheckpointError(f"{path / CONFIG_FILE}: invalid estimator config: {e}") from None
+            raise CheckpointError(f"{path / CONFIG_FILE}: invalid estimator config: {one_line(e)}") from None
         est = cls(config, device=device)
         load_into(est.model, weights[WEIGHTS_FILE], path / WEIGHTS_FILE)
         est.model.eval()

@@ -17,7 +17,8 @@ from pydantic import ConfigDict, Field, model_validator
 from pydantic.dataclasses import dataclass
 from tqdm.auto import tqdm
 
-from controltac_il.checkpoint import load_run_state, lr_schedule, read_json, save_run_state
+from controltac_il.checkpoint import (StopOnInterrupt, TrainingInterrupted, check_loss, load_run_state, lr_schedule, read_json,
+                                      save_run_state)
 from controltac_il.estimators.config import EstimatorConfig
 from controltac_il.estimators.estimator import ForceEstimator, preprocess, validate_residuals
 from controltac_il.io import atomic_dir
@@ -73,6 +74,11 @@ def mae_per_axis(est: ForceEstimator, residuals: np.ndarray, forces: np.ndarray)
     return np.abs(est.predict(residuals) - forces).mean(axis=0)
 
 
+def _loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """The training loss: L1 on normalised forces."""
+    return F.l1_loss(pred, target)
+
+
 def _save_state(path: Path, est: ForceEstimator, opt: torch.optim.Optimizer, sched, gen: torch.Generator,
                 step: int, train: TrainConfig, history: list) -> None:
     meta = {"step": step, "train": asdict(train), "model": est.config.to_dict(), "history": history}
@@ -104,7 +110,9 @@ def fit(
     Images are resized once to the model input size. ``force_mean``/``force_std`` of the model
     config are set from ``forces``. With ``state_dir`` the resumable state is written there every
     ``train.checkpoint_every`` steps; ``resume=True`` continues from it; ``on_checkpoint(est, step, history)`` is called after each
-    intermediate state write. Returns the estimator
+    intermediate state write. A NaN / inf loss raises NonFiniteLoss before any update from it (the last saved
+    state is the last good one); Ctrl-C saves the current step (and calls ``on_checkpoint``), then raises
+    TrainingInterrupted. Returns the estimator
     (eval mode) and the evaluation history (step, val MAE per axis).
     """
     train = train or TrainConfig()
@@ -141,24 +149,37 @@ def fit(
     est.model.train()
     bar = tqdm(total=train.steps, initial=step, desc="train estimator", disable=not progress, dynamic_ncols=True)
     n = len(x_all)
-    while step < train.steps:
-        idx = torch.randint(0, n, (min(train.batch_size, n),), generator=gen)
-        x = x_all[idx].float().sub_(cfg.residual_offset).div_(cfg.residual_scale)
-        loss = F.l1_loss(est.model(x), y_all[idx])
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        sched.step()
-        step += 1
-        bar.update(1)
-        bar.set_postfix(loss=f"{loss.item():.4f}")
-        if train.eval_every and step % train.eval_every == 0 and step < train.steps:
-            evaluate(step)
-        if state_path is not None and train.checkpoint_every and step % train.checkpoint_every == 0 and step < train.steps:
-            _save_state(state_path, est, opt, sched, gen, step, train, history)
-            if on_checkpoint is not None:
-                on_checkpoint(est, step, history)
-    bar.close()
+    saved = step if resume else None
+    with StopOnInterrupt() as stop:
+        try:
+            while step < train.steps:
+                idx = torch.randint(0, n, (min(train.batch_size, n),), generator=gen)
+                x = x_all[idx].float().sub_(cfg.residual_offset).div_(cfg.residual_scale)
+                loss = _loss(est.model(x), y_all[idx])
+                value = loss.item()
+                check_loss(value, step + 1, f"{state_path} holds step {saved}, the last good state" if saved is not None
+                           else "no state had been saved yet")
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                opt.step()
+                sched.step()
+                step += 1
+                bar.update(1)
+                bar.set_postfix(loss=f"{value:.4f}")
+                if train.eval_every and step % train.eval_every == 0 and step < train.steps:
+                    evaluate(step)
+                periodic = train.checkpoint_every and step % train.checkpoint_every == 0
+                if state_path is not None and (periodic or stop.requested) and step < train.steps:
+                    _save_state(state_path, est, opt, sched, gen, step, train, history)
+                    saved = step
+                    if on_checkpoint is not None:
+                        on_checkpoint(est, step, history)
+                if stop.requested and step < train.steps:
+                    where = f"{state_path} holds step {step}; continue with --resume" if state_path is not None \
+                        else "nothing was saved (no state_dir)"
+                    raise TrainingInterrupted(f"interrupted (Ctrl-C) at step {step} of {train.steps}: {where}")
+        finally:
+            bar.close()
     if not history or history[-1]["step"] != step:
         evaluate(step)
     est.model.eval()

@@ -5,15 +5,22 @@
 
 The checkpoint folder (model.safetensors + config.json + model_card.json with the weights' hash +
 README.md) is rewritten atomically at every checkpoint; the resumable optimiser state lives beside it in ``<out>.train_state/``.
+An --out that holds a previous run needs --resume (continue) or --overwrite (replace; only the files this tool
+writes there); a folder of the user's is never replaced. A NaN / inf loss stops the run (exit 1) with the last
+saved state kept; Ctrl-C saves the current step before exiting (exit 130). Bad options or data: one line on
+stderr, exit 2.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
 
+from controltac_il.checkpoint import (NonFiniteLoss, OutputInUse, TrainingInterrupted, claim_output, one_line, own_checkpoint,
+                                      own_json, own_safetensors)
 from controltac_il.estimators.config import EstimatorConfig
 from controltac_il.estimators.data import load_arrays, native_no_contact, split_by_pose
 from controltac_il.estimators.fit import TrainConfig, fit
@@ -41,7 +48,60 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--checkpoint-every", type=int, default=250, help="write checkpoint + resume state every N steps (default 250)")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
     p.add_argument("--resume", action="store_true", help="continue from <out>.train_state/")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace a previous run's --out and <out>.train_state/ (only files this tool wrote)")
     return p
+
+
+PROG = "python -m controltac_il.estimators.train"
+# TrainConfig / EstimatorConfig field -> the flag that sets it (validation errors name the flag)
+FLAGS = {"steps": "--steps", "batch_size": "--batch-size", "lr": "--lr", "min_lr": "--lr", "seed": "--seed",
+         "checkpoint_every": "--checkpoint-every", "eval_every": "--checkpoint-every",
+         "input_height": "--input-size", "input_width": "--input-size"}
+
+
+def _own_state_dir(path: Path) -> str | None:
+    """None when ``path`` is a resume state folder this tool wrote (state.json + state.safetensors only)."""
+    if not path.is_dir():
+        return "not a folder"
+    names = sorted(x.name for x in path.iterdir())
+    if names != ["state.json", "state.safetensors"]:
+        return "it holds files other than this tool's state.json and state.safetensors"
+    return own_json("step", "train", "model")(path / "state.json") or own_safetensors("model.", "optimizer.", "rng")(
+        path / "state.safetensors")
+
+
+def outputs(out: Path) -> dict:
+    """What a run writes beside ``out`` (names in its parent), each with how it is recognised as this tool's own."""
+    return {out.name: own_checkpoint(("config.json", "model.safetensors", "model_card.json", "README.md"),
+                                     lambda c: c.get("input_kind") == "residual"),
+            out.name + ".train_state": _own_state_dir}
+
+
+def check_args(args: argparse.Namespace) -> tuple[TrainConfig, EstimatorConfig]:
+    """The run's configs; ValueError (one line naming the flag and the expected form) for a bad option or --out."""
+    try:
+        train = TrainConfig(steps=args.steps, batch_size=args.batch_size, lr=args.lr, min_lr=min(2e-5, args.lr),
+                            seed=args.seed, checkpoint_every=args.checkpoint_every, eval_every=args.checkpoint_every)
+        cfg = EstimatorConfig(input_height=args.input_size[0], input_width=args.input_size[1])
+    except ValueError as exc:  # pydantic: one line naming the flag
+        raise ValueError(one_line(exc, FLAGS)) from None
+    for flag, value in (("--val-fraction", args.val_fraction), ("--no-contact-fraction", args.no_contact_fraction)):
+        if not 0 <= value < 1:
+            raise ValueError(f"{flag} must be in [0, 1) (a share), got {value}")
+    if args.threads is not None and args.threads < 1:
+        raise ValueError(f"--threads must be an integer >= 1, got {args.threads}")
+    for flag, folder in (("--data", args.data), ("--val-data", args.val_data)):
+        if folder is not None and not (folder / "manifest.csv").is_file():
+            raise ValueError(f"{flag} {folder}: not a tactile dataset folder (no manifest.csv there)")
+    if args.resume and args.overwrite:
+        raise ValueError("--resume and --overwrite exclude each other: continue the run in --out, or replace it")
+    state_dir = args.out.with_name(args.out.name + ".train_state")
+    if args.resume and not (state_dir / "state.json").is_file():
+        raise ValueError(f"--resume: no training state to continue in {state_dir}")
+    claim_output(args.out.parent, outputs(args.out), resume=args.resume, overwrite=args.overwrite,
+                 tool=PROG, label=str(args.out))
+    return train, cfg
 
 
 def model_card(data: Path, n_train: int, n_val: int, history: list, cfg: EstimatorConfig, train: TrainConfig) -> str:
@@ -62,7 +122,27 @@ def model_card(data: Path, n_train: int, n_val: int, history: list, cfg: Estimat
 
 
 def main(argv=None) -> int:
+    """The CLI: 0 done, 1 stopped on a NaN / inf loss, 2 bad options or data (one line), 130 Ctrl-C (state saved)."""
     args = build_parser().parse_args(argv)
+    try:
+        train, cfg = check_args(args)
+    except ValueError as exc:  # OutputInUse is a ValueError
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        return run(args, train, cfg)
+    except TrainingInterrupted as exc:
+        print(f"{PROG}: {exc}", file=sys.stderr)
+        return 130
+    except NonFiniteLoss as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 1
+    except (ValueError, OSError) as exc:  # bad data or state (CheckpointError is a ValueError)
+        print(f"{PROG}: error: {one_line(exc)}", file=sys.stderr)
+        return 2
+
+
+def run(args: argparse.Namespace, train: TrainConfig, cfg: EstimatorConfig) -> int:
     import torch
 
     from controltac_il.tactile.dataset import load_dataset
@@ -77,15 +157,10 @@ def main(argv=None) -> int:
         train_idx, val_idx = split_by_pose(ds.pose_groups(), args.val_fraction, seed=args.seed)
         val_ds = ds
     x, f = load_arrays(ds, train_idx, size=size, progress=True)
-    if not 0 <= args.no_contact_fraction < 1:
-        raise ValueError(f"--no-contact-fraction must be in [0, 1), got {args.no_contact_fraction}")
     n_empty = int(round(len(x) * args.no_contact_fraction / (1 - args.no_contact_fraction)))
     x = np.concatenate([x, native_no_contact(ds, n_empty, size, seed=args.seed)])
     f = np.concatenate([f, np.zeros((n_empty, 3), np.float32)])
     val = load_arrays(val_ds, val_idx, size=size, progress=True) if (val_idx is None or val_idx) else None
-    train = TrainConfig(steps=args.steps, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
-                        checkpoint_every=args.checkpoint_every, eval_every=args.checkpoint_every)
-    cfg = EstimatorConfig(input_height=size[0], input_width=size[1])
     state_dir = args.out.with_name(args.out.name + ".train_state")
     n_val = 0 if val is None else len(val[0])
 

@@ -19,7 +19,8 @@ from pathlib import Path
 
 import torch
 
-from controltac_il.checkpoint import CARD_FILE, CONFIG_FILE, CheckpointError, load_folder, load_into, read_json, save_folder
+from controltac_il.checkpoint import (CARD_FILE, CONFIG_FILE, CheckpointError, load_folder, load_into, one_line, read_json,
+                                      save_folder)
 from controltac_il.generator.autoencoder import TactileAutoencoder
 from controltac_il.generator.config import GeneratorConfig
 from controltac_il.generator.dit import ForceDiT
@@ -35,7 +36,7 @@ def _config(d: dict, where: Path) -> GeneratorConfig:
     try:
         return GeneratorConfig.from_dict(d)
     except ValueError as e:
-        raise CheckpointError(f"{where}: invalid generator config: {e}") from None
+        raise CheckpointError(f"{where}: invalid generator config: {one_line(e)}") from None
 
 
 def read_config(path: str | Path) -> GeneratorConfig:

@@ -21,6 +21,11 @@ Stage 2 (DiT): pairs of the same contact pose; x0 = (z_target - z_ref) / delta_s
 DDPM schedule; loss 0.5 L1 + 0.5 MSE on the noise (or on x0 for ``--prediction-type sample``);
 AdamW, linear warm-up then cosine decay to ``min_lr_ratio`` of the peak (torch schedulers,
 ``controltac_il.checkpoint.lr_schedule``); EMA weights (diffusers' ``EMAModel``) are shipped.
+
+The run folder is only written where it is new or holds this tool's own run: a previous run needs --resume
+(continue) or --overwrite (replace: removes only the files listed above); files of the user's are never
+replaced. A NaN / inf loss stops the run (exit 1) with the last saved state kept; Ctrl-C saves the current
+step's state before exiting (exit 130). Bad options or data: one line on stderr, exit 2.
 """
 
 from __future__ import annotations
@@ -28,8 +33,10 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import os
 import platform
+import sys
 import time
 from pathlib import Path
 from typing import Callable
@@ -42,7 +49,9 @@ from safetensors.torch import load_file, save_file
 from torch.nn import functional as F
 from tqdm.auto import tqdm
 
-from controltac_il.checkpoint import load_run_state, lr_schedule, save_run_state
+from controltac_il.checkpoint import (NonFiniteLoss, OutputInUse, StopOnInterrupt, TrainingInterrupted, agree, check_loss,
+                                      claim_output, load_run_state, lr_schedule, one_line, own_checkpoint, own_json,
+                                      own_safetensors, save_run_state)
 from controltac_il.generator.autoencoder import TactileAutoencoder, autoencoder_loss
 from controltac_il.generator.checkpoint import load_checkpoint, save_checkpoint
 from controltac_il.generator.config import AutoencoderConfig, DiffusionConfig, GeneratorConfig
@@ -79,27 +88,44 @@ def wrap(model: torch.nn.Module, world: int) -> torch.nn.Module:
 
 def optimise(step: int, total: int, batch_loss: Callable[[int], torch.Tensor], opt: torch.optim.Optimizer, sched,
              module: torch.nn.Module, save: Callable[[int, float], None], every: int, desc: str, rank: int,
-             after_step: Callable[[], None] | None = None) -> None:
+             after_step: Callable[[], None] | None = None, state: str | Path | None = None) -> None:
     """AdamW steps ``step`` .. ``total`` on ``batch_loss(step)`` (gradients clipped to norm 1), the LR schedule
-    stepped after each; ``save(step, smoothed loss)`` on rank 0 every ``every`` steps and at the end."""
+    stepped after each; ``save(step, smoothed loss)`` on rank 0 every ``every`` steps and at the end.
+
+    A NaN / inf loss raises NonFiniteLoss before any update from it (``state``, the saved state's name for the
+    message, keeps the last good step); Ctrl-C saves the current step, then raises TrainingInterrupted."""
     bar = tqdm(total=total, initial=step, desc=desc, unit="step", disable=rank != 0)
     loss_ema = None
-    while step < total:
-        loss = batch_loss(step)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(module.parameters(), 1.0)
-        opt.step()
-        sched.step()
-        step += 1
-        if after_step is not None:
-            after_step()
-        loss_ema = loss.item() if loss_ema is None else 0.98 * loss_ema + 0.02 * loss.item()
-        bar.update()
-        bar.set_postfix(loss=f"{loss_ema:.4f}")
-        if rank == 0 and (step % every == 0 or step == total):
-            save(step, loss_ema)
-    bar.close()
+    saved = step if state is not None and Path(str(state) + ".json").is_file() else None
+    with StopOnInterrupt() as stop:
+        try:
+            while step < total:
+                loss = batch_loss(step)
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                value = loss.item()
+                bad, stop_now = agree(not math.isfinite(value), stop.requested)
+                if bad:
+                    check_loss(value if not math.isfinite(value) else math.nan, step + 1,
+                               f"{state or desc} holds step {saved}, the last good state" if saved is not None
+                               else "no state had been saved yet")
+                torch.nn.utils.clip_grad_norm_(module.parameters(), 1.0)
+                opt.step()
+                sched.step()
+                step += 1
+                if after_step is not None:
+                    after_step()
+                loss_ema = value if loss_ema is None else 0.98 * loss_ema + 0.02 * value
+                bar.update()
+                bar.set_postfix(loss=f"{loss_ema:.4f}")
+                if rank == 0 and (step % every == 0 or step == total or stop_now):
+                    save(step, loss_ema)
+                    saved = step
+                if stop_now and step < total:
+                    raise TrainingInterrupted(f"interrupted (Ctrl-C): {state or desc} holds step {step} of {total}; "
+                                              "continue with --resume")
+        finally:
+            bar.close()
 
 
 # -- stage 1: autoencoder ----------------------------------------------------------------------
@@ -126,7 +152,8 @@ def train_autoencoder(cfg: TrainConfig, data: PairData, out: Path, rank: int, wo
                                                    "loss": loss, "config": ae_cfg.to_dict(), "trained_by": provenance(cfg)},
                        opt, sched)
 
-    optimise(meta["step"], cfg.ae_steps, batch_loss, opt, sched, ae, save, cfg.checkpoint_every, "autoencoder", rank)
+    optimise(meta["step"], cfg.ae_steps, batch_loss, opt, sched, ae, save, cfg.checkpoint_every, "autoencoder", rank,
+             state=stem)
     barrier(world)
     if stem.with_suffix(".json").is_file():  # every rank reads rank 0's final state (identical weights anyway under DDP)
         meta, _ = load_run_state(stem, {"autoencoder": ae})
@@ -286,7 +313,7 @@ def train_denoiser(cfg: TrainConfig, gcfg: GeneratorConfig, z: torch.Tensor, dat
 
     optimise(meta["step"], cfg.dit_steps, lambda step: denoiser_loss(cfg, gcfg, noise_sched, z, data, model, rank, step, per_rank),
              opt, sched, dit, save, cfg.checkpoint_every, f"denoiser ({cfg.dit_preset})", rank,
-             after_step=lambda: ema.step(dit.parameters()))
+             after_step=lambda: ema.step(dit.parameters()), state=stem)
     barrier(world)
     if stem.with_suffix(".json").is_file():
         meta = restore_denoiser(stem, dit, ema)
@@ -407,19 +434,68 @@ def parse_args(argv=None) -> TrainConfig:
     p.add_argument("--detail-gate", type=float, default=0.0, metavar="G",
                    help="with anchoring: keep the reference's fine detail only where the target keeps its contact; "
                         "G grey levels (default 0 = always keep; the shipped default uses 4)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace a previous run in --out (only the files this tool wrote there; never anything else)")
     a = vars(p.parse_args(argv))
-    resume = a.pop("resume")
-    cfg = TrainConfig(**a)
+    resume, overwrite = a.pop("resume"), a.pop("overwrite")
+    try:
+        cfg = TrainConfig(**a)
+    except ValueError as exc:  # pydantic: one line naming the flag
+        fail(one_line(exc, {f: "--" + f.replace("_", "-") for f in a}))
+    if not Path(cfg.data).is_dir():
+        fail(f"--data {cfg.data}: dataset folder not found (a controltac_il.tactile.dataset folder with manifest.csv)")
     out = Path(cfg.out)
+    if out.resolve() == Path(cfg.data).resolve():
+        fail(f"--out {out} is the dataset folder: choose a run folder of its own")
+    if resume and overwrite:
+        fail("--resume and --overwrite exclude each other: continue the run in --out, or replace it")
     has_state = any((out / f"{s}_state.json").is_file() for s in ("autoencoder", "denoiser"))
-    if has_state and not resume:
-        p.error(f"{out} already holds training states: pass --resume to continue or choose another --out")
+    if resume and not has_state:
+        fail(f"--resume: {out} holds no training state (autoencoder_state.json or denoiser_state.json) to continue")
+    rank0 = os.environ.get("RANK", "0") == "0"  # under torchrun only rank 0 removes a replaced run
+    try:
+        claim_output(out, RUN_OUTPUTS, resume=resume or (overwrite and not rank0), overwrite=overwrite,
+                     tool="controltac_il.generator.train")
+    except OutputInUse as exc:
+        fail(str(exc))
     return cfg
 
 
-def main(argv=None) -> None:
-    run(parse_args(argv))
+def fail(message: str) -> None:
+    """A bad option: one line on stderr, exit 2."""
+    print(f"python -m controltac_il.generator.train: error: {message}", file=sys.stderr)
+    raise SystemExit(2)
+
+
+def main(argv=None) -> int:
+    """The CLI: 0 done, 1 stopped on a NaN / inf loss, 2 bad options or data (one line), 130 Ctrl-C (state saved)."""
+    cfg = parse_args(argv)
+    try:
+        run(cfg)
+    except TrainingInterrupted as exc:
+        print(f"python -m controltac_il.generator.train: {exc}", file=sys.stderr)
+        return 130
+    except NonFiniteLoss as exc:
+        print(f"python -m controltac_il.generator.train: error: {exc}", file=sys.stderr)
+        return 1
+    except (ValueError, OSError) as exc:  # bad data, source checkpoint or state (CheckpointError is a ValueError)
+        print(f"python -m controltac_il.generator.train: error: {one_line(exc)}", file=sys.stderr)
+        return 2
+    return 0
+
+
+# what a run writes in its folder, each with how it is recognised as this tool's own (--overwrite removes these)
+RUN_OUTPUTS = {
+    "train_config.json": own_json("data", "out", "stage"),
+    "latents.safetensors": own_safetensors("latents"),
+    "autoencoder_state.json": own_json("step", "config"),
+    "autoencoder_state.safetensors": own_safetensors("autoencoder.", "optimizer."),
+    "denoiser_state.json": own_json("step", "config"),
+    "denoiser_state.safetensors": own_safetensors("denoiser.", "ema.", "optimizer."),
+    "final": own_checkpoint(("config.json", "autoencoder.safetensors", "denoiser.safetensors", "model_card.json"),
+                            lambda c: "dit" in c and "autoencoder" in c),
+}
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -39,7 +39,8 @@ class TrainConfig:
     prediction_type: "epsilon" (paper) or "sample"; default_steps: DDIM steps stored as the default.
     ae_steps, ae_batch, ae_lr, ae_crop: autoencoder optimisation (crop (H, W) of the training patches, within image_size).
     ae_contact_weight: extra loss weight on contact pixels of the autoencoder's targets.
-    dit_steps, dit_batch, dit_lr: DiT optimisation (global batch, split across processes).
+    dit_steps, dit_batch, dit_lr: DiT optimisation (global batch, split across processes). 0 DiT steps only
+        with ``denoiser_from`` (a copy of that DiT); 0 autoencoder steps only where the autoencoder is reused.
     one_step_fraction: share of each DiT batch drawn at the last training timestep (the only one a
         1-step DDIM sampler visits); the rest is uniform over all timesteps, as in the paper.
     min_lr_ratio: cosine decay floor as a fraction of the peak LR; warmup_steps: linear warm-up.
@@ -91,6 +92,12 @@ class TrainConfig:
             raise ValueError(f"detail_gate={self.detail_gate} needs --anchor-to-reference")
         if any(c > s for c, s in zip(self.ae_crop, self.image_size)):
             raise ValueError(f"ae_crop {self.ae_crop} must fit in image_size {self.image_size}")
+        if self.dit_steps == 0 and self.stage != "autoencoder" and self.denoiser_from is None:
+            raise ValueError("dit_steps=0 (--dit-steps) would ship an untrained DiT: give it >= 1 steps, or start it "
+                             "from --denoiser-from (0 steps then copies that DiT)")
+        if self.ae_steps == 0 and self.stage != "denoiser" and self.autoencoder_from is None:
+            raise ValueError("ae_steps=0 (--ae-steps) would leave the autoencoder untrained: give it >= 1 steps, or "
+                             "reuse one with --autoencoder-from")
         if self.stage == "denoiser" and self.autoencoder_from is None and not (Path(self.out) / "autoencoder_state.json").is_file():
             raise ValueError("stage 'denoiser' needs --autoencoder-from or a trained autoencoder in --out")
         return self

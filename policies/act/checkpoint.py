@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from controltac_il.checkpoint import (CONFIG_FILE, CheckpointError, MissingCheckpointFile, load_folder, load_into,
-                                      load_run_state, read_json, save_folder, save_run_state)
+                                      load_run_state, one_line, read_json, save_folder, save_run_state)
 from policies.act.configuration_act import ACTConfig
 from policies.act.modeling_act import ACT
 
@@ -66,7 +66,7 @@ def read_config(ckpt_dir: str | Path) -> tuple[ACTConfig, dict]:
     try:
         config = ACTConfig.from_dict(doc.get("act"))
     except ValueError as e:
-        raise CheckpointError(f"{ckpt_dir / CONFIG_FILE}: invalid ACT config: {e}") from None
+        raise CheckpointError(f"{ckpt_dir / CONFIG_FILE}: invalid ACT config: {one_line(e)}") from None
     return config, doc.get("meta") or {}
 
 
@@ -83,6 +83,6 @@ def load_checkpoint(ckpt_dir: str | Path, device: str | torch.device = "cpu"
     except CheckpointError:
         raise
     except ValueError as e:
-        raise CheckpointError(f"{ckpt_dir / 'stats.json'}: {e}") from None
+        raise CheckpointError(f"{ckpt_dir / 'stats.json'}: {one_line(e)}") from None
     backgrounds = {k: v.numpy() for k, v in files.get(BACKGROUND_FILE, {}).items()}
     return model.to(device).eval(), backgrounds, meta

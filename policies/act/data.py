@@ -79,6 +79,7 @@ class TrainingData:
     backgrounds: dict[str, np.ndarray]
     n_episodes: int
     val_episodes: int
+    longest_episode: int = 0
 
 
 def load_training_data(root: str | Path, chunk_size: int, val_fraction: float = 0.1, seed: int = 0,
@@ -94,4 +95,5 @@ def load_training_data(root: str | Path, chunk_size: int, val_fraction: float = 
     return TrainingData(
         train=EpisodeSubset(ds, train_idx), val=EpisodeSubset(ds, val_idx) if val_idx else None, spec=DataSpec.of(ds),
         stats=stats, backgrounds=backgrounds, n_episodes=len(np.unique(episodes)),
-        val_episodes=len(np.unique(episodes[val_idx])) if val_idx else 0)
+        val_episodes=len(np.unique(episodes[val_idx])) if val_idx else 0,
+        longest_episode=int(np.bincount(np.unique(episodes, return_inverse=True)[1]).max()) if len(episodes) else 0)

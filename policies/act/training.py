@@ -10,6 +10,11 @@ Output folder::
     OUT/last/        newest checkpoint + optimizer state (what --resume continues from)
     OUT/best/        checkpoint with the lowest validation L1 (z = 0, as deployed)
     OUT/train_log.json   losses and validation curve
+
+The folder is only written where it is new, empty, or holds this tool's own run: a previous run is refused
+unless resumed (``resume``) or replaced (``overwrite``: removes only what this tool wrote), and files of the
+user's are never replaced. A NaN / inf loss stops the run (``NonFiniteLoss``) with ``last/`` left at the last
+good step; Ctrl-C saves the current step to ``last/`` before stopping (``TrainingInterrupted``).
 """
 
 from __future__ import annotations
@@ -30,9 +35,11 @@ from pydantic import ConfigDict, Field
 from pydantic.dataclasses import dataclass
 from tqdm import tqdm
 
-from controltac_il.checkpoint import lr_schedule
+from controltac_il.checkpoint import (StopOnInterrupt, TrainingInterrupted, agree, check_loss, claim_output,
+                                      lr_schedule, own_checkpoint, own_json)
 from controltac_il.io import write_json
-from policies.act.checkpoint import CheckpointError, load_checkpoint, load_optimizer_state, save_checkpoint
+from policies.act.checkpoint import (BACKGROUND_FILE, FORMAT, WEIGHTS_FILE, CheckpointError, load_checkpoint,
+                                     load_optimizer_state, save_checkpoint)
 from policies.act.configuration_act import ACTConfig
 from policies.act.modeling_act import ACT
 
@@ -112,6 +119,26 @@ def evaluate(model: ACT, loader: DataLoader, max_batches: int) -> dict[str, floa
     return {k: v / max(n, 1) for k, v in totals.items()}
 
 
+_CHECKPOINT_FILES = ("config.json", WEIGHTS_FILE, "stats.json", BACKGROUND_FILE, "optimizer.safetensors",
+                     "optimizer.json", "model_card.json")
+_own_act_checkpoint = own_checkpoint(_CHECKPOINT_FILES, lambda c: c.get("format") == FORMAT)
+# what train() writes under its output folder, each with how it is recognised as this tool's own
+RUN_OUTPUTS = {"last": _own_act_checkpoint, "best": _own_act_checkpoint,
+               "train_log.json": own_json("step", "log", "train_config")}
+
+
+def stats_change(before: dict, now: dict) -> str | None:
+    """Which normalisation statistics differ between two runs (``"action mean, qpos std"``), or None."""
+    diff = []
+    for key in ("qpos", "action"):
+        for m in ("mean", "std"):
+            a = np.asarray(before.get(key, {}).get(m, []), dtype=np.float64).reshape(-1)
+            b = np.asarray(now.get(key, {}).get(m, []), dtype=np.float64).reshape(-1)
+            if a.shape != b.shape or not np.allclose(a, b, rtol=1e-5, atol=1e-6):
+                diff.append(f"{key} {m}")
+    return ", ".join(diff) or None
+
+
 def augment_change(before: dict | None, now: dict | None) -> str | None:
     """How two runs' augmentation settings differ (``"field: old -> new, ..."``), or None when they match.
 
@@ -123,15 +150,23 @@ def augment_change(before: dict | None, now: dict | None) -> str | None:
 
 def train(act_config: ACTConfig, train_config: TrainConfig, train_set: Dataset, val_set: Dataset | None,
           out_dir: str | Path, *, stats: dict, backgrounds: dict[str, np.ndarray] | None = None,
-          resume: bool = False, meta: dict | None = None, progress: bool = True) -> dict:
+          resume: bool = False, overwrite: bool = False, meta: dict | None = None, progress: bool = True) -> dict:
     """Train ACT and write checkpoints under ``out_dir``; returns the run summary (also in train_log.json).
 
     stats: normalisation statistics (``{"qpos": {"mean", "std"}, "action": {...}}``) of the training data.
     backgrounds: tactile no-contact frames stored with the checkpoint for deployment.
-    resume: continue from ``out_dir/last`` (its config must equal ``act_config``).
+    resume: continue from ``out_dir/last`` (its config, data statistics and augmentation must equal this run's).
+    overwrite: replace a previous run in ``out_dir`` (only ``last/``, ``best/`` and ``train_log.json`` this
+        tool wrote; anything else there is never touched). Without it or ``resume`` a previous run is refused.
+    Raises OutputInUse (a ValueError) for an output folder it may not write, NonFiniteLoss when the loss
+    becomes NaN / inf (``last/`` keeps the last good step), TrainingInterrupted (a KeyboardInterrupt) on Ctrl-C
+    after saving the current step.
     """
     out_dir = Path(out_dir)
     rank, world = _dist_info()
+    claim_output(out_dir, RUN_OUTPUTS, resume=resume, overwrite=overwrite and rank == 0, tool="train_act.py")
+    if world > 1 and overwrite:
+        dist.barrier()  # rank 0 removed the replaced run
     torch.manual_seed(train_config.seed)
     model = ACT(act_config)
     model.set_stats(stats)
@@ -145,6 +180,15 @@ def train(act_config: ACTConfig, train_config: TrainConfig, train_set: Dataset, 
         if loaded.config.to_dict() != act_config.to_dict():
             raise CheckpointError(f"--resume: {out_dir / 'last'} was trained with a different ACT config; "
                                   f"use a new --out folder or the same --preset and options")
+        change = stats_change(loaded.get_stats(), stats)
+        episodes = (last_meta.get("episodes"), (meta or {}).get("episodes"))
+        if change or (None not in episodes and episodes[0] != episodes[1]):
+            detail = change or f"episodes {episodes[0]} -> {episodes[1]}"
+            where = (f"; it was {last_meta.get('dataset')}, now {(meta or {}).get('dataset')}"
+                     if last_meta.get("dataset") != (meta or {}).get("dataset") else "")
+            raise CheckpointError(f"--resume: {out_dir / 'last'} was trained on another dataset (its normalisation "
+                                  f"statistics differ: {detail}{where}); a run never mixes two training sets: "
+                                  "use a new --out folder, or resume on the same dataset")
         change = augment_change(last_meta.get("augment"), (meta or {}).get("augment"))
         if change:  # e.g. a retrained generator: the run would mix two training sets
             raise CheckpointError(f"--resume: {out_dir / 'last'} was trained with different augmentation ({change}); "
@@ -167,47 +211,64 @@ def train(act_config: ACTConfig, train_config: TrainConfig, train_set: Dataset, 
                   if val_set is not None and len(val_set) and rank == 0 else None)
     run_meta = {**(meta or {}), "train_config": asdict(train_config), "world_size": world}
 
+    saved = [step if resume else None]  # the step last/ holds
+
     def save(final: bool) -> None:
         m = {**run_meta, "step": step, "best_val_l1": best, "log": log}
         save_checkpoint(out_dir / "last", model, backgrounds=backgrounds, meta=m, optimizer=optimizer, scheduler=scheduler)
+        saved[0] = step
         if final:
             write_json(out_dir / "train_log.json", {k: v for k, v in m.items()})
+
+    def kept() -> str:
+        return (f"{out_dir / 'last'} holds step {saved[0]}, the last good checkpoint" if saved[0] is not None
+                else "no checkpoint had been written yet")
 
     bar = tqdm(total=train_config.steps, initial=step, desc="train ACT", disable=not progress or rank != 0,
                dynamic_ncols=True)
     t0, samples = time.perf_counter(), 0
     batches = _batches(loader, sampler, start_epoch=step // max(len(loader), 1))
-    while step < train_config.steps:
-        batch = next(batches)
-        out = ddp(batch)
-        optimizer.zero_grad(set_to_none=True)
-        out["loss"].backward()
-        if train_config.grad_clip:
-            torch.nn.utils.clip_grad_norm_(model.parameters(), train_config.grad_clip)
-        optimizer.step()
-        scheduler.step()
-        step += 1
-        samples += batch["observation.qpos"].shape[0] * world
-        if rank == 0:
-            row = {"step": step, **{k: round(float(v.detach()), 5) for k, v in out.items()}}
-            last = step == train_config.steps
-            if step % 10 == 0 or step == 1 or last:
-                log["train"].append(row)
-            bar.update(1)
-            bar.set_postfix(loss=f"{row['loss']:.3f}", l1=f"{row['l1']:.3f}", kl=f"{row['kl']:.3f}")
-            if val_loader is not None and (step % train_config.val_every == 0 or last):
-                val = evaluate(model, val_loader, train_config.max_val_batches)
-                log["val"].append({"step": step, **{k: round(v, 5) for k, v in val.items()}})
-                bar.write(f"step {step}: val_loss {val['val_loss']:.4f}  val_l1 (z=0) {val['val_l1']:.4f}")
-                if val["val_l1"] < best:
-                    best = val["val_l1"]
-                    save_checkpoint(out_dir / "best", model, backgrounds=backgrounds,
-                                    meta={**run_meta, "step": step, "best_val_l1": best})
-            if step % train_config.save_every == 0 or last:
-                save(final=last)
-        if world > 1:
-            dist.barrier()
-    bar.close()
+    with StopOnInterrupt() as stop:
+        try:
+            while step < train_config.steps:
+                batch = next(batches)
+                out = ddp(batch)
+                optimizer.zero_grad(set_to_none=True)
+                out["loss"].backward()
+                loss_value = float(out["loss"].detach())
+                bad, stop_now = agree(not math.isfinite(loss_value), stop.requested)
+                if bad:  # no update from a NaN / inf loss (here or on another process): last/ stays as it was
+                    check_loss(loss_value if not math.isfinite(loss_value) else math.nan, step + 1, kept())
+                if train_config.grad_clip:
+                    torch.nn.utils.clip_grad_norm_(model.parameters(), train_config.grad_clip)
+                optimizer.step()
+                scheduler.step()
+                step += 1
+                samples += batch["observation.qpos"].shape[0] * world
+                last = step == train_config.steps
+                if rank == 0:
+                    row = {"step": step, **{k: round(float(v.detach()), 5) for k, v in out.items()}}
+                    if step % 10 == 0 or step == 1 or last or stop_now:
+                        log["train"].append(row)
+                    bar.update(1)
+                    bar.set_postfix(loss=f"{row['loss']:.3f}", l1=f"{row['l1']:.3f}", kl=f"{row['kl']:.3f}")
+                    if val_loader is not None and (step % train_config.val_every == 0 or last):
+                        val = evaluate(model, val_loader, train_config.max_val_batches)
+                        log["val"].append({"step": step, **{k: round(v, 5) for k, v in val.items()}})
+                        bar.write(f"step {step}: val_loss {val['val_loss']:.4f}  val_l1 (z=0) {val['val_l1']:.4f}")
+                        if val["val_l1"] < best:
+                            best = val["val_l1"]
+                            save_checkpoint(out_dir / "best", model, backgrounds=backgrounds,
+                                            meta={**run_meta, "step": step, "best_val_l1": best})
+                    if step % train_config.save_every == 0 or last or stop_now:
+                        save(final=last or stop_now)
+                if world > 1:
+                    dist.barrier()
+                if stop_now and not last:
+                    raise TrainingInterrupted(f"interrupted (Ctrl-C): {out_dir / 'last'} holds step {step} of "
+                                              f"{train_config.steps}; continue with --resume")
+        finally:
+            bar.close()
     elapsed = time.perf_counter() - t0
     summary = {"steps": step, "samples_per_s": samples / elapsed if elapsed > 0 else None,
                "best_val_l1": best if math.isfinite(best) else None,
@@ -229,7 +290,8 @@ def resolve_checkpoint(path: str | Path) -> Path:
 
 
 def train_on_folder(dataset: str | Path, out_dir: str | Path, *, preset: str = "cpu", train_config: TrainConfig,
-                    val_fraction: float = 0.1, augment=None, resume: bool = False, stats_path=None,
+                    val_fraction: float = 0.1, augment=None, resume: bool = False, overwrite: bool = False,
+                    stats_path=None,
                     tactile_sensors=None, split_seed: int | None = None, progress: bool = True,
                     **act_overrides) -> dict:
     """Train ACT on a folder of episodes; the ACT config's data fields come from the episodes.
@@ -240,12 +302,20 @@ def train_on_folder(dataset: str | Path, out_dir: str | Path, *, preset: str = "
     augment: optional callable ``train_set -> train_set`` (e.g. ForceAugment over the training split);
         validation always stays on the recorded episodes.
     act_overrides: ACTConfig fields to change from the preset (e.g. chunk_size).
+    resume / overwrite: see :func:`train`; the output folder is checked before the data is read.
     """
     from policies.act.data import check_compatible, load_training_data  # noqa: PLC0415 (h5py only when used)
 
     chunk = act_overrides.get("chunk_size", ACTConfig.from_preset(preset).chunk_size)
     split = train_config.seed if split_seed is None else split_seed
+    claim_output(out_dir, RUN_OUTPUTS, resume=resume or overwrite, tool="train_act.py")  # before any slow work
+    if resume and not (Path(out_dir) / "last").is_dir():
+        raise CheckpointError(f"--resume: no checkpoint to continue from at {Path(out_dir) / 'last'}")
     data = load_training_data(dataset, chunk, val_fraction, split, stats_path, tactile_sensors)
+    if chunk > data.longest_episode:
+        raise ValueError(f"chunk_size {chunk} (--chunk-size) is longer than every episode of {dataset} (the longest "
+                         f"has {data.longest_episode} frames): most of each action chunk would be padding; use "
+                         f"--chunk-size {data.longest_episode} or less")
     act_config = ACTConfig.from_preset(preset, camera_names=data.spec.camera_names,
                                        tactile_names=data.spec.tactile_names, state_dim=data.spec.state_dim,
                                        action_dim=data.spec.action_dim, **act_overrides)
@@ -254,5 +324,5 @@ def train_on_folder(dataset: str | Path, out_dir: str | Path, *, preset: str = "
     meta = {"dataset": str(Path(dataset).resolve()), "episodes": data.n_episodes, "val_episodes": data.val_episodes,
             "train_frames": len(train_set), "augment": getattr(augment, "description", None)}
     summary = train(act_config, train_config, train_set, data.val, out_dir, stats=data.stats,
-                    backgrounds=data.backgrounds, resume=resume, meta=meta, progress=progress)
+                    backgrounds=data.backgrounds, resume=resume, overwrite=overwrite, meta=meta, progress=progress)
     return {**summary, **meta}
