@@ -80,7 +80,8 @@ def check_args(args: argparse.Namespace):
 
 
 def main(argv=None) -> int:
-    from controltac_il.checkpoint import NonFiniteLoss, TrainingInterrupted, one_line
+    """0 done, 1 stopped on a NaN / inf loss, 2 bad options or data (one line), 130 Ctrl-C (state saved)."""
+    from controltac_il.training import run_cli
 
     args = parse_args(argv)
     try:
@@ -88,23 +89,13 @@ def main(argv=None) -> int:
     except ValueError as exc:
         print(f"train_act.py: error: {exc}", file=sys.stderr)
         return 2
-    try:
+
+    def job() -> None:
         summary = run(args, train_config)
-    except TrainingInterrupted as exc:
-        print(f"train_act.py: {exc}", file=sys.stderr)
-        return 130
-    except KeyboardInterrupt:
-        print("train_act.py: interrupted before training started; nothing was written", file=sys.stderr)
-        return 130
-    except NonFiniteLoss as exc:
-        print(f"train_act.py: error: {exc}", file=sys.stderr)
-        return 1
-    except (ValueError, OSError) as exc:  # bad options, data, output folder or checkpoint (CheckpointError)
-        print(f"train_act.py: error: {one_line(exc)}", file=sys.stderr)
-        return 2
-    if os.environ.get("RANK", "0") == "0":
-        print(json.dumps(summary, indent=2))
-    return 0
+        if os.environ.get("RANK", "0") == "0":
+            print(json.dumps(summary, indent=2))
+
+    return run_cli("train_act.py", job)
 
 
 def run(args: argparse.Namespace, train_config=None) -> dict:

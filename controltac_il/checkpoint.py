@@ -13,14 +13,13 @@ the card's, a file safetensors cannot read, or NaN / inf in a float tensor raise
 ``load_into`` then checks tensor names and shapes against the model built from the config.
 
 Run states (resumable training) are ``<stem>.safetensors`` (module weights, optimizer tensors, EMA
-weights) + ``<stem>.json`` (step and the rest), written by :func:`save_run_state`. The learning-rate
-schedule of every training is :func:`lr_schedule` (torch's schedulers), restored with the run state.
+weights) + ``<stem>.json`` (step, the rest, and the state of the run's LR schedule:
+``controltac_il.training.lr_schedule``), written by :func:`save_run_state`.
 
-Training runs share three guards (:func:`claim_output`, :class:`StopOnInterrupt`, :func:`check_loss`): an output
-folder is only written where it holds nothing or this tool's own output of a run being resumed (``--overwrite``
-replaces only files the tool wrote), Ctrl-C saves the current step before stopping, and a NaN / inf loss stops
-the run with the last good state kept. :func:`one_line` turns a pydantic ValidationError into one line naming
-the fields (or the CLI flags).
+:func:`claim_output` guards a run's output folder: it is only written where it holds nothing or this tool's own
+output of a run being resumed (``--overwrite`` replaces only files the tool wrote). The other guards of a run
+(NaN / inf loss, Ctrl-C) are in ``controltac_il.training``. :func:`one_line` turns a pydantic ValidationError
+into one line naming the fields (or the CLI flags).
 
 ``python -m controltac_il.checkpoint sign FOLDER`` records the weights' hashes in a folder's model card
 (for checkpoints written before the card carried them: check their contents first).
@@ -31,10 +30,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
-import math
 import shutil
-import signal
-import warnings
 from pathlib import Path
 from typing import Callable, Mapping
 
@@ -42,7 +38,6 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load as load_safetensors
 from safetensors.torch import load_file, save_file
-from torch.optim.lr_scheduler import CosineAnnealingLR, LinearLR, LRScheduler, SequentialLR
 
 from controltac_il.io import atomic_dir, atomic_path, write_json
 
@@ -61,21 +56,6 @@ class MissingCheckpointFile(CheckpointError, FileNotFoundError):
 
 class OutputInUse(ValueError):
     """An output folder holds files this run would replace: a previous run, or files of the user's."""
-
-
-class NonFiniteLoss(RuntimeError):
-    """The training loss became NaN or infinite; the run stopped, its last saved state is the last good one."""
-
-
-class TrainingInterrupted(KeyboardInterrupt):
-    """Ctrl-C during training, after the current step was saved; ``str()`` says where and how to continue."""
-
-    def __init__(self, message: str):
-        super().__init__(message)
-        self.message = message
-
-    def __str__(self) -> str:
-        return self.message
 
 
 def one_line(exc: BaseException, flags: Mapping[str, str] | None = None) -> str:
@@ -222,7 +202,7 @@ def load_into(module: torch.nn.Module, state: Mapping[str, torch.Tensor], file: 
 # -- run states ------------------------------------------------------------------------------------
 
 def save_run_state(stem: str | Path, modules: Mapping[str, torch.nn.Module | Mapping[str, torch.Tensor]],
-                   meta: dict, optimizer: torch.optim.Optimizer | None = None, scheduler: LRScheduler | None = None,
+                   meta: dict, optimizer: torch.optim.Optimizer | None = None, scheduler: torch.optim.lr_scheduler.LRScheduler | None = None,
                    tensors: Mapping[str, torch.Tensor] | None = None) -> None:
     """Write ``<stem>.safetensors`` (``<name>.<key>`` per module, ``optimizer.<param>.<key>``, ``tensors``)
     and then ``<stem>.json`` (``meta``, the optimizer's groups and scalars, the LR schedule's state)."""
@@ -273,36 +253,6 @@ def load_run_state(stem: str | Path, modules: Mapping[str, torch.nn.Module],
         except (KeyError, ValueError) as e:
             raise CheckpointError(f"{stem}: the optimizer state does not fit this model: {e}") from None
     return meta, tensors
-
-
-def lr_schedule(optimizer: torch.optim.Optimizer, peaks: list[float], total: int, warmup: int,
-                min_lr: float | None = None, resume: dict | None = None, step: int = 0) -> LRScheduler:
-    """Linear warm-up over ``warmup`` steps (update i gets peak * (i + 1) / warmup), then a cosine decay to
-    ``min_lr`` at update ``total`` (torch's LinearLR -> CosineAnnealingLR), or constant when ``min_lr`` is None.
-
-    ``peaks``: each param group's peak LR (this run's settings). ``resume``: the ``lr_schedule`` entry of a
-    saved run state; restored as it was when the settings match, else (e.g. more steps) this run's schedule
-    continues from update ``step``. Call it after the optimizer state is loaded.
-    """
-    for g, peak in zip(optimizer.param_groups, peaks, strict=True):
-        g["lr"] = g["initial_lr"] = peak
-    warm = LinearLR(optimizer, 1 / warmup if warmup else 1.0, 1.0, total_iters=max(warmup - 1, 0))
-    if min_lr is None:
-        sched = warm
-    else:
-        cos = CosineAnnealingLR(optimizer, T_max=max(1, total - warmup), eta_min=min_lr)
-        sched = SequentialLR(optimizer, [warm, cos], milestones=[warmup]) if warmup else cos
-    sched.settings = {"peaks": list(peaks), "total": total, "warmup": warmup, "min_lr": min_lr}
-    if resume is not None and resume.get("settings") == sched.settings:
-        sched.load_state_dict(resume["state"])
-        for g, lr in zip(optimizer.param_groups, sched.get_last_lr()):
-            g["lr"] = lr
-    else:
-        with warnings.catch_warnings():  # stepping the schedule without optimizer steps, on purpose
-            warnings.simplefilter("ignore", UserWarning)
-            for _ in range(step):
-                sched.step()
-    return sched
 
 
 # -- guards of a training run ---------------------------------------------------------------------
@@ -392,52 +342,6 @@ def claim_output(out: str | Path, outputs: Mapping[str, Callable[[Path], str | N
         for name in present:
             shutil.rmtree(out / name) if (out / name).is_dir() else (out / name).unlink()
     return present
-
-
-class StopOnInterrupt:
-    """Within the block the first Ctrl-C (SIGINT) only sets ``requested``: the training loop finishes its step,
-    saves and stops (:class:`TrainingInterrupted`); a second Ctrl-C interrupts at once. Left as is where
-    Python's own handler is not installed (SIGINT ignored, or not the main thread)."""
-
-    requested = False
-
-    def __enter__(self) -> "StopOnInterrupt":
-        self.requested, self._old = False, None
-        try:
-            if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
-                self._old = signal.signal(signal.SIGINT, self._handle)
-        except ValueError:  # not the main thread
-            self._old = None
-        return self
-
-    def _handle(self, signum, frame) -> None:
-        if self.requested:
-            raise KeyboardInterrupt
-        self.requested = True
-
-    def __exit__(self, *exc) -> None:
-        if self._old is not None:
-            signal.signal(signal.SIGINT, self._old)
-
-
-def agree(*flags: bool) -> list[bool]:
-    """Each flag OR-ed over the processes of a torch.distributed run (as is without one), so every rank stops
-    together."""
-    import torch.distributed as dist
-
-    if not (dist.is_available() and dist.is_initialized()) or dist.get_world_size() == 1:
-        return [bool(f) for f in flags]
-    t = torch.tensor([float(f) for f in flags])
-    dist.all_reduce(t, op=dist.ReduceOp.MAX)
-    return [bool(v) for v in t.tolist()]
-
-
-def check_loss(loss: float, step: int, kept: str) -> None:
-    """Raise :class:`NonFiniteLoss` when ``loss`` (of update ``step``) is NaN or infinite; ``kept`` says which
-    saved state is the last good one."""
-    if not math.isfinite(loss):
-        raise NonFiniteLoss(f"training stopped at step {step}: the loss is {loss}; no update was applied, {kept} "
-                            "(lower the learning rate or check the data for NaN / outliers, then --resume)")
 
 
 def main(argv=None) -> None:

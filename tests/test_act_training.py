@@ -219,7 +219,7 @@ class _PoisonAfter(torch.utils.data.Dataset):
 
 
 def test_nonfinite_loss_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path):
-    from controltac_il.checkpoint import NonFiniteLoss
+    from controltac_il.training import NonFiniteLoss
 
     ds, cfg = SyntheticACTDataset(16), tiny_config()
     with pytest.raises(NonFiniteLoss, match=r"step 3.*last.*step 2"):
@@ -247,7 +247,7 @@ class _InterruptAt(torch.utils.data.Dataset):
 
 
 def test_ctrl_c_saves_the_current_step_before_stopping(tmp_path):
-    from controltac_il.checkpoint import TrainingInterrupted
+    from controltac_il.training import TrainingInterrupted
 
     ds, cfg = SyntheticACTDataset(16), tiny_config()
     with pytest.raises(KeyboardInterrupt) as info:  # during step 3 (items 17-24): step 3 is finished and saved

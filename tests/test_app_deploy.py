@@ -56,7 +56,7 @@ def test_robot_deploy_refuses_a_setup_without_a_camera_before_connecting(checkpo
     setup.write_text("robot: {type: xarm, ip: 127.0.0.1}\ngripper: {type: none}\n"
                      "cameras: {third_view: {device: /dev/video0}}\n"
                      "tactile: {left: {device: /dev/video2}, right: {device: /dev/video3}}\n"
-                     "limits: {workspace_min: [0.2, -0.3, 0.0], workspace_max: [0.7, 0.3, 0.5]}\n")
+                     "limits: {workspace_min: [0.2, -0.3, 0.0], workspace_max: [0.6, 0.3, 0.5]}\n")
     with pytest.raises(ValueError, match="camera 'wrist'"):
         deploy_on_robot("xarm", checkpoint, setup)
     with pytest.raises(ValueError, match="robot.type 'xarm'"):

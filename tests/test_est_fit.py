@@ -242,7 +242,7 @@ def test_train_cli_a_previous_run_needs_resume_or_overwrite(presses, tmp_path, c
 def test_nonfinite_loss_stops_the_fit_keeping_the_last_good_state(tmp_path, monkeypatch):
     import json
 
-    from controltac_il.checkpoint import NonFiniteLoss
+    from controltac_il.training import NonFiniteLoss
     import importlib
     fit_module = importlib.import_module("controltac_il.estimators.fit")
 
@@ -266,7 +266,7 @@ def test_ctrl_c_saves_the_current_step(tmp_path, monkeypatch):
     import os
     import signal
 
-    from controltac_il.checkpoint import TrainingInterrupted
+    from controltac_il.training import TrainingInterrupted
     import importlib
     fit_module = importlib.import_module("controltac_il.estimators.fit")
 

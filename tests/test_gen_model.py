@@ -11,7 +11,8 @@ import torch
 from diffusers.training_utils import EMAModel
 from safetensors.torch import save_file
 
-from controltac_il.checkpoint import CheckpointError, load_run_state, lr_schedule, save_run_state
+from controltac_il.checkpoint import CheckpointError, load_run_state, save_run_state
+from controltac_il.training import lr_schedule
 from controltac_il.generator.autoencoder import TactileAutoencoder
 from controltac_il.generator.checkpoint import (
     AE_FILE,

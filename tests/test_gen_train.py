@@ -166,7 +166,7 @@ def test_a_previous_run_needs_resume_or_overwrite(dataset, tmp_path, capsys):
 
 
 def test_nonfinite_loss_stops_before_updating_and_ctrl_c_saves_the_step(tmp_path):
-    from controltac_il.checkpoint import NonFiniteLoss, TrainingInterrupted, lr_schedule
+    from controltac_il.training import NonFiniteLoss, TrainingInterrupted, lr_schedule
     from controltac_il.generator.train import optimise
 
     module = torch.nn.Linear(2, 1)

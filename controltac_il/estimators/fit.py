@@ -17,8 +17,8 @@ from pydantic import ConfigDict, Field, model_validator
 from pydantic.dataclasses import dataclass
 from tqdm.auto import tqdm
 
-from controltac_il.checkpoint import (StopOnInterrupt, TrainingInterrupted, check_loss, load_run_state, lr_schedule, read_json,
-                                      save_run_state)
+from controltac_il.checkpoint import load_run_state, read_json, save_run_state
+from controltac_il.training import StopOnInterrupt, TrainingInterrupted, check_loss, lr_schedule
 from controltac_il.estimators.config import EstimatorConfig
 from controltac_il.estimators.estimator import ForceEstimator, preprocess, validate_residuals
 from controltac_il.io import atomic_dir

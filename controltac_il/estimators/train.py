@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from controltac_il.checkpoint import (NonFiniteLoss, OutputInUse, TrainingInterrupted, claim_output, one_line, own_checkpoint,
-                                      own_json, own_safetensors)
+from controltac_il.checkpoint import OutputInUse, claim_output, one_line, own_checkpoint, own_json, own_safetensors
+from controltac_il.training import run_cli
 from controltac_il.estimators.config import EstimatorConfig
 from controltac_il.estimators.data import load_arrays, native_no_contact, split_by_pose
 from controltac_il.estimators.fit import TrainConfig, fit
@@ -129,20 +129,10 @@ def main(argv=None) -> int:
     except ValueError as exc:  # OutputInUse is a ValueError
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
-    try:
-        return run(args, train, cfg)
-    except TrainingInterrupted as exc:
-        print(f"{PROG}: {exc}", file=sys.stderr)
-        return 130
-    except NonFiniteLoss as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return 1
-    except (ValueError, OSError) as exc:  # bad data or state (CheckpointError is a ValueError)
-        print(f"{PROG}: error: {one_line(exc)}", file=sys.stderr)
-        return 2
+    return run_cli(PROG, lambda: run(args, train, cfg))
 
 
-def run(args: argparse.Namespace, train: TrainConfig, cfg: EstimatorConfig) -> int:
+def run(args: argparse.Namespace, train: TrainConfig, cfg: EstimatorConfig) -> None:
     import torch
 
     from controltac_il.tactile.dataset import load_dataset
@@ -178,7 +168,6 @@ def run(args: argparse.Namespace, train: TrainConfig, cfg: EstimatorConfig) -> i
     print(f"no-contact frame: raw network reading {np.round(est.predict(empty, gate=False)[0], 3).tolist()} N "
           "(predict() gates it to 0)")
     print(f"wrote {args.out}")
-    return 0
 
 
 if __name__ == "__main__":

@@ -49,9 +49,9 @@ from safetensors.torch import load_file, save_file
 from torch.nn import functional as F
 from tqdm.auto import tqdm
 
-from controltac_il.checkpoint import (NonFiniteLoss, OutputInUse, StopOnInterrupt, TrainingInterrupted, agree, check_loss,
-                                      claim_output, load_run_state, lr_schedule, one_line, own_checkpoint, own_json,
+from controltac_il.checkpoint import (OutputInUse, claim_output, load_run_state, one_line, own_checkpoint, own_json,
                                       own_safetensors, save_run_state)
+from controltac_il.training import StopOnInterrupt, TrainingInterrupted, agree, check_loss, lr_schedule, run_cli
 from controltac_il.generator.autoencoder import TactileAutoencoder, autoencoder_loss
 from controltac_il.generator.checkpoint import load_checkpoint, save_checkpoint
 from controltac_il.generator.config import AutoencoderConfig, DiffusionConfig, GeneratorConfig
@@ -470,18 +470,7 @@ def fail(message: str) -> None:
 def main(argv=None) -> int:
     """The CLI: 0 done, 1 stopped on a NaN / inf loss, 2 bad options or data (one line), 130 Ctrl-C (state saved)."""
     cfg = parse_args(argv)
-    try:
-        run(cfg)
-    except TrainingInterrupted as exc:
-        print(f"python -m controltac_il.generator.train: {exc}", file=sys.stderr)
-        return 130
-    except NonFiniteLoss as exc:
-        print(f"python -m controltac_il.generator.train: error: {exc}", file=sys.stderr)
-        return 1
-    except (ValueError, OSError) as exc:  # bad data, source checkpoint or state (CheckpointError is a ValueError)
-        print(f"python -m controltac_il.generator.train: error: {one_line(exc)}", file=sys.stderr)
-        return 2
-    return 0
+    return run_cli("python -m controltac_il.generator.train", lambda: run(cfg))
 
 
 # what a run writes in its folder, each with how it is recognised as this tool's own (--overwrite removes these)

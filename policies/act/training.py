@@ -35,8 +35,8 @@ from pydantic import ConfigDict, Field
 from pydantic.dataclasses import dataclass
 from tqdm import tqdm
 
-from controltac_il.checkpoint import (StopOnInterrupt, TrainingInterrupted, agree, check_loss, claim_output,
-                                      lr_schedule, own_checkpoint, own_json)
+from controltac_il.checkpoint import claim_output, own_checkpoint, own_json
+from controltac_il.training import StopOnInterrupt, TrainingInterrupted, agree, check_loss, lr_schedule
 from controltac_il.io import write_json
 from policies.act.checkpoint import (BACKGROUND_FILE, FORMAT, WEIGHTS_FILE, CheckpointError, load_checkpoint,
                                      load_optimizer_state, save_checkpoint)

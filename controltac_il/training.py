@@ -1,0 +1,135 @@
+"""What every training run of the project shares: the learning-rate schedule, the NaN / inf guard, Ctrl-C
+handling, and the exit codes of the training CLIs.
+
+A NaN / inf loss stops the run (:func:`check_loss` raises :class:`NonFiniteLoss`) with the last saved state
+kept; the first Ctrl-C inside :class:`StopOnInterrupt` lets the loop finish and save its step, then it raises
+:class:`TrainingInterrupted`; :func:`agree` makes every rank of a torch.distributed run stop together.
+:func:`run_cli` maps these to one line on stderr and the CLIs' exit codes (0 done, 1 NaN / inf loss, 2 bad
+options or data, 130 Ctrl-C).
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+import sys
+import warnings
+from typing import Callable
+
+import torch
+from torch.optim.lr_scheduler import CosineAnnealingLR, LinearLR, LRScheduler, SequentialLR
+
+from controltac_il.checkpoint import one_line
+
+
+class NonFiniteLoss(RuntimeError):
+    """The training loss became NaN or infinite; the run stopped, its last saved state is the last good one."""
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Ctrl-C during training, after the current step was saved; ``str()`` says where and how to continue."""
+
+    def __init__(self, message: str):
+        super().__init__(message)
+        self.message = message
+
+    def __str__(self) -> str:
+        return self.message
+
+
+def lr_schedule(optimizer: torch.optim.Optimizer, peaks: list[float], total: int, warmup: int,
+                min_lr: float | None = None, resume: dict | None = None, step: int = 0) -> LRScheduler:
+    """Linear warm-up over ``warmup`` steps (update i gets peak * (i + 1) / warmup), then a cosine decay to
+    ``min_lr`` at update ``total`` (torch's LinearLR -> CosineAnnealingLR), or constant when ``min_lr`` is None.
+
+    ``peaks``: each param group's peak LR (this run's settings). ``resume``: the ``lr_schedule`` entry of a
+    saved run state; restored as it was when the settings match, else (e.g. more steps) this run's schedule
+    continues from update ``step``. Call it after the optimizer state is loaded.
+    """
+    for g, peak in zip(optimizer.param_groups, peaks, strict=True):
+        g["lr"] = g["initial_lr"] = peak
+    warm = LinearLR(optimizer, 1 / warmup if warmup else 1.0, 1.0, total_iters=max(warmup - 1, 0))
+    if min_lr is None:
+        sched = warm
+    else:
+        cos = CosineAnnealingLR(optimizer, T_max=max(1, total - warmup), eta_min=min_lr)
+        sched = SequentialLR(optimizer, [warm, cos], milestones=[warmup]) if warmup else cos
+    sched.settings = {"peaks": list(peaks), "total": total, "warmup": warmup, "min_lr": min_lr}
+    if resume is not None and resume.get("settings") == sched.settings:
+        sched.load_state_dict(resume["state"])
+        for g, lr in zip(optimizer.param_groups, sched.get_last_lr()):
+            g["lr"] = lr
+    else:
+        with warnings.catch_warnings():  # stepping the schedule without optimizer steps, on purpose
+            warnings.simplefilter("ignore", UserWarning)
+            for _ in range(step):
+                sched.step()
+    return sched
+
+
+class StopOnInterrupt:
+    """Within the block the first Ctrl-C (SIGINT) only sets ``requested``: the training loop finishes its step,
+    saves and stops (:class:`TrainingInterrupted`); a second Ctrl-C interrupts at once. Left as is where
+    Python's own handler is not installed (SIGINT ignored, or not the main thread)."""
+
+    requested = False
+
+    def __enter__(self) -> "StopOnInterrupt":
+        self.requested, self._old = False, None
+        try:
+            if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+                self._old = signal.signal(signal.SIGINT, self._handle)
+        except ValueError:  # not the main thread
+            self._old = None
+        return self
+
+    def _handle(self, signum, frame) -> None:
+        if self.requested:
+            raise KeyboardInterrupt
+        self.requested = True
+
+    def __exit__(self, *exc) -> None:
+        if self._old is not None:
+            signal.signal(signal.SIGINT, self._old)
+
+
+def agree(*flags: bool) -> list[bool]:
+    """Each flag OR-ed over the processes of a torch.distributed run (as is without one), so every rank stops
+    together."""
+    import torch.distributed as dist
+
+    if not (dist.is_available() and dist.is_initialized()) or dist.get_world_size() == 1:
+        return [bool(f) for f in flags]
+    t = torch.tensor([float(f) for f in flags])
+    dist.all_reduce(t, op=dist.ReduceOp.MAX)
+    return [bool(v) for v in t.tolist()]
+
+
+def check_loss(loss: float, step: int, kept: str) -> None:
+    """Raise :class:`NonFiniteLoss` when ``loss`` (of update ``step``) is NaN or infinite; ``kept`` says which
+    saved state is the last good one."""
+    if not math.isfinite(loss):
+        raise NonFiniteLoss(f"training stopped at step {step}: the loss is {loss}; no update was applied, {kept} "
+                            "(lower the learning rate or check the data for NaN / outliers, then --resume)")
+
+
+def run_cli(prog: str, job: Callable[[], object]) -> int:
+    """Run a training CLI's ``job`` and return its exit code, each failure one line on stderr: 0 done;
+    1 stopped on a NaN / inf loss; 2 bad options, data, output folder or checkpoint (ValueError / OSError, of
+    which CheckpointError and OutputInUse are kinds); 130 Ctrl-C (inside a step: after saving it)."""
+    try:
+        job()
+    except TrainingInterrupted as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return 130
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted (Ctrl-C) outside a training step; files already written are complete "
+              "(atomic writes)", file=sys.stderr)
+        return 130
+    except NonFiniteLoss as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 1
+    except (ValueError, OSError) as exc:
+        print(f"{prog}: error: {one_line(exc)}", file=sys.stderr)
+        return 2
+    return 0
