@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Callable, Mapping
 
 import torch
+from pydantic import TypeAdapter
 from safetensors import SafetensorError
 from safetensors.torch import load as load_safetensors
 from safetensors.torch import load_file, save_file
@@ -101,6 +102,18 @@ def read_json(path: str | Path) -> dict:
     if not isinstance(doc, dict):
         raise CheckpointError(f"{path}: expected a JSON object, got {type(doc).__name__}")
     return doc
+
+
+class JsonConfig:
+    """Mixin of the project's pydantic-dataclass configs: ``to_dict`` (JSON types, as ``config.json`` holds
+    them) and ``from_dict`` (validated; unknown fields refused, so a config from another version is an error)."""
+
+    def to_dict(self) -> dict:
+        return TypeAdapter(type(self)).dump_python(self, mode="json")
+
+    @classmethod
+    def from_dict(cls, d: dict):
+        return TypeAdapter(cls).validate_python(d)
 
 
 def state_tensors(weights: torch.nn.Module | Mapping[str, torch.Tensor], dtype: torch.dtype | None = None

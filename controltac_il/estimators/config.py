@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 from dataclasses import field
-from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import ConfigDict, Field, TypeAdapter
+from pydantic import ConfigDict, Field
 from pydantic.dataclasses import dataclass
 
-from controltac_il.checkpoint import read_json
+from controltac_il.checkpoint import JsonConfig
 from controltac_il.tactile.residual import OFFSET
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
@@ -17,7 +16,7 @@ Std = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 
 
 @dataclass(config=ConfigDict(extra="forbid"))
-class EstimatorConfig:
+class EstimatorConfig(JsonConfig):
     """Shape and normalisation of a :class:`~controltac_il.estimators.model.ForceCNN`; every field is
     validated at construction (ValueError naming it).
 
@@ -53,13 +52,3 @@ class EstimatorConfig:
     input_kind: Literal["residual"] = "residual"
     extra: dict = field(default_factory=dict)
 
-    def to_dict(self) -> dict:
-        return TypeAdapter(EstimatorConfig).dump_python(self, mode="json")
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "EstimatorConfig":
-        return TypeAdapter(cls).validate_python(d)
-
-    @classmethod
-    def load(cls, path: str | Path) -> "EstimatorConfig":
-        return cls.from_dict(read_json(path))

@@ -9,9 +9,10 @@ from __future__ import annotations
 from dataclasses import field
 from typing import Annotated, Literal
 
-from pydantic import ConfigDict, Field, TypeAdapter, model_validator
+from pydantic import ConfigDict, Field, model_validator
 from pydantic.dataclasses import dataclass
 
+from controltac_il.checkpoint import JsonConfig
 from controltac_il.generator.forces import VALIDATED_RANGE
 
 # Validated force range of the paper, owned by ``controltac_il.generator.forces`` (these are its aliases).
@@ -25,19 +26,8 @@ Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 STRICT = ConfigDict(extra="forbid")  # an unknown field (a config from another version) is an error
 
 
-class _JsonConfig:
-    """``to_dict`` (JSON types) and ``from_dict`` (validated; unknown fields refused) for the configs below."""
-
-    def to_dict(self) -> dict:
-        return TypeAdapter(type(self)).dump_python(self, mode="json")
-
-    @classmethod
-    def from_dict(cls, d: dict):
-        return TypeAdapter(cls).validate_python(d)
-
-
 @dataclass(config=STRICT)
-class AutoencoderConfig(_JsonConfig):
+class AutoencoderConfig(JsonConfig):
     """Compact deep-compression-style autoencoder for tactile residuals.
 
     image_size: (H, W) pixels of the residual it encodes; both divisible by 2**len(channels).
@@ -72,7 +62,7 @@ class AutoencoderConfig(_JsonConfig):
 
 
 @dataclass(config=STRICT)
-class DiTConfig(_JsonConfig):
+class DiTConfig(JsonConfig):
     """Diffusion transformer denoiser (DiT style, adaLN-Zero), conditioned on timestep and ΔF.
 
     in_channels: channels of the noisy latent; the reference latent is concatenated, so the
@@ -125,7 +115,7 @@ BETA_SCHEDULES = ("scaled_linear", "linear", "squaredcos_cap_v2")
 
 
 @dataclass(config=STRICT)
-class DiffusionConfig(_JsonConfig):
+class DiffusionConfig(JsonConfig):
     """Noise schedule and sampler defaults (diffusers' DDIMScheduler).
 
     num_train_timesteps: length of the training noise schedule.
@@ -148,7 +138,7 @@ class DiffusionConfig(_JsonConfig):
 
 
 @dataclass(config=STRICT)
-class GeneratorConfig(_JsonConfig):
+class GeneratorConfig(JsonConfig):
     """Everything needed to rebuild a trained generator (saved as ``config.json`` beside the weights).
 
     autoencoder, dit, diffusion: the sub-configs above.

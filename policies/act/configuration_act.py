@@ -9,8 +9,10 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import AfterValidator, ConfigDict, Field, TypeAdapter, model_validator
+from pydantic import AfterValidator, ConfigDict, Field, model_validator
 from pydantic.dataclasses import dataclass
+
+from controltac_il.checkpoint import JsonConfig
 
 BACKBONES = ("resnet18", "small_cnn")
 PosInt = Annotated[int, Field(gt=0)]
@@ -30,10 +32,11 @@ Names = Annotated[tuple[str, ...], AfterValidator(_stream_names)]
 
 
 @dataclass(config=ConfigDict(extra="forbid"))
-class ACTConfig:
+class ACTConfig(JsonConfig):
     """Architecture and loss of the ACT policy (CVAE with a transformer encoder/decoder).
 
-    Every field is validated when the config is built (pydantic; a ValueError names the field).
+    Every field is validated when the config is built (pydantic; a ValueError names the field); ``from_dict``
+    refuses unknown keys (a checkpoint from another version).
 
     Data layout (must match the episodes the policy is trained on and deployed with):
         camera_names: RGB cameras, e.g. ("third_view", "wrist"); each is one image stream.
@@ -114,14 +117,6 @@ class ACTConfig:
             raise ValueError(f"ACT preset must be 'cpu' or 'gpu', got {preset!r}")
         base.update(overrides)
         return cls(preset=preset, **base)
-
-    def to_dict(self) -> dict:
-        return TypeAdapter(ACTConfig).dump_python(self, mode="json")
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "ACTConfig":
-        """Inverse of :meth:`to_dict`; unknown keys are an error (a checkpoint from another version)."""
-        return TypeAdapter(cls).validate_python(d)
 
     @property
     def input_keys(self) -> list[str]:
