@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from benchmarks.common import base_parser, median_time, print_table, write_results
+from controltac_il.generator.forces import VALIDATED_RANGE
 from controltac_il.tactile import HELDOUT_OBJECTS, TRAIN_OBJECTS, SensorSpec, TactileSensor, to_residual
 from controltac_il.tactile.residual import OFFSET, residual_magnitude
 from controltac_il.tactile.sheet import save_png
@@ -68,7 +69,7 @@ def run(quick: bool, real_dir: Path, picture: Path | None) -> dict:
             sensor = TactileSensor(SensorSpec.gelsight_mini().scaled(h, w), optics=optics)
             rng = np.random.default_rng(0)
             cases = [(TRAIN_OBJECTS[i % 6], (rng.uniform(-3, 3), rng.uniform(-2, 2), rng.uniform(0, 3)),
-                      (0.0, 0.0, rng.uniform(1, 10))) for i in range(n_frames)]
+                      (0.0, 0.0, rng.uniform(*VALIDATED_RANGE.fz))) for i in range(n_frames)]
             iters = []
 
             def render_all():

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from controltac_il.tactile.residual import OFFSET
+from controltac_il.tactile.residual import OFFSET, to_residual
 from envs.config import EVAL_SEED
 
 BUDGETS = (20, 35, 50)
@@ -234,8 +234,7 @@ def vision_check(seeds=range(20), offsets_mm=(-8.0, -5.0, 5.0, 8.0)) -> dict:
                     env.set_peg_offset_in_hand(off / 1000.0)
                     for c in cfg.cameras:
                         images[c].append(env.render_camera(c).astype(np.int16))
-                    residual = np.clip(env.render_tactile("left").astype(np.int16)
-                                       - env.tactile_background("left") + OFFSET, 0, 255)
+                    residual = to_residual(env.render_tactile("left"), env.tactile_background("left"))
                     cols.append(_stripe_column(residual))
                 for c in cfg.cameras:
                     diffs[c] = max(diffs[c], max(int(np.abs(images[c][0] - im).max()) for im in images[c][1:]))

@@ -16,9 +16,11 @@ from torch.utils.data import DataLoader, Dataset
 
 gen_mod = pytest.importorskip("controltac_il.generator")
 from controltac_il.augment import (  # noqa: E402
-    STATUS, ForceAugment, StaleCacheError, copy_offset, frame_jitter, resolve_target,
+    STATUS, ForceAugment, StaleCacheError, copy_offset, frame_jitter,
 )
+from controltac_il.augment.draws import requested_target, status_of  # noqa: E402
 from controltac_il.datasets import Episode, EpisodeDataset, write_episode  # noqa: E402
+from controltac_il.generator.forces import decide_targets  # noqa: E402
 
 H, W = 32, 32
 JITTER = (-1.0, -0.5, 0.0, 0.5, 1.0)
@@ -152,6 +154,13 @@ def test_draws_are_pure_functions_and_cover_the_jitter_set():
     assert set(jit) == set(JITTER)
     assert copy_offset(8, 0, 1, (-3.0, 10.0)) != copy_offset(7, 0, 1, (-3.0, 10.0))
     assert copy_offset(0, 2, 2, (4.0, 4.0)) == 4.0
+
+
+def resolve_target(reference, delta_fz, out_of_range):
+    """What ForceAugment gets for one frame: the generator's decision on reference + (0, 0, offset + jitter)."""
+    decision = decide_targets(requested_target(reference, delta_fz)[None], out_of_range,
+                              reference_force=np.asarray(reference, np.float64)[None], reference_out_of_range="skip")
+    return decision.target[0], status_of(decision, 0)
 
 
 def test_resolve_target_clamps_or_skips():

@@ -243,7 +243,7 @@ def test_the_validated_range_and_residual_offset_have_one_owner():
 
     assert VALIDATED_RANGE.card() == {"fz_n": [1.0, 10.0], "abs_shear_n": 1.0}
     assert (config.FZ_RANGE, config.SHEAR_MAX) == (VALIDATED_RANGE.fz, VALIDATED_RANGE.shear_max)
-    np.testing.assert_array_equal(pipeline.MAX_DELTA, [2.0, 2.0, 9.0])
+    np.testing.assert_array_equal(VALIDATED_RANGE.span, [2.0, 2.0, 9.0])
     assert pipeline.RESIDUAL_OFFSET == OFFSET == 127
     d = decide_targets([[0.0, 0.0, 10.0 + 5e-7], [0.0, 0.0, 0.5]])  # within the tolerance / below the range
     assert d.clamped.tolist() == [False, True] and d.target[1].tolist() == [0.0, 0.0, 1.0]

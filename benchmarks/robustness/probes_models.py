@@ -14,6 +14,7 @@ from benchmarks.robustness.harness import (
     HANDLED, LOSS, REPO, SILENT, UNCLEAR, demo_episodes, judge_call, judge_cli, last_line, lost, probe, run_cli,
     snapshot,
 )
+from controltac_il.tactile.residual import OFFSET
 
 GEN_DEFAULT = REPO / "controltac_il" / "generator" / "checkpoints" / "default"
 EST_DEFAULT = REPO / "controltac_il" / "estimators" / "checkpoints" / "default"
@@ -75,7 +76,7 @@ def _(tmp):
 
 
 def _residuals(shape=(2, 120, 160, 3)):
-    r = np.full(shape, 127, np.uint8)
+    r = np.full(shape, OFFSET, np.uint8)
     r[:, shape[1] // 3: shape[1] // 2, shape[2] // 3: shape[2] // 2] = 170
     return r
 
@@ -150,7 +151,7 @@ def _(tmp):
     from controltac_il.estimators import ForceEstimator
 
     est = ForceEstimator.from_pretrained(None)
-    return judge_call(lambda: est.predict(np.full((2, 120, 160), 127, np.uint8)), "residuals")
+    return judge_call(lambda: est.predict(np.full((2, 120, 160), OFFSET, np.uint8)), "residuals")
 
 
 @probe("estimators.train", "--data that does not exist")

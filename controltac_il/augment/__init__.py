@@ -42,12 +42,12 @@ happens to a target outside its validated range (``controltac_il.generator.force
 from controltac_il.augment.cli import main
 from controltac_il.augment.config import BUILD, MODES, OUT_OF_RANGE, ForceAugmentConfig
 from controltac_il.augment.dataset import ForceAugment
-from controltac_il.augment.draws import copy_offset, frame_jitter, noise_seed, resolve_target
+from controltac_il.augment.draws import copy_offset, frame_jitter, noise_seed
 from controltac_il.augment.provenance import CACHE_FORMAT, FrameRecord, StaleCacheError
 from controltac_il.augment.records import AUGMENT_FIELDS, STATUS
 
 __all__ = [
     "AUGMENT_FIELDS", "BUILD", "CACHE_FORMAT", "MODES", "OUT_OF_RANGE", "STATUS", "ForceAugment",
     "ForceAugmentConfig", "FrameRecord", "StaleCacheError", "copy_offset", "frame_jitter", "main",
-    "noise_seed", "resolve_target",
+    "noise_seed",
 ]

@@ -32,17 +32,6 @@ def requested_target(reference, delta_fz: float) -> np.ndarray:
     return np.asarray(reference, np.float64) + np.array([0.0, 0.0, delta_fz])
 
 
-def resolve_target(reference: np.ndarray, delta_fz: float, out_of_range: str) -> tuple[np.ndarray, int]:
-    """Target force (3,) N the generator uses for reference + (0, 0, delta_fz), and its STATUS
-    (regenerated / clamped / skipped), as decided by ``controltac_il.generator.forces.decide_targets``
-    (a reference outside the validated range: skipped, as ForceAugment does)."""
-    from controltac_il.generator.forces import decide_targets
-
-    decision = decide_targets(requested_target(reference, delta_fz)[None], out_of_range,
-                              reference_force=np.asarray(reference, np.float64)[None], reference_out_of_range="skip")
-    return decision.target[0], status_of(decision, 0)
-
-
 def status_of(decision, i: int) -> int:
     """STATUS code of sample ``i`` of a generator ``TargetDecision``."""
     if decision.skipped[i]:

@@ -58,7 +58,7 @@ class TrainConfig:
         return self
 
     def schedule(self, opt: torch.optim.Optimizer, resume: dict | None = None, step: int = 0):
-        """Linear warm-up, then cosine decay to ``min_lr`` (torch schedulers; see ``controltac_il.checkpoint.lr_schedule``)."""
+        """Linear warm-up, then cosine decay to ``min_lr`` (torch schedulers; see ``controltac_il.training.lr_schedule``)."""
         return lr_schedule(opt, [self.lr], self.steps, self.warmup, self.min_lr, resume, step)
 
 

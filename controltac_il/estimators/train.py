@@ -24,6 +24,7 @@ from controltac_il.training import run_cli
 from controltac_il.estimators.config import EstimatorConfig
 from controltac_il.estimators.data import load_arrays, native_no_contact, split_by_pose
 from controltac_il.estimators.fit import TrainConfig, fit
+from controltac_il.tactile.residual import OFFSET
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -164,7 +165,7 @@ def run(args: argparse.Namespace, train: TrainConfig, cfg: EstimatorConfig) -> N
         h = history[-1]
         print(f"step {h['step']}: validation MAE Fx {h['val_mae'][0]:.3f} N, Fy {h['val_mae'][1]:.3f} N, "
               f"Fz {h['val_mae'][2]:.3f} N (mean {h['val_mae_mean']:.3f} N)")
-    empty = np.full((1, *size, 3), 127, np.uint8)
+    empty = np.full((1, *size, 3), OFFSET, np.uint8)
     print(f"no-contact frame: raw network reading {np.round(est.predict(empty, gate=False)[0], 3).tolist()} N "
           "(predict() gates it to 0)")
     print(f"wrote {args.out}")

@@ -37,9 +37,6 @@ from controltac_il.tactile.residual import OFFSET
 
 CHECKPOINT_ROOT = Path(__file__).resolve().parent / "checkpoints"
 SHIPPED = ("default", "fast")
-OUT_OF_RANGE_POLICIES = RANGE_POLICIES
-# Largest |ΔF| between two forces of the validated range, per component [Fx, Fy, Fz] (N).
-MAX_DELTA = VALIDATED_RANGE.span
 RESIDUAL_OFFSET = float(OFFSET)
 # Largest change of aspect ratio (either way) the resize to the model's image size may make.
 MAX_ASPECT_CHANGE = 1.5

@@ -20,7 +20,7 @@ Stage 1 (autoencoder): L1 + MSE + image-gradient L1 on random crops of residuals
 Stage 2 (DiT): pairs of the same contact pose; x0 = (z_target - z_ref) / delta_scale, noised by the
 DDPM schedule; loss 0.5 L1 + 0.5 MSE on the noise (or on x0 for ``--prediction-type sample``);
 AdamW, linear warm-up then cosine decay to ``min_lr_ratio`` of the peak (torch schedulers,
-``controltac_il.checkpoint.lr_schedule``); EMA weights (diffusers' ``EMAModel``) are shipped.
+``controltac_il.training.lr_schedule``); EMA weights (diffusers' ``EMAModel``) are shipped.
 
 The run folder is only written where it is new or holds this tool's own run: a previous run needs --resume
 (continue) or --overwrite (replace: removes only the files listed above); files of the user's are never
