@@ -34,7 +34,7 @@ import mujoco  # noqa: E402
 from envs.config import SENSORS, PegInHoleConfig  # noqa: E402
 from envs.scene import HAND_ACTUATORS, build_model, rim_height_m  # noqa: E402
 from envs.tactile_rig import PadRays, group_mask, pad_force  # noqa: E402
-from hardware.interfaces import ACTION_DIM  # noqa: E402
+from hardware.interfaces import ACTION_DIM, GRIPPER, POSE_DIM  # noqa: E402
 
 PEG_RADIUS_M = 0.0125
 PEG_HALF_LENGTH_M = 0.04
@@ -409,8 +409,8 @@ class PegInHoleEnv(gym.Env):
     def _ctrl_vector(self, target: np.ndarray) -> np.ndarray:
         """Actuator controls (nu,) for an action [x, y, z, yaw, gripper]."""
         ctrl = np.empty(self.model.nu)
-        ctrl[self._pose_act] = target[:4]
-        ctrl[self._finger_act] = self._finger_open - target[4] * (self._finger_open - self._finger_closed)
+        ctrl[self._pose_act] = target[:POSE_DIM]
+        ctrl[self._finger_act] = self._finger_open - target[GRIPPER] * (self._finger_open - self._finger_closed)
         return ctrl
 
     def _peg_static_penetration(self) -> float:

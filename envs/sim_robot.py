@@ -23,6 +23,7 @@ from envs.config import SENSORS, PegInHoleConfig
 from envs.peg_in_hole import PegInHoleEnv
 from hardware.control_loop import ControlLoopConfig
 from hardware.interfaces import (
+    GRIPPER,
     POSE_DIM,
     Arm,
     ArmFault,
@@ -68,11 +69,11 @@ class SimArm(Arm):
         t = np.asarray(target, dtype=np.float64)
         if t.shape != (POSE_DIM,) or not np.isfinite(t).all():
             raise ArmFault(f"sim arm: target must be 4 finite numbers [x, y, z, yaw], got {target!r}")
-        self._robot.command[:4] = t
+        self._robot.command[:POSE_DIM] = t
 
     def stop(self) -> None:
         """Hold the measured pose (the servo target becomes where the hand is now)."""
-        self._robot.command[:4] = self._robot.env.tcp_pose()
+        self._robot.command[:POSE_DIM] = self._robot.env.tcp_pose()
 
 
 class SimGripper(Gripper):
@@ -85,7 +86,7 @@ class SimGripper(Gripper):
         c = float(closing)
         if not math.isfinite(c):
             raise ValueError(f"gripper command must be a finite number in [0, 1], got {closing!r}")
-        self._robot.command[4] = c
+        self._robot.command[GRIPPER] = c
 
     def state(self) -> GripperState:
         return GripperState(self._robot.env.gripper_closure(), self._robot.clock.now())

@@ -36,7 +36,8 @@ from pydantic import Field
 from pydantic.dataclasses import dataclass as pydantic_dataclass
 
 from hardware.fields import DATACLASS_SETTINGS, Float, Int
-from hardware.interfaces import ACTION_DIM, Arm, ArmState, Clock, FrameSource, Gripper, HardwareError, WallClock
+from hardware.interfaces import (ACTION_DIM, GRIPPER, POSE_DIM, Arm, ArmState, Clock, FrameSource, Gripper, HardwareError,
+                                 WallClock)
 from hardware.safety import SafetyCounts, SafetyFilter, SafetyLimits, Watchdog, WatchdogTimeout
 from hardware.temporal_ensembling import TemporalEnsembler
 
@@ -411,10 +412,10 @@ class ControlLoop:
         with self._device_lock:
             if watchdog.tripped is not None:
                 raise WatchdogTimeout(watchdog.tripped)
-            self.arm.servo(target[:4])
+            self.arm.servo(target[:POSE_DIM])
             if self.gripper is not None:
-                self.gripper.command(float(target[4]))
-            self._last_grip = float(target[4])
+                self.gripper.command(float(target[GRIPPER]))
+            self._last_grip = float(target[GRIPPER])
             if watchdog.tripped is not None:  # tripped while the command was in flight: stop again, now
                 raise WatchdogTimeout(watchdog.tripped)
         watchdog.feed("command", self.clock.now())

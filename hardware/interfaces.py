@@ -17,7 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 
 ACTION_NAMES = ("x", "y", "z", "yaw", "gripper")  # the action and qpos layout everywhere: m, m, m, rad, [0, 1]
-POSE_DIM = 4  # x, y, z (m), yaw (rad)
+POSE_DIM = ACTION_NAMES.index("gripper")  # the pose part, x, y, z (m), yaw (rad), comes first
+GRIPPER = POSE_DIM  # index of the gripper command in an action
 ACTION_DIM = len(ACTION_NAMES)  # pose + gripper command
 
 
