@@ -148,6 +148,76 @@ def augment_change(before: dict | None, now: dict | None) -> str | None:
     return ", ".join(f"{k}: {settings[0].get(k)!r} -> {settings[1].get(k)!r}" for k in fields) or None
 
 
+def _resume(out_dir: Path, model: ACT, optimizer: torch.optim.Optimizer, act_config: ACTConfig, stats: dict,
+            meta: dict) -> tuple[int, float, dict, dict | None]:
+    """Load ``out_dir/last`` into ``model`` and ``optimizer`` after checking it is the same run: same ACT config,
+    same data (normalisation statistics, episodes) and same augmentation, else CheckpointError naming what differs.
+    Returns (step, best validation L1, log, the LR schedule's saved state)."""
+    if not (out_dir / "last").is_dir():
+        raise CheckpointError(f"--resume: no checkpoint to continue from at {out_dir / 'last'}")
+    loaded, _, last_meta = load_checkpoint(out_dir / "last")
+    if loaded.config.to_dict() != act_config.to_dict():
+        raise CheckpointError(f"--resume: {out_dir / 'last'} was trained with a different ACT config; "
+                              f"use a new --out folder or the same --preset and options")
+    change = stats_change(loaded.get_stats(), stats)
+    episodes = (last_meta.get("episodes"), meta.get("episodes"))
+    if change or (None not in episodes and episodes[0] != episodes[1]):
+        detail = change or f"episodes {episodes[0]} -> {episodes[1]}"
+        where = (f"; it was {last_meta.get('dataset')}, now {meta.get('dataset')}"
+                 if last_meta.get("dataset") != meta.get("dataset") else "")
+        raise CheckpointError(f"--resume: {out_dir / 'last'} was trained on another dataset (its normalisation "
+                              f"statistics differ: {detail}{where}); a run never mixes two training sets: "
+                              "use a new --out folder, or resume on the same dataset")
+    change = augment_change(last_meta.get("augment"), meta.get("augment"))
+    if change:  # e.g. a retrained generator: the run would mix two training sets
+        raise CheckpointError(f"--resume: {out_dir / 'last'} was trained with different augmentation ({change}); "
+                              "use a new --out folder or the same --augment options and generator")
+    model.load_state_dict(loaded.state_dict())
+    schedule_state = load_optimizer_state(out_dir / "last", optimizer)
+    return (int(last_meta.get("step", 0)), float(last_meta.get("best_val_l1", math.inf)),
+            last_meta.get("log", {"train": [], "val": []}), schedule_state)
+
+
+def _train_loader(train_set: Dataset, train_config: TrainConfig, step: int, rank: int, world: int
+                  ) -> tuple[DataLoader, DistributedSampler | None]:
+    """The shuffled training loader (a DistributedSampler under torch.distributed), seeded by the run's seed and
+    the step it starts at, so a resumed run does not replay the first batches."""
+    sampler = DistributedSampler(train_set, world, rank, shuffle=True, seed=train_config.seed) if world > 1 else None
+    gen = torch.Generator().manual_seed(train_config.seed + step)
+    loader = DataLoader(train_set, batch_size=train_config.batch_size, shuffle=sampler is None, sampler=sampler,
+                        drop_last=len(train_set) >= train_config.batch_size * world,
+                        num_workers=train_config.num_workers, generator=gen)
+    return loader, sampler
+
+
+def _validate(model: ACT, val_loader: DataLoader, train_config: TrainConfig, step: int, log: dict, bar) -> float:
+    """Evaluate on the held-out episodes, log the result at ``step``; returns the validation L1 (z = 0)."""
+    val = evaluate(model, val_loader, train_config.max_val_batches)
+    log["val"].append({"step": step, **{k: round(v, 5) for k, v in val.items()}})
+    bar.write(f"step {step}: val_loss {val['val_loss']:.4f}  val_l1 (z=0) {val['val_l1']:.4f}")
+    return val["val_l1"]
+
+
+def _update(ddp: torch.nn.Module, model: ACT, batch: dict, optimizer: torch.optim.Optimizer, scheduler,
+            grad_clip: float, stop: StopOnInterrupt, step: int, kept) -> tuple[dict, bool]:
+    """One optimiser update on ``batch``; returns (the model's losses, whether every process stops after it).
+
+    A NaN / inf loss here or on another process raises NonFiniteLoss before any update (``kept()`` says which
+    checkpoint is the last good one)."""
+    out = ddp(batch)
+    optimizer.zero_grad(set_to_none=True)
+    out["loss"].backward()
+    loss_value = float(out["loss"].detach())
+    bad, stop_now = agree(not math.isfinite(loss_value), stop.requested)
+    if bad:
+        check_loss(loss_value if not math.isfinite(loss_value) else math.nan, step + 1, kept())
+    if grad_clip:
+        torch.nn.utils.clip_grad_norm_(model.parameters(), grad_clip)
+    optimizer.step()
+    scheduler.step()
+    return out, stop_now
+
+
 def train(act_config: ACTConfig, train_config: TrainConfig, train_set: Dataset, val_set: Dataset | None,
           out_dir: str | Path, *, stats: dict, backgrounds: dict[str, np.ndarray] | None = None,
           resume: bool = False, overwrite: bool = False, meta: dict | None = None, progress: bool = True) -> dict:
@@ -174,39 +244,12 @@ def train(act_config: ACTConfig, train_config: TrainConfig, train_set: Dataset, 
     step, log = 0, {"train": [], "val": []}
     best, schedule_state = math.inf, None
     if resume:
-        if not (out_dir / "last").is_dir():
-            raise CheckpointError(f"--resume: no checkpoint to continue from at {out_dir / 'last'}")
-        loaded, _, last_meta = load_checkpoint(out_dir / "last")
-        if loaded.config.to_dict() != act_config.to_dict():
-            raise CheckpointError(f"--resume: {out_dir / 'last'} was trained with a different ACT config; "
-                                  f"use a new --out folder or the same --preset and options")
-        change = stats_change(loaded.get_stats(), stats)
-        episodes = (last_meta.get("episodes"), (meta or {}).get("episodes"))
-        if change or (None not in episodes and episodes[0] != episodes[1]):
-            detail = change or f"episodes {episodes[0]} -> {episodes[1]}"
-            where = (f"; it was {last_meta.get('dataset')}, now {(meta or {}).get('dataset')}"
-                     if last_meta.get("dataset") != (meta or {}).get("dataset") else "")
-            raise CheckpointError(f"--resume: {out_dir / 'last'} was trained on another dataset (its normalisation "
-                                  f"statistics differ: {detail}{where}); a run never mixes two training sets: "
-                                  "use a new --out folder, or resume on the same dataset")
-        change = augment_change(last_meta.get("augment"), (meta or {}).get("augment"))
-        if change:  # e.g. a retrained generator: the run would mix two training sets
-            raise CheckpointError(f"--resume: {out_dir / 'last'} was trained with different augmentation ({change}); "
-                                  "use a new --out folder or the same --augment options and generator")
-        model.load_state_dict(loaded.state_dict())
-        schedule_state = load_optimizer_state(out_dir / "last", optimizer)
-        step = int(last_meta.get("step", 0))
-        best = float(last_meta.get("best_val_l1", math.inf))
-        log = last_meta.get("log", log)
+        step, best, log, schedule_state = _resume(out_dir, model, optimizer, act_config, stats, meta or {})
     scheduler = lr_schedule(optimizer, [act_config.lr, act_config.lr_backbone], train_config.steps,
                             train_config.warmup_steps, resume=schedule_state, step=step)
     model.train()
     ddp = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
-    sampler = DistributedSampler(train_set, world, rank, shuffle=True, seed=train_config.seed) if world > 1 else None
-    gen = torch.Generator().manual_seed(train_config.seed + step)
-    loader = DataLoader(train_set, batch_size=train_config.batch_size, shuffle=sampler is None, sampler=sampler,
-                        drop_last=len(train_set) >= train_config.batch_size * world,
-                        num_workers=train_config.num_workers, generator=gen)
+    loader, sampler = _train_loader(train_set, train_config, step, rank, world)
     val_loader = (DataLoader(val_set, batch_size=train_config.batch_size, shuffle=False)
                   if val_set is not None and len(val_set) and rank == 0 else None)
     run_meta = {**(meta or {}), "train_config": asdict(train_config), "world_size": world}
@@ -232,17 +275,8 @@ def train(act_config: ACTConfig, train_config: TrainConfig, train_set: Dataset, 
         try:
             while step < train_config.steps:
                 batch = next(batches)
-                out = ddp(batch)
-                optimizer.zero_grad(set_to_none=True)
-                out["loss"].backward()
-                loss_value = float(out["loss"].detach())
-                bad, stop_now = agree(not math.isfinite(loss_value), stop.requested)
-                if bad:  # no update from a NaN / inf loss (here or on another process): last/ stays as it was
-                    check_loss(loss_value if not math.isfinite(loss_value) else math.nan, step + 1, kept())
-                if train_config.grad_clip:
-                    torch.nn.utils.clip_grad_norm_(model.parameters(), train_config.grad_clip)
-                optimizer.step()
-                scheduler.step()
+                out, stop_now = _update(ddp, model, batch, optimizer, scheduler, train_config.grad_clip, stop, step,
+                                        kept)
                 step += 1
                 samples += batch["observation.qpos"].shape[0] * world
                 last = step == train_config.steps
@@ -253,11 +287,9 @@ def train(act_config: ACTConfig, train_config: TrainConfig, train_set: Dataset, 
                     bar.update(1)
                     bar.set_postfix(loss=f"{row['loss']:.3f}", l1=f"{row['l1']:.3f}", kl=f"{row['kl']:.3f}")
                     if val_loader is not None and (step % train_config.val_every == 0 or last):
-                        val = evaluate(model, val_loader, train_config.max_val_batches)
-                        log["val"].append({"step": step, **{k: round(v, 5) for k, v in val.items()}})
-                        bar.write(f"step {step}: val_loss {val['val_loss']:.4f}  val_l1 (z=0) {val['val_l1']:.4f}")
-                        if val["val_l1"] < best:
-                            best = val["val_l1"]
+                        val_l1 = _validate(model, val_loader, train_config, step, log, bar)
+                        if val_l1 < best:
+                            best = val_l1
                             save_checkpoint(out_dir / "best", model, backgrounds=backgrounds,
                                             meta={**run_meta, "step": step, "best_val_l1": best})
                     if step % train_config.save_every == 0 or last or stop_now:
