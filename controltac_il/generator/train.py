@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import math
 import os
 import platform
@@ -50,7 +49,7 @@ from torch.nn import functional as F
 from tqdm.auto import tqdm
 
 from controltac_il.checkpoint import (OutputInUse, claim_output, load_run_state, one_line, own_checkpoint, own_json,
-                                      own_safetensors, save_run_state)
+                                      own_safetensors, read_json, save_run_state)
 from controltac_il.training import StopOnInterrupt, TrainingInterrupted, agree, check_loss, lr_schedule, run_cli
 from controltac_il.generator.autoencoder import TactileAutoencoder, autoencoder_loss
 from controltac_il.generator.checkpoint import load_checkpoint, save_checkpoint
@@ -165,14 +164,14 @@ def reuse_autoencoder(src: Path) -> tuple[TactileAutoencoder, dict]:
     with the training that made it (``trained_by``: command and data) where the source records it."""
     stem = src / "autoencoder_state"
     if stem.with_suffix(".json").is_file():
-        meta = json.loads(stem.with_suffix(".json").read_text())
+        meta = read_json(stem.with_suffix(".json"))
         ae = TactileAutoencoder(AutoencoderConfig.from_dict(meta["config"]))
         load_run_state(stem, {"autoencoder": ae})
         if "trained_by" not in meta:  # states written before it was recorded: the run's saved arguments
             meta["trained_by"] = legacy_provenance(src)
         return ae.eval(), {**meta, "from": str(src)}
     config, ae, _ = load_checkpoint(src)
-    card = json.loads((src / "model_card.json").read_text()) if (src / "model_card.json").is_file() else {}
+    card = read_json(src / "model_card.json") if (src / "model_card.json").is_file() else {}
     a = card.get("autoencoder", {})
     return ae.eval(), {"step": a.get("steps"), "wall_s": a.get("wall_s"), "loss": a.get("final_loss"),
                        "trained_by": a.get("trained_by"), "from": str(src), "config": config.autoencoder.to_dict()}
@@ -217,8 +216,8 @@ def source_denoiser(src: Path) -> tuple[GeneratorConfig, dict[str, torch.Tensor]
     """(config, float32 DiT weights) of a run folder's latest state (its EMA) or of a checkpoint folder."""
     stem = src / "denoiser_state"
     if stem.with_suffix(".json").is_file():
-        config = GeneratorConfig.from_dict(json.loads(stem.with_suffix(".json").read_text())["config"])
-        tensors = load_file(str(stem.with_suffix(".safetensors")))
+        meta, tensors = load_run_state(stem, {})
+        config = GeneratorConfig.from_dict(meta["config"])
         return config, {k[len("ema."):]: v.float() for k, v in tensors.items() if k.startswith("ema.")}
     if not (src / "config.json").is_file():
         raise FileNotFoundError(f"denoiser_from: {src} holds neither a denoiser_state.json (run folder) nor a config.json (checkpoint)")
@@ -234,10 +233,10 @@ def denoiser_lineage(src: Path) -> list[dict]:
     if not card_path.is_file():
         card_path = src / "final" / "model_card.json"
         state = src / "denoiser_state.json"
-        if not card_path.is_file() or (state.is_file() and json.loads(state.read_text())["step"]
-                                       != json.loads(card_path.read_text())["denoiser"]["steps"]):
+        if not card_path.is_file() or (state.is_file() and read_json(state)["step"]
+                                       != read_json(card_path)["denoiser"]["steps"]):
             return []
-    card = json.loads(card_path.read_text())
+    card = read_json(card_path)
     d, data = card.get("denoiser", {}), card.get("data", {})
     return d.get("lineage", []) + [{"command": card.get("command"), "data": {k: data.get(k) for k in ("path", "seed", "images")},
                                     "steps": d.get("steps"), "wall_s": d.get("wall_s")}]
@@ -325,7 +324,7 @@ def train_denoiser(cfg: TrainConfig, gcfg: GeneratorConfig, z: torch.Tensor, dat
 
 def model_card(cfg: TrainConfig, data: PairData, ae: TactileAutoencoder, ae_meta: dict, dit: ForceDiT, dit_meta: dict,
                world: int, wall_s: float) -> dict:
-    meta = json.loads((Path(cfg.data) / "meta.json").read_text()) if (Path(cfg.data) / "meta.json").is_file() else {}
+    meta = read_json(Path(cfg.data) / "meta.json") if (Path(cfg.data) / "meta.json").is_file() else {}
     return {
         "model": "controltac-il stage-1 force-control generator (tactile autoencoder + ΔF-conditioned DiT + DDIM)",
         "command": "python -m controltac_il.generator.train " + " ".join(cli_args(cfg)),
