@@ -63,11 +63,9 @@ def main(argv=None) -> int:
         return 2
     import torch
 
-    from controltac_il.checkpoint import one_line
-
-    from controltac_il.io import write_json
-    from policies.act import CheckpointError
     from controltac_il.app.deploy import deploy_on_robot, evaluate_in_sim
+    from controltac_il.checkpoint import one_line
+    from controltac_il.io import write_json
 
     torch.set_num_threads(max(1, args.threads))
     try:
@@ -83,7 +81,7 @@ def main(argv=None) -> int:
                 return 2
             result = deploy_on_robot(args.robot, args.checkpoint, args.config, max_steps=args.max_steps)
             print(json.dumps(result, indent=2))
-    except (CheckpointError, ValueError, OSError) as exc:  # bad checkpoint, set-up or option: one line
+    except (ValueError, OSError) as exc:  # bad checkpoint (CheckpointError), set-up or option: one line
         print(f"deploy_policy.py: error: {one_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
