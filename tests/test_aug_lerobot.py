@@ -290,6 +290,12 @@ def test_auto_detection_error_lists_the_image_keys(gen):
     with pytest.raises(ValueError, match=r"tactile_keys: .*\['observation.images.gelsight', 'observation.images.wrist'\]"
                                          r".*ForceAugment\(dataset, tactile_keys=\['observation.images.gelsight'\]\)"):
         ForceAugment(ds, gen, mode="online")
+    cameras_only = LeRobotLike(episodes())
+    cameras_only.frame = lambda e, t, f=cameras_only.frame: {("observation.images.left_cam" if k == GEL else k): v
+                                                              for k, v in f(e, t).items()}
+    # the example never names a camera as the tactile stream: a placeholder where no key looks like a sensor
+    with pytest.raises(ValueError, match=r"tactile_keys=\['observation.images.<tactile camera>'\]"):
+        ForceAugment(cameras_only, gen, mode="online")
     with pytest.raises(ValueError, match="tactile_keys: .*'observation.state' is not an RGB image"):
         ForceAugment(ds, gen, tactile_keys=["observation.state"], mode="online")
     assert ForceAugment(ds, gen, tactile_keys=["gelsight"], estimator=tiny_estimator(), mode="online",
@@ -337,3 +343,20 @@ def test_recorded_backgrounds_that_vary_within_an_episode_give_the_same_frames_i
     assert online._online.tables is not None
     for i in range(len(ds), len(cached)):
         assert_same_items(cached[i], online[i])
+
+
+class OffSensorEstimator:
+    """An estimator that reads every frame with 1.5 N of shear, beyond the validated 1 N (as the shipped one
+    reads another sensor's frames)."""
+
+    def predict(self, residuals):
+        return np.tile(np.float32([1.5, 0.0, 4.0]), (len(residuals), 1))
+
+
+def test_estimated_references_outside_the_range_are_kept_real_and_said(gen):
+    with pytest.warns(UserWarning, match=r"force estimator reads frames of 'observation.images.gelsight' outside the "
+                                         r"generator's validated range .*force_keys="):
+        a = ForceAugment(LeRobotLike(episodes(labels=False)), gen, copies=2, tactile_keys=[GEL], mode="online",
+                         estimator=OffSensorEstimator(), progress=False)
+    s = a.summary()
+    assert s["regenerated"] == s["clamped"] == 0 and s["skipped"] == s["tactile_frames"] - s["no_contact"] > 0

@@ -101,16 +101,20 @@ def image_keys(probe: dict) -> list[str]:
     return out
 
 
+# words in a camera key that suggest a tactile sensor: only for the example in the error message, never detection
+SENSOR_WORDS = ("gelsight", "digit", "tactile", "touch", "gel", "tac")
+
+
 def _tactile_keys(probe: dict, wanted) -> tuple[str, ...]:
     images = image_keys(probe)
     if wanted is None:
         found = [k for k in probe if "tactile" in k and "tactile_background" not in k]
         if not found:
-            example = next((k for k in images if k.startswith("observation.images.")), images[0] if images else
-                           "observation.images.gelsight")
+            named = [k for k in images if any(w in k.lower() for w in SENSOR_WORDS)]
+            example = named or ["observation.images.<tactile camera>"]
             raise ValueError(f"tactile_keys: the items have no key containing 'tactile' to detect; their image keys "
                              f"are {images}; name the tactile streams, e.g. ForceAugment(dataset, "
-                             f"tactile_keys=[{example!r}])")
+                             f"tactile_keys={example!r})")
         return tuple(found)
     keys = []
     for k in wanted:

@@ -10,6 +10,7 @@ import numpy as np
 
 from controltac_il.augment.keys import KeyMap
 from controltac_il.datasets.background import estimate_background
+from controltac_il.generator.forces import VALIDATED_RANGE
 from controltac_il.tactile.residual import contact_mask, to_residual
 
 
@@ -89,5 +90,10 @@ class ReferenceForces:
                 ref[:] = labels
             elif touch.any():
                 ref[touch] = self.estimator.predict(res[touch]).astype(np.float64)
+                if VALIDATED_RANGE.outside(ref[touch]).any():
+                    warnings.warn(f"the force estimator reads frames of {k!r} outside the generator's validated range "
+                                  f"({VALIDATED_RANGE.describe()}); those frames are kept real (summary()['skipped']). "
+                                  "The shipped estimator knows the sensor model's GelSight Mini: for another sensor "
+                                  "pass force_keys= (recorded labels) or an estimator= fitted to it", stacklevel=3)
             ep.residuals[k], ep.backgrounds[k], ep.contact[k], ep.reference[k] = res, bg, touch, ref
         return ep
