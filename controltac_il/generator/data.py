@@ -55,13 +55,19 @@ def resize_residual(residual: np.ndarray, size: tuple[int, int]) -> np.ndarray:
 def no_contact_residuals(meta: dict, count: int, seed: int) -> np.ndarray:
     """``count`` residuals of the bare sensor (the dataset's spec and optics) with fresh noise, uint8."""
     from controltac_il.tactile import SensorSpec, TactileSensor, to_residual
+    from controltac_il.tactile.instances import instance_by_name
 
     spec = SensorSpec(**meta["spec"]) if "spec" in meta else SensorSpec.gelsight_mini()
-    sensor = TactileSensor(spec, optics=meta.get("optics", "three_light"))
+    if meta.get("sensor_names"):  # sensor randomisation: the bare frames cycle through the dataset's instances
+        sensors = [TactileSensor(i.spec, optics=i.optics) for i in
+                   (instance_by_name(n, (spec.height, spec.width)) for n in meta["sensor_names"])]
+    else:
+        sensors = [TactileSensor(spec, optics=meta.get("optics", "three_light"))]
     zero = np.zeros((spec.height, spec.width), np.float32)
     rng = np.random.default_rng([seed, 7919])
-    return np.stack([to_residual(sensor.render_penetration(zero, noise_seed=int(s)), sensor.background)
-                     for s in rng.integers(0, 2**31, size=count)])
+    return np.stack([to_residual(sensors[j % len(sensors)].render_penetration(zero, noise_seed=int(s)),
+                                 sensors[j % len(sensors)].background)
+                     for j, s in enumerate(rng.integers(0, 2**31, size=count))])
 
 
 def load_pair_data(root: str | Path, image_size: tuple[int, int], no_contact_frames: int = 32, seed: int = 0,

@@ -6,6 +6,8 @@ Layout of a dataset folder::
     background.png   the sensor's no-contact frame (RGB PNG)
     meta.json        generator settings (spec, optics, seed, counts, force convention)
     images/<object>/<pose_id>_<k>.png
+    backgrounds/<sensor>.png   with sensor randomisation: each instance's no-contact frame (manifest column
+                               ``sensor``; then background.png is absent)
 
 Forces are stored in the project's convention (N, sensor frame, Fz > 0 pressing). Real FeelAnyForce
 recordings store Fz < 0 when pressing; ``load_dataset`` detects that (or is told) and flips the sign.
@@ -19,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import inspect
 import json
 import numbers
@@ -32,23 +35,27 @@ from tqdm.auto import tqdm
 
 from controltac_il.io import atomic_dir
 from controltac_il.tactile.indenters import INDENTERS, TRAIN_OBJECTS, get_indenter
+from controltac_il.tactile.instances import FAMILIES, sensor_instance
 from controltac_il.tactile.residual import to_residual
 from controltac_il.tactile.sensor import TactileSensor
 from controltac_il.tactile.spec import SensorSpec
 
 MANIFEST_FIELDS = ("image", "object", "pose_id", "x_mm", "y_mm", "theta_rad", "fx", "fy", "fz")
+SENSOR_FIELD = "sensor"  # optional: the simulated sensor instance of the row (controltac_il.tactile.instances)
 REQUIRED_FIELDS = ("image", "object", "pose_id", "fx", "fy", "fz")
 
 
 @dataclass(frozen=True)
 class TactileRecord:
-    """One manifest row: the image path (relative to the dataset), the contact pose and force (N)."""
+    """One manifest row: the image path (relative to the dataset), the contact pose and force (N), and the
+    sensor instance that rendered it (None: the dataset's one sensor)."""
 
     image: str
     object: str
     pose_id: int
     pose: tuple[float, float, float]
     force: tuple[float, float, float]
+    sensor: str | None = None
 
 
 def sample_contacts(objects: Sequence[str], poses_per_object: int, forces_per_pose: int, seed: int,
@@ -77,10 +84,13 @@ def _is_int(value) -> bool:
 def write_dataset(out_dir, objects: Sequence[str] = TRAIN_OBJECTS, poses_per_object: int = 50,
                   forces_per_pose: int = 8, seed: int = 0, spec: SensorSpec | None = None,
                   optics: str = "three_light", fz_range=(0.5, 11.0), shear_max: float = 1.0,
-                  progress: bool = True) -> Path:
+                  progress: bool = True, sensors: str | None = None, instances: int = 16) -> Path:
     """Render a sensor-model dataset into ``out_dir`` (built in a temporary folder, renamed when complete).
 
     Every image is a pure function of (seed, object, pose_id, k): the same arguments give the same files.
+    sensors: None renders every image with ``spec`` and ``optics``; a family of
+    ``controltac_il.tactile.instances`` ("train" | "unseen") renders each contact pose with one of its first
+    ``instances`` sensor instances, drawn per pose (``spec`` then only gives the size).
     """
     objects = tuple(objects)
     if not objects or len(set(objects)) != len(objects):
@@ -101,29 +111,44 @@ def write_dataset(out_dir, objects: Sequence[str] = TRAIN_OBJECTS, poses_per_obj
     if not (isinstance(shear_max, numbers.Real) and not isinstance(shear_max, bool) and np.isfinite(shear_max)
             and shear_max >= 0):
         raise ValueError(f"shear_max must be a finite number >= 0 N, got {shear_max!r}")
+    if sensors is not None and not (sensors in FAMILIES and _is_int(instances) and instances >= 1):
+        raise ValueError(f"sensors must be None or one of {FAMILIES} with instances >= 1, got {sensors!r}, {instances!r}")
     spec = spec or SensorSpec.gelsight_mini()
     sensor = TactileSensor(spec, optics=optics)
     out_dir = Path(out_dir)
     total = len(objects) * poses_per_object * forces_per_pose
     with atomic_dir(out_dir) as tmp:
-        cv2.imwrite(str(tmp / "background.png"), cv2.cvtColor(sensor.background, cv2.COLOR_RGB2BGR))
-        rows = []
+        rows, used = [], {}
+        if sensors is None:
+            cv2.imwrite(str(tmp / "background.png"), cv2.cvtColor(sensor.background, cv2.COLOR_RGB2BGR))
         with tqdm(total=total, desc=f"rendering {out_dir.name}", unit="img", disable=not progress) as bar:
             for name, pid, pose, forces, noise in sample_contacts(objects, poses_per_object, forces_per_pose, seed, spec, fz_range, shear_max):
                 (tmp / "images" / name).mkdir(parents=True, exist_ok=True)
+                if sensors is not None:
+                    which = int(np.random.default_rng([seed, objects.index(name), pid, 9]).integers(instances))
+                    inst = sensor_instance(sensors, which, (spec.height, spec.width))
+                    if inst.name not in used:
+                        used[inst.name] = TactileSensor(inst.spec, optics=inst.optics)
+                        (tmp / "backgrounds").mkdir(exist_ok=True)
+                        cv2.imwrite(str(tmp / "backgrounds" / f"{inst.name}.png"),
+                                    cv2.cvtColor(used[inst.name].background, cv2.COLOR_RGB2BGR))
+                    sensor = used[inst.name]
                 for k, (force, ns) in enumerate(zip(forces, noise)):
                     c = sensor.press(name, pose, force, noise_seed=ns)
                     rel = f"images/{name}/{pid:04d}_{k:02d}.png"
                     cv2.imwrite(str(tmp / rel), cv2.cvtColor(c.image, cv2.COLOR_RGB2BGR))
-                    rows.append([rel, name, pid, *(f"{v:.6f}" for v in pose), *(f"{v:.6f}" for v in c.force)])
+                    rows.append([rel, name, pid, *(f"{v:.6f}" for v in pose), *(f"{v:.6f}" for v in c.force)]
+                                + ([inst.name] if sensors is not None else []))
                     bar.update()
         with open(tmp / "manifest.csv", "w", newline="") as f:
             w = csv.writer(f)
-            w.writerow(MANIFEST_FIELDS)
+            w.writerow(MANIFEST_FIELDS + ((SENSOR_FIELD,) if sensors is not None else ()))
             w.writerows(rows)
         meta = {"spec": spec.to_dict(), "optics": optics, "seed": seed, "objects": list(objects),
                 "poses_per_object": poses_per_object, "forces_per_pose": forces_per_pose,
                 "fz_range": list(fz_range), "shear_max": shear_max, "fz_pressing": "positive", "count": total}
+        if sensors is not None:  # spec and optics then give only the size; each row names its instance
+            meta.update(sensors=sensors, instances=instances, sensor_names=sorted(used))
         (tmp / "meta.json").write_text(json.dumps(meta, indent=2))
     return out_dir
 
@@ -131,8 +156,10 @@ def write_dataset(out_dir, objects: Sequence[str] = TRAIN_OBJECTS, poses_per_obj
 class TactileDataset:
     """A loaded dataset folder: records, images and residuals (uint8 RGB (H, W, 3))."""
 
-    def __init__(self, root: Path, records: list[TactileRecord], background: np.ndarray | None, meta: dict):
+    def __init__(self, root: Path, records: list[TactileRecord], background: np.ndarray | None, meta: dict,
+                 backgrounds: dict[str, np.ndarray] | None = None):
         self.root, self.records, self.background, self.meta = root, records, background, meta
+        self.backgrounds = backgrounds or {}  # per sensor instance (sensor randomisation)
 
     def __len__(self) -> int:
         return len(self.records)
@@ -144,10 +171,17 @@ class TactileDataset:
             raise ValueError(f"manifest row {i}: cannot read image {path}")
         return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
+    def background_of(self, i: int) -> np.ndarray:
+        """The no-contact frame of record ``i``'s sensor, uint8 (H, W, 3)."""
+        sensor = self.records[i].sensor
+        bg = self.background if sensor is None else self.backgrounds.get(sensor)
+        if bg is None:
+            where = "background.png" if sensor is None else f"backgrounds/{sensor}.png"
+            raise ValueError(f"{self.root} has no {where}: residuals need the no-contact frame")
+        return bg
+
     def residual(self, i: int) -> np.ndarray:
-        if self.background is None:
-            raise ValueError(f"{self.root} has no background.png: residuals need the no-contact frame")
-        return to_residual(self.image(i), self.background)
+        return to_residual(self.image(i), self.background_of(i))
 
     def forces(self) -> np.ndarray:
         """All forces, float32 (N, 3) in N."""
@@ -193,17 +227,22 @@ def load_dataset(root, fz_pressing: str = "auto") -> TactileDataset:
             image = _field(row, "image", line, str)
             force = tuple(_field(row, k, line, float) for k in ("fx", "fy", "fz"))
             pose = tuple(float(row.get(k) or 0.0) for k in ("x_mm", "y_mm", "theta_rad"))
-            records.append(TactileRecord(image, _field(row, "object", line, str), _field(row, "pose_id", line, int), pose, force))
+            records.append(TactileRecord(image, _field(row, "object", line, str), _field(row, "pose_id", line, int), pose,
+                                         force, row.get(SENSOR_FIELD) or None))
     if not records:
         raise ValueError(f"{manifest} has no rows")
     sign = fz_pressing if fz_pressing != "auto" else meta.get("fz_pressing")
     if sign is None:
         sign = "negative" if np.median([r.force[2] for r in records]) < 0 else "positive"
     if sign == "negative":
-        records = [TactileRecord(r.image, r.object, r.pose_id, r.pose, (r.force[0], r.force[1], -r.force[2])) for r in records]
-    bg_path = root / "background.png"
-    background = cv2.cvtColor(cv2.imread(str(bg_path)), cv2.COLOR_BGR2RGB) if bg_path.is_file() else None
-    return TactileDataset(root, records, background, meta)
+        records = [dataclasses.replace(r, force=(r.force[0], r.force[1], -r.force[2])) for r in records]
+    def read(path):
+        return cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB) if path.is_file() else None
+    backgrounds = {n: read(root / "backgrounds" / f"{n}.png") for n in {r.sensor for r in records} - {None}}
+    missing = sorted(n for n, bg in backgrounds.items() if bg is None)
+    if missing:
+        raise ValueError(f"{root}: manifest names sensor instances without backgrounds/<sensor>.png: {missing}")
+    return TactileDataset(root, records, read(root / "background.png"), meta, backgrounds)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -234,6 +273,11 @@ def main(argv=None) -> Path:
                         "(default: GelSight Mini's native 240 320)")
     p.add_argument("--optics", choices=("three_light", "polynomial"), default=d["optics"],
                    help=f"sensor optics model (default {d['optics']})")
+    p.add_argument("--sensors", choices=FAMILIES, default=None,
+                   help="sensor randomisation: render each contact pose with one instance of this family "
+                        "(controltac_il.tactile.instances; 'unseen' is held out of training); default: one sensor, --optics")
+    p.add_argument("--instances", type=int, default=d["instances"],
+                   help=f"with --sensors: how many of the family's instances to draw from, >= 1 (default {d['instances']})")
     p.add_argument("--fz-range", type=float, nargs=2, metavar=("LOW", "HIGH"), default=d["fz_range"],
                    help="normal force range in N, 0 <= LOW < HIGH, drawn uniformly (default {} {})".format(*d["fz_range"]))
     p.add_argument("--shear-max", type=float, default=d["shear_max"],
@@ -262,7 +306,7 @@ def main(argv=None) -> Path:
                     f"(e.g. 120 160), got {a.size[0]} {a.size[1]}")
     try:
         out = write_dataset(a.out, a.objects, a.poses_per_object, a.forces_per_pose, a.seed, spec, a.optics,
-                            (lo, hi), a.shear_max)
+                            (lo, hi), a.shear_max, sensors=a.sensors, instances=a.instances)
     except ValueError as e:
         p.error(str(e).splitlines()[0] if str(e).strip() else repr(e))
     print(f"wrote {out} ({len(a.objects) * a.poses_per_object * a.forces_per_pose} images)")
