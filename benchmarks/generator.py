@@ -2,16 +2,19 @@
 
     python -m benchmarks.generator --out gen.json [--quick] [--sheet gen.png]
 
-Evaluation data: sensor-model datasets rendered like the training set (120×160, three-light optics,
-target and reference Fz in [1, 10] N, |Fx|, |Fy| <= 1 N) with other seeds: "seen" = held-out contact
-poses of the six training objects, "unseen" = the held-out objects. Pairs are (reference, target)
+Evaluation data: sensor-model datasets rendered like the training set (three-light optics, target and
+reference Fz in [1, 10] N, |Fx|, |Fy| <= 1 N) with other seeds: "seen" = held-out contact poses of the six
+training objects, "unseen" = the held-out objects, both at 120×160 and, as ``seen_240`` / ``unseen_240``, at the
+GelSight Mini's native 240×320; "unseen_sensor" = the training objects pressed on sensor instances of the
+family held out of training (``controltac_il.tactile.instances``: polynomial optics over the DIGIT background,
+brighter lighting), at 120×160. Pairs are (reference, target)
 images of one contact pose; the metric compares the predicted image (residual + background) with the
 rendered target: MSE on 0-255 RGB and SSIM (``controltac_il.metrics``), mean ± SD over pairs, and
 the share of the sensor's noise kept on bare gel (``bare_noise_ratio``; 1 = as real).
 
 Methods: reference copy; physics re-render (``controltac_il.tactile.inverse``); the default generator
 at DDIM steps 1, 2, 5, 10, 20, 50; the faster variant at its steps. For each: images/s at batch 1 and
-batch 32 (median of repeats, this process's torch threads) and the peak resident memory of a fresh
+batch 32 at 120×160, and at batch 32 at 240×320 (median of repeats, this process's torch threads) and the peak resident memory of a fresh
 process generating one batch of 32.
 """
 
@@ -40,17 +43,22 @@ from controltac_il.tactile.dataset import load_dataset, write_dataset
 from controltac_il.tactile.inverse import rerender
 
 RENDER_SIZE = (120, 160)
-SPLITS = {"seen": (TRAIN_OBJECTS, 1001), "unseen": (HELDOUT_OBJECTS, 1002)}
+NATIVE_SIZE = (240, 320)
+# split: objects, data seed, render size, sensor family (None: the nominal GelSight Mini)
+SPLITS = {"seen": (TRAIN_OBJECTS, 1001, RENDER_SIZE, None), "unseen": (HELDOUT_OBJECTS, 1002, RENDER_SIZE, None),
+          "seen_240": (TRAIN_OBJECTS, 1001, NATIVE_SIZE, None), "unseen_240": (HELDOUT_OBJECTS, 1002, NATIVE_SIZE, None),
+          "unseen_sensor": (TRAIN_OBJECTS, 1003, RENDER_SIZE, "unseen")}
 STEPS = (1, 2, 5, 10, 20, 50)
 
 
 def eval_pairs(cache: Path, split: str, poses: int, forces: int, max_pairs: int, seed: int = 0):
-    """(residual refs, residual targets, ref forces, target forces, background) of one split."""
-    objects, data_seed = SPLITS[split]
+    """(residual refs, residual targets, ref forces, target forces, backgrounds (N, H, W, 3)) of one split."""
+    objects, data_seed, size, family = SPLITS[split]
     root = cache / f"{split}_p{poses}_f{forces}_s{data_seed}"
     if not (root / "manifest.csv").is_file():
         write_dataset(root, objects, poses_per_object=poses, forces_per_pose=forces, seed=data_seed,
-                      spec=SensorSpec.gelsight_mini().scaled(*RENDER_SIZE), fz_range=VALIDATED_RANGE.fz, progress=False)
+                      spec=SensorSpec.gelsight_mini().scaled(*size), fz_range=VALIDATED_RANGE.fz, progress=False,
+                      sensors=family, instances=8)
     ds = load_dataset(root)
     pairs = [(i, j) for g in ds.pose_groups().values() for i in g for j in g if i != j]
     rng = np.random.default_rng(seed)
@@ -59,7 +67,8 @@ def eval_pairs(cache: Path, split: str, poses: int, forces: int, max_pairs: int,
     f = ds.forces()
     refs = np.stack([ds.residual(i) for i, _ in pairs])
     tgts = np.stack([ds.residual(j) for _, j in pairs])
-    return refs, tgts, f[[i for i, _ in pairs]], f[[j for _, j in pairs]], ds.background
+    backgrounds = np.stack([ds.background_of(i) for i, _ in pairs])  # a pair's two frames share their sensor
+    return refs, tgts, f[[i for i, _ in pairs]], f[[j for _, j in pairs]], backgrounds
 
 
 def bare_noise_ratio(pred_res: np.ndarray, tgt_res: np.ndarray, ref_res: np.ndarray) -> float:
@@ -74,9 +83,9 @@ def bare_noise_ratio(pred_res: np.ndarray, tgt_res: np.ndarray, ref_res: np.ndar
 
 
 def quality(pred_res: np.ndarray, tgt_res: np.ndarray, background: np.ndarray, ref_res: np.ndarray) -> dict:
-    """Mean ± SD of MSE and SSIM of predicted vs target images (residual + background), and the bare-gel noise ratio."""
-    pred = np.stack([from_residual(r, background) for r in pred_res])
-    tgt = np.stack([from_residual(r, background) for r in tgt_res])
+    """Mean ± SD of MSE and SSIM of predicted vs target images (residual + background (H, W, 3) or one per
+    image), and the bare-gel noise ratio."""
+    pred, tgt = from_residual(pred_res, background), from_residual(tgt_res, background)
     m, s = mse(pred, tgt), ssim(pred, tgt)
     return {"mse": float(m.mean()), "mse_sd": float(m.std()), "ssim": float(s.mean()), "ssim_sd": float(s.std()),
             "bare_noise_ratio": bare_noise_ratio(pred_res, tgt_res, ref_res), "n": int(len(m))}
@@ -99,7 +108,7 @@ def _peak_worker(method: str, ckpt: str | None, steps: int | None, threads: int,
         base = _vm_hwm_mb()
         gen.generate(ref, df, steps=steps, batch_size=32)
     else:
-        sensor = TactileSensor(SensorSpec.gelsight_mini().scaled(*RENDER_SIZE))
+        sensors = {size: TactileSensor(SensorSpec.gelsight_mini().scaled(*size)) for size in (RENDER_SIZE, NATIVE_SIZE)}
         base = _vm_hwm_mb()
         for r in ref:
             rerender(sensor, r, (0, 0, 3.0), (0, 0, 5.0))
@@ -133,11 +142,11 @@ def error_map(pred: np.ndarray, tgt: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(jet, cv2.COLOR_BGR2RGB)
 
 
-def save_sheet(path: Path, rows: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]], background: dict) -> None:
-    """PNG: one row per case, columns reference | target | generated | error map (images, 2× size)."""
+def save_sheet(path: Path, rows: list[tuple[str, np.ndarray, np.ndarray, np.ndarray, np.ndarray]]) -> None:
+    """PNG: one row per case (split, reference, target, generated, background), columns reference | target |
+    generated | error map (images, 2× size)."""
     tiles = []
-    for split, ref, tgt, gen in rows:
-        bg = background[split]
+    for split, ref, tgt, gen, bg in rows:
         imgs = [from_residual(ref, bg), from_residual(tgt, bg), from_residual(gen, bg), error_map(gen, tgt)]
         row = np.concatenate([cv2.resize(im, (im.shape[1] * 2, im.shape[0] * 2), interpolation=cv2.INTER_NEAREST) for im in imgs], 1)
         cv2.putText(row, split, (4, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1)
@@ -177,13 +186,13 @@ def main(argv=None) -> dict:
     if "fast" in gens:
         fs = gens["fast"].config.default_steps
         methods += [(f"fast DDIM-{s}", "fast", s) for s in sorted({1, fs, 2 * fs})]
-    sensor = TactileSensor(SensorSpec.gelsight_mini().scaled(*RENDER_SIZE))
+    sensors = {size: TactileSensor(SensorSpec.gelsight_mini().scaled(*size)) for size in (RENDER_SIZE, NATIVE_SIZE)}
 
     def predictor(kind: str, steps: int | None):
         if kind == "copy":
             return lambda refs, rf, tf: refs.copy()
         if kind == "rerender":
-            return lambda refs, rf, tf: np.stack([rerender(sensor, r, a_, b_, noise_seed=k)
+            return lambda refs, rf, tf: np.stack([rerender(sensors[refs.shape[1:3]], r, a_, b_, noise_seed=k)
                                                  for k, (r, a_, b_) in enumerate(zip(refs, rf, tf))])
         g = gens[kind]
         return lambda refs, rf, tf: g.generate(refs, tf - rf, steps=steps, seed=0, batch_size=32)
@@ -199,21 +208,25 @@ def main(argv=None) -> dict:
             q = quality(preds[split], tgts, bg, refs)
             entry[split] = {**q, "wall_s": time.perf_counter() - t0}
         refs, _, rf, tf, _ = data["unseen"]
-        entry.update(throughput(lambda r: fn(r, rf[:len(r)] if len(r) <= len(rf) else np.resize(rf, (len(r), 3)),
-                                             tf[:len(r)] if len(r) <= len(tf) else np.resize(tf, (len(r), 3))),
-                                refs, 1 if kind == "rerender" else repeats))
+        def batch_fn(r):
+            return fn(r, np.resize(rf, (len(r), 3)), np.resize(tf, (len(r), 3)))
+        entry.update(throughput(batch_fn, refs, 1 if kind == "rerender" else repeats))
+        if kind != "rerender":  # the GelSight Mini's own frames (the generator resizes to its model size)
+            refs, _, rf, tf, _ = data["unseen_240"]
+            entry["img_per_s_b32_240"] = throughput(batch_fn, refs, repeats)["img_per_s_b32"]
         if kind == "copy":
             entry.update(peak_rss_mb=None, batch_growth_mb=0.0)
         elif not quick or kind == "default" and steps == gens["default"].config.default_steps:
             ck = None if kind == "rerender" else (a.checkpoint if kind == "default" else a.fast)
             entry.update(peak_memory_mb("generator" if ck else "rerender", ck, steps, a.threads))
         per_method[name] = (entry, preds)
-        rows.append({"method": name, "seen MSE": f"{entry['seen']['mse']:.1f} ± {entry['seen']['mse_sd']:.1f}",
-                     "seen SSIM": f"{entry['seen']['ssim']:.3f} ± {entry['seen']['ssim_sd']:.3f}",
-                     "unseen MSE": f"{entry['unseen']['mse']:.1f} ± {entry['unseen']['mse_sd']:.1f}",
-                     "unseen SSIM": f"{entry['unseen']['ssim']:.3f} ± {entry['unseen']['ssim_sd']:.3f}",
-                     "unseen noise": f"{entry['unseen']['bare_noise_ratio']:.2f}",
-                     "img/s b1": entry["img_per_s_b1"], "img/s b32": entry["img_per_s_b32"],
+        row = {"method": name}
+        for split in SPLITS:
+            q = entry[split]
+            row[f"{split} MSE"] = f"{q['mse']:.1f} ± {q['mse_sd']:.1f}"
+            row[f"{split} SSIM"] = f"{q['ssim']:.3f}"
+        rows.append({**row, "unseen noise": f"{entry['unseen']['bare_noise_ratio']:.2f}", "img/s b1": entry["img_per_s_b1"],
+                     "img/s b32": entry["img_per_s_b32"], "img/s b32 240": entry.get("img_per_s_b32_240"),
                      "peak MB": entry.get("peak_rss_mb")})
     print_table(rows, list(rows[0]), title=f"generator speed vs error ({'quick' if quick else 'full'}, "
                                             f"{n_pairs} pairs/split, {a.threads} torch threads)")
@@ -227,7 +240,12 @@ def main(argv=None) -> dict:
             "unseen_mse_ratio_to_copy": dflt["unseen"]["mse"] / copy["unseen"]["mse"],
             "unseen_mse_at_most_quarter_of_copy": dflt["unseen"]["mse"] <= 0.25 * copy["unseen"]["mse"],
             "unseen_ssim_above_copy": dflt["unseen"]["ssim"] > copy["unseen"]["ssim"],
+            "unseen_240_mse_ratio_to_copy": dflt["unseen_240"]["mse"] / copy["unseen_240"]["mse"],
+            "unseen_240_ssim_above_copy": dflt["unseen_240"]["ssim"] > copy["unseen_240"]["ssim"],
+            "unseen_sensor_mse_ratio_to_copy": dflt["unseen_sensor"]["mse"] / copy["unseen_sensor"]["mse"],
             "default_img_per_s_b32": dflt["img_per_s_b32"],
+            "default_img_per_s_b32_240": dflt["img_per_s_b32_240"],
+            "default_at_least_50_img_per_s_at_240": dflt["img_per_s_b32_240"] >= 50.0,
             "default_at_least_10_img_per_s": dflt["img_per_s_b32"] >= 10.0,
         }
         print("\ntargets:", json.dumps(targets, indent=1))
@@ -236,16 +254,18 @@ def main(argv=None) -> dict:
         sheet = a.sheet or a.out.with_suffix(".png")
         name = default_name if default_name in per_method else next(n for n in per_method if n.startswith("default"))
         cases = []
-        for split in ("unseen", "seen"):
-            refs, tgts, rf, tf, _ = data[split]
+        for split in ("unseen", "seen", "unseen_sensor"):  # the 120×160 splits (one tile size)
+            refs, tgts, rf, tf, bgs = data[split]
             order = np.argsort(-(tf[:, 2] - rf[:, 2]))  # largest force increase first
             for k in list(order[:2]) + list(order[-1:]):
-                cases.append((split, refs[k], tgts[k], per_method[name][1][split][k]))
-        save_sheet(sheet, cases, {s: d[4] for s, d in data.items()})
+                cases.append((split, refs[k], tgts[k], per_method[name][1][split][k], bgs[k]))
+        save_sheet(sheet, cases)
         print(f"wrote {sheet}")
 
     results = {
         "settings": {"quick": quick, "pairs_per_split": n_pairs, "render_size": list(RENDER_SIZE),
+                     "splits": {k: {"objects": list(v[0]), "render_size": list(v[2]), "sensors": v[3] or "nominal"}
+                                for k, v in SPLITS.items()},
                      "model_size": list(gens["default"].config.image_size), "threads": a.threads,
                      "checkpoints": {k: {"path": str(v if isinstance(v, str) else v), "hash": gens[k].checkpoint_hash}
                                      for k, v in (("default", a.checkpoint), ("fast", a.fast)) if k in gens}},

@@ -41,7 +41,7 @@ def test_eval_pairs_join_images_of_one_pose_with_their_forces(tmp_path):
     assert len(refs) == n_objects * 3 * 2  # every ordered pair of the 3 forces of each pose
     assert refs.shape == tgts.shape == (len(refs), *bench.RENDER_SIZE, 3) and refs.dtype == np.uint8
     assert rf.shape == tf.shape == (len(refs), 3) and not np.any(np.all(rf == tf, axis=1))
-    assert bg.shape == (*bench.RENDER_SIZE, 3)
+    assert bg.shape == (len(refs), *bench.RENDER_SIZE, 3)  # each pair's own sensor background
     again = bench.eval_pairs(tmp_path, "unseen", poses=1, forces=3, max_pairs=5)  # the cached data, a seeded subset
     assert len(again[0]) == 5 and np.array_equal(again[0], bench.eval_pairs(tmp_path, "unseen", 1, 3, 5)[0])
 
@@ -55,13 +55,15 @@ def test_quick_run_writes_the_table_json_targets_and_sheet(tmp_path, capsys):
     assert any(n.startswith("fast DDIM-") for n in names)
     by = {m["method"]: m for m in doc["methods"]}
     copy, default = by["reference copy"], by["default DDIM-1"]
-    for split in ("seen", "unseen"):
+    for split in ("seen", "unseen", "seen_240", "unseen_240"):
         assert copy[split]["n"] == 6 and copy[split]["bare_noise_ratio"] == pytest.approx(1.0, abs=0.15)
         assert default[split]["mse"] < copy[split]["mse"]  # the shipped model beats copying the reference
+    assert copy["unseen_sensor"]["n"] == 6 and default["img_per_s_b32_240"] > 0
+    assert doc["settings"]["splits"]["unseen_sensor"]["sensors"] == "unseen"
     assert default["img_per_s_b1"] > 0 and default["peak_rss_mb"] > default["batch_growth_mb"] > 0
     t = doc["targets"]
     assert t["default_setting"] == "default DDIM-1"
     assert t["unseen_mse_ratio_to_copy"] == pytest.approx(default["unseen"]["mse"] / copy["unseen"]["mse"])
     assert "unseen MSE" in capsys.readouterr().out
     sheet = cv2.imread(str(out.with_suffix(".png")))
-    assert sheet.shape == (24 + 6 * 2 * bench.RENDER_SIZE[0], 4 * 2 * bench.RENDER_SIZE[1], 3)
+    assert sheet.shape == (24 + 9 * 2 * bench.RENDER_SIZE[0], 4 * 2 * bench.RENDER_SIZE[1], 3)
