@@ -1,0 +1,48 @@
+"""benchmarks.response: contact area against ΔFz, the drop and growth it reports, and its --quick run."""
+
+import json
+
+import numpy as np
+import pytest
+
+from benchmarks import response as bench
+from controltac_il.tactile.residual import OFFSET
+
+
+class AreaGenerator:
+    """Answers ΔFz with a residual whose contact covers ``areas[ΔFz]`` rows of 100 (a known contact area)."""
+
+    def __init__(self, areas):
+        self.areas = areas
+
+    def generate(self, refs, delta, seed=0):
+        out = np.full(refs.shape, OFFSET, np.uint8)
+        for k, d in enumerate(delta[:, 2]):
+            out[k, : self.areas[float(d)]] = OFFSET + 40
+        return out
+
+
+def test_area_drop_and_growth_are_measured_between_neighbouring_steps():
+    ref = np.full((100, 10, 3), OFFSET, np.uint8)
+    ref[:20] = OFFSET + 13  # just above the 12-grey-level contact threshold
+    assert bench.contact_area_pct(ref[None])[0] == pytest.approx(20.0)
+    deltas = np.array([-1.0, -0.5, 0.0, 0.5, 1.0])
+    r = bench.response(AreaGenerator({-1.0: 10, -0.5: 15, 0.0: 20, 0.5: 17, 1.0: 30}), ref, deltas)
+    assert r["reference_area_pct"] == 20.0 and r["area_pct"] == [10.0, 15.0, 20.0, 17.0, 30.0]
+    assert r["max_drop_pp"] == 3.0 and r["worst_step_n"] == [0.0, 0.5] and r["growth_pp"] == 10.0
+    assert not r["monotone"]
+    flat = bench.response(AreaGenerator({d: 20 for d in deltas.tolist()}), ref, deltas)
+    assert flat["max_drop_pp"] == 0.0 and flat["worst_step_n"] is None and flat["monotone"]
+
+
+def test_quick_run_writes_every_reference_and_the_plot(tmp_path):
+    out = tmp_path / "response.json"
+    doc = bench.main(["--quick", "--out", str(out)])
+    assert json.loads(out.read_text()) == json.loads(json.dumps(doc))
+    sims = [n for n in doc["references"] if n.startswith("sim")]
+    assert len(sims) == 2 * len(bench.SIM_SIZES)
+    for r in doc["references"].values():
+        assert len(r["area_pct"]) == len(bench.QUICK_DELTAS)
+    assert (tmp_path / "response.png").stat().st_size > 0
+    if bench.REAL_DIR.is_dir():  # the GPL frames are measured where ../shared is, never shipped
+        assert {"real/bead", "real/key", "real/seed"} <= set(doc["references"])
