@@ -206,3 +206,13 @@ def test_torchrun_two_processes_gloo(dataset, tmp_path):
     subprocess.run(cmd, check=True, env=env, cwd=Path(__file__).resolve().parents[1], timeout=600)
     card = json.loads((run / "final" / "model_card.json").read_text())
     assert card["world_size"] == 2 and card["denoiser"]["steps"] == 3
+
+
+def test_shipped_checkpoints_are_named_as_fine_tuning_sources(tmp_path):
+    from controltac_il.generator.pipeline import CHECKPOINT_ROOT
+    from controltac_il.generator.train import parse_args
+
+    (tmp_path / "presses").mkdir()
+    cfg = parse_args(["--data", str(tmp_path / "presses"), "--out", str(tmp_path / "tuned"), "--stage", "denoiser",
+                      "--autoencoder-from", "default", "--denoiser-from", "default"])
+    assert cfg.autoencoder_from == cfg.denoiser_from == str(CHECKPOINT_ROOT / "default")

@@ -57,7 +57,7 @@ from controltac_il.generator.config import AutoencoderConfig, DiffusionConfig, G
 from controltac_il.generator.data import PairData, crop_batch, load_pair_data, sample_pairs
 from controltac_il.generator.dit import ForceDiT
 from controltac_il.generator.forces import VALIDATED_RANGE
-from controltac_il.generator.pipeline import residual_to_unit
+from controltac_il.generator.pipeline import CHECKPOINT_ROOT, SHIPPED, residual_to_unit
 from controltac_il.generator.sampler import make_scheduler
 from controltac_il.generator.train_config import (DIT_PRESETS, STAGES, TrainConfig, cli_args, legacy_provenance,
                                                   provenance)
@@ -409,9 +409,11 @@ def parse_args(argv=None) -> TrainConfig:
     p.add_argument("--data", required=True, help="dataset folder (controltac_il.tactile.dataset.write_dataset layout)")
     p.add_argument("--out", required=True, help="run folder for states, latents and OUT/final")
     p.add_argument("--stage", choices=STAGES, default="all", help="which stage(s) to train (default: all)")
-    p.add_argument("--autoencoder-from", default=None, help="reuse the autoencoder of this run or checkpoint folder")
+    p.add_argument("--autoencoder-from", default=None,
+                   help="reuse the autoencoder of this run or checkpoint folder, or of a shipped checkpoint (default, fast)")
     p.add_argument("--denoiser-from", default=None,
-                   help="start the DiT from this run or checkpoint folder's DiT (fine-tuning; same architecture and autoencoder)")
+                   help="start the DiT from this run or checkpoint folder's DiT, or a shipped one (default, fast): "
+                        "fine-tuning, e.g. on your own sensor's presses; same architecture and autoencoder")
     p.add_argument("--resume", action="store_true", help="continue from the states in --out (without it, --out must not hold states)")
     p.add_argument("--image-size", type=int, nargs=2, default=d["image_size"].default, metavar=("H", "W"))
     p.add_argument("--ae-channels", type=int, nargs="+", default=d["ae_channels"].default, help="autoencoder stage widths")
@@ -437,6 +439,9 @@ def parse_args(argv=None) -> TrainConfig:
                    help="replace a previous run in --out (only the files this tool wrote there; never anything else)")
     a = vars(p.parse_args(argv))
     resume, overwrite = a.pop("resume"), a.pop("overwrite")
+    for key in ("autoencoder_from", "denoiser_from"):  # a shipped checkpoint by name
+        if a[key] in SHIPPED:
+            a[key] = str(CHECKPOINT_ROOT / a[key])
     try:
         cfg = TrainConfig(**a)
     except ValueError as exc:  # pydantic: one line naming the flag
