@@ -59,6 +59,12 @@ def eval_pairs(cache: Path, split: str, poses: int, forces: int, max_pairs: int,
         write_dataset(root, objects, poses_per_object=poses, forces_per_pose=forces, seed=data_seed,
                       spec=SensorSpec.gelsight_mini().scaled(*size), fz_range=VALIDATED_RANGE.fz, progress=False,
                       sensors=family, instances=8)
+    return dataset_pairs(root, max_pairs, seed)
+
+
+def dataset_pairs(root: Path, max_pairs: int, seed: int = 0):
+    """``max_pairs`` seeded (reference, target) pairs of a dataset folder, each two frames of one contact pose:
+    (residual refs, residual targets, ref forces, target forces, backgrounds (N, H, W, 3))."""
     ds = load_dataset(root)
     pairs = [(i, j) for g in ds.pose_groups().values() for i in g for j in g if i != j]
     rng = np.random.default_rng(seed)

@@ -46,3 +46,20 @@ def test_quick_run_writes_every_reference_and_the_plot(tmp_path):
     assert (tmp_path / "response.png").stat().st_size > 0
     if bench.REAL_DIR.is_dir():  # the GPL frames are measured where ../shared is, never shipped
         assert {"real/bead", "real/key", "real/seed"} <= set(doc["references"])
+
+
+def test_finetune_quick_run_scores_zero_shot_and_a_fine_tune_and_resumes(tmp_path):
+    from benchmarks import finetune
+
+    out, runs = tmp_path / "ft.json", tmp_path / "runs"
+    doc = finetune.main(["--quick", "--out", str(out), "--runs", str(runs)])
+    rows = {r["images"]: r for r in doc["rows"]}
+    assert set(rows) == {0, 48} and rows[0]["steps"] == 0 and rows[48]["images_rendered"] == 48
+    assert rows[0]["copy_mse"] == rows[48]["copy_mse"] > 0  # one held-out evaluation set for every budget
+    for r in rows.values():
+        assert r["mse_ratio_to_copy"] == pytest.approx(r["mse"] / r["copy_mse"]) and r["n"] == 12
+    card = json.loads((runs / "unseen_00_n48_s4" / "final" / "model_card.json").read_text())
+    assert "--denoiser-from" in card["command"] and card["denoiser"]["steps"] == 4
+    again = finetune.main(["--quick", "--out", str(out), "--runs", str(runs), "--resume"])
+    assert again["rows"] == doc["rows"]  # nothing retrained or rescored
+    assert out.with_suffix(".png").stat().st_size > 0

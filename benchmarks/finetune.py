@@ -1,0 +1,154 @@
+"""Fine-tuning the generator on your own sensor: error on a sensor it never saw against the number of presses.
+
+    python -m benchmarks.finetune --out finetune.json [--images 0 100 500 2000] [--steps 600] [--base default]
+    python -m benchmarks.finetune --out finetune.json --resume      # keeps the fine-tunes already done
+
+A lab's sensor is played by one instance of the held-out family (``--instance``, default ``unseen_00``:
+polynomial optics over the DIGIT background, brighter lighting than any training instance). For each budget N
+its presses are rendered as a dataset folder of that one sensor (the training objects, 8 forces per pose, about
+N images; what ``python -m controltac_il.tactile.dataset`` writes for a lab), the base generator's DiT is
+fine-tuned on them for ``--steps`` steps (``python -m controltac_il.generator.train --stage denoiser
+--autoencoder-from BASE --denoiser-from BASE``, the base's DiT flags), and the result is scored on held-out
+poses of the same sensor: MSE and SSIM against the true frame, as a ratio to copying the reference. N = 0 is
+the base model itself (zero-shot). Each budget's result is saved as it finishes; runs live under ``--runs``.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from benchmarks.common import base_parser, print_table, write_results
+from benchmarks.generator import dataset_pairs, quality
+from controltac_il.checkpoint import read_json
+from controltac_il.generator import ForceGenerator
+from controltac_il.generator.forces import VALIDATED_RANGE
+from controltac_il.generator.pipeline import locate_checkpoint
+from controltac_il.tactile import TRAIN_OBJECTS
+from controltac_il.tactile.dataset import write_dataset
+from controltac_il.tactile.instances import instance_by_name
+
+SIZE = (120, 160)
+FORCES_PER_POSE = 8
+EVAL_SEED = 2001  # held-out poses of the same sensor
+
+
+def render(root: Path, instance: str, images: int, seed: int) -> Path:
+    """A one-sensor dataset folder of about ``images`` presses of the training objects (cached)."""
+    if not (root / "manifest.csv").is_file():
+        inst = instance_by_name(instance, SIZE)
+        poses = max(1, round(images / (FORCES_PER_POSE * len(TRAIN_OBJECTS))))
+        write_dataset(root, TRAIN_OBJECTS, poses_per_object=poses, forces_per_pose=FORCES_PER_POSE, seed=seed,
+                      spec=inst.spec, optics=inst.optics, progress=False)
+    return root
+
+
+def base_flags(base: Path) -> list[str]:
+    """The DiT flags of the base checkpoint's own training command (its model card), for a compatible DiT."""
+    command = read_json(base / "model_card.json")["command"].split()
+    keep, out = {"--dit-preset", "--dit-patch", "--dit-conv-head", "--prediction-type", "--default-steps",
+                 "--one-step-fraction"}, []
+    for k, v in zip(command, command[1:]):
+        if k in keep:
+            out += [k, v]
+    return out + (["--anchor-to-reference"] if "--anchor-to-reference" in command else [])
+
+
+def fine_tune(base: Path, data: Path, out: Path, steps: int, lr: float) -> Path:
+    """Fine-tune ``base``'s DiT on ``data`` into ``out`` (kept when already done); returns the checkpoint."""
+    from controltac_il.generator.train import main as train
+
+    if not (out / "final" / "model_card.json").is_file():
+        gate = ForceGenerator.from_pretrained(base).config.detail_gate
+        argv = ["--data", str(data), "--out", str(out), "--stage", "denoiser", "--autoencoder-from", str(base),
+                "--denoiser-from", str(base), *base_flags(base), "--dit-steps", str(steps), "--dit-batch", "64",
+                "--dit-lr", str(lr), "--warmup-steps", "20", "--detail-gate", str(gate),
+                "--checkpoint-every", str(max(steps, 1))]
+        rc = train(argv + (["--resume"] if (out / "denoiser_state.json").is_file() else []))
+        if rc != 0:
+            raise RuntimeError(f"fine-tuning on {data} stopped with exit code {rc}")
+    return out / "final"
+
+
+def score(checkpoint, pairs) -> dict:
+    refs, tgts, rf, tf, bgs = pairs
+    gen = ForceGenerator.from_pretrained(checkpoint)
+    pred = gen.generate(refs, tf - rf, seed=0)
+    copy, q = quality(refs, tgts, bgs, refs), quality(pred, tgts, bgs, refs)
+    return {"mse": q["mse"], "mse_sd": q["mse_sd"], "ssim": q["ssim"], "copy_mse": copy["mse"],
+            "copy_ssim": copy["ssim"], "mse_ratio_to_copy": q["mse"] / copy["mse"], "n": q["n"]}
+
+
+def save_plot(path: Path, rows: list[dict], instance: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    xs = [max(r["images"], 10) for r in rows]
+    ax.plot(xs, [r["mse_ratio_to_copy"] for r in rows], marker="o")
+    for x, r in zip(xs, rows):
+        ax.annotate(f"{r['images']}", (x, r["mse_ratio_to_copy"]), textcoords="offset points", xytext=(4, 4), fontsize=7)
+    ax.axhline(0.35, color="grey", lw=0.8, ls="--", label="target 0.35× copy")
+    ax.set(xscale="log", xlabel="fine-tuning images (0 plotted at 10)", ylabel="MSE / reference-copy MSE",
+           title=f"unseen sensor {instance}")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def main(argv=None) -> dict:
+    p = base_parser(__doc__.split(":", 1)[1].strip().split("\n")[0])
+    p.add_argument("--images", type=int, nargs="+", default=[0, 100, 500, 2000], help="fine-tuning budgets (images)")
+    p.add_argument("--steps", type=int, default=600, help="fine-tuning steps per budget (batch 64; default 600)")
+    p.add_argument("--lr", type=float, default=2e-4, help="peak learning rate of the fine-tune (default 2e-4)")
+    p.add_argument("--base", default="default", help="the generator to fine-tune: default, fast or a folder")
+    p.add_argument("--instance", default="unseen_00", help="the held-out sensor instance playing the lab's sensor")
+    p.add_argument("--pairs", type=int, default=96, help="held-out evaluation pairs (default 96)")
+    p.add_argument("--runs", type=Path, default=Path("runs/finetune"), help="datasets and fine-tuned runs")
+    p.add_argument("--resume", action="store_true", help="keep the budgets already in --out")
+    args = p.parse_args(argv)
+    if args.quick:
+        args.images, args.steps, args.pairs = [0, 48], 4, 12
+    if any(n < 0 for n in args.images) or args.steps < 1 or args.pairs < 1:
+        p.error("--images must be >= 0, --steps and --pairs >= 1")
+    instance_by_name(args.instance)  # a clear error before anything renders
+    base = locate_checkpoint(args.base)
+    torch.set_num_threads(max(1, torch.get_num_threads()))
+    done = {}
+    if args.resume and args.out is not None and args.out.is_file():
+        done = {r["images"]: r for r in read_json(args.out).get("rows", [])
+                if r["images"] == 0 or r.get("steps") == args.steps}
+    pairs = dataset_pairs(render(args.runs / f"{args.instance}_eval", args.instance, 288, EVAL_SEED), args.pairs)
+    rows = []
+    results = {"benchmark": "finetune", "instance": args.instance, "base": str(base), "steps": args.steps,
+               "lr": args.lr, "validated_range": VALIDATED_RANGE.card(), "rows": rows}
+    for n in sorted(set(args.images)):
+        if n in done:
+            rows.append(done[n])
+            continue
+        t0 = time.perf_counter()
+        rendered = 0
+        if n == 0:
+            ckpt = base
+        else:
+            data = render(args.runs / f"{args.instance}_n{n}", args.instance, n, seed=3000 + n)
+            rendered = int(read_json(data / "meta.json")["count"])
+            ckpt = fine_tune(base, data, args.runs / f"{args.instance}_n{n}_s{args.steps}", args.steps, args.lr)
+        rows.append({"images": n, "images_rendered": rendered, "steps": 0 if n == 0 else args.steps, **score(ckpt, pairs),
+                     "wall_s": round(time.perf_counter() - t0, 1)})
+        write_results(args.out, results)  # each budget saved as it finishes
+    print_table(rows, ["images", "steps", "mse", "copy_mse", "mse_ratio_to_copy", "ssim", "copy_ssim", "wall_s"],
+                title=f"fine-tuning on {args.instance} (base {args.base})")
+    if args.out is not None:
+        save_plot(args.out.with_suffix(".png"), rows, args.instance)
+    return write_results(args.out, results)
+
+
+if __name__ == "__main__":
+    main()
