@@ -114,7 +114,7 @@ def _peak_worker(method: str, ckpt: str | None, steps: int | None, threads: int,
         base = _vm_hwm_mb()
         gen.generate(ref, df, steps=steps, batch_size=32)
     else:
-        sensors = {size: TactileSensor(SensorSpec.gelsight_mini().scaled(*size)) for size in (RENDER_SIZE, NATIVE_SIZE)}
+        sensor = TactileSensor(SensorSpec.gelsight_mini().scaled(*RENDER_SIZE))
         base = _vm_hwm_mb()
         for r in ref:
             rerender(sensor, r, (0, 0, 3.0), (0, 0, 5.0))
