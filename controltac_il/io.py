@@ -161,8 +161,16 @@ def _exchange(a: Path, b: Path) -> bool:
 
 
 def _fix_modes(root: Path) -> None:
-    """Give ``root`` (made by ``tempfile``: 0o600 / 0o700) the umask's normal mode."""
+    """Give ``root`` (made by ``tempfile``: 0o600 / 0o700) and, for a folder, everything in it the umask's normal
+    mode (some writers, safetensors among them, create their files 0o600)."""
     os.chmod(root, normal_mode(root.is_dir()))
+    if root.is_dir():
+        files, folders = normal_mode(False), normal_mode(True)
+        for parent, dirs, names in os.walk(root):
+            for d in dirs:
+                os.chmod(os.path.join(parent, d), folders)
+            for n in names:
+                os.chmod(os.path.join(parent, n), files)
 
 
 @contextlib.contextmanager

@@ -10,6 +10,8 @@ import textwrap
 from pathlib import Path
 
 import pytest
+import torch
+from safetensors.torch import save_file
 
 from controltac_il import io
 
@@ -38,9 +40,10 @@ def test_atomic_writers_respect_the_umask(tmp_path, umask, mask):
         (tmp / "plain.txt").write_text("x")
         io.write_json(tmp / "nested.json", [1])  # an atomic writer inside an atomic folder
         (tmp / "sub").mkdir()
+        save_file({"w": torch.zeros(2)}, str(tmp / "sub" / "w.safetensors"))  # safetensors writes 0o600 itself
     want_file, want_dir = 0o666 & ~mask, 0o777 & ~mask
     for p in (tmp_path / "a.bin", tmp_path / "b.json", tmp_path / "folder" / "plain.txt",
-              tmp_path / "folder" / "nested.json"):
+              tmp_path / "folder" / "nested.json", tmp_path / "folder" / "sub" / "w.safetensors"):
         assert mode(p) == want_file, (p.name, oct(mode(p)))
     for p in (tmp_path / "folder", tmp_path / "folder" / "sub"):
         assert mode(p) == want_dir, (p.name, oct(mode(p)))
