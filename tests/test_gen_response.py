@@ -63,3 +63,16 @@ def test_finetune_quick_run_scores_zero_shot_and_a_fine_tune_and_resumes(tmp_pat
     again = finetune.main(["--quick", "--out", str(out), "--runs", str(runs), "--resume"])
     assert again["rows"] == doc["rows"]  # nothing retrained or rescored
     assert out.with_suffix(".png").stat().st_size > 0
+
+
+@pytest.mark.parametrize("name", ["default", "randomised"])
+def test_shipped_generators_never_shrink_a_sensor_model_contact_as_the_force_grows(name):
+    """Issue #23's physical check on references of every object at the model's size: the contact area does not
+    fall by more than 0.15 pp between neighbouring 0.5 N steps of ΔFz in [-2, 8] N."""
+    from controltac_il.generator import ForceGenerator
+    from controltac_il.tactile import HELDOUT_OBJECTS, TRAIN_OBJECTS
+
+    gen = ForceGenerator.from_pretrained(name)
+    refs = bench.sim_references(TRAIN_OBJECTS + HELDOUT_OBJECTS, (120, 160))
+    drops = {n: bench.response(gen, r, bench.DELTAS)["max_drop_pp"] for n, r in refs.items()}
+    assert max(drops.values()) <= bench.MAX_DROP_PP, drops
