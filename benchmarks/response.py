@@ -91,7 +91,10 @@ def save_plot(path: Path, deltas: np.ndarray, rows: dict) -> None:
         ax.axhline(0, color="grey", lw=0.5)
         ax.axvline(0, color="grey", lw=0.5)
         ax.set(title=title, xlabel="ΔFz (N)", ylabel="contact area − area at ΔF = 0 (pp)")
-        ax.legend(fontsize=7, ncol=2)
+        if ax.get_lines()[2:]:  # beyond the two axis lines: curves to name
+            ax.legend(fontsize=7, ncol=2)
+        else:
+            ax.text(0.5, 0.5, "no frames (../shared absent)", ha="center", transform=ax.transAxes)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)

@@ -48,6 +48,7 @@ def test_quick_run_writes_every_reference_and_the_plot(tmp_path):
         assert {"real/bead", "real/key", "real/seed"} <= set(doc["references"])
 
 
+@pytest.mark.slow  # a real fine-tune through the training CLI (10 s): with -m slow
 def test_finetune_quick_run_scores_zero_shot_and_a_fine_tune_and_resumes(tmp_path):
     from benchmarks import finetune
 
