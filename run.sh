@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # One entry point that sets up a fresh machine and then runs a job.
-#   ./run.sh            the main job on the embedded default (see README)
+#   ./run.sh [OPTIONS]  the main job on the embedded default (see README; --help lists the options)
 #   ./run.sh test       the test suite (what CI runs)
 #   ./run.sh <cmd...>   any command inside the set-up environment
 set -euo pipefail
@@ -37,5 +37,6 @@ setup
 case "${1:-main}" in
     main) shift || true; exec "$PY" -m controltac_il "$@" ;;
     test) shift; exec "$PY" -m pytest -q "$@" ;;
+    -*) exec "$PY" -m controltac_il "$@" ;;  # options of the main job, e.g. ./run.sh --sensor-only
     *) exec "$@" ;;
 esac
