@@ -216,3 +216,17 @@ def test_shipped_checkpoints_are_named_as_fine_tuning_sources(tmp_path):
     cfg = parse_args(["--data", str(tmp_path / "presses"), "--out", str(tmp_path / "tuned"), "--stage", "denoiser",
                       "--autoencoder-from", "default", "--denoiser-from", "default"])
     assert cfg.autoencoder_from == cfg.denoiser_from == str(CHECKPOINT_ROOT / "default")
+
+
+def test_distinct_pairs_never_pair_a_frame_with_itself():
+    from controltac_il.generator.data import PairData, sample_pairs
+
+    data = PairData(np.zeros((7, 8, 8, 3), np.uint8), np.arange(21, dtype=np.float32).reshape(7, 3),
+                    [np.array([0, 1, 2]), np.array([3, 4]), np.array([5]), np.array([6])], np.zeros(0, np.int64))
+    ref, tgt, df = sample_pairs(data, 2000, np.random.default_rng(0), no_contact_prob=0.0, distinct=True)
+    grouped = ref <= 4  # groups of two or more never give a self-pair; singletons can only pair with themselves
+    assert (ref[grouped] != tgt[grouped]).all() and (ref[~grouped] == tgt[~grouped]).all()
+    assert {(a, b) for a, b in zip(ref, tgt) if a <= 2} == {(a, b) for a in range(3) for b in range(3) if a != b}
+    np.testing.assert_array_equal(df, data.forces[tgt] - data.forces[ref])
+    r, t, _ = sample_pairs(data, 2000, np.random.default_rng(0), no_contact_prob=0.0)
+    assert (r == t).mean() > 0.3  # by default self-pairs occur (the shipped checkpoints were trained so)

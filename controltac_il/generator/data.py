@@ -89,15 +89,20 @@ def load_pair_data(root: str | Path, image_size: tuple[int, int], no_contact_fra
     return PairData(np.stack(res), forces.astype(np.float32), groups, nc)
 
 
-def sample_pairs(data: PairData, batch: int, rng: np.random.Generator, no_contact_prob: float = 0.05):
-    """(ref_idx, tgt_idx, delta_force float32 (batch, 3)): pairs within a random pose group; with
-    probability ``no_contact_prob`` a no-contact pair with a random ΔF instead."""
+def sample_pairs(data: PairData, batch: int, rng: np.random.Generator, no_contact_prob: float = 0.05,
+                 distinct: bool = False):
+    """(ref_idx, tgt_idx, delta_force float32 (batch, 3)): pairs within a random pose group (``distinct``: two
+    different frames wherever the group has two); with probability ``no_contact_prob`` a no-contact pair with a
+    random ΔF instead."""
     gi = rng.integers(0, len(data.groups), size=batch)
     ref = np.empty(batch, np.int64)
     tgt = np.empty(batch, np.int64)
     for k, g in enumerate(gi):
         members = data.groups[g]
-        ref[k], tgt[k] = members[rng.integers(0, len(members), size=2)]
+        i, j = rng.integers(0, len(members), size=2)
+        if distinct and len(members) > 1 and i == j:
+            j = (i + rng.integers(1, len(members))) % len(members)
+        ref[k], tgt[k] = members[i], members[j]
     delta = data.forces[tgt] - data.forces[ref]
     if len(data.no_contact) and no_contact_prob > 0:
         nc = rng.random(batch) < no_contact_prob

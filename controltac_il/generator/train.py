@@ -271,7 +271,7 @@ def denoiser_loss(cfg: TrainConfig, gcfg: GeneratorConfig, sched, z: torch.Tenso
     ``sched``: the training noise schedule (diffusers)."""
     c = gcfg.autoencoder.latent_channels
     rng = np.random.default_rng([cfg.seed, 2, rank, step])
-    ref, tgt, df = sample_pairs(data, per_rank, rng, cfg.no_contact_prob)
+    ref, tgt, df = sample_pairs(data, per_rank, rng, cfg.no_contact_prob, cfg.distinct_pairs)
     x0 = (z[tgt] - z[ref]) / torch.tensor(gcfg.delta_scale).view(1, c, 1, 1)
     zr = z[ref] / torch.tensor(gcfg.latent_scale).view(1, c, 1, 1)
     g = torch.Generator().manual_seed(int(rng.integers(0, 2**62)))
@@ -432,6 +432,7 @@ def parse_args(argv=None) -> TrainConfig:
         p.add_argument("--" + name.replace("_", "-"), type=float, default=d[name].default)
     p.add_argument("--ae-crop", type=int, nargs=2, default=d["ae_crop"].default, metavar=("H", "W"))
     p.add_argument("--anchor-to-reference", action="store_true", help="output = reference + decoded change")
+    p.add_argument("--distinct-pairs", action="store_true", help="never pair a frame with itself (no ΔF = 0 identity)")
     p.add_argument("--detail-gate", type=float, default=0.0, metavar="G",
                    help="with anchoring: keep the reference's fine detail only where the target keeps its contact; "
                         "G grey levels (default 0 = always keep; the shipped default uses 4)")

@@ -46,6 +46,8 @@ class TrainConfig:
     min_lr_ratio: cosine decay floor as a fraction of the peak LR; warmup_steps: linear warm-up.
     ema_decay: EMA of the DiT weights (the shipped weights).
     no_contact_prob: share of no-contact pairs; no_contact_frames: how many bare frames to render.
+    distinct_pairs: never pair a frame with itself (ΔF = 0 exactly); by default 1 / forces-per-pose of the pairs
+        are self-pairs, which teach the identity at ΔF = 0 apart from the response next to it.
     anchor_to_reference, detail_gate: inference settings stored in the config (see GeneratorConfig).
     checkpoint_every: steps between periodic state saves. seed: data order, noise, init.
     threads: torch intra-op threads per process (None = torch's default).
@@ -78,6 +80,7 @@ class TrainConfig:
     ema_decay: Share = 0.999
     no_contact_prob: Share = 0.05
     no_contact_frames: Count = 32
+    distinct_pairs: bool = False
     anchor_to_reference: bool = False
     detail_gate: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
     checkpoint_every: PosInt = 250
