@@ -19,7 +19,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from benchmarks.common import base_parser, print_table, write_results
 from benchmarks.generator import dataset_pairs, quality
@@ -119,7 +118,6 @@ def main(argv=None) -> dict:
         p.error("--images must be >= 0, --steps and --pairs >= 1")
     instance_by_name(args.instance)  # a clear error before anything renders
     base = locate_checkpoint(args.base)
-    torch.set_num_threads(max(1, torch.get_num_threads()))
     done = {}
     if args.resume and args.out is not None and args.out.is_file():
         done = {r["images"]: r for r in read_json(args.out).get("rows", [])

@@ -213,14 +213,13 @@ def main(argv=None) -> dict:
             preds[split] = fn(refs, rf, tf)
             q = quality(preds[split], tgts, bg, refs)
             entry[split] = {**q, "wall_s": time.perf_counter() - t0}
-        refs, _, rf, tf, _ = data["unseen"]
-        def batch_fn(r):
-            return fn(r, np.resize(rf, (len(r), 3)), np.resize(tf, (len(r), 3)))
-        entry.update(throughput(batch_fn, refs, 1 if kind == "rerender" else repeats))
+        def on(split):  # (a batch function over that split's forces, its references)
+            refs, _, rf, tf, _ = data[split]
+            return (lambda r: fn(r, np.resize(rf, (len(r), 3)), np.resize(tf, (len(r), 3)))), refs
+        entry.update(throughput(*on("unseen"), 1 if kind == "rerender" else repeats))
         default_setting = kind == "default" and steps == gens["default"].config.default_steps
         if kind != "rerender" and (not quick or default_setting):  # the GelSight Mini's frames, resized by the model
-            refs, _, rf, tf, _ = data["unseen_240"]
-            entry["img_per_s_b32_240"] = throughput(batch_fn, refs, repeats)["img_per_s_b32"]
+            entry["img_per_s_b32_240"] = throughput(*on("unseen_240"), repeats)["img_per_s_b32"]
         if kind == "copy":
             entry.update(peak_rss_mb=None, batch_growth_mb=0.0)
         elif not quick or default_setting:

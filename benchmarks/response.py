@@ -46,13 +46,14 @@ def response(gen, reference: np.ndarray, deltas: np.ndarray, seed: int = 0) -> d
     area = contact_area_pct(gen.generate(np.repeat(reference[None], len(deltas), 0), d, seed=seed))
     zero = int(np.argmin(np.abs(deltas)))
     drops = area[:-1] - area[1:]
+    worst = int(np.argmax(drops))
+    max_drop = float(drops.max(initial=0.0))
     return {"reference_area_pct": round(float(contact_area_pct(reference[None])[0]), 3),
             "area_pct": [round(float(a), 3) for a in area],
-            "max_drop_pp": round(float(drops.max(initial=0.0)), 3),
-            "worst_step_n": ([float(deltas[int(np.argmax(drops))]), float(deltas[int(np.argmax(drops)) + 1])]
-                             if drops.max(initial=0.0) > 0 else None),
+            "max_drop_pp": round(max_drop, 3),
+            "worst_step_n": [float(deltas[worst]), float(deltas[worst + 1])] if max_drop > 0 else None,
             "growth_pp": round(float(area[-1] - area[zero]), 3),
-            "monotone": bool(drops.max(initial=0.0) <= MAX_DROP_PP)}
+            "monotone": max_drop <= MAX_DROP_PP}
 
 
 def real_references() -> dict[str, np.ndarray]:

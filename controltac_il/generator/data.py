@@ -65,9 +65,11 @@ def no_contact_residuals(meta: dict, count: int, seed: int) -> np.ndarray:
         sensors = [TactileSensor(spec, optics=meta.get("optics", "three_light"))]
     zero = np.zeros((spec.height, spec.width), np.float32)
     rng = np.random.default_rng([seed, 7919])
-    return np.stack([to_residual(sensors[j % len(sensors)].render_penetration(zero, noise_seed=int(s)),
-                                 sensors[j % len(sensors)].background)
-                     for j, s in enumerate(rng.integers(0, 2**31, size=count))])
+    out = []
+    for j, s in enumerate(rng.integers(0, 2**31, size=count)):
+        sensor = sensors[j % len(sensors)]
+        out.append(to_residual(sensor.render_penetration(zero, noise_seed=int(s)), sensor.background))
+    return np.stack(out)
 
 
 def load_pair_data(root: str | Path, image_size: tuple[int, int], no_contact_frames: int = 32, seed: int = 0,

@@ -410,9 +410,9 @@ def parse_args(argv=None) -> TrainConfig:
     p.add_argument("--out", required=True, help="run folder for states, latents and OUT/final")
     p.add_argument("--stage", choices=STAGES, default="all", help="which stage(s) to train (default: all)")
     p.add_argument("--autoencoder-from", default=None,
-                   help="reuse the autoencoder of this run or checkpoint folder, or of a shipped checkpoint (default, fast)")
+                   help=f"reuse the autoencoder of this run or checkpoint folder, or of a shipped checkpoint ({', '.join(SHIPPED)})")
     p.add_argument("--denoiser-from", default=None,
-                   help="start the DiT from this run or checkpoint folder's DiT, or a shipped one (default, fast): "
+                   help=f"start the DiT from this run or checkpoint folder's DiT, or a shipped one ({', '.join(SHIPPED)}): "
                         "fine-tuning, e.g. on your own sensor's presses; same architecture and autoencoder")
     p.add_argument("--resume", action="store_true", help="continue from the states in --out (without it, --out must not hold states)")
     p.add_argument("--image-size", type=int, nargs=2, default=d["image_size"].default, metavar=("H", "W"))
