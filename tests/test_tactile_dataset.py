@@ -134,6 +134,7 @@ def test_command_line_writes_the_same_bytes_as_the_call(tmp_path, capsys):
     (["--shear-max", "-1"], "--shear-max"),
     (["--seed", "-1"], "--seed"),
     (["--optics", "raytrace"], "--optics"),
+    (["--procedural", "-2"], "--procedural"),
 ])
 def test_command_line_refuses_bad_arguments_by_name(tmp_path, capsys, argv, flag):
     with pytest.raises(SystemExit) as exit_:

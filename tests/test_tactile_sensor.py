@@ -9,6 +9,7 @@ from controltac_il.tactile import (
     HELDOUT_OBJECTS, INDENTERS, TRAIN_OBJECTS, SensorSpec, TactileSensor, contact_mask, from_residual, to_residual,
 )
 from controltac_il.tactile import mechanics
+from controltac_il.tactile.indenters import get_indenter, procedural_indenter, procedural_objects
 from controltac_il.tactile.residual import residual_magnitude
 
 FORCES = [0.0, 1e-6, 1.0, 10.0, 50.0]
@@ -208,3 +209,23 @@ def test_contact_lies_only_where_the_object_overlaps_the_pad(quiet_sensor, obj, 
     assert c.area_mm2 <= footprint.sum() * QUIET.pixel_area_mm2
     assert abs(c.force[2] - fz) <= mechanics.FORCE_RTOL * fz + mechanics.FORCE_ATOL
     assert mechanics.normal_force(c.penetration_mm, QUIET) == pytest.approx(fz, rel=1e-3)
+
+
+def test_procedural_shapes_are_pure_functions_of_their_index_and_press_like_any_object(quiet_sensor):
+    names = procedural_objects(12)
+    assert names[0] == "procedural_0000" and len(set(names)) == 12
+    assert set(names).isdisjoint(INDENTERS)  # never one of the named (training or held-out) objects
+    maps = [get_indenter(n).heightmap(QUIET, (0.0, 0.0, 0.3)) for n in names]
+    np.testing.assert_array_equal(maps[3], procedural_indenter(3).heightmap(QUIET, (0.0, 0.0, 0.3)))
+    assert all(np.isfinite(m).all() and m.min() >= 0 and m.max() > 0.5 for m in maps)
+    assert len({m.tobytes() for m in maps}) == 12  # twelve different shapes
+    c = quiet_sensor.press(names[5], (1.0, -1.0, 0.2), (0.3, -0.2, 6.0))
+    assert c.mask.any() and abs(c.force[2] - 6.0) <= mechanics.FORCE_RTOL * 6.0 + mechanics.FORCE_ATOL
+
+
+@pytest.mark.parametrize("name", ["procedural_", "procedural_x1", "procedural_-1", "sphere"])
+def test_unknown_or_malformed_object_names_are_refused(name):
+    with pytest.raises(ValueError, match="unknown object"):
+        get_indenter(name)
+    with pytest.raises(ValueError, match="index"):
+        procedural_indenter(-1)

@@ -34,7 +34,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from controltac_il.io import atomic_dir
-from controltac_il.tactile.indenters import INDENTERS, TRAIN_OBJECTS, get_indenter
+from controltac_il.tactile.indenters import INDENTERS, TRAIN_OBJECTS, get_indenter, procedural_objects
 from controltac_il.tactile.instances import FAMILIES, sensor_instance
 from controltac_il.tactile.residual import to_residual
 from controltac_il.tactile.sensor import TactileSensor
@@ -261,6 +261,8 @@ def main(argv=None) -> Path:
     p.add_argument("--out", required=True, help="dataset folder to create (must not exist)")
     p.add_argument("--objects", nargs="+", default=list(TRAIN_OBJECTS), choices=sorted(INDENTERS), metavar="NAME",
                    help=f"indenters to press, each once (default: the six training objects {' '.join(TRAIN_OBJECTS)})")
+    p.add_argument("--procedural", type=int, default=0, metavar="N",
+                   help="also press N random training shapes procedural_0000 ... (object diversity; default 0)")
     d = {k: v.default for k, v in inspect.signature(write_dataset).parameters.items()}
     p.add_argument("--poses-per-object", type=int, default=d["poses_per_object"],
                    help=f"contact poses per object, >= 1 (default {d['poses_per_object']})")
@@ -287,6 +289,9 @@ def main(argv=None) -> Path:
         p.error(f"--out {a.out} exists; choose a new folder (datasets are never overwritten)")
     if len(set(a.objects)) != len(a.objects):
         p.error(f"--objects must name each indenter once, got {' '.join(a.objects)}")
+    if a.procedural < 0:
+        p.error(f"--procedural must be an int >= 0, got {a.procedural}")
+    objects = [*a.objects, *procedural_objects(a.procedural)]
     for flag, value in (("--poses-per-object", a.poses_per_object), ("--forces-per-pose", a.forces_per_pose)):
         if value < 1:
             p.error(f"{flag} must be an int >= 1, got {value}")
@@ -305,11 +310,11 @@ def main(argv=None) -> Path:
             p.error(f"--size H W must be ints >= 8 at the pad's {spec.height}:{spec.width} aspect "
                     f"(e.g. 120 160), got {a.size[0]} {a.size[1]}")
     try:
-        out = write_dataset(a.out, a.objects, a.poses_per_object, a.forces_per_pose, a.seed, spec, a.optics,
+        out = write_dataset(a.out, objects, a.poses_per_object, a.forces_per_pose, a.seed, spec, a.optics,
                             (lo, hi), a.shear_max, sensors=a.sensors, instances=a.instances)
     except ValueError as e:
         p.error(str(e).splitlines()[0] if str(e).strip() else repr(e))
-    print(f"wrote {out} ({len(a.objects) * a.poses_per_object * a.forces_per_pose} images)")
+    print(f"wrote {out} ({len(objects) * a.poses_per_object * a.forces_per_pose} images)")
     return out
 
 

@@ -9,6 +9,8 @@ part over the pad is sampled, and one whose footprint misses the pad makes no co
 The six training objects follow FeelAnyForce's indenters (cross, slim / thin / medium cylinder, big
 sphere, triple cylinder); the held-out ones are shapes the generator never sees in training.
 Dimensions are our own choice (FeelAnyForce does not publish CAD here) and are listed per object.
+``procedural_<k>`` (k >= 0) names a random training shape (``procedural_indenter``): object diversity
+for the generator beyond six indenters, never one of the held-out shapes.
 """
 
 from __future__ import annotations
@@ -161,6 +163,59 @@ INDENTERS: dict[str, Indenter] = {
         Indenter("textured_bead", _textured_bead, "sphere Ø8 mm with 0.08 mm bumps every 0.9 mm", "heldout"),
     ]
 }
+PROCEDURAL_PREFIX = "procedural_"
+_PROCEDURAL_SEED = 5081
+
+
+def procedural_indenter(index: int) -> Indenter:
+    """Random training shape ``index`` (>= 0), a pure function of it: the union (pointwise max) of one to three
+    primitives, each a spherical cap (radius 2-9 mm, 0.8-3 mm high), a lying cylinder (radius 0.6-4 mm, 2-16 mm
+    long) or a filleted elliptical plateau (semi-axes 0.6-5 mm), shifted up to 3.5 mm and rotated at random;
+    a quarter carry bumps 0.03-0.1 mm high every 0.6-1.5 mm. No primitive is a ring, a T, a box or an edge,
+    the held-out families."""
+    if not isinstance(index, (int, np.integer)) or isinstance(index, bool) or index < 0:
+        raise ValueError(f"procedural indenter index must be an int >= 0, got {index!r}")
+    rng = np.random.default_rng([_PROCEDURAL_SEED, int(index)])
+    parts, words = [], []
+    for _ in range(int(rng.integers(1, 4))):
+        kind = int(rng.integers(3))
+        du, dv = rng.uniform(-3.5, 3.5, size=2) if parts else (0.0, 0.0)
+        angle = rng.uniform(0, np.pi)
+        c, s = np.cos(angle), np.sin(angle)
+        if kind == 0:
+            r, h = rng.uniform(2.0, 9.0), rng.uniform(0.8, 3.0)
+            shape, words = (lambda u, v, r=r, h=min(h, r): _sphere(u, v, r, h)), words + ["cap"]
+        elif kind == 1:
+            r, half = rng.uniform(0.6, 4.0), rng.uniform(1.0, 8.0)
+            shape, words = (lambda u, v, r=r, half=half: _lying_cylinder(u, v, r, half, min(r, 3.0))), words + ["cylinder"]
+        else:
+            au, av, h = rng.uniform(0.6, 5.0), rng.uniform(0.6, 5.0), rng.uniform(1.0, 3.0)
+            fillet = min(rng.uniform(0.2, 0.6) * min(au, av), 0.8 * h)  # the rim stays above the holder
+            shape = (lambda u, v, au=au, av=av, h=h, f=fillet:
+                     _filleted_plateau((np.hypot(u / au, v / av) - 1.0) * min(au, av), h, f))
+            words = words + ["plateau"]
+        parts.append(lambda u, v, shape=shape, du=du, dv=dv, c=c, s=s:
+                     shape(c * (u - du) + s * (v - dv), -s * (u - du) + c * (v - dv)))
+    bumps = None
+    if rng.random() < 0.25:
+        amp, period = rng.uniform(0.03, 0.1), rng.uniform(0.6, 1.5)
+        bumps, words = (amp, period), words + ["bumps"]
+
+    def relief(u, v):
+        h = np.maximum.reduce([part(u, v) for part in parts])
+        if bumps is None:
+            return h
+        texture = bumps[0] * np.cos(2 * np.pi * u / bumps[1]) * np.cos(2 * np.pi * v / bumps[1])
+        return np.where(h > 0, np.maximum(h + texture, 0.0), 0.0)
+
+    return Indenter(f"{PROCEDURAL_PREFIX}{int(index):04d}", relief, "random union of " + ", ".join(words), "procedural")
+
+
+def procedural_objects(count: int) -> tuple[str, ...]:
+    """Names of the first ``count`` procedural shapes."""
+    return tuple(f"{PROCEDURAL_PREFIX}{k:04d}" for k in range(count))
+
+
 TRAIN_OBJECTS: tuple[str, ...] = tuple(n for n, i in INDENTERS.items() if i.split == "train")
 HELDOUT_OBJECTS: tuple[str, ...] = tuple(n for n, i in INDENTERS.items() if i.split == "heldout")
 
@@ -169,7 +224,10 @@ def get_indenter(name: str) -> Indenter:
     """The indenter called ``name``; ValueError listing the known names otherwise."""
     if isinstance(name, Indenter):
         return name
+    if isinstance(name, str) and name.startswith(PROCEDURAL_PREFIX) and name[len(PROCEDURAL_PREFIX):].isdigit():
+        return procedural_indenter(int(name[len(PROCEDURAL_PREFIX):]))
     try:
         return INDENTERS[name]
     except (KeyError, TypeError):
-        raise ValueError(f"unknown object {name!r}; expected one of {sorted(INDENTERS)}") from None
+        raise ValueError(f"unknown object {name!r}; expected one of {sorted(INDENTERS)} "
+                         f"or {PROCEDURAL_PREFIX}<k>") from None
