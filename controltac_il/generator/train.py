@@ -6,12 +6,15 @@
         --dit-preset tiny --prediction-type sample --default-steps 2                  # faster variant
     python -m controltac_il.generator.train --data NEW_DATASET --out TUNED --autoencoder-from RUN_DIR \
         --stage denoiser --denoiser-from RUN_DIR [same DiT flags] --dit-lr 3e-4        # fine-tune on new poses
+    python -m controltac_il.generator.train --data MY_PRESSES --out TUNED --autoencoder-from default \
+        --decoder-steps 600 --ae-lr 3e-4 --stage denoiser --denoiser-from default [its DiT flags]  # your own sensor
     torchrun --nproc-per-node 2 -m controltac_il.generator.train ...                 # data parallel (gloo, CPU)
 
 Run folder (never the dataset folder)::
 
     train_config.json                      the arguments
     autoencoder_state.{safetensors,json}   autoencoder + AdamW + LR-schedule state, step (periodic, atomic)
+    decoder_state.{safetensors,json}       the same for a reused autoencoder's decoder fine-tune (--decoder-steps)
     latents.safetensors                    the dataset encoded once (the DiT trains on these)
     denoiser_state.{safetensors,json}      DiT + EMA + AdamW + LR-schedule state, step (periodic, atomic)
     final/                                 the inference checkpoint (fp16) + model_card.json
@@ -59,7 +62,7 @@ from controltac_il.generator.dit import ForceDiT
 from controltac_il.generator.forces import VALIDATED_RANGE
 from controltac_il.generator.pipeline import CHECKPOINT_ROOT, SHIPPED, residual_to_unit
 from controltac_il.generator.sampler import make_scheduler
-from controltac_il.generator.train_config import (DIT_PRESETS, STAGES, TrainConfig, cli_args, legacy_provenance,
+from controltac_il.generator.train_config import (DIT_PRESETS, STAGES, TrainConfig, legacy_provenance, model_card,
                                                   provenance)
 from controltac_il.io import atomic_path, write_json
 
@@ -159,6 +162,38 @@ def train_autoencoder(cfg: TrainConfig, data: PairData, out: Path, rank: int, wo
     return ae.eval(), meta
 
 
+def finetune_decoder(cfg: TrainConfig, ae: TactileAutoencoder, ae_meta: dict, data: PairData, out: Path, rank: int,
+                     world: int) -> tuple[TactileAutoencoder, dict]:
+    """Fine-tune a reused autoencoder's decoder for ``cfg.decoder_steps`` on this run's data, its encoder frozen
+    (the latent space stays valid for a DiT trained on it); ``ae_meta`` gains ``decoder`` (steps, cost, command)."""
+    torch.manual_seed(cfg.seed + 2)
+    ae.encoder.requires_grad_(False)
+    opt = torch.optim.AdamW(ae.decoder.parameters(), lr=cfg.ae_lr, weight_decay=0.0)
+    stem = out / "decoder_state"
+    meta = {"step": 0, "wall_s": 0.0}
+    if stem.with_suffix(".json").is_file():
+        meta, _ = load_run_state(stem, {"autoencoder": ae}, opt)
+    sched = lr_schedule(opt, [cfg.ae_lr], cfg.decoder_steps, cfg.warmup_steps, cfg.min_lr_ratio * cfg.ae_lr,
+                        meta.get("lr_schedule"), meta["step"])
+    decoder, per_rank, t0 = wrap(ae.decoder, world), max(1, cfg.ae_batch // world), time.perf_counter()
+
+    def batch_loss(step: int) -> torch.Tensor:
+        x = crop_batch(data, np.random.default_rng([cfg.seed, 4, rank, step]), per_rank, cfg.ae_crop)
+        with torch.no_grad():
+            z = ae.encode(x)
+        return autoencoder_loss(decoder(z), x, cfg.ae_contact_weight)
+
+    def save(step: int, loss: float) -> None:
+        save_run_state(stem, {"autoencoder": ae}, {"step": step, "wall_s": meta["wall_s"] + time.perf_counter() - t0,
+                                                   "loss": loss, "trained_by": provenance(cfg)}, opt, sched)
+
+    optimise(meta["step"], cfg.decoder_steps, batch_loss, opt, sched, ae.decoder, save, cfg.checkpoint_every,
+             "decoder", rank, state=stem)
+    barrier(world)
+    meta, _ = load_run_state(stem, {"autoencoder": ae})
+    return ae.eval(), {**ae_meta, "decoder": {k: meta.get(k) for k in ("step", "wall_s", "loss", "trained_by")}}
+
+
 def reuse_autoencoder(src: Path) -> tuple[TactileAutoencoder, dict]:
     """The trained autoencoder of another run folder (its state) or of a checkpoint folder (its weights),
     with the training that made it (``trained_by``: command and data) where the source records it."""
@@ -223,23 +258,6 @@ def source_denoiser(src: Path) -> tuple[GeneratorConfig, dict[str, torch.Tensor]
         raise FileNotFoundError(f"denoiser_from: {src} holds neither a denoiser_state.json (run folder) nor a config.json (checkpoint)")
     config, _, dit = load_checkpoint(src)
     return config, dit.state_dict()
-
-
-def denoiser_lineage(src: Path) -> list[dict]:
-    """The trainings a ``--denoiser-from`` source went through, oldest first: its model card's lineage plus its
-    own command, data, steps and wall time. Read from a checkpoint's card, or from a run folder's ``final/``
-    card when that holds the run's latest state; empty where no card says (a run stopped mid-way)."""
-    card_path = src / "model_card.json"
-    if not card_path.is_file():
-        card_path = src / "final" / "model_card.json"
-        state = src / "denoiser_state.json"
-        if not card_path.is_file() or (state.is_file() and read_json(state)["step"]
-                                       != read_json(card_path)["denoiser"]["steps"]):
-            return []
-    card = read_json(card_path)
-    d, data = card.get("denoiser", {}), card.get("data", {})
-    return d.get("lineage", []) + [{"command": card.get("command"), "data": {k: data.get(k) for k in ("path", "seed", "images")},
-                                    "steps": d.get("steps"), "wall_s": d.get("wall_s")}]
 
 
 def check_same_models(src: Path, source: GeneratorConfig, gcfg: GeneratorConfig) -> None:
@@ -322,38 +340,13 @@ def train_denoiser(cfg: TrainConfig, gcfg: GeneratorConfig, z: torch.Tensor, dat
 
 # -- driver ------------------------------------------------------------------------------------
 
-def model_card(cfg: TrainConfig, data: PairData, ae: TactileAutoencoder, ae_meta: dict, dit: ForceDiT, dit_meta: dict,
-               world: int, wall_s: float) -> dict:
-    meta = read_json(Path(cfg.data) / "meta.json") if (Path(cfg.data) / "meta.json").is_file() else {}
-    return {
-        "model": "controltac-il stage-1 force-control generator (tactile autoencoder + ΔF-conditioned DiT + DDIM)",
-        "command": "python -m controltac_il.generator.train " + " ".join(cli_args(cfg)),
-        "data": {"path": str(cfg.data), "seed": meta.get("seed"), "objects": meta.get("objects"),
-                 "images": int(len(data.residuals) - len(data.no_contact)), "pose_groups": len(data.groups),
-                 "no_contact_frames": int(len(data.no_contact)), "fz_range": meta.get("fz_range"),
-                 "optics": meta.get("optics"), "render_size": [meta.get("spec", {}).get("height"), meta.get("spec", {}).get("width")]},
-        "autoencoder": {"steps": ae_meta.get("step"), "wall_s": ae_meta.get("wall_s"), "final_loss": ae_meta.get("loss"),
-                        "from": ae_meta.get("from"), "trained_by": ae_meta.get("trained_by")},
-        "denoiser": {"preset": cfg.dit_preset, "steps": dit_meta["step"], "wall_s": dit_meta["wall_s"],
-                     "final_loss": dit_meta.get("loss"), "from": cfg.denoiser_from, "batch": cfg.dit_batch, "lr": cfg.dit_lr,
-                     "lineage": [] if cfg.denoiser_from is None else denoiser_lineage(Path(cfg.denoiser_from)),
-                     "parameters": sum(p.numel() for p in dit.parameters()), "history": dit_meta.get("history")},
-        "autoencoder_parameters": sum(p.numel() for p in ae.parameters()),
-        "world_size": world,
-        "total_wall_s": wall_s,
-        "machine": {"cpu_count": os.cpu_count(), "torch": torch.__version__, "python": platform.python_version()},
-        "weights_dtype": "float16",
-        "validated_range": VALIDATED_RANGE.card(),
-    }
-
-
 def autoencoder_for(cfg: TrainConfig, data: PairData, out: Path, rank: int, world: int) -> tuple[TactileAutoencoder, dict]:
-    """The run's autoencoder: reused from ``--autoencoder-from``, trained (stages "all", "autoencoder") or this run's."""
+    """The run's autoencoder: reused from ``--autoencoder-from`` (its decoder fine-tuned with ``--decoder-steps``), trained (stages "all", "autoencoder") or this run's."""
     if cfg.autoencoder_from is not None:
         ae, ae_meta = reuse_autoencoder(Path(cfg.autoencoder_from))
         if tuple(ae.config.image_size) != cfg.image_size:
             raise ValueError(f"--autoencoder-from has image_size {ae.config.image_size}, this run {cfg.image_size}")
-        return ae, ae_meta
+        return finetune_decoder(cfg, ae, ae_meta, data, out, rank, world) if cfg.decoder_steps else (ae, ae_meta)
     if cfg.stage in ("all", "autoencoder"):
         return train_autoencoder(cfg, data, out, rank, world)
     return reuse_autoencoder(out)
@@ -425,6 +418,9 @@ def parse_args(argv=None) -> TrainConfig:
                    help="width of the DiT's local refinement head, 3x3 convs at latent resolution (default: 0 = none)")
     p.add_argument("--one-step-fraction", type=float, default=0.0, metavar="F",
                    help="share of each DiT batch trained at the last timestep, the one 1-step DDIM uses (default: 0)")
+    p.add_argument("--decoder-steps", type=int, default=0, metavar="N",
+                   help="with --autoencoder-from: fine-tune its decoder N steps on --data, encoder frozen (adapts the "
+                        "reconstruction to your sensor; a --denoiser-from DiT stays valid; default 0)")
     for name in ("dit_patch", "ae_steps", "ae_batch", "dit_steps", "dit_batch", "warmup_steps", "checkpoint_every", "seed",
                  "no_contact_frames", "threads"):
         p.add_argument("--" + name.replace("_", "-"), type=int, default=d[name].default)
@@ -454,9 +450,9 @@ def parse_args(argv=None) -> TrainConfig:
         fail(f"--out {out} is the dataset folder: choose a run folder of its own")
     if resume and overwrite:
         fail("--resume and --overwrite exclude each other: continue the run in --out, or replace it")
-    has_state = any((out / f"{s}_state.json").is_file() for s in ("autoencoder", "denoiser"))
+    has_state = any((out / f"{s}_state.json").is_file() for s in ("autoencoder", "decoder", "denoiser"))
     if resume and not has_state:
-        fail(f"--resume: {out} holds no training state (autoencoder_state.json or denoiser_state.json) to continue")
+        fail(f"--resume: {out} holds no training state (autoencoder_, decoder_ or denoiser_state.json) to continue")
     rank0 = os.environ.get("RANK", "0") == "0"  # under torchrun only rank 0 removes a replaced run
     try:
         claim_output(out, RUN_OUTPUTS, resume=resume or (overwrite and not rank0), overwrite=overwrite,
@@ -484,6 +480,8 @@ RUN_OUTPUTS = {
     "latents.safetensors": own_safetensors("latents"),
     "autoencoder_state.json": own_json("step", "config"),
     "autoencoder_state.safetensors": own_safetensors("autoencoder.", "optimizer."),
+    "decoder_state.json": own_json("step", "trained_by"),
+    "decoder_state.safetensors": own_safetensors("autoencoder.", "optimizer."),
     "denoiser_state.json": own_json("step", "config"),
     "denoiser_state.safetensors": own_safetensors("denoiser.", "ema.", "optimizer."),
     "final": own_checkpoint(("config.json", "autoencoder.safetensors", "denoiser.safetensors", "model_card.json"),

@@ -1,17 +1,27 @@
 """Arguments of a generator training run (``TrainConfig``, a pydantic dataclass saved as ``train_config.json``)
-and the provenance a run records: the command that reproduces it and its dataset."""
+and the provenance a run records: the command that reproduces it, its dataset, the model card."""
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import platform
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
+import torch
 from pydantic import Field, model_validator
 from pydantic.dataclasses import dataclass
 
+from controltac_il.checkpoint import read_json
 from controltac_il.generator.config import STRICT, AutoencoderConfig, DiffusionConfig, DiTConfig, PosInt, Positive
+from controltac_il.generator.forces import VALIDATED_RANGE
+
+if TYPE_CHECKING:
+    from controltac_il.generator.autoencoder import TactileAutoencoder
+    from controltac_il.generator.data import PairData
+    from controltac_il.generator.dit import ForceDiT
 
 DIT_PRESETS = {"small": DiTConfig.small, "tiny": DiTConfig.tiny, "base": DiTConfig.base}
 STAGES = ("all", "autoencoder", "denoiser")
@@ -39,6 +49,10 @@ class TrainConfig:
     prediction_type: "epsilon" (paper) or "sample"; default_steps: DDIM steps stored as the default.
     ae_steps, ae_batch, ae_lr, ae_crop: autoencoder optimisation (crop (H, W) of the training patches, within image_size).
     ae_contact_weight: extra loss weight on contact pixels of the autoencoder's targets.
+    decoder_steps: with ``autoencoder_from``, fine-tune the reused autoencoder's decoder for this many steps
+        on ``data`` (batch ``ae_batch``, peak LR ``ae_lr``, crops ``ae_crop``) with its encoder frozen: the
+        latent space, and so a ``denoiser_from`` DiT trained on it, stays valid while the reconstruction
+        adapts to a new sensor. 0 = reuse the autoencoder unchanged.
     dit_steps, dit_batch, dit_lr: DiT optimisation (global batch, split across processes). 0 DiT steps only
         with ``denoiser_from`` (a copy of that DiT); 0 autoencoder steps only where the autoencoder is reused.
     one_step_fraction: share of each DiT batch drawn at the last training timestep (the only one a
@@ -71,6 +85,7 @@ class TrainConfig:
     ae_lr: Positive = 2e-3
     ae_crop: tuple[PosInt, PosInt] = (64, 80)
     ae_contact_weight: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 4.0
+    decoder_steps: Count = 0
     dit_steps: Count = 4000
     dit_batch: PosInt = 128
     dit_lr: Positive = 5e-4
@@ -101,6 +116,8 @@ class TrainConfig:
         if self.ae_steps == 0 and self.stage != "denoiser" and self.autoencoder_from is None:
             raise ValueError("ae_steps=0 (--ae-steps) would leave the autoencoder untrained: give it >= 1 steps, or "
                              "reuse one with --autoencoder-from")
+        if self.decoder_steps and self.autoencoder_from is None:
+            raise ValueError(f"decoder_steps={self.decoder_steps} fine-tunes a reused decoder: give --autoencoder-from")
         if self.stage == "denoiser" and self.autoencoder_from is None and not (Path(self.out) / "autoencoder_state.json").is_file():
             raise ValueError("stage 'denoiser' needs --autoencoder-from or a trained autoencoder in --out")
         return self
@@ -139,3 +156,47 @@ def legacy_provenance(run: Path) -> dict | None:
         return None
     saved = json.loads(path.read_text())
     return provenance(TrainConfig(**{f.name: saved[f.name] for f in dataclasses.fields(TrainConfig) if f.name in saved}))
+
+
+def denoiser_lineage(src: Path) -> list[dict]:
+    """The trainings a ``--denoiser-from`` source went through, oldest first: its model card's lineage plus its
+    own command, data, steps and wall time. Read from a checkpoint's card, or from a run folder's ``final/``
+    card when that holds the run's latest state; empty where no card says (a run stopped mid-way)."""
+    card_path = src / "model_card.json"
+    if not card_path.is_file():
+        card_path = src / "final" / "model_card.json"
+        state = src / "denoiser_state.json"
+        if not card_path.is_file() or (state.is_file() and read_json(state)["step"]
+                                       != read_json(card_path)["denoiser"]["steps"]):
+            return []
+    card = read_json(card_path)
+    d, data = card.get("denoiser", {}), card.get("data", {})
+    return d.get("lineage", []) + [{"command": card.get("command"), "data": {k: data.get(k) for k in ("path", "seed", "images")},
+                                    "steps": d.get("steps"), "wall_s": d.get("wall_s")}]
+
+
+def model_card(cfg: TrainConfig, data: PairData, ae: TactileAutoencoder, ae_meta: dict, dit: ForceDiT, dit_meta: dict,
+               world: int, wall_s: float) -> dict:
+    """The final checkpoint's ``model_card.json``: command, data, each stage's cost and lineage, machine."""
+    meta = read_json(Path(cfg.data) / "meta.json") if (Path(cfg.data) / "meta.json").is_file() else {}
+    return {
+        "model": "controltac-il stage-1 force-control generator (tactile autoencoder + ΔF-conditioned DiT + DDIM)",
+        "command": "python -m controltac_il.generator.train " + " ".join(cli_args(cfg)),
+        "data": {"path": str(cfg.data), "seed": meta.get("seed"), "objects": meta.get("objects"),
+                 "images": int(len(data.residuals) - len(data.no_contact)), "pose_groups": len(data.groups),
+                 "no_contact_frames": int(len(data.no_contact)), "fz_range": meta.get("fz_range"),
+                 "optics": meta.get("optics"), "render_size": [meta.get("spec", {}).get("height"), meta.get("spec", {}).get("width")]},
+        "autoencoder": {"steps": ae_meta.get("step"), "wall_s": ae_meta.get("wall_s"), "final_loss": ae_meta.get("loss"),
+                        "from": ae_meta.get("from"), "trained_by": ae_meta.get("trained_by"),
+                        **({"decoder_finetune": ae_meta["decoder"]} if "decoder" in ae_meta else {})},
+        "denoiser": {"preset": cfg.dit_preset, "steps": dit_meta["step"], "wall_s": dit_meta["wall_s"],
+                     "final_loss": dit_meta.get("loss"), "from": cfg.denoiser_from, "batch": cfg.dit_batch, "lr": cfg.dit_lr,
+                     "lineage": [] if cfg.denoiser_from is None else denoiser_lineage(Path(cfg.denoiser_from)),
+                     "parameters": sum(p.numel() for p in dit.parameters()), "history": dit_meta.get("history")},
+        "autoencoder_parameters": sum(p.numel() for p in ae.parameters()),
+        "world_size": world,
+        "total_wall_s": wall_s,
+        "machine": {"cpu_count": os.cpu_count(), "torch": torch.__version__, "python": platform.python_version()},
+        "weights_dtype": "float16",
+        "validated_range": VALIDATED_RANGE.card(),
+    }
