@@ -9,10 +9,15 @@ GelSight Mini's native 240×320; "unseen_sensor" = the training objects pressed 
 family held out of training (``controltac_il.tactile.instances``: polynomial optics over the DIGIT background,
 brighter lighting), at 120×160. Pairs are (reference, target)
 images of one contact pose; the metric compares the predicted image (residual + background) with the
-rendered target: MSE on 0-255 RGB and SSIM (``controltac_il.metrics``), mean ± SD over pairs, and
-the share of the sensor's noise kept on bare gel (``bare_noise_ratio``; 1 = as real).
+rendered target: MSE on 0-255 RGB and SSIM (``controltac_il.metrics``), mean ± SD over pairs, the
+share of the sensor's noise kept on bare gel (``bare_noise_ratio``; 1 = as real), and the force read-back:
+the shipped force estimator's Fz error (N) against the target force on the predicted frames beside that on
+the true target frames (``readback_fz_mae`` / ``true_readback_fz_mae``; the estimator knows the nominal sensor
+only, so on ``unseen_sensor`` both are large).
 
-Methods: reference copy; physics re-render (``controltac_il.tactile.inverse``); the default generator
+Methods: reference copy; physics re-render (``controltac_il.tactile.inverse``); "target through the model
+size", a bound rather than a method: the true target resized to the generator's image size and back, i.e. what
+a perfect generator working at that size would lose at 240×320 if it kept none of the frame's finer detail; the default generator
 at DDIM steps 1, 2, 5, 10, 20, 50; the faster variant at its steps. For each: images/s at batch 1 and
 batch 32 at 120×160, and at batch 32 at 240×320 (median of repeats, this process's torch threads) and the peak resident memory of a fresh
 process generating one batch of 32.
@@ -32,6 +37,7 @@ import torch
 from tqdm.auto import tqdm
 
 from benchmarks.common import base_parser, median_time, print_table, write_results
+from controltac_il.estimators import ForceEstimator
 from controltac_il.generator import ForceGenerator
 from controltac_il.generator.forces import VALIDATED_RANGE
 from controltac_il.generator.pipeline import CHECKPOINT_ROOT
@@ -95,6 +101,20 @@ def quality(pred_res: np.ndarray, tgt_res: np.ndarray, background: np.ndarray, r
     m, s = mse(pred, tgt), ssim(pred, tgt)
     return {"mse": float(m.mean()), "mse_sd": float(m.std()), "ssim": float(s.mean()), "ssim_sd": float(s.std()),
             "bare_noise_ratio": bare_noise_ratio(pred_res, tgt_res, ref_res), "n": int(len(m))}
+
+
+def through_size(residual: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """A uint8 residual (H, W, 3) resized (area) to ``size`` = (h, w) and back (linear), as the generator's resize does."""
+    h, w = residual.shape[:2]
+    small = cv2.resize(residual, size[::-1], interpolation=cv2.INTER_AREA)
+    return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
+
+
+def readback(estimator: ForceEstimator, pred_res: np.ndarray, tgt_res: np.ndarray, target_force: np.ndarray) -> dict:
+    """Mean |Fz| error (N) of the estimator's raw reading against the target force, on predicted and true frames."""
+    def fz_mae(res):
+        return float(np.abs(estimator.predict(res, gate=False)[:, 2] - target_force[:, 2]).mean())
+    return {"readback_fz_mae": fz_mae(pred_res), "true_readback_fz_mae": fz_mae(tgt_res)}
 
 
 def _vm_hwm_mb() -> float:
@@ -166,6 +186,20 @@ def save_sheet(path: Path, rows: list[tuple[str, np.ndarray, np.ndarray, np.ndar
         cv2.imwrite(str(tmp), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
 
 
+def table_row(entry: dict) -> dict:
+    """One printed row of the speed-vs-error table (speeds are absent for a bound; in --quick for most methods)."""
+    row = {"method": entry["method"]}
+    for split in SPLITS:
+        q = entry[split]
+        row[f"{split} MSE"] = f"{q['mse']:.1f} ± {q['mse_sd']:.1f}"
+        row[f"{split} SSIM"] = f"{q['ssim']:.3f}"
+    rb = entry["unseen_240"]
+    return {**row, "unseen_240 Fz read-back N (true)": f"{rb['readback_fz_mae']:.2f} ({rb['true_readback_fz_mae']:.2f})",
+            "unseen noise": f"{entry['unseen']['bare_noise_ratio']:.2f}", "img/s b1": entry.get("img_per_s_b1"),
+            "img/s b32": entry.get("img_per_s_b32"), "img/s b32 240": entry.get("img_per_s_b32_240"),
+            "peak MB": entry.get("peak_rss_mb")}
+
+
 def main(argv=None) -> dict:
     p = base_parser(__doc__.splitlines()[0])
     p.add_argument("--checkpoint", default="default", help="default generator (shipped name or folder)")
@@ -187,12 +221,16 @@ def main(argv=None) -> dict:
     if a.fast:
         gens["fast"] = ForceGenerator.from_pretrained(a.fast)
 
-    methods: list[tuple[str, str, int | None]] = [("reference copy", "copy", None), ("physics re-render", "rerender", None)]
+    methods: list[tuple[str, str, int | None]] = [("reference copy", "copy", None), ("physics re-render", "rerender", None),
+                                                  ("target through the model size", "roundtrip", None)]
     methods += [(f"default DDIM-{s}", "default", s) for s in steps_grid]
     if "fast" in gens:
         fs = gens["fast"].config.default_steps
         methods += [(f"fast DDIM-{s}", "fast", s) for s in sorted({1, fs, 2 * fs})]
+    estimator = ForceEstimator.from_pretrained()
     sensors = {size: TactileSensor(SensorSpec.gelsight_mini().scaled(*size)) for size in (RENDER_SIZE, NATIVE_SIZE)}
+
+    model_hw = tuple(gens["default"].config.image_size)
 
     def predictor(kind: str, steps: int | None):
         if kind == "copy":
@@ -205,14 +243,18 @@ def main(argv=None) -> dict:
 
     rows, per_method = [], {}
     for name, kind, steps in tqdm(methods, desc="methods", unit="method"):
-        fn = predictor(kind, steps)
+        fn = None if kind == "roundtrip" else predictor(kind, steps)
         entry = {"method": name, "kind": kind, "steps": steps}
         preds = {}
         for split, (refs, tgts, rf, tf, bg) in data.items():
             t0 = time.perf_counter()
-            preds[split] = fn(refs, rf, tf)
-            q = quality(preds[split], tgts, bg, refs)
-            entry[split] = {**q, "wall_s": time.perf_counter() - t0}
+            preds[split] = np.stack([through_size(t, model_hw) for t in tgts]) if fn is None else fn(refs, rf, tf)
+            wall = time.perf_counter() - t0
+            entry[split] = {**quality(preds[split], tgts, bg, refs), **readback(estimator, preds[split], tgts, tf), "wall_s": wall}
+        if fn is None:  # a bound, not a method: no speed
+            per_method[name] = (entry, preds)
+            rows.append(table_row(entry))
+            continue
         def on(split):  # (a batch function over that split's forces, its references)
             refs, _, rf, tf, _ = data[split]
             return (lambda r: fn(r, np.resize(rf, (len(r), 3)), np.resize(tf, (len(r), 3)))), refs
@@ -226,14 +268,7 @@ def main(argv=None) -> dict:
             ck = None if kind == "rerender" else (a.checkpoint if kind == "default" else a.fast)
             entry.update(peak_memory_mb("generator" if ck else "rerender", ck, steps, a.threads))
         per_method[name] = (entry, preds)
-        row = {"method": name}
-        for split in SPLITS:
-            q = entry[split]
-            row[f"{split} MSE"] = f"{q['mse']:.1f} ± {q['mse_sd']:.1f}"
-            row[f"{split} SSIM"] = f"{q['ssim']:.3f}"
-        rows.append({**row, "unseen noise": f"{entry['unseen']['bare_noise_ratio']:.2f}", "img/s b1": entry["img_per_s_b1"],
-                     "img/s b32": entry["img_per_s_b32"], "img/s b32 240": entry.get("img_per_s_b32_240"),  # quick: default only
-                     "peak MB": entry.get("peak_rss_mb")})
+        rows.append(table_row(entry))
     print_table(rows, list(rows[0]), title=f"generator speed vs error ({'quick' if quick else 'full'}, "
                                             f"{n_pairs} pairs/split, {a.threads} torch threads)")
 
@@ -247,8 +282,12 @@ def main(argv=None) -> dict:
             "unseen_mse_at_most_quarter_of_copy": dflt["unseen"]["mse"] <= 0.25 * copy["unseen"]["mse"],
             "unseen_ssim_above_copy": dflt["unseen"]["ssim"] > copy["unseen"]["ssim"],
             "unseen_240_mse_ratio_to_copy": dflt["unseen_240"]["mse"] / copy["unseen_240"]["mse"],
+            "unseen_240_bound_through_model_size": (per_method["target through the model size"][0]["unseen_240"]["mse"]
+                                                    / copy["unseen_240"]["mse"]),
             "unseen_240_ssim_above_copy": dflt["unseen_240"]["ssim"] > copy["unseen_240"]["ssim"],
             "unseen_sensor_mse_ratio_to_copy": dflt["unseen_sensor"]["mse"] / copy["unseen_sensor"]["mse"],
+            **{f"{split}_readback_ratio_to_true": dflt[split]["readback_fz_mae"] / dflt[split]["true_readback_fz_mae"]
+               for split in ("seen", "unseen", "seen_240", "unseen_240")},
             "default_img_per_s_b32": dflt["img_per_s_b32"],
             "default_img_per_s_b32_240": dflt["img_per_s_b32_240"],
             "default_at_least_50_img_per_s_at_240": dflt["img_per_s_b32_240"] >= 50.0,

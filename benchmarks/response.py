@@ -12,6 +12,10 @@ References: the real GelSight Mini frames (bead, key, seed) in ``../shared/data/
 their background, at 240×320, when that folder is there (GPL: read, never copied; only the areas are written),
 and the sensor model's frames of every object (the six training shapes and the six held-out ones) pressed at
 the pad's centre with 3 N, three-light optics, at 120×160 (``sim120/``) and 240×320 (``sim240/``). ``--quick`` takes two objects and ΔFz in [-1, 2] N.
+
+Detail: where a reference is larger than the model's image size, ``detail_kept`` is the energy of the output's
+detail finer than the model's size (the residual less its round trip through that size) at ΔFz = +2 N over the
+reference's own: 1 = the frame's fine detail survives generation, ~0 = it was resized away.
 """
 
 from __future__ import annotations
@@ -39,11 +43,26 @@ def contact_area_pct(residuals: np.ndarray) -> np.ndarray:
     return contact_mask(residuals).mean(axis=(-2, -1)) * 100.0
 
 
+def fine_detail(residual: np.ndarray, size: tuple[int, int]) -> float:
+    """Mean squared detail of a residual (H, W, 3) finer than ``size`` = (h, w): the residual less its area-down /
+    linear-up round trip through that size (grey levels²)."""
+    x = residual.astype(np.float32)
+    h, w = residual.shape[:2]
+    back = cv2.resize(cv2.resize(x, size[::-1], interpolation=cv2.INTER_AREA), (w, h), interpolation=cv2.INTER_LINEAR)
+    return float(((x - back) ** 2).mean())
+
+
 def response(gen, reference: np.ndarray, deltas: np.ndarray, seed: int = 0) -> dict:
-    """Areas (%) of ``gen``'s outputs for one reference residual (H, W, 3) at each ΔFz, with the drop and growth."""
+    """Areas (%) of ``gen``'s outputs for one reference residual (H, W, 3) at each ΔFz, with the drop and growth,
+    and (references larger than the model) the share of fine detail kept at ΔFz = +2 N."""
     d = np.zeros((len(deltas), 3))
     d[:, 2] = deltas
-    area = contact_area_pct(gen.generate(np.repeat(reference[None], len(deltas), 0), d, seed=seed))
+    out = gen.generate(np.repeat(reference[None], len(deltas), 0), d, seed=seed)
+    area = contact_area_pct(out)
+    model = tuple(gen.config.image_size)
+    at2 = int(np.argmin(np.abs(deltas - 2.0)))
+    detail = (round(fine_detail(out[at2], model) / fine_detail(reference, model), 3)
+              if reference.shape[0] > model[0] and deltas[at2] == 2.0 else None)
     zero = int(np.argmin(np.abs(deltas)))
     drops = area[:-1] - area[1:]
     worst = int(np.argmax(drops))
@@ -53,7 +72,7 @@ def response(gen, reference: np.ndarray, deltas: np.ndarray, seed: int = 0) -> d
             "max_drop_pp": round(max_drop, 3),
             "worst_step_n": [float(deltas[worst]), float(deltas[worst + 1])] if max_drop > 0 else None,
             "growth_pp": round(float(area[-1] - area[zero]), 3),
-            "monotone": max_drop <= MAX_DROP_PP}
+            "monotone": max_drop <= MAX_DROP_PP, "detail_kept": detail}
 
 
 def real_references() -> dict[str, np.ndarray]:
@@ -116,7 +135,8 @@ def main(argv=None) -> dict:
         refs.update(sim_references(objects, size))
     rows = {name: response(gen, ref, deltas) for name, ref in refs.items()}
     table = [{"reference": n, "area_at_0": r["area_pct"][int(np.argmin(np.abs(deltas)))], "max_drop_pp": r["max_drop_pp"],
-              "worst_step_n": r["worst_step_n"], "growth_pp": r["growth_pp"], "monotone": r["monotone"]}
+              "worst_step_n": r["worst_step_n"], "growth_pp": r["growth_pp"], "monotone": r["monotone"],
+              "detail_kept": r["detail_kept"]}
              for n, r in rows.items()]
     print_table(table, list(table[0]), title=f"contact area vs ΔFz ({args.generator or 'default'} generator)")
     results = {"benchmark": "response", "generator": args.generator or "default",

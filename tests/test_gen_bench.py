@@ -51,17 +51,26 @@ def test_quick_run_writes_the_table_json_targets_and_sheet(tmp_path, capsys):
     doc = bench.main(["--quick", "--pairs", "6", "--threads", "1", "--out", str(out), "--cache", str(tmp_path / "data")])
     assert json.loads(out.read_text()) == json.loads(json.dumps(doc))
     names = [m["method"] for m in doc["methods"]]
-    assert names[:5] == ["reference copy", "physics re-render", "default DDIM-1", "default DDIM-2", "default DDIM-10"]
+    assert names[:6] == ["reference copy", "physics re-render", "target through the model size", "default DDIM-1",
+                         "default DDIM-2", "default DDIM-10"]
     assert any(n.startswith("fast DDIM-") for n in names)
     by = {m["method"]: m for m in doc["methods"]}
+    t = doc["targets"]
     copy, default = by["reference copy"], by["default DDIM-1"]
     for split in ("seen", "unseen", "seen_240", "unseen_240"):
         assert copy[split]["n"] == 6 and copy[split]["bare_noise_ratio"] == pytest.approx(1.0, abs=0.15)
         assert default[split]["mse"] < copy[split]["mse"]  # the shipped model beats copying the reference
+        # the read-back of the true frames does not depend on the method; a copy reads the reference's force
+        assert copy[split]["true_readback_fz_mae"] == pytest.approx(default[split]["true_readback_fz_mae"])
+        assert default[split]["readback_fz_mae"] < copy[split]["readback_fz_mae"]
+    assert t["unseen_240_readback_ratio_to_true"] == pytest.approx(default["unseen_240"]["readback_fz_mae"]
+                                                           / default["unseen_240"]["true_readback_fz_mae"])
+    bound = by["target through the model size"]  # the true target resized to the model and back: only fine detail lost
+    assert bound["unseen_240"]["mse"] < 0.2 * copy["unseen_240"]["mse"] and "img_per_s_b32" not in bound
+    assert t["unseen_240_bound_through_model_size"] == pytest.approx(bound["unseen_240"]["mse"] / copy["unseen_240"]["mse"])
     assert copy["unseen_sensor"]["n"] == 6 and default["img_per_s_b32_240"] > 0
     assert doc["settings"]["splits"]["unseen_sensor"]["sensors"] == "unseen"
     assert default["img_per_s_b1"] > 0 and default["peak_rss_mb"] > default["batch_growth_mb"] > 0
-    t = doc["targets"]
     assert t["default_setting"] == "default DDIM-1"
     assert t["unseen_mse_ratio_to_copy"] == pytest.approx(default["unseen"]["mse"] / copy["unseen"]["mse"])
     assert "unseen MSE" in capsys.readouterr().out

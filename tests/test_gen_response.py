@@ -1,7 +1,9 @@
 """benchmarks.response: contact area against ΔFz, the drop and growth it reports, and its --quick run."""
 
 import json
+from types import SimpleNamespace
 
+import cv2
 import numpy as np
 import pytest
 
@@ -14,6 +16,7 @@ class AreaGenerator:
 
     def __init__(self, areas):
         self.areas = areas
+        self.config = SimpleNamespace(image_size=(100, 10))
 
     def generate(self, refs, delta, seed=0):
         out = np.full(refs.shape, OFFSET, np.uint8)
@@ -33,6 +36,28 @@ def test_area_drop_and_growth_are_measured_between_neighbouring_steps():
     assert not r["monotone"]
     flat = bench.response(AreaGenerator({d: 20 for d in deltas.tolist()}), ref, deltas)
     assert flat["max_drop_pp"] == 0.0 and flat["worst_step_n"] is None and flat["monotone"]
+
+
+class ResizingGenerator:
+    """Returns each reference, or (``blur``) its round trip through the model size: detail resized away."""
+
+    def __init__(self, blur):
+        self.blur, self.config = blur, SimpleNamespace(image_size=(12, 16))
+
+    def generate(self, refs, delta, seed=0):
+        if not self.blur:
+            return refs.copy()
+        return np.stack([cv2.resize(cv2.resize(r, (16, 12), interpolation=cv2.INTER_AREA), (32, 24)) for r in refs])
+
+
+def test_detail_kept_tells_a_frame_that_keeps_its_fine_detail_from_one_resized_through_the_model():
+    ref = np.full((24, 32, 3), OFFSET, np.uint8)
+    ref[::2, ::2] += 20  # detail at the pixel scale, finer than the 12x16 model
+    assert bench.fine_detail(ref, (12, 16)) > 10 and bench.fine_detail(np.full_like(ref, OFFSET), (12, 16)) == 0
+    deltas = np.array([0.0, 2.0])
+    assert bench.response(ResizingGenerator(blur=False), ref, deltas)["detail_kept"] == 1.0
+    assert bench.response(ResizingGenerator(blur=True), ref, deltas)["detail_kept"] < 0.05
+    assert bench.response(ResizingGenerator(blur=False), ref, np.array([0.0, 1.0]))["detail_kept"] is None  # no +2 N
 
 
 def test_quick_run_writes_every_reference_and_the_plot(tmp_path):
@@ -59,8 +84,9 @@ def test_finetune_quick_run_scores_zero_shot_and_a_fine_tune_and_resumes(tmp_pat
     assert rows[0]["copy_mse"] == rows[48]["copy_mse"] > 0  # one held-out evaluation set for every budget
     for r in rows.values():
         assert r["mse_ratio_to_copy"] == pytest.approx(r["mse"] / r["copy_mse"]) and r["n"] == 12
-    card = json.loads((runs / "unseen_00_n48_s4" / "final" / "model_card.json").read_text())
+    card = json.loads((runs / "unseen_00_n48_s4_d2" / "final" / "model_card.json").read_text())
     assert "--denoiser-from" in card["command"] and card["denoiser"]["steps"] == 4
+    assert card["autoencoder"]["decoder_finetune"]["step"] == 2 and rows[48]["decoder_steps"] == 2
     again = finetune.main(["--quick", "--out", str(out), "--runs", str(runs), "--resume"])
     assert again["rows"] == doc["rows"]  # nothing retrained or rescored
     assert out.with_suffix(".png").stat().st_size > 0
