@@ -20,7 +20,8 @@ size", a bound rather than a method: the true target resized to the generator's 
 a perfect generator working at that size would lose at 240×320 if it kept none of the frame's finer detail; the default generator
 at DDIM steps 1, 2, 5, 10, 20, 50; the faster variant at its steps. For each: images/s at batch 1 and
 batch 32 at 120×160, and at batch 32 at 240×320 (median of repeats, this process's torch threads) and the peak resident memory of a fresh
-process generating one batch of 32.
+process generating one batch of 32. ``autoencoder_speed``: the autoencoder's share of a batch of 32 (one encode,
+two decodes) for the shipped one and for an f8 autoencoder at 240×320, the native-resolution alternative.
 """
 
 from __future__ import annotations
@@ -159,6 +160,29 @@ def throughput(fn_batch, refs: np.ndarray, repeats: int) -> dict:
     t1 = median_time(lambda: fn_batch(one), repeats=repeats, warmup=1)
     t32 = median_time(lambda: fn_batch(b32), repeats=max(1, repeats // 2), warmup=1)
     return {"img_per_s_b1": 1.0 / t1, "img_per_s_b32": 32.0 / t32}
+
+
+# An f8 autoencoder at the GelSight Mini's own size keeps the DiT's token count (30x40 latents, as the shipped f4 at
+# 128x160 gives 32x40): the native-resolution alternative, timed untrained (its cost does not depend on training).
+F8_NATIVE = {"image_size": (240, 320), "channels": (12, 24, 64), "stem_channels": 8, "latent_channels": 8}
+
+
+def autoencoder_speed(shipped, repeats: int) -> dict:
+    """Images/s at batch 32 of the autoencoder's share of one ``generate`` call (one encode, two decodes) for the
+    shipped autoencoder at its size and for an ``F8_NATIVE`` one at 240x320."""
+    from controltac_il.generator.autoencoder import TactileAutoencoder
+    from controltac_il.generator.config import AutoencoderConfig
+
+    def speed(ae) -> float:
+        x = torch.zeros(32, 3, *ae.config.image_size)
+        def once():
+            with torch.no_grad():
+                z = ae.encode(x)
+                ae.decode(z), ae.decode(z)
+        return 32.0 / median_time(once, repeats=repeats, warmup=1)
+    native = TactileAutoencoder(AutoencoderConfig(**F8_NATIVE)).eval()
+    return {"shipped": {"config": shipped.config.to_dict(), "img_per_s_b32": speed(shipped)},
+            "f8_at_240x320": {"config": native.config.to_dict(), "img_per_s_b32": speed(native)}}
 
 
 def error_map(pred: np.ndarray, tgt: np.ndarray) -> np.ndarray:
@@ -308,6 +332,7 @@ def main(argv=None) -> dict:
         print(f"wrote {sheet}")
 
     results = {
+        "autoencoder_speed": autoencoder_speed(gens["default"].autoencoder, repeats),
         "settings": {"quick": quick, "pairs_per_split": n_pairs, "render_size": list(RENDER_SIZE),
                      "splits": {k: {"objects": list(v[0]), "render_size": list(v[2]), "sensors": v[3] or "nominal"}
                                 for k, v in SPLITS.items()},
