@@ -1,14 +1,14 @@
 """Fine-tuning the generator on your own sensor: error on a sensor it never saw against the number of presses.
 
-    python -m benchmarks.finetune --out finetune.json [--images 0 100 500 2000] [--steps 600] [--decoder-steps 600]
+    python -m benchmarks.finetune --out finetune.json [--images 0 100 500 2000] [--steps 600] [--ae-steps 600]
     python -m benchmarks.finetune --out finetune.json --resume      # keeps the fine-tunes already done
 
 A lab's sensor is played by one instance of the held-out family (``--instance``, default ``unseen_00``:
 polynomial optics over the DIGIT background, brighter lighting than any training instance). For each budget N
 its presses are rendered as a dataset folder of that one sensor (the training objects, 8 forces per pose, about
-N images; what ``python -m controltac_il.tactile.dataset`` writes for a lab), the base generator's decoder is
-fine-tuned on them for ``--decoder-steps`` steps (encoder frozen) and its DiT for ``--steps`` steps
-(``python -m controltac_il.generator.train --stage denoiser --autoencoder-from BASE --decoder-steps D
+N images; what ``python -m controltac_il.tactile.dataset`` writes for a lab), the base generator's autoencoder is
+fine-tuned on them for ``--ae-steps`` steps and then its DiT, on the moved latents, for ``--steps`` steps
+(``python -m controltac_il.generator.train --stage denoiser --autoencoder-from BASE --ae-finetune-steps A
 --denoiser-from BASE``, the base's DiT flags), and the result is scored on held-out
 poses of the same sensor: MSE and SSIM against the true frame, as a ratio to copying the reference. N = 0 is
 the base model itself (zero-shot). Each budget's result is saved as it finishes; runs live under ``--runs``.
@@ -57,8 +57,8 @@ def base_flags(base: Path) -> list[str]:
     return out + (["--anchor-to-reference"] if "--anchor-to-reference" in command else [])
 
 
-def fine_tune(base: Path, data: Path, out: Path, steps: int, lr: float, decoder_steps: int = 0) -> Path:
-    """Fine-tune ``base``'s decoder (``decoder_steps``, encoder frozen) and DiT (``steps``) on ``data`` into ``out``
+def fine_tune(base: Path, data: Path, out: Path, steps: int, lr: float, ae_steps: int = 0) -> Path:
+    """Fine-tune ``base``'s autoencoder (``ae_steps``) and then its DiT (``steps``) on ``data`` into ``out``
     (kept when already done); returns the checkpoint."""
     from controltac_il.generator.train import main as train
 
@@ -67,10 +67,10 @@ def fine_tune(base: Path, data: Path, out: Path, steps: int, lr: float, decoder_
         argv = ["--data", str(data), "--out", str(out), "--stage", "denoiser", "--autoencoder-from", str(base),
                 "--denoiser-from", str(base), *base_flags(base), "--dit-steps", str(steps), "--dit-batch", "64",
                 "--dit-lr", str(lr), "--warmup-steps", "20", "--detail-gate", str(gate),
-                "--checkpoint-every", str(max(steps, decoder_steps, 1))]
-        if decoder_steps:
-            argv += ["--decoder-steps", str(decoder_steps), "--ae-lr", str(lr), "--ae-crop", "64", "80"]
-        resume = any((out / f"{s}_state.json").is_file() for s in ("decoder", "denoiser"))
+                "--checkpoint-every", str(max(steps, ae_steps, 1))]
+        if ae_steps:
+            argv += ["--ae-finetune-steps", str(ae_steps), "--ae-lr", str(lr), "--ae-crop", "64", "80"]
+        resume = any((out / f"{s}_state.json").is_file() for s in ("autoencoder_finetune", "denoiser"))
         rc = train(argv + (["--resume"] if resume else []))
         if rc != 0:
             raise RuntimeError(f"fine-tuning on {data} stopped with exit code {rc}")
@@ -110,8 +110,8 @@ def main(argv=None) -> dict:
     p = base_parser(__doc__.split(":", 1)[1].strip().split("\n")[0])
     p.add_argument("--images", type=int, nargs="+", default=[0, 100, 500, 2000], help="fine-tuning budgets (images)")
     p.add_argument("--steps", type=int, default=600, help="fine-tuning steps per budget (batch 64; default 600)")
-    p.add_argument("--decoder-steps", type=int, default=600,
-                   help="decoder fine-tuning steps per budget (batch 32 crops, encoder frozen; 0 = DiT only; default 600)")
+    p.add_argument("--ae-steps", type=int, default=600,
+                   help="autoencoder fine-tuning steps per budget (batch 32 crops; 0 = the DiT only; default 600)")
     p.add_argument("--lr", type=float, default=2e-4, help="peak learning rate of both fine-tunes (default 2e-4)")
     p.add_argument("--base", default="default", help="the generator to fine-tune: default, fast or a folder")
     p.add_argument("--instance", default="unseen_00", help="the held-out sensor instance playing the lab's sensor")
@@ -120,19 +120,19 @@ def main(argv=None) -> dict:
     p.add_argument("--resume", action="store_true", help="keep the budgets already in --out")
     args = p.parse_args(argv)
     if args.quick:
-        args.images, args.steps, args.decoder_steps, args.pairs = [0, 48], 4, 2, 12
-    if any(n < 0 for n in args.images) or args.steps < 1 or args.pairs < 1 or args.decoder_steps < 0:
-        p.error("--images and --decoder-steps must be >= 0, --steps and --pairs >= 1")
+        args.images, args.steps, args.ae_steps, args.pairs = [0, 48], 4, 2, 12
+    if any(n < 0 for n in args.images) or args.steps < 1 or args.pairs < 1 or args.ae_steps < 0:
+        p.error("--images and --ae-steps must be >= 0, --steps and --pairs >= 1")
     instance_by_name(args.instance)  # a clear error before anything renders
     base = locate_checkpoint(args.base)
     done = {}
     if args.resume and args.out is not None and args.out.is_file():
         done = {r["images"]: r for r in read_json(args.out).get("rows", [])
-                if r["images"] == 0 or (r.get("steps"), r.get("decoder_steps", 0)) == (args.steps, args.decoder_steps)}
+                if r["images"] == 0 or (r.get("steps"), r.get("ae_steps", 0)) == (args.steps, args.ae_steps)}
     pairs = dataset_pairs(render(args.runs / f"{args.instance}_eval", args.instance, 288, EVAL_SEED), args.pairs)
     rows = []
     results = {"benchmark": "finetune", "instance": args.instance, "base": str(base), "steps": args.steps,
-               "decoder_steps": args.decoder_steps, "lr": args.lr, "validated_range": VALIDATED_RANGE.card(), "rows": rows}
+               "ae_steps": args.ae_steps, "lr": args.lr, "validated_range": VALIDATED_RANGE.card(), "rows": rows}
     for n in sorted(set(args.images)):
         if n in done:
             rows.append(done[n])
@@ -144,13 +144,13 @@ def main(argv=None) -> dict:
         else:
             data = render(args.runs / f"{args.instance}_n{n}", args.instance, n, seed=3000 + n)
             rendered = int(read_json(data / "meta.json")["count"])
-            run = args.runs / (f"{args.instance}_n{n}_s{args.steps}" + (f"_d{args.decoder_steps}" if args.decoder_steps else ""))
-            ckpt = fine_tune(base, data, run, args.steps, args.lr, args.decoder_steps)
+            run = args.runs / (f"{args.instance}_n{n}_s{args.steps}" + (f"_a{args.ae_steps}" if args.ae_steps else ""))
+            ckpt = fine_tune(base, data, run, args.steps, args.lr, args.ae_steps)
         rows.append({"images": n, "images_rendered": rendered, "steps": 0 if n == 0 else args.steps,
-                     "decoder_steps": 0 if n == 0 else args.decoder_steps, **score(ckpt, pairs),
+                     "ae_steps": 0 if n == 0 else args.ae_steps, **score(ckpt, pairs),
                      "wall_s": round(time.perf_counter() - t0, 1)})
         write_results(args.out, results)  # each budget saved as it finishes
-    print_table(rows, ["images", "steps", "decoder_steps", "mse", "copy_mse", "mse_ratio_to_copy", "ssim", "copy_ssim", "wall_s"],
+    print_table(rows, ["images", "steps", "ae_steps", "mse", "copy_mse", "mse_ratio_to_copy", "ssim", "copy_ssim", "wall_s"],
                 title=f"fine-tuning on {args.instance} (base {args.base})")
     if args.out is not None:
         save_plot(args.out.with_suffix(".png"), rows, args.instance)

@@ -15,7 +15,8 @@ the pad's centre with 3 N, three-light optics, at 120×160 (``sim120/``) and 240
 
 Detail: where a reference is larger than the model's image size, ``detail_kept`` is the energy of the output's
 detail finer than the model's size (the residual less its round trip through that size) at ΔFz = +2 N over the
-reference's own: 1 = the frame's fine detail survives generation, ~0 = it was resized away.
+reference's own (``reference_fine_detail``, grey levels²): 1 = the frame's fine detail survives generation, ~0 = it
+was resized away.
 """
 
 from __future__ import annotations
@@ -61,8 +62,9 @@ def response(gen, reference: np.ndarray, deltas: np.ndarray, seed: int = 0) -> d
     area = contact_area_pct(out)
     model = tuple(gen.config.image_size)
     at2 = int(np.argmin(np.abs(deltas - 2.0)))
-    detail = (round(fine_detail(out[at2], model) / fine_detail(reference, model), 3)
-              if reference.shape[0] > model[0] and deltas[at2] == 2.0 else None)
+    larger = reference.shape[0] > model[0]
+    ref_detail = fine_detail(reference, model) if larger else None
+    detail = round(fine_detail(out[at2], model) / ref_detail, 3) if larger and deltas[at2] == 2.0 else None
     zero = int(np.argmin(np.abs(deltas)))
     drops = area[:-1] - area[1:]
     worst = int(np.argmax(drops))
@@ -72,7 +74,8 @@ def response(gen, reference: np.ndarray, deltas: np.ndarray, seed: int = 0) -> d
             "max_drop_pp": round(max_drop, 3),
             "worst_step_n": [float(deltas[worst]), float(deltas[worst + 1])] if max_drop > 0 else None,
             "growth_pp": round(float(area[-1] - area[zero]), 3),
-            "monotone": max_drop <= MAX_DROP_PP, "detail_kept": detail}
+            "monotone": max_drop <= MAX_DROP_PP, "detail_kept": detail,
+            "reference_fine_detail": None if ref_detail is None else round(ref_detail, 3)}
 
 
 def real_references() -> dict[str, np.ndarray]:

@@ -7,14 +7,14 @@
     python -m controltac_il.generator.train --data NEW_DATASET --out TUNED --autoencoder-from RUN_DIR \
         --stage denoiser --denoiser-from RUN_DIR [same DiT flags] --dit-lr 3e-4        # fine-tune on new poses
     python -m controltac_il.generator.train --data MY_PRESSES --out TUNED --autoencoder-from default \
-        --decoder-steps 600 --ae-lr 3e-4 --stage denoiser --denoiser-from default [its DiT flags]  # your own sensor
+        --ae-finetune-steps 600 --ae-lr 2e-4 --stage denoiser --denoiser-from default [its DiT flags]  # your sensor
     torchrun --nproc-per-node 2 -m controltac_il.generator.train ...                 # data parallel (gloo, CPU)
 
 Run folder (never the dataset folder)::
 
     train_config.json                      the arguments
     autoencoder_state.{safetensors,json}   autoencoder + AdamW + LR-schedule state, step (periodic, atomic)
-    decoder_state.{safetensors,json}       the same for a reused autoencoder's decoder fine-tune (--decoder-steps)
+    autoencoder_finetune_state.{...}       the same for a reused autoencoder's fine-tune (--ae-finetune-steps)
     latents.safetensors                    the dataset encoded once (the DiT trains on these)
     denoiser_state.{safetensors,json}      DiT + EMA + AdamW + LR-schedule state, step (periodic, atomic)
     final/                                 the inference checkpoint (fp16) + model_card.json
@@ -162,36 +162,33 @@ def train_autoencoder(cfg: TrainConfig, data: PairData, out: Path, rank: int, wo
     return ae.eval(), meta
 
 
-def finetune_decoder(cfg: TrainConfig, ae: TactileAutoencoder, ae_meta: dict, data: PairData, out: Path, rank: int,
-                     world: int) -> tuple[TactileAutoencoder, dict]:
-    """Fine-tune a reused autoencoder's decoder for ``cfg.decoder_steps`` on this run's data, its encoder frozen
-    (the latent space stays valid for a DiT trained on it); ``ae_meta`` gains ``decoder`` (steps, cost, command)."""
+def finetune_autoencoder(cfg: TrainConfig, ae: TactileAutoencoder, ae_meta: dict, data: PairData, out: Path,
+                         rank: int, world: int) -> tuple[TactileAutoencoder, dict]:
+    """Fine-tune a reused autoencoder (encoder and decoder) for ``cfg.ae_finetune_steps`` on this run's data;
+    ``ae_meta`` gains ``finetune`` (steps, cost, command). Its latent space moves: the DiT trains after it."""
     torch.manual_seed(cfg.seed + 2)
-    ae.encoder.requires_grad_(False)
-    opt = torch.optim.AdamW(ae.decoder.parameters(), lr=cfg.ae_lr, weight_decay=0.0)
-    stem = out / "decoder_state"
+    opt = torch.optim.AdamW(ae.parameters(), lr=cfg.ae_lr, weight_decay=0.0)
+    stem = out / "autoencoder_finetune_state"
     meta = {"step": 0, "wall_s": 0.0}
     if stem.with_suffix(".json").is_file():
         meta, _ = load_run_state(stem, {"autoencoder": ae}, opt)
-    sched = lr_schedule(opt, [cfg.ae_lr], cfg.decoder_steps, cfg.warmup_steps, cfg.min_lr_ratio * cfg.ae_lr,
+    sched = lr_schedule(opt, [cfg.ae_lr], cfg.ae_finetune_steps, cfg.warmup_steps, cfg.min_lr_ratio * cfg.ae_lr,
                         meta.get("lr_schedule"), meta["step"])
-    decoder, per_rank, t0 = wrap(ae.decoder, world), max(1, cfg.ae_batch // world), time.perf_counter()
+    model, per_rank, t0 = wrap(ae, world), max(1, cfg.ae_batch // world), time.perf_counter()
 
     def batch_loss(step: int) -> torch.Tensor:
         x = crop_batch(data, np.random.default_rng([cfg.seed, 4, rank, step]), per_rank, cfg.ae_crop)
-        with torch.no_grad():
-            z = ae.encode(x)
-        return autoencoder_loss(decoder(z), x, cfg.ae_contact_weight)
+        return autoencoder_loss(model(x), x, cfg.ae_contact_weight)
 
     def save(step: int, loss: float) -> None:
         save_run_state(stem, {"autoencoder": ae}, {"step": step, "wall_s": meta["wall_s"] + time.perf_counter() - t0,
                                                    "loss": loss, "trained_by": provenance(cfg)}, opt, sched)
 
-    optimise(meta["step"], cfg.decoder_steps, batch_loss, opt, sched, ae.decoder, save, cfg.checkpoint_every,
-             "decoder", rank, state=stem)
+    optimise(meta["step"], cfg.ae_finetune_steps, batch_loss, opt, sched, ae, save, cfg.checkpoint_every,
+             "autoencoder fine-tune", rank, state=stem)
     barrier(world)
     meta, _ = load_run_state(stem, {"autoencoder": ae})
-    return ae.eval(), {**ae_meta, "decoder": {k: meta.get(k) for k in ("step", "wall_s", "loss", "trained_by")}}
+    return ae.eval(), {**ae_meta, "finetune": {k: meta.get(k) for k in ("step", "wall_s", "loss", "trained_by")}}
 
 
 def reuse_autoencoder(src: Path) -> tuple[TactileAutoencoder, dict]:
@@ -341,12 +338,12 @@ def train_denoiser(cfg: TrainConfig, gcfg: GeneratorConfig, z: torch.Tensor, dat
 # -- driver ------------------------------------------------------------------------------------
 
 def autoencoder_for(cfg: TrainConfig, data: PairData, out: Path, rank: int, world: int) -> tuple[TactileAutoencoder, dict]:
-    """The run's autoencoder: reused from ``--autoencoder-from`` (its decoder fine-tuned with ``--decoder-steps``), trained (stages "all", "autoencoder") or this run's."""
+    """The run's autoencoder: reused from ``--autoencoder-from`` (fine-tuned with ``--ae-finetune-steps``), trained (stages "all", "autoencoder") or this run's."""
     if cfg.autoencoder_from is not None:
         ae, ae_meta = reuse_autoencoder(Path(cfg.autoencoder_from))
         if tuple(ae.config.image_size) != cfg.image_size:
             raise ValueError(f"--autoencoder-from has image_size {ae.config.image_size}, this run {cfg.image_size}")
-        return finetune_decoder(cfg, ae, ae_meta, data, out, rank, world) if cfg.decoder_steps else (ae, ae_meta)
+        return finetune_autoencoder(cfg, ae, ae_meta, data, out, rank, world) if cfg.ae_finetune_steps else (ae, ae_meta)
     if cfg.stage in ("all", "autoencoder"):
         return train_autoencoder(cfg, data, out, rank, world)
     return reuse_autoencoder(out)
@@ -418,9 +415,9 @@ def parse_args(argv=None) -> TrainConfig:
                    help="width of the DiT's local refinement head, 3x3 convs at latent resolution (default: 0 = none)")
     p.add_argument("--one-step-fraction", type=float, default=0.0, metavar="F",
                    help="share of each DiT batch trained at the last timestep, the one 1-step DDIM uses (default: 0)")
-    p.add_argument("--decoder-steps", type=int, default=0, metavar="N",
-                   help="with --autoencoder-from: fine-tune its decoder N steps on --data, encoder frozen (adapts the "
-                        "reconstruction to your sensor; a --denoiser-from DiT stays valid; default 0)")
+    p.add_argument("--ae-finetune-steps", type=int, default=0, metavar="N",
+                   help="with --autoencoder-from: fine-tune that autoencoder N steps on --data (your sensor's look), "
+                        "then the DiT on its moved latents (--denoiser-from with --dit-steps >= 1; default 0)")
     for name in ("dit_patch", "ae_steps", "ae_batch", "dit_steps", "dit_batch", "warmup_steps", "checkpoint_every", "seed",
                  "no_contact_frames", "threads"):
         p.add_argument("--" + name.replace("_", "-"), type=int, default=d[name].default)
@@ -450,9 +447,9 @@ def parse_args(argv=None) -> TrainConfig:
         fail(f"--out {out} is the dataset folder: choose a run folder of its own")
     if resume and overwrite:
         fail("--resume and --overwrite exclude each other: continue the run in --out, or replace it")
-    has_state = any((out / f"{s}_state.json").is_file() for s in ("autoencoder", "decoder", "denoiser"))
+    has_state = any((out / f"{s}_state.json").is_file() for s in ("autoencoder", "autoencoder_finetune", "denoiser"))
     if resume and not has_state:
-        fail(f"--resume: {out} holds no training state (autoencoder_, decoder_ or denoiser_state.json) to continue")
+        fail(f"--resume: {out} holds no training state (autoencoder_, autoencoder_finetune_ or denoiser_state.json) to continue")
     rank0 = os.environ.get("RANK", "0") == "0"  # under torchrun only rank 0 removes a replaced run
     try:
         claim_output(out, RUN_OUTPUTS, resume=resume or (overwrite and not rank0), overwrite=overwrite,
@@ -480,8 +477,8 @@ RUN_OUTPUTS = {
     "latents.safetensors": own_safetensors("latents"),
     "autoencoder_state.json": own_json("step", "config"),
     "autoencoder_state.safetensors": own_safetensors("autoencoder.", "optimizer."),
-    "decoder_state.json": own_json("step", "trained_by"),
-    "decoder_state.safetensors": own_safetensors("autoencoder.", "optimizer."),
+    "autoencoder_finetune_state.json": own_json("step", "trained_by"),
+    "autoencoder_finetune_state.safetensors": own_safetensors("autoencoder.", "optimizer."),
     "denoiser_state.json": own_json("step", "config"),
     "denoiser_state.safetensors": own_safetensors("denoiser.", "ema.", "optimizer."),
     "final": own_checkpoint(("config.json", "autoencoder.safetensors", "denoiser.safetensors", "model_card.json"),

@@ -49,10 +49,9 @@ class TrainConfig:
     prediction_type: "epsilon" (paper) or "sample"; default_steps: DDIM steps stored as the default.
     ae_steps, ae_batch, ae_lr, ae_crop: autoencoder optimisation (crop (H, W) of the training patches, within image_size).
     ae_contact_weight: extra loss weight on contact pixels of the autoencoder's targets.
-    decoder_steps: with ``autoencoder_from``, fine-tune the reused autoencoder's decoder for this many steps
-        on ``data`` (batch ``ae_batch``, peak LR ``ae_lr``, crops ``ae_crop``) with its encoder frozen: the
-        latent space, and so a ``denoiser_from`` DiT trained on it, stays valid while the reconstruction
-        adapts to a new sensor. 0 = reuse the autoencoder unchanged.
+    ae_finetune_steps: with ``autoencoder_from``, fine-tune the reused autoencoder (encoder and decoder) for this
+        many steps on ``data`` (batch ``ae_batch``, peak LR ``ae_lr``, crops ``ae_crop``): a new sensor's look.
+        Its latent space moves, so the DiT must train after it (``dit_steps`` >= 1). 0 = reuse it unchanged.
     dit_steps, dit_batch, dit_lr: DiT optimisation (global batch, split across processes). 0 DiT steps only
         with ``denoiser_from`` (a copy of that DiT); 0 autoencoder steps only where the autoencoder is reused.
     one_step_fraction: share of each DiT batch drawn at the last training timestep (the only one a
@@ -85,7 +84,7 @@ class TrainConfig:
     ae_lr: Positive = 2e-3
     ae_crop: tuple[PosInt, PosInt] = (64, 80)
     ae_contact_weight: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 4.0
-    decoder_steps: Count = 0
+    ae_finetune_steps: Count = 0
     dit_steps: Count = 4000
     dit_batch: PosInt = 128
     dit_lr: Positive = 5e-4
@@ -116,8 +115,11 @@ class TrainConfig:
         if self.ae_steps == 0 and self.stage != "denoiser" and self.autoencoder_from is None:
             raise ValueError("ae_steps=0 (--ae-steps) would leave the autoencoder untrained: give it >= 1 steps, or "
                              "reuse one with --autoencoder-from")
-        if self.decoder_steps and self.autoencoder_from is None:
-            raise ValueError(f"decoder_steps={self.decoder_steps} fine-tunes a reused decoder: give --autoencoder-from")
+        if self.ae_finetune_steps and self.autoencoder_from is None:
+            raise ValueError(f"ae_finetune_steps={self.ae_finetune_steps} fine-tunes a reused autoencoder: give --autoencoder-from")
+        if self.ae_finetune_steps and self.dit_steps == 0 and self.stage != "autoencoder":
+            raise ValueError("ae_finetune_steps moves the latent space: a DiT copied with dit_steps=0 (--dit-steps) would "
+                             "no longer match it; give --dit-steps >= 1")
         if self.stage == "denoiser" and self.autoencoder_from is None and not (Path(self.out) / "autoencoder_state.json").is_file():
             raise ValueError("stage 'denoiser' needs --autoencoder-from or a trained autoencoder in --out")
         return self
@@ -188,7 +190,7 @@ def model_card(cfg: TrainConfig, data: PairData, ae: TactileAutoencoder, ae_meta
                  "optics": meta.get("optics"), "render_size": [meta.get("spec", {}).get("height"), meta.get("spec", {}).get("width")]},
         "autoencoder": {"steps": ae_meta.get("step"), "wall_s": ae_meta.get("wall_s"), "final_loss": ae_meta.get("loss"),
                         "from": ae_meta.get("from"), "trained_by": ae_meta.get("trained_by"),
-                        **({"decoder_finetune": ae_meta["decoder"]} if "decoder" in ae_meta else {})},
+                        **({"finetune": ae_meta["finetune"]} if "finetune" in ae_meta else {})},
         "denoiser": {"preset": cfg.dit_preset, "steps": dit_meta["step"], "wall_s": dit_meta["wall_s"],
                      "final_loss": dit_meta.get("loss"), "from": cfg.denoiser_from, "batch": cfg.dit_batch, "lr": cfg.dit_lr,
                      "lineage": [] if cfg.denoiser_from is None else denoiser_lineage(Path(cfg.denoiser_from)),
