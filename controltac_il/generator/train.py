@@ -132,33 +132,41 @@ def optimise(step: int, total: int, batch_loss: Callable[[int], torch.Tensor], o
 
 # -- stage 1: autoencoder ----------------------------------------------------------------------
 
-def train_autoencoder(cfg: TrainConfig, data: PairData, out: Path, rank: int, world: int) -> tuple[TactileAutoencoder, dict]:
-    torch.manual_seed(cfg.seed)
-    ae_cfg = AutoencoderConfig(image_size=cfg.image_size, channels=cfg.ae_channels, latent_channels=cfg.latent_channels)
-    ae = TactileAutoencoder(ae_cfg)
+def fit_autoencoder(cfg: TrainConfig, ae: TactileAutoencoder, data: PairData, out: Path, rank: int, world: int,
+                    steps: int, state: str, stream: int, desc: str, extra: dict) -> dict:
+    """AdamW on all of ``ae``'s weights for ``steps`` steps on random crops of ``data`` (the loss of
+    ``autoencoder_loss``; crops drawn from the rng stream ``stream``), resumable from ``out/<state>``; ``extra``
+    joins the saved state's metadata. Returns that metadata."""
     opt = torch.optim.AdamW(ae.parameters(), lr=cfg.ae_lr, weight_decay=0.0)
-    stem = out / "autoencoder_state"
+    stem = out / state
     meta = {"step": 0, "wall_s": 0.0}
     if stem.with_suffix(".json").is_file():
         meta, _ = load_run_state(stem, {"autoencoder": ae}, opt)
-    sched = lr_schedule(opt, [cfg.ae_lr], cfg.ae_steps, cfg.warmup_steps, cfg.min_lr_ratio * cfg.ae_lr,
+    sched = lr_schedule(opt, [cfg.ae_lr], steps, cfg.warmup_steps, cfg.min_lr_ratio * cfg.ae_lr,
                         meta.get("lr_schedule"), meta["step"])
     model, per_rank, t0 = wrap(ae, world), max(1, cfg.ae_batch // world), time.perf_counter()
 
     def batch_loss(step: int) -> torch.Tensor:
-        x = crop_batch(data, np.random.default_rng([cfg.seed, 1, rank, step]), per_rank, cfg.ae_crop)
+        x = crop_batch(data, np.random.default_rng([cfg.seed, stream, rank, step]), per_rank, cfg.ae_crop)
         return autoencoder_loss(model(x), x, cfg.ae_contact_weight)
 
     def save(step: int, loss: float) -> None:
         save_run_state(stem, {"autoencoder": ae}, {"step": step, "wall_s": meta["wall_s"] + time.perf_counter() - t0,
-                                                   "loss": loss, "config": ae_cfg.to_dict(), "trained_by": provenance(cfg)},
-                       opt, sched)
+                                                   "loss": loss, **extra, "trained_by": provenance(cfg)}, opt, sched)
 
-    optimise(meta["step"], cfg.ae_steps, batch_loss, opt, sched, ae, save, cfg.checkpoint_every, "autoencoder", rank,
-             state=stem)
+    optimise(meta["step"], steps, batch_loss, opt, sched, ae, save, cfg.checkpoint_every, desc, rank, state=stem)
     barrier(world)
     if stem.with_suffix(".json").is_file():  # every rank reads rank 0's final state (identical weights anyway under DDP)
         meta, _ = load_run_state(stem, {"autoencoder": ae})
+    return meta
+
+
+def train_autoencoder(cfg: TrainConfig, data: PairData, out: Path, rank: int, world: int) -> tuple[TactileAutoencoder, dict]:
+    torch.manual_seed(cfg.seed)
+    ae_cfg = AutoencoderConfig(image_size=cfg.image_size, channels=cfg.ae_channels, latent_channels=cfg.latent_channels)
+    ae = TactileAutoencoder(ae_cfg)
+    meta = fit_autoencoder(cfg, ae, data, out, rank, world, cfg.ae_steps, "autoencoder_state", 1, "autoencoder",
+                           {"config": ae_cfg.to_dict()})
     return ae.eval(), meta
 
 
@@ -167,27 +175,8 @@ def finetune_autoencoder(cfg: TrainConfig, ae: TactileAutoencoder, ae_meta: dict
     """Fine-tune a reused autoencoder (encoder and decoder) for ``cfg.ae_finetune_steps`` on this run's data;
     ``ae_meta`` gains ``finetune`` (steps, cost, command). Its latent space moves: the DiT trains after it."""
     torch.manual_seed(cfg.seed + 2)
-    opt = torch.optim.AdamW(ae.parameters(), lr=cfg.ae_lr, weight_decay=0.0)
-    stem = out / "autoencoder_finetune_state"
-    meta = {"step": 0, "wall_s": 0.0}
-    if stem.with_suffix(".json").is_file():
-        meta, _ = load_run_state(stem, {"autoencoder": ae}, opt)
-    sched = lr_schedule(opt, [cfg.ae_lr], cfg.ae_finetune_steps, cfg.warmup_steps, cfg.min_lr_ratio * cfg.ae_lr,
-                        meta.get("lr_schedule"), meta["step"])
-    model, per_rank, t0 = wrap(ae, world), max(1, cfg.ae_batch // world), time.perf_counter()
-
-    def batch_loss(step: int) -> torch.Tensor:
-        x = crop_batch(data, np.random.default_rng([cfg.seed, 4, rank, step]), per_rank, cfg.ae_crop)
-        return autoencoder_loss(model(x), x, cfg.ae_contact_weight)
-
-    def save(step: int, loss: float) -> None:
-        save_run_state(stem, {"autoencoder": ae}, {"step": step, "wall_s": meta["wall_s"] + time.perf_counter() - t0,
-                                                   "loss": loss, "trained_by": provenance(cfg)}, opt, sched)
-
-    optimise(meta["step"], cfg.ae_finetune_steps, batch_loss, opt, sched, ae, save, cfg.checkpoint_every,
-             "autoencoder fine-tune", rank, state=stem)
-    barrier(world)
-    meta, _ = load_run_state(stem, {"autoencoder": ae})
+    meta = fit_autoencoder(cfg, ae, data, out, rank, world, cfg.ae_finetune_steps, "autoencoder_finetune_state", 4,
+                           "autoencoder fine-tune", {})
     return ae.eval(), {**ae_meta, "finetune": {k: meta.get(k) for k in ("step", "wall_s", "loss", "trained_by")}}
 
 
