@@ -167,22 +167,22 @@ def throughput(fn_batch, refs: np.ndarray, repeats: int) -> dict:
 F8_NATIVE = {"image_size": (240, 320), "channels": (12, 24, 64), "stem_channels": 8, "latent_channels": 8}
 
 
-def autoencoder_speed(shipped, repeats: int) -> dict:
-    """Images/s at batch 32 of the autoencoder's share of one ``generate`` call (one encode, two decodes) for the
+def autoencoder_speed(shipped, repeats: int, batch: int = 32) -> dict:
+    """Images/s at ``batch`` of the autoencoder's share of one ``generate`` call (one encode, two decodes) for the
     shipped autoencoder at its size and for an ``F8_NATIVE`` one at 240x320."""
     from controltac_il.generator.autoencoder import TactileAutoencoder
     from controltac_il.generator.config import AutoencoderConfig
 
     def speed(ae) -> float:
-        x = torch.zeros(32, 3, *ae.config.image_size)
+        x = torch.zeros(batch, 3, *ae.config.image_size)
         def once():
             with torch.no_grad():
                 z = ae.encode(x)
                 ae.decode(z), ae.decode(z)
-        return 32.0 / median_time(once, repeats=repeats, warmup=1)
+        return batch / median_time(once, repeats=repeats, warmup=1)
     native = TactileAutoencoder(AutoencoderConfig(**F8_NATIVE)).eval()
-    return {"shipped": {"config": shipped.config.to_dict(), "img_per_s_b32": speed(shipped)},
-            "f8_at_240x320": {"config": native.config.to_dict(), "img_per_s_b32": speed(native)}}
+    return {"batch": batch, "shipped": {"config": shipped.config.to_dict(), "img_per_s": speed(shipped)},
+            "f8_at_240x320": {"config": native.config.to_dict(), "img_per_s": speed(native)}}
 
 
 def error_map(pred: np.ndarray, tgt: np.ndarray) -> np.ndarray:
@@ -332,7 +332,7 @@ def main(argv=None) -> dict:
         print(f"wrote {sheet}")
 
     results = {
-        "autoencoder_speed": autoencoder_speed(gens["default"].autoencoder, repeats),
+        "autoencoder_speed": autoencoder_speed(gens["default"].autoencoder, repeats, 4 if quick else 32),
         "settings": {"quick": quick, "pairs_per_split": n_pairs, "render_size": list(RENDER_SIZE),
                      "splits": {k: {"objects": list(v[0]), "render_size": list(v[2]), "sensors": v[3] or "nominal"}
                                 for k, v in SPLITS.items()},

@@ -69,7 +69,7 @@ def test_quick_run_writes_the_table_json_targets_and_sheet(tmp_path, capsys):
     assert bound["unseen_240"]["mse"] < 0.2 * copy["unseen_240"]["mse"] and "img_per_s_b32" not in bound
     assert t["unseen_240_bound_through_model_size"] == pytest.approx(bound["unseen_240"]["mse"] / copy["unseen_240"]["mse"])
     speed = doc["autoencoder_speed"]
-    assert speed["f8_at_240x320"]["config"]["image_size"] == [240, 320] and speed["shipped"]["img_per_s_b32"] > 0
+    assert speed["f8_at_240x320"]["config"]["image_size"] == [240, 320] and speed["shipped"]["img_per_s"] > 0 and speed["batch"] == 4
     assert copy["unseen_sensor"]["n"] == 6 and default["img_per_s_b32_240"] > 0
     assert doc["settings"]["splits"]["unseen_sensor"]["sensors"] == "unseen"
     assert default["img_per_s_b1"] > 0 and default["peak_rss_mb"] > default["batch_growth_mb"] > 0

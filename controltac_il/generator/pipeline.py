@@ -36,7 +36,7 @@ from controltac_il.generator.sampler import ddim_sample, make_scheduler, seeded_
 from controltac_il.tactile.residual import OFFSET
 
 CHECKPOINT_ROOT = Path(__file__).resolve().parent / "checkpoints"
-SHIPPED = ("default", "fast", "randomised")
+SHIPPED = ("default", "fast")
 RESIDUAL_OFFSET = float(OFFSET)
 # Largest change of aspect ratio (either way) the resize to the model's image size may make.
 MAX_ASPECT_CHANGE = 1.5
