@@ -17,10 +17,10 @@ only, so on ``unseen_sensor`` both are large).
 
 Methods: reference copy; physics re-render (``controltac_il.tactile.inverse``); "target through the model
 size", a bound rather than a method: the true target resized to the generator's image size and back, i.e. what
-a perfect generator working at that size would lose at 240×320 if it kept none of the frame's finer detail; the default generator
-at DDIM steps 1, 2, 5, 10, 20, 50; the faster variant at its steps. For each: images/s at batch 1 and
-batch 32 at 120×160, and at batch 32 at 240×320 (median of repeats, this process's torch threads) and the peak resident memory of a fresh
-process generating one batch of 32. ``autoencoder_speed``: the autoencoder's share of a batch of 32 (one encode,
+a perfect generator working at that size would lose at 240×320 if it kept none of the frame's finer detail; the
+default generator at DDIM steps 1, 2, 5, 10, 20, 50; the faster variant at its steps. For each: images/s at
+batch 1 and batch 32 at 120×160, and at batch 32 at 240×320 (median of repeats, this process's torch threads),
+and the peak resident memory of a fresh process generating one batch of 32 (``--quick``: the default setting only). ``autoencoder_speed``: the autoencoder's share of a batch of 32 (one encode,
 two decodes) for the shipped one and for an f8 autoencoder at 240×320, the native-resolution alternative.
 """
 
@@ -253,7 +253,6 @@ def main(argv=None) -> dict:
         methods += [(f"fast DDIM-{s}", "fast", s) for s in sorted({1, fs, 2 * fs})]
     estimator = ForceEstimator.from_pretrained()
     sensors = {size: TactileSensor(SensorSpec.gelsight_mini().scaled(*size)) for size in (RENDER_SIZE, NATIVE_SIZE)}
-
     model_hw = tuple(gens["default"].config.image_size)
 
     def predictor(kind: str, steps: int | None):
