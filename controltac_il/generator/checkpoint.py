@@ -7,6 +7,8 @@ Layout::
     denoiser.safetensors      ForceDiT state dict
     model_card.json           provenance, measured figures and the weights' SHA-256 (verified at load)
 
+A stage-2 pose-adapter folder holds ``config.json`` (PoseAdapterConfig), ``adapter.safetensors`` and its card.
+
 Loading never unpickles anything; a missing file, a hash that differs from the card's or NaN / inf
 weights raise CheckpointError naming the file, and a state dict that does not match the config's model
 (missing or extra tensors, other shapes) raises one naming the tensors.
@@ -21,15 +23,16 @@ import torch
 
 from controltac_il.checkpoint import (CARD_FILE, CONFIG_FILE, CheckpointError, load_folder, load_into, one_line, read_json,
                                       save_folder)
+from controltac_il.generator.adapter import PoseAdapter
 from controltac_il.generator.autoencoder import TactileAutoencoder
-from controltac_il.generator.config import GeneratorConfig
+from controltac_il.generator.config import GeneratorConfig, PoseAdapterConfig
 from controltac_il.generator.dit import ForceDiT
 
 AE_FILE = "autoencoder.safetensors"
 DIT_FILE = "denoiser.safetensors"
 WEIGHT_FILES = (AE_FILE, DIT_FILE)
-__all__ = ["AE_FILE", "CARD_FILE", "CONFIG_FILE", "DIT_FILE", "WEIGHT_FILES", "CheckpointError", "checkpoint_hash",
-           "load_checkpoint", "read_config", "save_checkpoint"]
+__all__ = ["ADAPTER_FILE", "AE_FILE", "CARD_FILE", "CONFIG_FILE", "DIT_FILE", "WEIGHT_FILES", "CheckpointError",
+           "checkpoint_hash", "load_adapter", "load_checkpoint", "read_config", "save_adapter", "save_checkpoint"]
 
 
 def _config(d: dict, where: Path) -> GeneratorConfig:
@@ -69,3 +72,27 @@ def checkpoint_hash(path: str | Path) -> str:
         h.update(name.encode())
         h.update((path / name).read_bytes())
     return h.hexdigest()[:16]
+
+
+# -- stage 2: the pose adapter (config.json = PoseAdapterConfig, adapter.safetensors, model card) -----------
+
+ADAPTER_FILE = "adapter.safetensors"
+
+
+def save_adapter(path: str | Path, config: PoseAdapterConfig, adapter: PoseAdapter, dtype: torch.dtype | None = None,
+                 model_card: dict | None = None) -> Path:
+    """Write a pose-adapter checkpoint folder atomically."""
+    return save_folder(path, config.to_dict(), {ADAPTER_FILE: adapter}, card=model_card, dtype=dtype)
+
+
+def load_adapter(path: str | Path) -> tuple[PoseAdapterConfig, PoseAdapter]:
+    """Rebuild (config, adapter) in float32 from a pose-adapter checkpoint folder (verified like stage 1's)."""
+    path = Path(path)
+    d, weights = load_folder(path, (ADAPTER_FILE,))
+    try:
+        config = PoseAdapterConfig.from_dict(d)
+    except ValueError as e:
+        raise CheckpointError(f"{path / CONFIG_FILE}: invalid pose-adapter config: {one_line(e)}") from None
+    adapter = PoseAdapter(config)
+    load_into(adapter, weights[ADAPTER_FILE], path / ADAPTER_FILE)
+    return config, adapter.eval()

@@ -188,3 +188,24 @@ class GeneratorConfig(JsonConfig):
     @property
     def default_steps(self) -> int:
         return self.diffusion.default_steps
+
+
+@dataclass(config=STRICT)
+class PoseAdapterConfig(JsonConfig):
+    """Stage-2 pose-control adapter over a frozen stage-1 generator (ControlNet-style), saved as its config.json.
+
+    base: the stage-1 generator's config (the adapter's shapes follow it; loading checks the weights' hash too).
+    base_hash: ``checkpoint_hash`` of the stage-1 checkpoint it was trained on ("" = not recorded).
+    mask_channels: channels of the mask encoder (space-to-depth of the contact mask to the latent size, then
+        two 3x3 convolutions).
+    head_width: channels of the zero-initialised output convolution on [denoiser output, encoded mask].
+    alignment_px, alignment_deg: the training masks' alignment noise (uniform in ±these, pixels of the
+        training images and degrees), as the paper's ±3 px, ±1°.
+    """
+
+    base: GeneratorConfig = field(default_factory=GeneratorConfig)
+    base_hash: str = ""
+    mask_channels: PosInt = 32
+    head_width: PosInt = 48
+    alignment_px: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 3.0
+    alignment_deg: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 1.0

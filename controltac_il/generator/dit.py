@@ -126,22 +126,31 @@ class ForceDiT(nn.Module):
             self._pos_cache[(h, w)] = sincos_pos_embed(self.config.hidden_size, h, w)
         return self._pos_cache[(h, w)].to(device=like.device, dtype=like.dtype)
 
-    def forward(self, x_t: torch.Tensor, z_ref: torch.Tensor, t: torch.Tensor, delta_force: torch.Tensor) -> torch.Tensor:
-        """x_t, z_ref: (B, C, h, w); t: (B,) timesteps; delta_force: (B, 3) in N."""
-        c, p = self.config.in_channels, self.config.patch_size
-        b, _, h, w = x_t.shape
+    def embed(self, x_t: torch.Tensor, z_ref: torch.Tensor, t: torch.Tensor, delta_force: torch.Tensor
+              ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Patch tokens with positions (B, N, d) and the conditioning vector (B, d) of timestep + ΔF (N)."""
         tok = self.patch_embed(torch.cat([x_t, z_ref], dim=1))  # (B, d, h/p, w/p)
         gh, gw = tok.shape[-2:]
         tok = tok.flatten(2).transpose(1, 2)
         tok = tok + self._pos(gh, gw, tok)
-        dtype = tok.dtype
-        cond = self.t_embedder(timestep_features(t, 256).to(dtype))
-        cond = cond + self.f_embedder((delta_force.float() / self.force_scale).to(dtype))
-        for blk in self.blocks:
-            tok = blk(tok, cond)
+        cond = self.t_embedder(timestep_features(t, 256).to(tok.dtype))
+        cond = cond + self.f_embedder((delta_force.float() / self.force_scale).to(tok.dtype))
+        return tok, cond
+
+    def head(self, tok: torch.Tensor, cond: torch.Tensor, x_t: torch.Tensor, z_ref: torch.Tensor) -> torch.Tensor:
+        """Tokens after the blocks -> prediction (B, C, h, w) (final adaLN layer, unpatchify, refinement head)."""
+        c, p = self.config.in_channels, self.config.patch_size
+        b, _, h, w = x_t.shape
         shift, scale = self.final_ada(cond).chunk(2, dim=-1)
         out = self.final_linear(modulate(self.final_norm(tok), shift, scale))  # (B, N, p*p*c)
-        out = out.reshape(b, gh, gw, p, p, c).permute(0, 5, 1, 3, 2, 4).reshape(b, c, h, w)
+        out = out.reshape(b, h // p, w // p, p, p, c).permute(0, 5, 1, 3, 2, 4).reshape(b, c, h, w)
         if self.refine is not None:
             out = out + self.refine(out, z_ref, x_t)
         return out
+
+    def forward(self, x_t: torch.Tensor, z_ref: torch.Tensor, t: torch.Tensor, delta_force: torch.Tensor) -> torch.Tensor:
+        """x_t, z_ref: (B, C, h, w); t: (B,) timesteps; delta_force: (B, 3) in N."""
+        tok, cond = self.embed(x_t, z_ref, t, delta_force)
+        for blk in self.blocks:
+            tok = blk(tok, cond)
+        return self.head(tok, cond, x_t, z_ref)

@@ -4,6 +4,8 @@
     out = gen.generate(reference_residuals, delta_force)   # uint8 (B, H, W, 3) in and out
     res = gen.generate_at(residuals, reference_force, target_force)  # res.residuals, res.decision
     imgs = gen.generate_images(images, background, delta_force)
+    gen = ForceGenerator.from_pretrained(pose_adapter="pose")  # with stage 2, the pose adapter
+    out = gen.generate(reference_residuals, delta_force, object_mask=masks, transform=(dx_px, dy_px, dtheta))
 
 Targets outside the validated range (``forces.VALIDATED_RANGE``) are decided here and only here
 (``forces.decide_targets``: clamp, skip or error); ``generate_at`` returns the decision per sample.
@@ -27,16 +29,19 @@ import cv2
 import numpy as np
 import torch
 
+from controltac_il.generator.adapter import PoseAdapter, PoseControlledDenoiser, masks_to_model
 from controltac_il.generator.autoencoder import TactileAutoencoder
-from controltac_il.generator.checkpoint import checkpoint_hash, load_checkpoint
+from controltac_il.generator.checkpoint import checkpoint_hash, load_adapter, load_checkpoint
 from controltac_il.generator.config import DETAIL_GATE_SIGMA_PX, GeneratorConfig
 from controltac_il.generator.dit import ForceDiT
 from controltac_il.generator.forces import RANGE_POLICIES, VALIDATED_RANGE, TargetDecision, decide_targets
 from controltac_il.generator.sampler import ddim_sample, make_scheduler, seeded_noise
+from controltac_il.tactile.pose import check_mask, move_mask
 from controltac_il.tactile.residual import OFFSET
 
 CHECKPOINT_ROOT = Path(__file__).resolve().parent / "checkpoints"
 SHIPPED = ("default", "fast")
+SHIPPED_ADAPTERS = ("pose",)  # stage-2 pose adapters, each trained on the shipped default
 RESIDUAL_OFFSET = float(OFFSET)
 # Largest change of aspect ratio (either way) the resize to the model's image size may make.
 MAX_ASPECT_CHANGE = 1.5
@@ -119,11 +124,12 @@ def _check_aspect(x: np.ndarray, model_hw: tuple[int, int], name: str) -> None:
             f"pad them to the model's {mh}:{mw} aspect first")
 
 
-def locate_checkpoint(path: str | Path | None = None) -> Path:
-    """The checkpoint folder ``from_pretrained(path)`` loads: ``None``/``"default"`` and ``"fast"`` name the shipped ones."""
+def locate_checkpoint(path: str | Path | None = None, shipped: tuple[str, ...] = SHIPPED) -> Path:
+    """The checkpoint folder ``from_pretrained(path)`` loads: ``None``/``"default"`` and ``"fast"`` name the shipped
+    ones (``shipped``: the names to accept, ``SHIPPED_ADAPTERS`` for stage 2)."""
     if path is None:
-        path = "default"
-    if isinstance(path, str) and path in SHIPPED:
+        path = shipped[0]
+    if isinstance(path, str) and path in shipped:
         path = CHECKPOINT_ROOT / path
     path = Path(path)
     if not path.is_dir():
@@ -131,11 +137,47 @@ def locate_checkpoint(path: str | Path | None = None) -> Path:
     return path
 
 
+def _stack_masks(value, n: int, hw: tuple[int, int], name: str) -> np.ndarray:
+    """One (H, W) mask for every sample or (B, H, W), each checked (``tactile.pose.check_mask``) -> bool (B, H, W)."""
+    a = np.asarray(value.detach().cpu() if isinstance(value, torch.Tensor) else value)
+    if a.ndim == 2:
+        a = np.broadcast_to(a, (n, *a.shape))
+    if a.ndim != 3 or a.shape[0] != n:
+        raise ValueError(f"{name} must be (H, W) or ({n}, H, W) (one per reference), got shape {a.shape}")
+    return np.stack([check_mask(m, hw, f"{name}[{i}]") for i, m in enumerate(a)])
+
+
+def target_masks(n: int, hw: tuple[int, int], mask=None, object_mask=None, transform=None) -> np.ndarray | None:
+    """The stage-2 condition of ``generate``: bool (B, H, W) contact masks at the target pose, or None (stage 1).
+
+    ``mask``: the target pose's contact mask(s) as given; ``object_mask`` + ``transform``: the object's mask(s) at
+    the reference pose moved by (dx_px, dy_px, dtheta) each (``tactile.pose.move_mask``)."""
+    if mask is not None and (object_mask is not None or transform is not None):
+        raise ValueError("give either mask (at the target pose) or object_mask with transform, not both")
+    if (object_mask is None) != (transform is None):
+        raise ValueError("object_mask and transform go together (the mask at the reference pose and its move)")
+    if mask is not None:
+        return _stack_masks(mask, n, hw, "mask")
+    if object_mask is None:
+        return None
+    masks = _stack_masks(object_mask, n, hw, "object_mask")
+    try:
+        t = np.asarray(transform, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"transform must be (3,) or ({n}, 3) [dx_px, dy_px, dtheta_rad], got {transform!r}") from None
+    t = np.broadcast_to(t, (n, 3)) if t.shape == (3,) else t
+    if t.shape != (n, 3) or not np.isfinite(t).all():
+        raise ValueError(f"transform must be finite (3,) or ({n}, 3) [dx_px, dy_px, dtheta_rad], got shape {t.shape}")
+    return np.stack([move_mask(m, ti, name=f"object_mask[{i}]") for i, (m, ti) in enumerate(zip(masks, t))])
+
+
 class ForceGenerator:
-    """Stage-1 force-control generator (autoencoder + ΔF-conditioned DiT + DDIM)."""
+    """Force-control generator (autoencoder + ΔF-conditioned DiT + DDIM), with the optional stage-2 pose adapter
+    (``pose_adapter``; ``load_pose_adapter``) that moves the contact to a target pose given as a contact mask."""
 
     def __init__(self, config: GeneratorConfig, autoencoder: TactileAutoencoder, denoiser: ForceDiT,
-                 device: str | torch.device = "cpu", dtype: torch.dtype = torch.float32, checkpoint_hash: str = "untracked"):
+                 device: str | torch.device = "cpu", dtype: torch.dtype = torch.float32, checkpoint_hash: str = "untracked",
+                 pose_adapter: PoseAdapter | None = None):
         if dtype not in (torch.float32, torch.bfloat16, torch.float16):
             raise ValueError(f"dtype must be torch.float32, torch.bfloat16 or torch.float16, got {dtype}")
         self.config = config
@@ -144,6 +186,7 @@ class ForceGenerator:
         self.autoencoder = autoencoder.to(self.device, dtype).eval()
         self.denoiser = denoiser.to(self.device, dtype).eval()
         self.checkpoint_hash = checkpoint_hash
+        self.pose_adapter = None if pose_adapter is None else pose_adapter.to(self.device, dtype).eval()
         self.range_report = RangeReport()
         self.last_range_report = RangeReport()
         c = config.autoencoder.latent_channels
@@ -152,11 +195,24 @@ class ForceGenerator:
 
     @classmethod
     def from_pretrained(cls, path: str | Path | None = None, device: str | torch.device = "cpu",
-                        dtype: torch.dtype = torch.float32) -> "ForceGenerator":
-        """Load a checkpoint folder; ``None`` or ``"default"`` = the shipped default, ``"fast"`` = the faster variant."""
+                        dtype: torch.dtype = torch.float32, pose_adapter: str | Path | None = None) -> "ForceGenerator":
+        """Load a checkpoint folder; ``None`` or ``"default"`` = the shipped default, ``"fast"`` = the faster variant.
+        ``pose_adapter``: also load a stage-2 adapter (a folder, or ``"pose"``, shipped for the default)."""
         path = locate_checkpoint(path)
         config, ae, dit = load_checkpoint(path)
-        return cls(config, ae, dit, device=device, dtype=dtype, checkpoint_hash=checkpoint_hash(path))
+        gen = cls(config, ae, dit, device=device, dtype=dtype, checkpoint_hash=checkpoint_hash(path))
+        return gen if pose_adapter is None else gen.load_pose_adapter(pose_adapter)
+
+    def load_pose_adapter(self, path: str | Path = "pose") -> "ForceGenerator":
+        """Attach a stage-2 pose adapter (a folder, or ``"pose"``); it must have been trained on this generator's
+        checkpoint (its recorded base hash), else ValueError. Returns self."""
+        folder = locate_checkpoint(path, SHIPPED_ADAPTERS)
+        config, adapter = load_adapter(folder)
+        if config.base_hash != self.checkpoint_hash or config.base != self.config:
+            raise ValueError(f"pose adapter {folder} was trained on stage-1 checkpoint {config.base_hash or 'unknown'}, "
+                             f"this generator is {self.checkpoint_hash}: load the generator it was trained on")
+        self.pose_adapter = adapter.to(self.device, self.dtype).eval()
+        return self
 
     # -- force range -------------------------------------------------------------------------
     def resolve_targets(self, target_force, out_of_range: str = "clamp", reference_force=None,
@@ -227,7 +283,8 @@ class ForceGenerator:
 
     # -- public API ----------------------------------------------------------------------------
     def generate(self, reference_residuals, delta_force, steps: int | None = None, seed: int | Sequence[int] = 0,
-                 batch_size: int = 32, reference_force=None, out_of_range: str = "clamp") -> np.ndarray:
+                 batch_size: int = 32, reference_force=None, out_of_range: str = "clamp", mask=None,
+                 object_mask=None, transform=None) -> np.ndarray:
         """Residuals at the target force: uint8 (B, H, W, 3), same size as the input.
 
         reference_residuals: uint8 (B, H, W, 3) residual images (``to_residual``); any H, W (resized to
@@ -243,6 +300,13 @@ class ForceGenerator:
             out_of_range="skip", which returns that sample's reference unchanged. ``generate_at`` takes
             target forces and says what it did per sample.
         Images whose aspect ratio differs from the model's by more than ``MAX_ASPECT_CHANGE`` are refused.
+        Stage 2 (needs ``pose_adapter``): ``mask``, the contact mask at the target pose, bool or 0/1 (H, W) for
+            all or (B, H, W), at the references' size; or ``object_mask`` (the contact at the reference pose, e.g.
+            ``tactile.contact_mask`` of the reference) with ``transform`` (3,) or (B, 3) = (dx_px, dy_px, dtheta):
+            rotate by dtheta rad counter-clockwise as displayed about the mask's centroid, then shift dx_px
+            columns right and dy_px rows down (``tactile.pose``). The output shows the contact at that pose and
+            the target force. Empty masks, masks of another size and moves that leave nothing on the pad are
+            refused (ValueError). Without a mask: exactly stage 1.
         """
         ref = _validate_residuals(reference_residuals, "reference_residuals")
         _check_aspect(ref, self.config.image_size, "reference_residuals")
@@ -250,12 +314,14 @@ class ForceGenerator:
         delta = _validate_forces(delta_force, n, "delta_force")
         ref_f = None if reference_force is None else _validate_forces(reference_force, n, "reference_force")
         steps, seeds = self._check_options(steps, seed, batch_size, n)
+        masks = self._target_masks(n, ref.shape[1:3], mask, object_mask, transform)
         delta, keep = self._resolve_delta(delta, ref_f, out_of_range)
-        return self._sample_where(ref, delta, seeds, steps, batch_size, keep)
+        return self._sample_where(ref, delta, seeds, steps, batch_size, keep, masks)
 
     def generate_at(self, reference_residuals, reference_force, target_force, steps: int | None = None,
                     seed: int | Sequence[int] = 0, batch_size: int = 32, out_of_range: str = "clamp",
-                    reference_out_of_range: str | None = None) -> Generation:
+                    reference_out_of_range: str | None = None, mask=None, object_mask=None,
+                    transform=None) -> Generation:
         """Residuals at ``target_force`` (B, 3) N from residuals at ``reference_force`` (B, 3) N, and what was done.
 
         Each requested target goes through ``forces.decide_targets`` once: "clamp" (default) moves a target
@@ -264,8 +330,8 @@ class ForceGenerator:
         ``reference_force`` outside the validated range cannot be moved (the image shows that force) and the
         model was not validated on it: ``reference_out_of_range`` "error" refuses it (ValueError), "skip"
         returns that sample's reference unchanged (``decision.reference_outside``); None (default) = "skip"
-        under out_of_range="skip", else "error". Other arguments as ``generate``; no warning is issued (the
-        returned decision says what was clamped or skipped).
+        under out_of_range="skip", else "error". Other arguments (the stage-2 mask ones too) as ``generate``;
+        no warning is issued (the returned decision says what was clamped or skipped).
         """
         ref = _validate_residuals(reference_residuals, "reference_residuals")
         _check_aspect(ref, self.config.image_size, "reference_residuals")
@@ -273,11 +339,19 @@ class ForceGenerator:
         ref_f = _validate_forces(reference_force, n, "reference_force")
         target = _validate_forces(target_force, n, "target_force")
         steps, seeds = self._check_options(steps, seed, batch_size, n)
+        masks = self._target_masks(n, ref.shape[1:3], mask, object_mask, transform)
         decision = decide_targets(target, out_of_range, reference_force=ref_f,
                                   reference_out_of_range=reference_out_of_range)
         self._count(decision)
-        out = self._sample_where(ref, decision.target - ref_f, seeds, steps, batch_size, decision.generated)
+        out = self._sample_where(ref, decision.target - ref_f, seeds, steps, batch_size, decision.generated, masks)
         return Generation(residuals=out, decision=decision)
+
+    def _target_masks(self, n: int, hw: tuple[int, int], mask, object_mask, transform) -> np.ndarray | None:
+        masks = target_masks(n, hw, mask, object_mask, transform)
+        if masks is not None and self.pose_adapter is None:
+            raise ValueError("a target-pose mask needs the stage-2 pose adapter: "
+                             "ForceGenerator.from_pretrained(pose_adapter='pose') or gen.load_pose_adapter()")
+        return masks
 
     def _check_options(self, steps, seed, batch_size, n: int) -> tuple[int, list[int]]:
         steps = self.config.default_steps if steps is None else steps
@@ -293,18 +367,21 @@ class ForceGenerator:
         return int(steps), seeds
 
     def _sample_where(self, ref: np.ndarray, delta: np.ndarray, seeds: list[int], steps: int, batch_size: int,
-                      keep: np.ndarray) -> np.ndarray:
+                      keep: np.ndarray, masks: np.ndarray | None = None) -> np.ndarray:
         """``_sample`` on the rows ``keep`` selects (batched among themselves); the other rows stay ``ref``."""
         if keep.all():
-            return self._sample(ref, delta, seeds, steps, batch_size)
+            return self._sample(ref, delta, seeds, steps, batch_size, masks)
         out = ref.copy()
         rows = np.flatnonzero(keep)
         if len(rows):
-            out[rows] = self._sample(ref[rows], delta[rows], [seeds[i] for i in rows], steps, batch_size)
+            out[rows] = self._sample(ref[rows], delta[rows], [seeds[i] for i in rows], steps, batch_size,
+                                     None if masks is None else masks[rows])
         return out
 
-    def _sample(self, ref: np.ndarray, delta: np.ndarray, seeds: list[int], steps: int, batch_size: int) -> np.ndarray:
-        """The model: residuals uint8 (B, H, W, 3) conditioned on ΔF (B, 3) N -> residuals, same size."""
+    def _sample(self, ref: np.ndarray, delta: np.ndarray, seeds: list[int], steps: int, batch_size: int,
+                masks: np.ndarray | None = None) -> np.ndarray:
+        """The model: residuals uint8 (B, H, W, 3) conditioned on ΔF (B, 3) N (and, with stage 2, target-pose
+        masks bool (B, H, W)) -> residuals, same size."""
         n = ref.shape[0]
         h_in, w_in = ref.shape[1:3]
         H, W = self.config.image_size
@@ -318,7 +395,10 @@ class ForceGenerator:
             e = min(n, s + batch_size)
             z_ref = self.encode(torch.from_numpy(model_in[s:e]))
             df = torch.from_numpy(delta[s:e]).float().to(self.device)
-            d = ddim_sample(self.denoiser, scheduler, z_ref, df, noise[s:e].to(self.device), int(steps))
+            denoiser = self.denoiser if masks is None else PoseControlledDenoiser(
+                self.denoiser, self.pose_adapter,
+                torch.from_numpy(masks_to_model(masks[s:e], (H, W))).to(self.device, self.dtype))
+            d = ddim_sample(denoiser, scheduler, z_ref, df, noise[s:e].to(self.device), int(steps))
             target, recon = self._decode(z_ref, d)
             keep = None if recon is None else self._detail_weight(target, recon)
             if resized:

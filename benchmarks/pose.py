@@ -1,0 +1,234 @@
+"""Stage 2: pose-conditioned generation, its robustness to the mask, its speed, and pose estimation with it.
+
+    python -m benchmarks.pose --out benchmarks/results/pose.json [--quick] [--sheet FILE.png]
+
+Data: sensor-model scenes (``controltac_il.generator.pose_data``) on the nominal GelSight Mini at 120x160, with
+seeds the adapter never saw: "seen" = the six training objects, "unseen" = the held-out objects; every pair
+moves the contact to another pose (and another force, Fz in the validated range). The condition is the
+reference's geometric contact mask carried to the target pose (``object_mask`` + ``transform`` through the
+API). Metrics on images (residual + background): MSE (0-255 RGB) and SSIM, mean ± SD, beside a copy of the
+reference and stage 1 alone (ΔF only: it cannot move the contact).
+
+- ``pose_control``: the errors per split, and ``unseen_mse`` / ``stage1_only_unseen_mse`` / ``copy_unseen_mse``.
+- ``robustness``: the unseen pairs with the target mask scaled (0.8-1.2), shifted (2-6 px, random direction),
+  rotated (2-6°, random sign) and all three at the extremes (the paper's appendix).
+- ``speed``: images/s at batch 32 with and without the mask (median of repeats, this process's torch threads).
+- ``pose_estimation``: a CNN estimating (x, y, θ) trained on few sensor-model ("real") frames, on frames stage 2
+  generates from them at new poses, and on both; errors on held-out frames of generator-seen and -unseen
+  objects, beside the PCA baseline on the frames' contact pixels (``benchmarks.pose_estimation``).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from benchmarks.common import base_parser, median_time, print_table, write_results
+from benchmarks.generator import error_map, quality
+from benchmarks.pose_estimation import fit_cnn, fit_pca, pose_errors, predict_cnn, predict_pca
+from controltac_il.generator import ForceGenerator
+from controltac_il.generator.pose_data import PoseScenes, render_scenes
+from controltac_il.io import atomic_path
+from controltac_il.tactile import HELDOUT_OBJECTS, TRAIN_OBJECTS, contact_mask, from_residual
+from controltac_il.tactile.pose import move_mask, transform_between
+
+SIZE = (120, 160)
+SPLITS = {"seen": (TRAIN_OBJECTS, 2001), "unseen": (HELDOUT_OBJECTS, 2002)}
+# pose estimation: objects whose angle is defined modulo π (no 4-fold or round symmetry)
+ESTIMATION = {"seen": ("slim_cylinder", "thin_cylinder", "triple_cylinder"), "unseen": ("t_shape", "usb_c", "cube_edge")}
+PERTURBATIONS = {"scale 0.8": (0.8, 0, 0), "scale 0.9": (0.9, 0, 0), "scale 1.1": (1.1, 0, 0), "scale 1.2": (1.2, 0, 0),
+                 "shift 2 px": (1, 2, 0), "shift 4 px": (1, 4, 0), "shift 6 px": (1, 6, 0),
+                 "rotate 2°": (1, 0, 2), "rotate 4°": (1, 0, 4), "rotate 6°": (1, 0, 6),
+                 "combined 0.8, 6 px, 6°": (0.8, 6, 6), "combined 1.2, 6 px, 6°": (1.2, 6, 6)}
+
+
+def cross_pose_pairs(scenes: PoseScenes, max_pairs: int, seed: int) -> np.ndarray:
+    """(P, 2) (reference, target) index pairs within scenes whose poses differ, at most ``max_pairs``."""
+    pairs = [(i, j) for m in scenes.members() for i in m for j in m
+             if not np.array_equal(scenes.poses[i], scenes.poses[j])]
+    rng = np.random.default_rng(seed)
+    pairs = np.asarray(pairs)
+    return pairs[np.sort(rng.permutation(len(pairs))[:max_pairs])]
+
+
+def moves(scenes: PoseScenes, pairs: np.ndarray) -> np.ndarray:
+    """(P, 3) mask transforms (dx_px, dy_px, dtheta) carrying each reference's contact to its target's pose."""
+    return np.asarray([transform_between(scenes.poses[i], scenes.poses[j], scenes.masks[i], scenes.mm_per_px)
+                       for i, j in pairs])
+
+
+def perturbed(masks: np.ndarray, scale: float, shift_px: float, rot_deg: float, seed: int) -> np.ndarray:
+    """Each mask scaled about its centroid, shifted by ``shift_px`` in a random direction, rotated by ±``rot_deg``."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for m in masks:
+        a = rng.uniform(0, 2 * np.pi)
+        t = (shift_px * np.cos(a), shift_px * np.sin(a), np.radians(rot_deg) * rng.choice((-1, 1)))
+        try:
+            out.append(move_mask(m, t, scale))
+        except ValueError:  # moved off the pad: keep the unperturbed mask
+            out.append(m)
+    return np.stack(out)
+
+
+def evaluate_split(gen: ForceGenerator, scenes: PoseScenes, pairs: np.ndarray) -> dict:
+    ref, tgt = scenes.residuals[pairs[:, 0]], scenes.residuals[pairs[:, 1]]
+    bg = scenes.backgrounds[scenes.scene[pairs[:, 0]]]
+    df = scenes.forces[pairs[:, 1]] - scenes.forces[pairs[:, 0]]
+    t = moves(scenes, pairs)
+    pose = gen.generate(ref, df, object_mask=scenes.masks[pairs[:, 0]], transform=t)
+    stage1 = gen.generate(ref, df)
+    return {"pose_control": quality(pose, tgt, bg, ref), "stage1_only": quality(stage1, tgt, bg, ref),
+            "copy": quality(ref, tgt, bg, ref), "pairs": int(len(pairs)),
+            "mean_move_px": float(np.hypot(t[:, 0], t[:, 1]).mean()), "mean_turn_deg": float(np.degrees(np.abs(t[:, 2])).mean()),
+            "_outputs": (ref, tgt, pose, stage1, bg)}
+
+
+def robustness(gen: ForceGenerator, scenes: PoseScenes, pairs: np.ndarray) -> dict:
+    ref, tgt = scenes.residuals[pairs[:, 0]], scenes.residuals[pairs[:, 1]]
+    bg = scenes.backgrounds[scenes.scene[pairs[:, 0]]]
+    df = scenes.forces[pairs[:, 1]] - scenes.forces[pairs[:, 0]]
+    masks = np.stack([move_mask(scenes.masks[i], t) for i, t in zip(pairs[:, 0], moves(scenes, pairs))])
+    copy_mse = quality(ref, tgt, bg, ref)["mse"]
+    out = {}
+    for k, (name, (scale, shift, rot)) in enumerate({"none": (1, 0, 0), **PERTURBATIONS}.items()):
+        q = quality(gen.generate(ref, df, mask=perturbed(masks, scale, shift, rot, k)), tgt, bg, ref)
+        out[name] = {"mse": q["mse"], "ssim": q["ssim"], "ratio_to_copy": q["mse"] / copy_mse}
+    return out
+
+
+def speed(gen: ForceGenerator, scenes: PoseScenes, repeats: int) -> dict:
+    idx = np.arange(32) % len(scenes.residuals)
+    ref, masks = scenes.residuals[idx], scenes.masks[idx]
+    df = np.tile([[0.0, 0.0, 1.0]], (32, 1))
+    t_mask = median_time(lambda: gen.generate(ref, df, mask=masks), repeats=repeats)
+    t_plain = median_time(lambda: gen.generate(ref, df), repeats=repeats)
+    return {"batch": 32, "size": list(SIZE), "steps": gen.config.default_steps,
+            "pose_img_per_s": 32 / t_mask, "stage1_img_per_s": 32 / t_plain}
+
+
+def generated_views(gen: ForceGenerator, real: PoseScenes, per_frame: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Stage-2 frames at new random poses and forces from each real frame: (residuals, poses (N, 3))."""
+    rng = np.random.default_rng(seed)
+    half_h, half_w = (s * real.mm_per_px / 2 for s in SIZE)
+    refs, forces, masks, poses, idx = [], [], [], [], []
+    for i in range(len(real.residuals)):
+        for _ in range(per_frame):
+            for _attempt in range(20):
+                pose = np.array([rng.uniform(-0.6, 0.6) * half_w, rng.uniform(-0.6, 0.6) * half_h, rng.uniform(0, np.pi)])
+                try:
+                    m = move_mask(real.masks[i], transform_between(real.poses[i], pose, real.masks[i], real.mm_per_px))
+                except ValueError:
+                    continue
+                if m.sum() >= 0.5 * real.masks[i].sum():  # most of the contact still on the pad
+                    break
+            idx.append(i)
+            masks.append(m)
+            poses.append(pose)
+            forces.append([*rng.uniform(-1, 1, 2), rng.uniform(1, 10)])
+    idx = np.asarray(idx)
+    out = gen.generate(real.residuals[idx], np.asarray(forces) - real.forces[idx], mask=np.stack(masks),
+                       seed=[int(s) for s in rng.integers(0, 2**31, len(idx))])
+    return out, np.asarray(poses)
+
+
+def pose_estimation(gen: ForceGenerator, quick: bool) -> dict:
+    objects = [*ESTIMATION["seen"], *ESTIMATION["unseen"]]
+    real = render_scenes(objects, 1, 2 if quick else 4, 2 if quick else 3, 3001, SIZE, None, progress=False)
+    test = render_scenes(objects, 1, 3 if quick else 10, 2, 3002, SIZE, None, progress=False)
+    half = tuple(s * real.mm_per_px / 2 for s in SIZE)
+    gen_res, gen_poses = generated_views(gen, real, 2 if quick else 8, 3003)
+    steps = 60 if quick else 1500
+    sets = {"real": (real.residuals, real.poses), "generated": (gen_res, gen_poses),
+            "real + generated": (np.concatenate([real.residuals, gen_res]), np.concatenate([real.poses, gen_poses]))}
+    test_obj = [test.objects[s] for s in test.scene]
+    out = {"frames": {"real": int(len(real.residuals)), "generated": int(len(gen_res)), "test": int(len(test.residuals))},
+           "objects": ESTIMATION, "cnn_steps": steps}
+    for name, (x, y) in sets.items():
+        pred = predict_cnn(fit_cnn(x, y, half, steps, seed=0), test.residuals, half)
+        out[name] = {split: pose_errors(pred[np.isin(test_obj, objs)], test.poses[np.isin(test_obj, objs)])
+                     for split, objs in ESTIMATION.items()}
+    def image_masks(res):  # what a lab has: the contact pixels of the frame, not the simulator's footprint
+        return np.stack([contact_mask(r) for r in res])
+    offsets = fit_pca(image_masks(real.residuals), real.poses, [real.objects[s] for s in real.scene])
+    pred = predict_pca(image_masks(test.residuals), test_obj, offsets, test.mm_per_px)
+    out["pca baseline"] = {split: pose_errors(pred[np.isin(test_obj, objs)], test.poses[np.isin(test_obj, objs)])
+                           for split, objs in ESTIMATION.items()}
+    return out
+
+
+def save_sheet(path: Path, rows: list[tuple[str, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]]) -> None:
+    """PNG, one row per case: reference | target mask | target | generated | stage 1 only | |error| x4 (2x size)."""
+    tiles = []
+    for label, ref, mask, tgt, gen, s1, bg in rows:
+        m = np.repeat(mask[..., None].astype(np.uint8) * 255, 3, -1)
+        imgs = [from_residual(ref, bg), m, from_residual(tgt, bg), from_residual(gen, bg), from_residual(s1, bg),
+                error_map(gen, tgt)]
+        row = np.concatenate([cv2.resize(im, (im.shape[1] * 2, im.shape[0] * 2), interpolation=cv2.INTER_NEAREST)
+                              for im in imgs], 1)
+        cv2.putText(row, label, (4, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1)
+        tiles.append(row)
+    header = np.zeros((24, tiles[0].shape[1], 3), np.uint8)
+    w = tiles[0].shape[1] // 6
+    for k, name in enumerate(("reference", "target mask", "target", "generated", "stage 1 only", "|error| x4")):
+        cv2.putText(header, name, (k * w + 6, 17), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1)
+    with atomic_path(path, suffix=".png") as tmp:
+        cv2.imwrite(str(tmp), cv2.cvtColor(np.concatenate([header, *tiles], 0), cv2.COLOR_RGB2BGR))
+
+
+def main(argv=None) -> dict:
+    p = base_parser(__doc__.splitlines()[0])
+    p.add_argument("--checkpoint", default="default", help="stage-1 generator (shipped name or folder)")
+    p.add_argument("--adapter", default="pose", help="stage-2 pose adapter (shipped name or folder)")
+    p.add_argument("--pairs", type=int, default=96, help="evaluation pairs per split (default 96)")
+    p.add_argument("--sheet", type=Path, default=None, help="PNG sheet (default: beside --out, .png)")
+    a = p.parse_args(argv)
+    t0 = time.perf_counter()
+    gen = ForceGenerator.from_pretrained(a.checkpoint, pose_adapter=a.adapter)
+    n_pairs = 12 if a.quick else a.pairs
+    results: dict = {"checkpoint": a.checkpoint, "adapter": a.adapter, "stage1_hash": gen.checkpoint_hash,
+                     "size": list(SIZE), "steps": gen.config.default_steps, "splits": {}}
+    sheet_rows, scenes_of = [], {}
+    for split, (objects, seed) in SPLITS.items():
+        scenes = render_scenes(objects, 1 if a.quick else 4, 3, 2, seed, SIZE, None, progress=False)
+        pairs = cross_pose_pairs(scenes, n_pairs, seed)
+        r = evaluate_split(gen, scenes, pairs)
+        ref, tgt, pose, s1, bg = r.pop("_outputs")
+        results["splits"][split] = r
+        scenes_of[split] = (scenes, pairs)
+        masks = [move_mask(scenes.masks[i], t) for i, t in zip(pairs[:3, 0], moves(scenes, pairs[:3]))]
+        sheet_rows += [(f"{split} {scenes.objects[scenes.scene[pairs[k, 0]]]}", ref[k], masks[k], tgt[k], pose[k], s1[k], bg[k])
+                       for k in range(min(3, len(pairs)))]
+    u = results["splits"]["unseen"]
+    results["pose_control"] = {"unseen_mse": u["pose_control"]["mse"], "stage1_only_unseen_mse": u["stage1_only"]["mse"],
+                               "copy_unseen_mse": u["copy"]["mse"], "unseen_ssim": u["pose_control"]["ssim"],
+                               **{f"seen_{k}": results["splits"]["seen"][m]["mse"]
+                                  for k, m in (("mse", "pose_control"), ("stage1_only_mse", "stage1_only"), ("copy_mse", "copy"))}}
+    results["robustness"] = robustness(gen, *scenes_of["unseen"])
+    results["speed"] = speed(gen, scenes_of["unseen"][0], 2 if a.quick else 7)
+    results["pose_estimation"] = pose_estimation(gen, a.quick)
+    results["wall_s"] = round(time.perf_counter() - t0, 1)
+
+    rows = [{"split": s, "method": m, "MSE": f"{r[m]['mse']:.1f} ± {r[m]['mse_sd']:.1f}", "SSIM": f"{r[m]['ssim']:.3f}",
+             "ratio to copy": r[m]["mse"] / r["copy"]["mse"]}
+            for s, r in results["splits"].items() for m in ("copy", "stage1_only", "pose_control")]
+    print_table(rows, ["split", "method", "MSE", "SSIM", "ratio to copy"], "pose-conditioned generation (120x160)")
+    print_table([{"mask": k, **v} for k, v in results["robustness"].items()], ["mask", "mse", "ssim", "ratio_to_copy"],
+                "mask robustness (unseen objects)")
+    print_table([results["speed"]], ["batch", "steps", "pose_img_per_s", "stage1_img_per_s"], "speed")
+    pe = results["pose_estimation"]
+    print_table([{"trained on": k, **{f"{s} {m}": pe[k][s][m] for s in ESTIMATION for m in ("xy_mm", "theta_deg")}}
+                 for k in ("real", "generated", "real + generated", "pca baseline")],
+                ["trained on", *(f"{s} {m}" for s in ESTIMATION for m in ("xy_mm", "theta_deg"))],
+                f"pose estimation ({pe['frames']})")
+    if a.sheet or a.out:
+        save_sheet(a.sheet or a.out.with_suffix(".png"), sheet_rows)
+    return write_results(a.out, results)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,239 @@
+"""Train the stage-2 pose adapter over a frozen stage-1 generator on sensor-model scenes.
+
+    python -m controltac_il.generator.train_pose --out runs/pose                 # adapter over the shipped default
+    python -m controltac_il.generator.train_pose --out runs/pose --resume        # continue
+
+Data: ``pose_data.render_scenes`` (the six training objects plus ``--procedural`` random shapes, each in
+``--scenes`` scenes on random training sensor instances, ``--poses`` x ``--forces`` frames per scene), rendered
+in memory and encoded once by the frozen autoencoder. Pairs within a scene; the condition is the reference's
+contact mask carried to the target pose with the paper's alignment noise (±3 px, ±1°). Loss as stage 1's
+(0.5 L1 + 0.5 MSE on the normalised latent change, ``--one-step-fraction`` at the last timestep); AdamW with
+warm-up and cosine decay; the EMA of the adapter is shipped (fp16, ``OUT/final``), the stage-1 weights are
+never changed.
+
+Run folder: ``train_config.json``, ``adapter_state.{safetensors,json}`` (periodic, atomic), ``final/``.
+Only this tool's own files there are ever replaced (``--overwrite``); bad options: one line, exit 2; a NaN / inf
+loss: exit 1 with the last state kept; Ctrl-C: the step's state saved, exit 130.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from diffusers.training_utils import EMAModel
+from pydantic import Field
+from pydantic.dataclasses import dataclass
+from torch.nn import functional as F
+from typing_extensions import Annotated
+
+from controltac_il.checkpoint import OutputInUse, claim_output, load_run_state, one_line, own_checkpoint, own_json, \
+    own_safetensors, save_run_state
+from controltac_il.generator.adapter import PoseAdapter, masks_to_model
+from controltac_il.generator.checkpoint import checkpoint_hash, load_checkpoint, save_adapter
+from controltac_il.generator.config import STRICT, PosInt, PoseAdapterConfig, Positive
+from controltac_il.generator.pipeline import locate_checkpoint, residual_to_unit
+from controltac_il.generator.pose_data import render_scenes, sample_pose_pairs
+from controltac_il.generator.sampler import make_scheduler
+from controltac_il.generator.train import optimise
+from controltac_il.io import write_json
+from controltac_il.tactile.indenters import TRAIN_OBJECTS, procedural_objects
+from controltac_il.training import lr_schedule, run_cli
+
+PROG = "python -m controltac_il.generator.train_pose"
+
+
+@dataclass(config=STRICT)
+class PoseTrainConfig:
+    """Arguments of one adapter training run.
+
+    out: run folder. base: the frozen stage-1 checkpoint (a folder, or "default" / "fast").
+    procedural: random training shapes besides the six training objects. scenes, poses, forces: scenes per object,
+    contact poses per scene, forces per pose (render size ``size`` (H, W)); instances: training sensor instances
+    drawn from. steps, batch, lr, warmup_steps, min_lr_ratio, ema_decay: optimisation. one_step_fraction: share of
+    each batch at the last timestep. mask_channels, head_width, alignment_px, alignment_deg: PoseAdapterConfig.
+    checkpoint_every: steps between state saves. seed: scenes, pairs, noise, init. threads: torch threads (None =
+    torch's default). device: where the networks train ("cpu", "cuda"); the data stays on the CPU.
+    """
+
+    out: str
+    base: str = "default"
+    procedural: Annotated[int, Field(ge=0)] = 120
+    scenes: PosInt = 6
+    poses: Annotated[int, Field(ge=2)] = 4
+    forces: PosInt = 3
+    size: tuple[PosInt, PosInt] = (120, 160)
+    instances: PosInt = 16
+    steps: PosInt = 6000
+    batch: PosInt = 64
+    lr: Positive = 3e-4
+    warmup_steps: Annotated[int, Field(ge=0)] = 200
+    min_lr_ratio: Annotated[float, Field(ge=0, le=1)] = 0.05
+    ema_decay: Annotated[float, Field(ge=0, lt=1)] = 0.999
+    one_step_fraction: Annotated[float, Field(ge=0, le=1)] = 0.9
+    mask_channels: PosInt = 32
+    head_width: PosInt = 48
+    alignment_px: Annotated[float, Field(ge=0)] = 3.0
+    alignment_deg: Annotated[float, Field(ge=0)] = 1.0
+    checkpoint_every: PosInt = 500
+    seed: Annotated[int, Field(ge=0)] = 0
+    threads: PosInt | None = None
+    device: str = "cpu"
+
+
+RUN_OUTPUTS = {
+    "train_config.json": own_json("out", "base", "procedural"),
+    "adapter_state.json": own_json("step", "config"),
+    "adapter_state.safetensors": own_safetensors("adapter.", "ema.", "optimizer."),
+    "final": own_checkpoint(("config.json", "adapter.safetensors", "model_card.json"), lambda c: "base" in c),
+}
+
+
+@torch.no_grad()
+def encode_scenes(ae, residuals: np.ndarray, size: tuple[int, int], batch: int = 128) -> torch.Tensor:
+    """Raw latents (N, C, h, w) of uint8 residuals (N, h0, w0, 3), resized to the model's ``size``."""
+    import cv2
+
+    h, w = size
+    out = []
+    for s in range(0, len(residuals), batch):
+        chunk = np.stack([cv2.resize(r, (w, h), interpolation=cv2.INTER_AREA) for r in residuals[s:s + batch]])
+        out.append(ae.encode(residual_to_unit(torch.from_numpy(chunk))))
+    return torch.cat(out)
+
+
+def run(cfg: PoseTrainConfig) -> Path:
+    """Train per ``cfg``; returns ``<out>/final``."""
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    out = Path(cfg.out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(out / "train_config.json", dataclasses.asdict(cfg))
+    t0 = time.perf_counter()
+    base_dir = locate_checkpoint(cfg.base)
+    gcfg, ae, dit = load_checkpoint(base_dir)
+    dev = torch.device(cfg.device)
+    ae.requires_grad_(False)
+    dit.requires_grad_(False).to(dev)
+    objects = [*TRAIN_OBJECTS, *procedural_objects(cfg.procedural)]
+    scenes = render_scenes(objects, cfg.scenes, cfg.poses, cfg.forces, cfg.seed, cfg.size, "train", cfg.instances)
+    z = encode_scenes(ae.to(dev), scenes.residuals, gcfg.image_size)
+    members = scenes.members()
+    acfg = PoseAdapterConfig(base=gcfg, base_hash=checkpoint_hash(base_dir), mask_channels=cfg.mask_channels,
+                             head_width=cfg.head_width, alignment_px=cfg.alignment_px, alignment_deg=cfg.alignment_deg)
+    torch.manual_seed(cfg.seed + 1)
+    adapter = PoseAdapter(acfg, dit).to(dev)
+    ema = EMAModel(adapter.parameters(), decay=cfg.ema_decay, update_after_step=-1)
+    opt = torch.optim.AdamW(adapter.parameters(), lr=cfg.lr, weight_decay=0.0)
+    stem = out / "adapter_state"
+    meta = {"step": 0, "wall_s": 0.0}
+    if stem.with_suffix(".json").is_file():
+        meta, tensors = load_run_state(stem, {"adapter": adapter}, opt)
+        ema.load_state_dict({"optimization_step": meta["ema_step"], "shadow_params":
+                             [tensors[f"ema.{n}"].float().to(dev) for n, _ in adapter.named_parameters()]})
+    sched = lr_schedule(opt, [cfg.lr], cfg.steps, cfg.warmup_steps, cfg.min_lr_ratio * cfg.lr, meta.get("lr_schedule"),
+                        meta["step"])
+    noise_sched = make_scheduler(gcfg.diffusion)
+    c = gcfg.autoencoder.latent_channels
+    lat_s, dlt_s = (torch.tensor(v, device=dev).view(1, c, 1, 1) for v in (gcfg.latent_scale, gcfg.delta_scale))
+    t_run = time.perf_counter()
+
+    def batch_loss(step: int) -> torch.Tensor:
+        rng = np.random.default_rng([cfg.seed, 5, step])
+        ref, tgt, df, masks = sample_pose_pairs(scenes, members, cfg.batch, rng, cfg.alignment_px, cfg.alignment_deg)
+        ref, tgt = torch.from_numpy(ref).to(dev), torch.from_numpy(tgt).to(dev)
+        x0 = (z[tgt] - z[ref]) / dlt_s
+        g = torch.Generator().manual_seed(int(rng.integers(0, 2**62)))
+        noise = torch.randn(x0.shape, generator=g).to(dev)
+        t = torch.randint(0, gcfg.diffusion.num_train_timesteps, (cfg.batch,), generator=g)
+        t[torch.rand(cfg.batch, generator=g) < cfg.one_step_fraction] = gcfg.diffusion.num_train_timesteps - 1
+        target = noise if gcfg.diffusion.prediction_type == "epsilon" else x0
+        m = torch.from_numpy(masks_to_model(masks, gcfg.image_size)).to(dev)
+        t = t.to(dev)
+        pred = adapter(dit, noise_sched.add_noise(x0, noise, t), z[ref] / lat_s, t, torch.from_numpy(df).to(dev), m)
+        return 0.5 * F.l1_loss(pred, target) + 0.5 * F.mse_loss(pred, target)
+
+    def ema_state() -> dict[str, torch.Tensor]:
+        return {**adapter.state_dict(), **dict(zip((n for n, _ in adapter.named_parameters()), ema.shadow_params))}
+
+    def save(step: int, loss: float) -> None:
+        save_run_state(stem, {"adapter": adapter, "ema": ema_state()},
+                       {"step": step, "loss": loss, "wall_s": meta["wall_s"] + time.perf_counter() - t_run,
+                        "config": acfg.to_dict(), "ema_step": ema.optimization_step}, opt, sched)
+        meta.update(step=step, loss=loss)
+
+    optimise(meta["step"], cfg.steps, batch_loss, opt, sched, adapter, save, cfg.checkpoint_every, "pose adapter", 0,
+             after_step=lambda: ema.step(adapter.parameters()), state=stem)
+    meta, tensors = load_run_state(stem, {"adapter": adapter})
+    adapter.load_state_dict({k[len("ema."):]: v for k, v in tensors.items() if k.startswith("ema.")})
+    adapter.cpu()
+    card = {"trained_by": PROG, "base": str(cfg.base), "base_hash": acfg.base_hash, "train_config": dataclasses.asdict(cfg),
+            "data": {"objects": len(objects), "scenes": len(scenes.objects), "frames": len(scenes.residuals),
+                     "size": list(cfg.size), "sensor_family": "train", "instances": cfg.instances},
+            "training": {"steps": meta["step"], "final_loss": meta["loss"], "wall_s": round(meta["wall_s"], 1),
+                         "total_s": round(time.perf_counter() - t0, 1), "machine": platform.processor() or platform.machine(),
+                         "threads": torch.get_num_threads(), "torch": torch.__version__,
+                         "device": torch.cuda.get_device_name(dev) if dev.type == "cuda" else "cpu"},
+            "parameters": sum(p.numel() for p in adapter.parameters())}
+    final = save_adapter(out / "final", acfg, adapter, dtype=torch.float16, model_card=card)
+    print(f"wrote {final}")
+    return final
+
+
+def fail(message: str) -> None:
+    print(f"{PROG}: error: {message}", file=sys.stderr)
+    raise SystemExit(2)
+
+
+def parse_args(argv=None) -> PoseTrainConfig:
+    fields = {f.name: f for f in dataclasses.fields(PoseTrainConfig)}
+    p = argparse.ArgumentParser(prog=PROG, description=(
+        "Train the stage-2 pose adapter (contact mask at the target pose -> tactile image there) over a frozen "
+        "stage-1 generator on sensor-model scenes rendered in memory. Resumable states; the fp16 adapter with its "
+        "model card goes to OUT/final."))
+    p.add_argument("--out", required=True, help="run folder (states, OUT/final)")
+    p.add_argument("--base", default="default", help="frozen stage-1 checkpoint: a folder, or default / fast (default: default)")
+    p.add_argument("--resume", action="store_true", help="continue the run in --out")
+    p.add_argument("--overwrite", action="store_true", help="replace a previous run in --out (only this tool's files)")
+    for name, f in fields.items():
+        if name in ("out", "base"):
+            continue
+        default = f.default
+        kw = {"nargs": 2, "type": int, "metavar": ("H", "W")} if name == "size" else {
+            "type": float if isinstance(default, float) else str if isinstance(default, str) else int}
+        p.add_argument("--" + name.replace("_", "-"), default=default, help=f"(default: {default})", **kw)
+    a = vars(p.parse_args(argv))
+    resume, overwrite = a.pop("resume"), a.pop("overwrite")
+    try:
+        cfg = PoseTrainConfig(**a)
+    except ValueError as exc:
+        fail(one_line(exc, {f: "--" + f.replace("_", "-") for f in a}))
+    try:
+        locate_checkpoint(cfg.base)
+    except FileNotFoundError as exc:
+        fail(f"--base: {exc}")
+    if resume and overwrite:
+        fail("--resume and --overwrite exclude each other")
+    if resume and not (Path(cfg.out) / "adapter_state.json").is_file():
+        fail(f"--resume: {cfg.out} holds no adapter_state.json to continue")
+    try:
+        claim_output(cfg.out, RUN_OUTPUTS, resume=resume, overwrite=overwrite, tool=PROG)
+    except OutputInUse as exc:
+        fail(str(exc))
+    return cfg
+
+
+def main(argv=None) -> int:
+    """The CLI: 0 done, 1 NaN / inf loss, 2 bad options (one line), 130 Ctrl-C (state saved)."""
+    cfg = parse_args(argv)
+    return run_cli(PROG, lambda: run(cfg))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
