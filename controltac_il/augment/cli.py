@@ -146,7 +146,8 @@ def _setup(args) -> ForceAugment:
             raise UsageError("--estimator", f"expected a force estimator checkpoint folder: "
                                             f"{' '.join(str(exc).split())}") from exc
     try:
-        generator = ForceGenerator.from_pretrained(args.generator, device=device)
+        generator = ForceGenerator.from_pretrained(args.generator, device=device,
+                                                   pose_adapter="pose" if kwargs.get("pose_offset") else None)
     except (ValueError, OSError) as exc:
         raise UsageError("--generator", f"expected a generator checkpoint folder (or default / fast): "
                                         f"{' '.join(str(exc).split())}") from exc

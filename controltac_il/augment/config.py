@@ -78,6 +78,12 @@ class ForceAugmentConfig:
     window_offsets: dict | None = _setting(
         None, "{tactile key: frame offsets of its window positions from the item's frame} for keys holding "
               "(T, C, H, W) windows; default: the dataset's delta_indices, else delta_timestamps x fps", flag=False)
+    pose_offset: tuple[float, float, float] | None = _setting(
+        None, "stage 2, off by default as in the paper's policies: (max_dx_px, max_dy_px, max_dtheta_deg); each copy "
+              "also moves every contact by one rigid offset drawn U[-max, max] per component (pixels of the tactile "
+              "images, dy down; degrees counter-clockwise), through the generator's pose adapter on the frame's "
+              "contact pixels; frames without contact pixels to move get the force change alone", type=float, nargs=3,
+        metavar=("DX", "DY", "DTHETA"))
     fps: float | None = _setting(None, "frame rate turning the dataset's delta_timestamps (s) into frame offsets; "
                                        "default: the dataset's fps (LeRobot: dataset.fps)", flag=False)
 
@@ -120,6 +126,12 @@ class ForceAugmentConfig:
             except (TypeError, ValueError) as exc:
                 raise ValueError(f"window_offsets: expected {{tactile key: [int frame offsets]}}, got "
                                  f"{self.window_offsets!r}") from exc
+        if self.pose_offset is not None:
+            off = _floats(self.pose_offset, "pose_offset", "(max_dx_px, max_dy_px, max_dtheta_deg)")
+            if len(off) != 3 or not all(math.isfinite(v) and v >= 0 for v in off):
+                raise ValueError(f"pose_offset: expected None or three finite numbers >= 0 (max_dx_px, max_dy_px, "
+                                 f"max_dtheta_deg), got {self.pose_offset!r}")
+            self.pose_offset = off
         if self.fps is not None and not (isinstance(self.fps, (int, float, np.number)) and 0 < self.fps < math.inf):
             raise ValueError(f"fps: expected None or a frame rate > 0, got {self.fps!r}")
 

@@ -70,6 +70,9 @@ class ForceAugment(Dataset):
 
             generator = ForceGenerator.from_pretrained()
         self.generator = generator
+        if self.config.pose_offset is not None and getattr(generator, "pose_adapter", None) is None:
+            raise ValueError("pose_offset: needs a generator with the stage-2 pose adapter "
+                             "(ForceGenerator.from_pretrained(pose_adapter='pose'))")
         self.steps = int(self.config.steps if self.config.steps is not None else generator.config.default_steps)
         self._frames = None  # (episode, frame) per index, when known without reading items
         self._source, self._source_index = None, None  # EpisodeDataset read directly (cache mode)
@@ -111,6 +114,10 @@ class ForceAugment(Dataset):
         cfg["steps"] = self.steps
         cfg["tactile_keys"] = list(self.tactile_keys)
         cfg["generator_hash"] = str(self.generator.checkpoint_hash)
+        if cfg["pose_offset"] is None:
+            cfg.pop("pose_offset")  # off: caches built before stage 2 existed stay valid
+        else:
+            cfg["pose_adapter_hash"] = str(self.generator.pose_adapter_hash)
         cfg["reference_force"] = {k: ("labels" if v else "estimator") for k, v in self.labelled.items()}
         cfg.update(self.keys.settings(self.config.force_keys is not None, self.config.background_keys is not None))
         if not all(self.labelled.values()):

@@ -13,7 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from controltac_il.augment.config import ForceAugmentConfig
-from controltac_il.augment.draws import copy_offset, frame_jitter, noise_seed, requested_target, status_of
+from controltac_il.augment.draws import (copy_offset, copy_pose_offset, frame_jitter, moved_contact, noise_seed,
+                                         requested_target, status_of)
 from controltac_il.augment.items import put_force, put_image, to_hwc_uint8
 from controltac_il.augment.keys import KeyMap
 from controltac_il.augment.records import STATUS, FrameOutcome, KeyOutcome
@@ -96,10 +97,12 @@ class OnlineGenerator:
         if ref is None:
             return KeyOutcome(STATUS["no_contact"]), None
         jitter = frame_jitter(cfg.seed, episode, copy, frame, cfg.jitter)
+        mask = moved_contact(residual, copy_pose_offset(cfg.seed, episode, copy, cfg.pose_offset))
         res = self.generator.generate_at(residual[None], ref[None], requested_target(ref, offset + jitter)[None],
                                          steps=self.steps, seed=[noise_seed(cfg.seed, episode, copy, frame, j)],
                                          batch_size=cfg.batch_size, out_of_range=cfg.out_of_range,
-                                         reference_out_of_range="skip")  # as the cache writer: keep it real
+                                         reference_out_of_range="skip",  # as the cache writer: keep it real
+                                         **({} if mask is None else {"mask": mask}))
         target, status = res.decision.target[0], status_of(res.decision, 0)
         outcome = KeyOutcome(status, reference=ref, target=target)
         if status == STATUS["skipped"]:

@@ -17,7 +17,8 @@ import numpy as np
 from tqdm import tqdm
 
 from controltac_il.augment.config import ForceAugmentConfig
-from controltac_il.augment.draws import copy_offset, frame_jitter, noise_seed, requested_target, status_of
+from controltac_il.augment.draws import (copy_offset, copy_pose_offset, frame_jitter, moved_contact, noise_seed,
+                                         requested_target, status_of)
 from controltac_il.augment.provenance import ChunkSpec, FrameRecord, chunk_dir, chunk_done, provenance_text
 from controltac_il.augment.records import STATUS_NAME
 from controltac_il.augment.reference import EpisodeFrames
@@ -88,15 +89,28 @@ class CacheWriter:
         records, asked = self.draft(episode, copy, ep)
         position = {t: i for i, (t, _) in enumerate(self.episodes[episode])}
         out = None
-        if asked:  # every key of the chunk in one generator call
+        if asked:  # every key of the chunk in one generator call (two with stage 2: frames moved and not)
             todo = [records[i] for i in asked]
-            res = self.generator.generate_at(
-                np.stack([ep.residuals[r.key][position[r.frame]] for r in todo]),
-                np.asarray([r.reference_force for r in todo]), np.asarray([r.target_force for r in todo]),
-                steps=self.steps, seed=[r.noise_seed for r in todo], batch_size=self.config.batch_size,
-                out_of_range=self.config.out_of_range, reference_out_of_range=self.REFERENCE_OUT_OF_RANGE)
-            self.settle(records, asked, res.decision)
-            out = res.residuals
+            refs = np.stack([ep.residuals[r.key][position[r.frame]] for r in todo])
+            move = copy_pose_offset(self.config.seed, episode, copy, self.config.pose_offset)
+            masks = [moved_contact(r, move) for r in refs]
+            moved = np.array([m is not None for m in masks], bool)
+            out = np.empty_like(refs)
+            for rows, extra in ((moved, {"mask": [m for m in masks if m is not None]}), (~moved, {})):
+                if rows.any():
+                    res = self.generator.generate_at(
+                        refs[rows], np.asarray([r.reference_force for r in todo])[rows],
+                        np.asarray([r.target_force for r in todo])[rows], steps=self.steps,
+                        seed=[r.noise_seed for r, m in zip(todo, rows) if m], batch_size=self.config.batch_size,
+                        out_of_range=self.config.out_of_range, reference_out_of_range=self.REFERENCE_OUT_OF_RANGE,
+                        **{k: np.stack(v) for k, v in extra.items()})
+                    out[rows] = res.residuals
+            targets = np.asarray([r.target_force for r in todo], np.float64)
+            self.settle(records, asked, self.generator.resolve_targets(
+                targets, self.config.out_of_range, reference_force=np.asarray([r.reference_force for r in todo]),
+                reference_out_of_range=self.REFERENCE_OUT_OF_RANGE))
+            for r, m in zip(todo, moved):
+                r.pose_offset = list(move) if m and r.row >= 0 else None
         with atomic_dir(chunk_dir(self.cache_dir, episode, copy)) as tmp:
             for j, k in enumerate(self.tactile_keys):
                 mine = [n for n, i in enumerate(asked) if records[i].key == k and records[i].row >= 0]

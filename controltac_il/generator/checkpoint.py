@@ -63,12 +63,12 @@ def load_checkpoint(path: str | Path) -> tuple[GeneratorConfig, TactileAutoencod
     return config, ae.eval(), dit.eval()
 
 
-def checkpoint_hash(path: str | Path) -> str:
-    """SHA-256 (first 16 hex digits) over config.json and the weight files: cache provenance (the model card,
-    where the weights' own hashes are recorded, is not part of it)."""
+def checkpoint_hash(path: str | Path, weight_files: tuple[str, ...] = WEIGHT_FILES) -> str:
+    """SHA-256 (first 16 hex digits) over config.json and the weight files (a pose adapter's: ``(ADAPTER_FILE,)``):
+    cache provenance (the model card, where the weights' own hashes are recorded, is not part of it)."""
     path = Path(path)
     h = hashlib.sha256()
-    for name in (CONFIG_FILE, *WEIGHT_FILES):
+    for name in (CONFIG_FILE, *weight_files):
         h.update(name.encode())
         h.update((path / name).read_bytes())
     return h.hexdigest()[:16]

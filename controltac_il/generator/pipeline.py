@@ -31,7 +31,7 @@ import torch
 
 from controltac_il.generator.adapter import PoseAdapter, PoseControlledDenoiser, masks_to_model
 from controltac_il.generator.autoencoder import TactileAutoencoder
-from controltac_il.generator.checkpoint import checkpoint_hash, load_adapter, load_checkpoint
+from controltac_il.generator.checkpoint import ADAPTER_FILE, checkpoint_hash, load_adapter, load_checkpoint
 from controltac_il.generator.config import DETAIL_GATE_SIGMA_PX, GeneratorConfig
 from controltac_il.generator.dit import ForceDiT
 from controltac_il.generator.forces import RANGE_POLICIES, VALIDATED_RANGE, TargetDecision, decide_targets
@@ -187,6 +187,7 @@ class ForceGenerator:
         self.denoiser = denoiser.to(self.device, dtype).eval()
         self.checkpoint_hash = checkpoint_hash
         self.pose_adapter = None if pose_adapter is None else pose_adapter.to(self.device, dtype).eval()
+        self.pose_adapter_hash = None if pose_adapter is None else "untracked"
         self.range_report = RangeReport()
         self.last_range_report = RangeReport()
         c = config.autoencoder.latent_channels
@@ -212,6 +213,7 @@ class ForceGenerator:
             raise ValueError(f"pose adapter {folder} was trained on stage-1 checkpoint {config.base_hash or 'unknown'}, "
                              f"this generator is {self.checkpoint_hash}: load the generator it was trained on")
         self.pose_adapter = adapter.to(self.device, self.dtype).eval()
+        self.pose_adapter_hash = checkpoint_hash(folder, (ADAPTER_FILE,))
         return self
 
     # -- force range -------------------------------------------------------------------------
