@@ -6,13 +6,15 @@ Data: sensor-model scenes (``controltac_il.generator.pose_data``) on the nominal
 seeds the adapter never saw: "seen" = the six training objects, "unseen" = the held-out objects; every pair
 moves the contact to another pose (and another force, Fz in the validated range). The condition is the
 reference's geometric contact mask carried to the target pose (``object_mask`` + ``transform`` through the
-API). Metrics on images (residual + background): MSE (0-255 RGB) and SSIM, mean ± SD, beside a copy of the
+API); ``pose_control_image_mask`` uses the reference frame's contact pixels (``contact_mask``) instead, as a lab
+would. Metrics on images (residual + background): MSE (0-255 RGB) and SSIM, mean ± SD, beside a copy of the
 reference and stage 1 alone (ΔF only: it cannot move the contact).
 
 - ``pose_control``: the errors per split, and ``unseen_mse`` / ``stage1_only_unseen_mse`` / ``copy_unseen_mse``.
 - ``robustness``: the unseen pairs with the target mask scaled (0.8-1.2), shifted (2-6 px, random direction),
-  rotated (2-6°, random sign) and all three at the extremes (the paper's appendix).
-- ``speed``: images/s at batch 32 with and without the mask (median of repeats, this process's torch threads).
+  rotated (2-6°, random sign) and all three at the extremes (the paper's appendix; ``--quick``: the last only).
+- ``speed``: images/s at batch 32 with and without the mask (median of repeats, this process's torch threads), and
+  per DDIM step count (1, 2, 5, 10) the speed with the unseen error beside it.
 - ``pose_estimation``: a CNN estimating (x, y, θ) trained on few sensor-model ("real") frames, on frames stage 2
   generates from them at new poses, and on both; errors on held-out frames of generator-seen and -unseen
   objects, beside the PCA baseline on the frames' contact pixels (``benchmarks.pose_estimation``).
@@ -20,6 +22,7 @@ reference and stage 1 alone (ΔF only: it cannot move the contact).
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 
@@ -32,7 +35,8 @@ from benchmarks.generator import error_map, quality
 from benchmarks.pose_estimation import fit_cnn, fit_pca, pose_errors, predict_cnn, predict_pca
 from controltac_il.generator import ForceGenerator
 from controltac_il.generator.pose_data import PoseScenes, render_scenes
-from controltac_il.io import atomic_path
+from controltac_il.generator.pipeline import SHIPPED_ADAPTERS, locate_checkpoint
+from controltac_il.io import atomic_path, write_json
 from controltac_il.tactile import HELDOUT_OBJECTS, TRAIN_OBJECTS, contact_mask, from_residual
 from controltac_il.tactile.pose import move_mask, transform_between
 
@@ -81,34 +85,60 @@ def evaluate_split(gen: ForceGenerator, scenes: PoseScenes, pairs: np.ndarray) -
     df = scenes.forces[pairs[:, 1]] - scenes.forces[pairs[:, 0]]
     t = moves(scenes, pairs)
     pose = gen.generate(ref, df, object_mask=scenes.masks[pairs[:, 0]], transform=t)
+    # what a lab has: the reference frame's contact pixels, moved (the simulator's moved footprint where there are
+    # none, or where they would leave the pad)
+    masks, fallback = [], 0
+    for (i, j), r in zip(pairs, ref):
+        try:
+            px = contact_mask(r)
+            masks.append(move_mask(px, transform_between(scenes.poses[i], scenes.poses[j], px, scenes.mm_per_px)))
+        except ValueError:
+            masks.append(move_mask(scenes.masks[i], transform_between(scenes.poses[i], scenes.poses[j], scenes.masks[i],
+                                                                       scenes.mm_per_px)))
+            fallback += 1
+    from_image = gen.generate(ref, df, mask=np.stack(masks))
     stage1 = gen.generate(ref, df)
     return {"pose_control": quality(pose, tgt, bg, ref), "stage1_only": quality(stage1, tgt, bg, ref),
+            "pose_control_image_mask": {**quality(from_image, tgt, bg, ref), "footprint_fallbacks": fallback},
             "copy": quality(ref, tgt, bg, ref), "pairs": int(len(pairs)),
             "mean_move_px": float(np.hypot(t[:, 0], t[:, 1]).mean()), "mean_turn_deg": float(np.degrees(np.abs(t[:, 2])).mean()),
             "_outputs": (ref, tgt, pose, stage1, bg)}
 
 
-def robustness(gen: ForceGenerator, scenes: PoseScenes, pairs: np.ndarray) -> dict:
+def robustness(gen: ForceGenerator, scenes: PoseScenes, pairs: np.ndarray, quick: bool) -> dict:
     ref, tgt = scenes.residuals[pairs[:, 0]], scenes.residuals[pairs[:, 1]]
     bg = scenes.backgrounds[scenes.scene[pairs[:, 0]]]
     df = scenes.forces[pairs[:, 1]] - scenes.forces[pairs[:, 0]]
     masks = np.stack([move_mask(scenes.masks[i], t) for i, t in zip(pairs[:, 0], moves(scenes, pairs))])
     copy_mse = quality(ref, tgt, bg, ref)["mse"]
     out = {}
-    for k, (name, (scale, shift, rot)) in enumerate({"none": (1, 0, 0), **PERTURBATIONS}.items()):
+    cases = {"none": (1, 0, 0), **PERTURBATIONS}
+    if quick:
+        cases = {k: cases[k] for k in ("none", "combined 1.2, 6 px, 6°")}
+    for k, (name, (scale, shift, rot)) in enumerate(cases.items()):
         q = quality(gen.generate(ref, df, mask=perturbed(masks, scale, shift, rot, k)), tgt, bg, ref)
         out[name] = {"mse": q["mse"], "ssim": q["ssim"], "ratio_to_copy": q["mse"] / copy_mse}
     return out
 
 
-def speed(gen: ForceGenerator, scenes: PoseScenes, repeats: int) -> dict:
+def speed(gen: ForceGenerator, scenes: PoseScenes, pairs: np.ndarray, repeats: int, steps_grid) -> dict:
+    """Images/s at batch 32 with the mask and without (stage 1) at the default steps, and per DDIM step count the
+    speed with the unseen pairs' MSE ratio to a copy beside it."""
     idx = np.arange(32) % len(scenes.residuals)
     ref, masks = scenes.residuals[idx], scenes.masks[idx]
     df = np.tile([[0.0, 0.0, 1.0]], (32, 1))
     t_mask = median_time(lambda: gen.generate(ref, df, mask=masks), repeats=repeats)
     t_plain = median_time(lambda: gen.generate(ref, df), repeats=repeats)
+    p_ref, p_tgt = scenes.residuals[pairs[:, 0]], scenes.residuals[pairs[:, 1]]
+    bg, p_df, t = scenes.backgrounds[scenes.scene[pairs[:, 0]]], scenes.forces[pairs[:, 1]] - scenes.forces[pairs[:, 0]], moves(scenes, pairs)
+    copy_mse = quality(p_ref, p_tgt, bg, p_ref)["mse"]
+    grid = []
+    for steps in steps_grid:
+        q = quality(gen.generate(p_ref, p_df, object_mask=scenes.masks[pairs[:, 0]], transform=t, steps=steps), p_tgt, bg, p_ref)
+        sec = median_time(lambda: gen.generate(ref, df, mask=masks, steps=steps), repeats=repeats)
+        grid.append({"steps": steps, "img_per_s": 32 / sec, "unseen_mse_ratio_to_copy": q["mse"] / copy_mse, "unseen_ssim": q["ssim"]})
     return {"batch": 32, "size": list(SIZE), "steps": gen.config.default_steps,
-            "pose_img_per_s": 32 / t_mask, "stage1_img_per_s": 32 / t_plain}
+            "pose_img_per_s": 32 / t_mask, "stage1_img_per_s": 32 / t_plain, "steps_grid": grid}
 
 
 def generated_views(gen: ForceGenerator, real: PoseScenes, per_frame: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -141,8 +171,8 @@ def pose_estimation(gen: ForceGenerator, quick: bool) -> dict:
     real = render_scenes(objects, 1, 2 if quick else 4, 2 if quick else 3, 3001, SIZE, None, progress=False)
     test = render_scenes(objects, 1, 3 if quick else 10, 2, 3002, SIZE, None, progress=False)
     half = tuple(s * real.mm_per_px / 2 for s in SIZE)
-    gen_res, gen_poses = generated_views(gen, real, 2 if quick else 8, 3003)
-    steps = 60 if quick else 1500
+    gen_res, gen_poses = generated_views(gen, real, 1 if quick else 8, 3003)
+    steps = 20 if quick else 1500
     sets = {"real": (real.residuals, real.poses), "generated": (gen_res, gen_poses),
             "real + generated": (np.concatenate([real.residuals, gen_res]), np.concatenate([real.poses, gen_poses]))}
     test_obj = [test.objects[s] for s in test.scene]
@@ -186,6 +216,7 @@ def main(argv=None) -> dict:
     p.add_argument("--adapter", default="pose", help="stage-2 pose adapter (shipped name or folder)")
     p.add_argument("--pairs", type=int, default=96, help="evaluation pairs per split (default 96)")
     p.add_argument("--sheet", type=Path, default=None, help="PNG sheet (default: beside --out, .png)")
+    p.add_argument("--update-model-card", action="store_true", help="write the figures into the adapter's model_card.json")
     a = p.parse_args(argv)
     t0 = time.perf_counter()
     gen = ForceGenerator.from_pretrained(a.checkpoint, pose_adapter=a.adapter)
@@ -208,18 +239,21 @@ def main(argv=None) -> dict:
                                "copy_unseen_mse": u["copy"]["mse"], "unseen_ssim": u["pose_control"]["ssim"],
                                **{f"seen_{k}": results["splits"]["seen"][m]["mse"]
                                   for k, m in (("mse", "pose_control"), ("stage1_only_mse", "stage1_only"), ("copy_mse", "copy"))}}
-    results["robustness"] = robustness(gen, *scenes_of["unseen"])
-    results["speed"] = speed(gen, scenes_of["unseen"][0], 2 if a.quick else 7)
+    results["robustness"] = robustness(gen, *scenes_of["unseen"], a.quick)
+    results["speed"] = speed(gen, *scenes_of["unseen"], 1 if a.quick else 7, () if a.quick else (1, 2, 5, 10))
     results["pose_estimation"] = pose_estimation(gen, a.quick)
     results["wall_s"] = round(time.perf_counter() - t0, 1)
 
     rows = [{"split": s, "method": m, "MSE": f"{r[m]['mse']:.1f} ± {r[m]['mse_sd']:.1f}", "SSIM": f"{r[m]['ssim']:.3f}",
              "ratio to copy": r[m]["mse"] / r["copy"]["mse"]}
-            for s, r in results["splits"].items() for m in ("copy", "stage1_only", "pose_control")]
+            for s, r in results["splits"].items() for m in ("copy", "stage1_only", "pose_control", "pose_control_image_mask")]
     print_table(rows, ["split", "method", "MSE", "SSIM", "ratio to copy"], "pose-conditioned generation (120x160)")
     print_table([{"mask": k, **v} for k, v in results["robustness"].items()], ["mask", "mse", "ssim", "ratio_to_copy"],
                 "mask robustness (unseen objects)")
-    print_table([results["speed"]], ["batch", "steps", "pose_img_per_s", "stage1_img_per_s"], "speed")
+    print_table([results["speed"]], ["batch", "steps", "pose_img_per_s", "stage1_img_per_s"], "speed (images/s)")
+    if results["speed"]["steps_grid"]:
+        print_table(results["speed"]["steps_grid"], ["steps", "img_per_s", "unseen_mse_ratio_to_copy", "unseen_ssim"],
+                    "speed against error (DDIM steps, batch 32, unseen objects)")
     pe = results["pose_estimation"]
     print_table([{"trained on": k, **{f"{s} {m}": pe[k][s][m] for s in ESTIMATION for m in ("xy_mm", "theta_deg")}}
                  for k in ("real", "generated", "real + generated", "pca baseline")],
@@ -227,7 +261,15 @@ def main(argv=None) -> dict:
                 f"pose estimation ({pe['frames']})")
     if a.sheet or a.out:
         save_sheet(a.sheet or a.out.with_suffix(".png"), sheet_rows)
-    return write_results(a.out, results)
+    doc = write_results(a.out, results)
+    if a.update_model_card:
+        card_path = locate_checkpoint(a.adapter, SHIPPED_ADAPTERS) / "model_card.json"
+        card = json.loads(card_path.read_text())
+        card["benchmark"] = {"command": "python -m benchmarks.pose" + (" --quick" if a.quick else ""),
+                             "machine": doc["machine"], **{k: results[k] for k in ("pose_control", "robustness", "speed")}}
+        write_json(card_path, card)
+        print(f"updated {card_path}")
+    return doc
 
 
 if __name__ == "__main__":

@@ -173,7 +173,9 @@ def run(cfg: PoseTrainConfig) -> Path:
     meta, tensors = load_run_state(stem, {"adapter": adapter})
     adapter.load_state_dict({k[len("ema."):]: v for k, v in tensors.items() if k.startswith("ema.")})
     adapter.cpu()
-    card = {"trained_by": PROG, "base": str(cfg.base), "base_hash": acfg.base_hash, "train_config": dataclasses.asdict(cfg),
+    card = {"trained_by": PROG, "command": " ".join([PROG, *(f"--{k.replace('_', '-')} {' '.join(map(str, v)) if isinstance(v, (tuple, list)) else v}"
+                                                         for k, v in dataclasses.asdict(cfg).items() if v is not None)]),
+            "base": str(cfg.base), "base_hash": acfg.base_hash, "train_config": dataclasses.asdict(cfg),
             "data": {"objects": len(objects), "scenes": len(scenes.objects), "frames": len(scenes.residuals),
                      "size": list(cfg.size), "sensor_family": "train", "instances": cfg.instances},
             "training": {"steps": meta["step"], "final_loss": meta["loss"], "wall_s": round(meta["wall_s"], 1),
