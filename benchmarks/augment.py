@@ -208,7 +208,7 @@ def main(argv=None) -> dict:
                    help="which datasets to measure: our HDF5 episodes, the LeRobot-convention view, or both")
     args = p.parse_args(argv)
     episodes, frames, copies, items, epochs, online_items = (
-        (3, 20, 2, 240, 3, 16) if args.quick else (6, 40, 4, 960, 9, 48))
+        (3, 20, 2, 96, 2, 16) if args.quick else (6, 40, 4, 960, 9, 48))
     steps = args.steps if args.steps is not None else (2 if args.quick else None)
     torch.set_num_threads(args.threads)
     gen, gen_name = load_generator(args.generator)

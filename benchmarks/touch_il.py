@@ -416,7 +416,8 @@ def main(argv=None) -> dict:
     history_path = args.runs / "wall_s.json"
     history = json.loads(history_path.read_text()) if args.resume and history_path.is_file() else []
 
-    def save(cells):
+    def save(cells, picture: bool = False):
+        """Cells as they finish (JSON, atomic); the picture (3-4 s of matplotlib) once, at the end."""
         add_p_values(cells)
         results["cells"] = sorted(cells, key=lambda c: (c["demos"], list(VARIANTS).index(c["variant"]),
                                                          SETTINGS.index(c["setting"])))
@@ -424,7 +425,7 @@ def main(argv=None) -> dict:
                              "earlier_invocations": history, "total": round(sum(history) + time.perf_counter() - t_start, 1)}
         if args.out:
             write_results(args.out, results)
-            if results["cells"]:
+            if picture and results["cells"]:
                 plot(results["cells"], args.out.with_suffix(".png"), args.budgets, args.image_aug_copies)
 
     results["vision_check"] = vision_check(range(3 if args.quick else 20))
@@ -485,7 +486,7 @@ def main(argv=None) -> dict:
     from controltac_il.io import write_json
 
     write_json(history_path, history + [round(time.perf_counter() - t_start, 1)])
-    save(cells)
+    save(cells, picture=True)
     print_table(results["cells"], ["variant", "demos", "copies", "setting", "successes", "episodes", "wilson95",
                                    "p_vs_real", "best_val_l1"],
                 f"Touch-critical peg-in-hole, {args.eval_episodes} seeded episodes per cell")
