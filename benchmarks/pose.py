@@ -34,7 +34,8 @@ from benchmarks.common import base_parser, median_time, print_table, write_resul
 from benchmarks.generator import error_map, quality
 from benchmarks.pose_estimation import fit_cnn, fit_pca, pose_errors, predict_cnn, predict_pca
 from controltac_il.generator import ForceGenerator
-from controltac_il.generator.pose_data import PoseScenes, render_scenes
+from controltac_il.generator.config import FZ_RANGE, SHEAR_MAX
+from controltac_il.generator.pose_data import POSE_SPREAD, PoseScenes, render_scenes
 from controltac_il.generator.pipeline import SHIPPED_ADAPTERS, locate_checkpoint
 from controltac_il.io import atomic_path, write_json
 from controltac_il.tactile import HELDOUT_OBJECTS, TRAIN_OBJECTS, contact_mask, from_residual
@@ -146,21 +147,22 @@ def generated_views(gen: ForceGenerator, real: PoseScenes, per_frame: int, seed:
     """Stage-2 frames at new random poses and forces from each real frame: (residuals, poses (N, 3))."""
     rng = np.random.default_rng(seed)
     half_h, half_w = (s * real.mm_per_px / 2 for s in SIZE)
-    refs, forces, masks, poses, idx = [], [], [], [], []
+    forces, masks, poses, idx = [], [], [], []
     for i in range(len(real.residuals)):
         for _ in range(per_frame):
-            for _attempt in range(20):
-                pose = np.array([rng.uniform(-0.6, 0.6) * half_w, rng.uniform(-0.6, 0.6) * half_h, rng.uniform(0, np.pi)])
+            for _attempt in range(20):  # a pose that keeps most of the contact on the pad (else none from this draw)
+                pose = np.array([rng.uniform(-POSE_SPREAD, POSE_SPREAD) * half_w,
+                                 rng.uniform(-POSE_SPREAD, POSE_SPREAD) * half_h, rng.uniform(0, np.pi)])
                 try:
                     m = move_mask(real.masks[i], transform_between(real.poses[i], pose, real.masks[i], real.mm_per_px))
                 except ValueError:
                     continue
-                if m.sum() >= 0.5 * real.masks[i].sum():  # most of the contact still on the pad
+                if m.sum() >= 0.5 * real.masks[i].sum():
+                    idx.append(i)
+                    masks.append(m)
+                    poses.append(pose)
+                    forces.append([*rng.uniform(-SHEAR_MAX, SHEAR_MAX, 2), rng.uniform(*FZ_RANGE)])
                     break
-            idx.append(i)
-            masks.append(m)
-            poses.append(pose)
-            forces.append([*rng.uniform(-1, 1, 2), rng.uniform(1, 10)])
     idx = np.asarray(idx)
     out = gen.generate(real.residuals[idx], np.asarray(forces) - real.forces[idx], mask=np.stack(masks),
                        seed=[int(s) for s in rng.integers(0, 2**31, len(idx))])

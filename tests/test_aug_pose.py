@@ -70,6 +70,8 @@ def test_each_copy_moves_its_contacts_by_its_own_recorded_offset(data, tmp_path)
     assert moved and all(r["status"] in ("regenerated", "clamped") for r in moved)
     for r in moved:
         assert r["pose_offset"] == list(copy_pose_offset(0, r["episode"], r["copy"], MAX))
+    key = lambda r: (r["episode"], r["copy"], r["frame"], r["key"])  # noqa: E731
+    assert {key(r): r["pose_offset"] for r in posed.plan()} == {key(r): r["pose_offset"] for r in posed.provenance()}
     i = next(k for k in range(len(posed)) if k >= len(data) and posed.info(posed[k])["augmented"])
     assert not torch.equal(posed[i]["observation.tactile.left"], plain[i]["observation.tactile.left"])
     online = ForceAugment(data, gen, copies=2, mode="online", pose_offset=MAX)

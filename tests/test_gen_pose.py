@@ -176,15 +176,28 @@ def test_a_mask_without_the_adapter_and_an_adapter_of_another_base_are_refused(p
 
 def test_the_shipped_adapter_is_small_fp16_and_names_its_base():
     folder = CHECKPOINT_ROOT / "pose"
-    size = sum(p.stat().st_size for p in folder.iterdir())
-    assert size < 25e6
-    card = json.loads((folder / CARD_FILE).read_text())
-    assert card["base_hash"] == ForceGenerator.from_pretrained().checkpoint_hash
-    cfg, adapter = load_adapter(folder)
+    assert sum(p.stat().st_size for p in folder.iterdir()) < 25e6
+    base = ForceGenerator.from_pretrained()
+    cfg, _ = load_adapter(folder)
+    assert cfg.base_hash == base.checkpoint_hash and cfg.base == base.config
+    assert json.loads((folder / CARD_FILE).read_text())["base_hash"] == base.checkpoint_hash
     from safetensors import safe_open
     with safe_open(str(folder / ADAPTER_FILE), "pt") as f:
         assert {f.get_tensor(k).dtype for k in f.keys()} == {torch.float16}
-    assert cfg.alignment_px == 3.0 and cfg.alignment_deg == 1.0
+
+
+def test_an_adapter_built_for_another_generator_is_refused_at_construction():
+    base, fast = ForceGenerator.from_pretrained(), ForceGenerator.from_pretrained("fast")
+    alien = PoseAdapter(PoseAdapterConfig(base=fast.config), fast.denoiser)
+    with pytest.raises(ValueError, match="another stage-1 configuration"):
+        ForceGenerator(base.config, base.autoencoder, base.denoiser, pose_adapter=alien)
+
+
+def test_transform_between_refuses_bad_poses(pair, sensor):
+    with pytest.raises(ValueError, match="pose must be"):
+        transform_between((0, 0), (1, 1, 0), pair[0].mask, sensor.spec.mm_per_px)
+    with pytest.raises(ValueError, match="finite"):
+        transform_between((0, 0, 0), (np.nan, 1, 0), pair[0].mask, sensor.spec.mm_per_px)
 
 
 # -- training data -------------------------------------------------------------------------------
@@ -219,6 +232,10 @@ def test_train_pose_cli_trains_resumes_and_guards_its_folder(tmp_path, capsys):
     with pytest.raises(SystemExit) as e:
         main([*args, "--steps", "3"])
     assert e.value.code == 2 and "--resume" in capsys.readouterr().err
+    capsys.readouterr()
+    assert main([*args, "--steps", "4", "--resume", "--alignment-px", "5"]) == 2  # another run's data: refused
+    assert "--alignment-px" in capsys.readouterr().err
+    assert json.loads((out / "adapter_state.json").read_text())["step"] == 3
     foreign = tmp_path / "mine"
     (foreign / "final").mkdir(parents=True)
     (foreign / "final" / "notes.txt").write_text("mine")

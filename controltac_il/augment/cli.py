@@ -73,6 +73,8 @@ def parser() -> argparse.ArgumentParser:
     add_config_flags(p)
     p.add_argument("--generator", default=None, help="generator checkpoint folder (default: shipped)")
     p.add_argument("--estimator", default=None, help="force estimator checkpoint (only for data without force labels)")
+    p.add_argument("--pose-adapter", default="pose",
+                   help="with --pose-offset: the stage-2 pose adapter folder (default: pose, shipped for the default)")
     p.add_argument("--device", default="cpu", help="torch device for the generator (default cpu)")
     return p
 
@@ -146,11 +148,15 @@ def _setup(args) -> ForceAugment:
             raise UsageError("--estimator", f"expected a force estimator checkpoint folder: "
                                             f"{' '.join(str(exc).split())}") from exc
     try:
-        generator = ForceGenerator.from_pretrained(args.generator, device=device,
-                                                   pose_adapter="pose" if kwargs.get("pose_offset") else None)
+        generator = ForceGenerator.from_pretrained(args.generator, device=device)
     except (ValueError, OSError) as exc:
         raise UsageError("--generator", f"expected a generator checkpoint folder (or default / fast): "
                                         f"{' '.join(str(exc).split())}") from exc
+    if kwargs.get("pose_offset"):
+        try:
+            generator.load_pose_adapter(args.pose_adapter)
+        except (ValueError, OSError) as exc:
+            raise UsageError("--pose-adapter", " ".join(str(exc).split())) from exc
     try:
         return ForceAugment(dataset, generator, cache_dir=args.out, estimator=estimator, build="manual",
                             progress=True, **kwargs)

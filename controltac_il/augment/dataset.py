@@ -68,7 +68,7 @@ class ForceAugment(Dataset):
         if generator is None:
             from controltac_il.generator import ForceGenerator
 
-            generator = ForceGenerator.from_pretrained()
+            generator = ForceGenerator.from_pretrained(pose_adapter="pose" if self.config.pose_offset else None)
         self.generator = generator
         if self.config.pose_offset is not None and getattr(generator, "pose_adapter", None) is None:
             raise ValueError("pose_offset: needs a generator with the stage-2 pose adapter "
@@ -309,10 +309,11 @@ class ForceAugment(Dataset):
     # --- what was done --------------------------------------------------------------------------
     def provenance(self) -> list[dict]:
         """Every augmented frame's record (cache mode): episode, copy, frame, key, offset, jitter,
-        reference and target force, status, generator hash, steps, noise seed."""
+        reference and target force, status, generator hash, steps, noise seed, pose offset (None: not moved;
+        chunks written before stage 2 existed have none)."""
         if self.config.mode != "cache":
             raise ValueError("provenance: only in mode='cache'")
-        return [r for e, k in self.chunk_list() for r in self._chunk(e, k).records]
+        return [{"pose_offset": None, **r} for e, k in self.chunk_list() for r in self._chunk(e, k).records]
 
     def summary(self) -> dict:
         """Counts over the augmented copies: tactile frames, no_contact, regenerated, clamped, skipped.

@@ -75,14 +75,29 @@ class CacheWriter:
                 rows[rec.key] = rec.row + 1
         return records
 
+    def pose_masks(self, episode: int, copy: int, residuals: np.ndarray) -> tuple[tuple | None, list]:
+        """The copy's rigid move and, per residual, its moved contact mask (None: the force change alone)."""
+        move = copy_pose_offset(self.config.seed, episode, copy, self.config.pose_offset)
+        return move, [moved_contact(r, move) for r in residuals]
+
+    @staticmethod
+    def record_moves(todo: list[FrameRecord], move, masks: list) -> None:
+        for r, m in zip(todo, masks):
+            r.pose_offset = list(move) if m is not None and r.row >= 0 else None
+
     def plan_chunk(self, episode: int, copy: int, ep: EpisodeFrames) -> list[FrameRecord]:
         """Records of one chunk as the generator would settle them, without generating."""
         records, asked = self.draft(episode, copy, ep)
         targets = np.asarray([records[i].target_force for i in asked], np.float64).reshape(-1, 3)
         refs = np.asarray([records[i].reference_force for i in asked], np.float64).reshape(-1, 3)
-        return self.settle(records, asked, self.generator.resolve_targets(
+        self.settle(records, asked, self.generator.resolve_targets(
             targets, self.config.out_of_range, reference_force=refs,
             reference_out_of_range=self.REFERENCE_OUT_OF_RANGE))
+        if self.config.pose_offset is not None and asked:
+            todo = [records[i] for i in asked]
+            position = {t: i for i, (t, _) in enumerate(self.episodes[episode])}
+            self.record_moves(todo, *self.pose_masks(episode, copy, [ep.residuals[r.key][position[r.frame]] for r in todo]))
+        return records
 
     def write_chunk(self, episode: int, copy: int, ep: EpisodeFrames) -> int:
         """Generate and write one chunk atomically; returns the number of generated images."""
@@ -92,8 +107,7 @@ class CacheWriter:
         if asked:  # every key of the chunk in one generator call (two with stage 2: frames moved and not)
             todo = [records[i] for i in asked]
             refs = np.stack([ep.residuals[r.key][position[r.frame]] for r in todo])
-            move = copy_pose_offset(self.config.seed, episode, copy, self.config.pose_offset)
-            masks = [moved_contact(r, move) for r in refs]
+            move, masks = self.pose_masks(episode, copy, refs)
             moved = np.array([m is not None for m in masks], bool)
             out = np.empty_like(refs)
             for rows, extra in ((moved, {"mask": [m for m in masks if m is not None]}), (~moved, {})):
@@ -109,8 +123,7 @@ class CacheWriter:
             self.settle(records, asked, self.generator.resolve_targets(
                 targets, self.config.out_of_range, reference_force=np.asarray([r.reference_force for r in todo]),
                 reference_out_of_range=self.REFERENCE_OUT_OF_RANGE))
-            for r, m in zip(todo, moved):
-                r.pose_offset = list(move) if m and r.row >= 0 else None
+            self.record_moves(todo, move, masks)
         with atomic_dir(chunk_dir(self.cache_dir, episode, copy)) as tmp:
             for j, k in enumerate(self.tactile_keys):
                 mine = [n for n, i in enumerate(asked) if records[i].key == k and records[i].row >= 0]

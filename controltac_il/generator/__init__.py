@@ -3,7 +3,8 @@
 Modules: ``config`` (pydantic dataclasses), ``autoencoder`` (compact residual codec), ``dit`` (ΔF-conditioned
 diffusion transformer), ``sampler`` (DDIM via diffusers), ``checkpoint`` (safetensors + JSON + model card,
 ``controltac_il.checkpoint``), ``pipeline`` (``ForceGenerator``, the inference API), ``data``, ``train_config``
-and ``train`` (training CLI).
+and ``train`` (training CLI). Stage 2, the pose-control adapter over a frozen stage 1: ``adapter``, ``pose_data``
+and ``train_pose`` (its training CLI); ``ForceGenerator.generate(..., mask=...)`` uses it.
 """
 
 from controltac_il.generator.config import (

@@ -194,8 +194,9 @@ class GeneratorConfig(JsonConfig):
 class PoseAdapterConfig(JsonConfig):
     """Stage-2 pose-control adapter over a frozen stage-1 generator (ControlNet-style), saved as its config.json.
 
-    base: the stage-1 generator's config (the adapter's shapes follow it; loading checks the weights' hash too).
-    base_hash: ``checkpoint_hash`` of the stage-1 checkpoint it was trained on ("" = not recorded).
+    base: the stage-1 generator's config (the adapter's shapes follow it).
+    base_hash: ``checkpoint_hash`` of the stage-1 checkpoint it was trained on ("" = not recorded);
+        ``ForceGenerator.load_pose_adapter`` refuses an adapter whose base hash is not the generator's.
     mask_channels: channels of the mask encoder (space-to-depth of the contact mask to the latent size, then
         two 3x3 convolutions).
     head_width: channels of the zero-initialised output convolution on [denoiser output, encoded mask].

@@ -133,7 +133,8 @@ def locate_checkpoint(path: str | Path | None = None, shipped: tuple[str, ...] =
         path = CHECKPOINT_ROOT / path
     path = Path(path)
     if not path.is_dir():
-        raise FileNotFoundError(f"generator checkpoint folder {path} not found")
+        raise FileNotFoundError(f"{'pose adapter' if shipped == SHIPPED_ADAPTERS else 'generator'} checkpoint folder "
+                                f"{path} not found")
     return path
 
 
@@ -186,8 +187,10 @@ class ForceGenerator:
         self.autoencoder = autoencoder.to(self.device, dtype).eval()
         self.denoiser = denoiser.to(self.device, dtype).eval()
         self.checkpoint_hash = checkpoint_hash
-        self.pose_adapter = None if pose_adapter is None else pose_adapter.to(self.device, dtype).eval()
-        self.pose_adapter_hash = None if pose_adapter is None else "untracked"
+        self.pose_adapter, self.pose_adapter_hash = None, None
+        if pose_adapter is not None:
+            self._check_adapter(pose_adapter.config, "the pose adapter")
+            self.pose_adapter, self.pose_adapter_hash = pose_adapter.to(self.device, dtype).eval(), "untracked"
         self.range_report = RangeReport()
         self.last_range_report = RangeReport()
         c = config.autoencoder.latent_channels
@@ -209,12 +212,22 @@ class ForceGenerator:
         checkpoint (its recorded base hash), else ValueError. Returns self."""
         folder = locate_checkpoint(path, SHIPPED_ADAPTERS)
         config, adapter = load_adapter(folder)
-        if config.base_hash != self.checkpoint_hash or config.base != self.config:
-            raise ValueError(f"pose adapter {folder} was trained on stage-1 checkpoint {config.base_hash or 'unknown'}, "
-                             f"this generator is {self.checkpoint_hash}: load the generator it was trained on")
+        if config.base_hash != self.checkpoint_hash:
+            raise ValueError(f"pose adapter {folder} was trained on stage-1 checkpoint {config.base_hash or 'unknown'} "
+                             f"(its config.json), this generator is {self.checkpoint_hash}: load the one it was trained on")
+        self._check_adapter(config, f"pose adapter {folder}")
         self.pose_adapter = adapter.to(self.device, self.dtype).eval()
         self.pose_adapter_hash = checkpoint_hash(folder, (ADAPTER_FILE,))
         return self
+
+    def _check_adapter(self, config, what: str) -> None:
+        """An adapter fits this generator: built for its config, and no plain anchoring (which would paste the
+        reference's detail back at the old pose: a ghost contact)."""
+        if config.base != self.config:
+            raise ValueError(f"{what} was built for another stage-1 configuration than this generator's")
+        if self.config.anchor_to_reference and self.config.detail_gate == 0:
+            raise ValueError(f"{what}: stage 2 needs a stage-1 generator with detail_gate > 0 or without anchoring "
+                             "(plain anchoring would keep the reference's contact at its old pose)")
 
     # -- force range -------------------------------------------------------------------------
     def resolve_targets(self, target_force, out_of_range: str = "clamp", reference_force=None,

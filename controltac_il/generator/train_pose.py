@@ -11,7 +11,9 @@ contact mask carried to the target pose with the paper's alignment noise (±3 px
 warm-up and cosine decay; the EMA of the adapter is shipped (fp16, ``OUT/final``), the stage-1 weights are
 never changed.
 
-Run folder: ``train_config.json``, ``adapter_state.{safetensors,json}`` (periodic, atomic), ``final/``.
+Run folder: ``train_config.json``, ``adapter_state.{safetensors,json}`` (periodic, atomic), ``final/``. ``--resume``
+continues with the saved run's data and model (only ``--steps``, ``--checkpoint-every``, ``--threads``, ``--device``
+may change; anything else, or another ``--base``, is refused).
 Only this tool's own files there are ever replaced (``--overwrite``); bad options: one line, exit 2; a NaN / inf
 loss: exit 1 with the last state kept; Ctrl-C: the step's state saved, exit 130.
 """
@@ -20,10 +22,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import platform
 import sys
 import time
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 import torch
@@ -31,10 +35,9 @@ from diffusers.training_utils import EMAModel
 from pydantic import Field
 from pydantic.dataclasses import dataclass
 from torch.nn import functional as F
-from typing_extensions import Annotated
 
-from controltac_il.checkpoint import OutputInUse, claim_output, load_run_state, one_line, own_checkpoint, own_json, \
-    own_safetensors, save_run_state
+from controltac_il.checkpoint import (OutputInUse, claim_output, load_run_state, one_line, own_checkpoint, own_json,
+                                      own_safetensors, read_json, save_run_state)
 from controltac_il.generator.adapter import PoseAdapter, masks_to_model
 from controltac_il.generator.checkpoint import checkpoint_hash, load_checkpoint, save_adapter
 from controltac_il.generator.config import STRICT, PosInt, PoseAdapterConfig, Positive
@@ -79,14 +82,16 @@ class PoseTrainConfig:
     one_step_fraction: Annotated[float, Field(ge=0, le=1)] = 0.9
     mask_channels: PosInt = 32
     head_width: PosInt = 48
-    alignment_px: Annotated[float, Field(ge=0)] = 3.0
-    alignment_deg: Annotated[float, Field(ge=0)] = 1.0
+    alignment_px: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 3.0
+    alignment_deg: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 1.0
     checkpoint_every: PosInt = 500
     seed: Annotated[int, Field(ge=0)] = 0
     threads: PosInt | None = None
     device: str = "cpu"
 
 
+# what a resumed run may change (the step budget, how it runs); anything else must match the saved run
+RESUMABLE_CHANGES = ("steps", "checkpoint_every", "threads", "device")
 RUN_OUTPUTS = {
     "train_config.json": own_json("out", "base", "procedural"),
     "adapter_state.json": own_json("step", "config"),
@@ -114,6 +119,13 @@ def run(cfg: PoseTrainConfig) -> Path:
         torch.set_num_threads(cfg.threads)
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
+    if (out / "train_config.json").is_file():  # resuming: the data and the model must be the saved run's
+        saved = read_json(out / "train_config.json")
+        changed = sorted(k for k, v in dataclasses.asdict(cfg).items()
+                         if k not in RESUMABLE_CHANGES and json.loads(json.dumps(v)) != saved.get(k))
+        if changed:
+            raise ValueError(f"--resume: {out} was trained with other {', '.join('--' + k.replace('_', '-') for k in changed)}"
+                             "; continue it with its own settings or choose another --out")
     write_json(out / "train_config.json", dataclasses.asdict(cfg))
     t0 = time.perf_counter()
     base_dir = locate_checkpoint(cfg.base)
@@ -134,6 +146,8 @@ def run(cfg: PoseTrainConfig) -> Path:
     stem = out / "adapter_state"
     meta = {"step": 0, "wall_s": 0.0}
     if stem.with_suffix(".json").is_file():
+        if read_json(stem.with_suffix(".json")).get("config") != acfg.to_dict():
+            raise ValueError(f"--resume: {stem}.json was trained over another stage-1 checkpoint than --base {cfg.base}")
         meta, tensors = load_run_state(stem, {"adapter": adapter}, opt)
         ema.load_state_dict({"optimization_step": meta["ema_step"], "shadow_params":
                              [tensors[f"ema.{n}"].float().to(dev) for n, _ in adapter.named_parameters()]})
@@ -220,6 +234,12 @@ def parse_args(argv=None) -> PoseTrainConfig:
         locate_checkpoint(cfg.base)
     except FileNotFoundError as exc:
         fail(f"--base: {exc}")
+    try:
+        device = torch.device(cfg.device)
+    except RuntimeError:
+        fail(f"--device: expected a torch device such as cpu or cuda, got {cfg.device!r}")
+    if device.type == "cuda" and not torch.cuda.is_available():
+        fail(f"--device {cfg.device}: no CUDA device is available; use --device cpu")
     if resume and overwrite:
         fail("--resume and --overwrite exclude each other")
     if resume and not (Path(cfg.out) / "adapter_state.json").is_file():

@@ -40,7 +40,7 @@ class Indenter:
         ``pose`` = (x_mm, y_mm, theta_rad): the object's centre relative to the pad centre (x right,
         y up) and its rotation about the sensor's z axis.
         """
-        x0, y0, theta = _check_pose(pose)
+        x0, y0, theta = check_pose(pose)
         x, y = pixel_coordinates(spec)
         c, s = np.cos(theta), np.sin(theta)
         dx, dy = x - x0, y - y0
@@ -57,7 +57,7 @@ def pixel_coordinates(spec: SensorSpec) -> tuple[np.ndarray, np.ndarray]:
     return np.meshgrid(x, y)
 
 
-def _check_pose(pose) -> tuple[float, float, float]:
+def check_pose(pose) -> tuple[float, float, float]:
     try:
         x, y, theta = (float(v) for v in pose)
     except (TypeError, ValueError):

@@ -12,6 +12,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from controltac_il.tactile.indenters import check_pose
+
 __all__ = ["check_mask", "mask_centroid", "move_mask", "pose_to_pixel", "transform_between"]
 
 
@@ -52,6 +54,8 @@ def move_mask(mask, transform, scale: float = 1.0, center: tuple[float, float] |
     if not np.isfinite([dx, dy, dtheta, scale]).all() or scale <= 0:
         raise ValueError(f"transform must be finite and scale > 0, got {transform!r}, scale {scale!r}")
     cx, cy = mask_centroid(m) if center is None else center
+    if not np.isfinite([cx, cy]).all():
+        raise ValueError(f"center must be a finite (column, row), got {center!r}")
     a = cv2.getRotationMatrix2D((cx, cy), np.degrees(dtheta), scale)
     a[:, 2] += (dx, dy)
     h, w = m.shape
@@ -63,6 +67,8 @@ def move_mask(mask, transform, scale: float = 1.0, center: tuple[float, float] |
 
 def pose_to_pixel(x_mm: float, y_mm: float, mm_per_px: float, size: tuple[int, int]) -> tuple[float, float]:
     """(column, row) of the pad point (x_mm right, y_mm up from the pad centre) in an (H, W) = ``size`` image."""
+    if not (np.isfinite([x_mm, y_mm, mm_per_px]).all() and mm_per_px > 0):
+        raise ValueError(f"need finite x_mm, y_mm and mm_per_px > 0, got {x_mm!r}, {y_mm!r}, {mm_per_px!r}")
     h, w = size
     return x_mm / mm_per_px + w / 2 - 0.5, h / 2 - y_mm / mm_per_px - 0.5
 
@@ -74,6 +80,7 @@ def transform_between(pose_a, pose_b, mask_a, mm_per_px: float) -> tuple[float, 
     centre of the transform); mm_per_px: the mask's pixel pitch.
     """
     m = check_mask(mask_a, name="mask_a")
+    pose_a, pose_b = check_pose(pose_a), check_pose(pose_b)
     size = m.shape
     oa, ob = (np.array(pose_to_pixel(p[0], p[1], mm_per_px, size)) for p in (pose_a, pose_b))
     dtheta = float(pose_b[2] - pose_a[2])
