@@ -15,6 +15,9 @@ reference and stage 1 alone (ΔF only: it cannot move the contact).
   rotated (2-6°, random sign) and all three at the extremes (the paper's appendix; ``--quick``: the last only).
 - ``speed``: images/s at batch 32 with and without the mask (median of repeats, this process's torch threads), and
   per DDIM step count (1, 2, 5, 10) the speed with the unseen error beside it.
+- ``moved_contacts_240``: the real GelSight Mini frames of ``../shared`` (only figures are written) and sensor-model
+  contacts of the held-out objects at 240x320, their contact pixels moved by four rigid moves: IoU of the generated
+  contact with the moved mask, centroid error, area ratio and the old contact left behind.
 - ``pose_estimation``: a CNN estimating (x, y, θ) trained on few sensor-model ("real") frames, on frames stage 2
   generates from them at new poses, and on both; errors on held-out frames of generator-seen and -unseen
   objects, beside the PCA baseline on the frames' contact pixels (``benchmarks.pose_estimation``).
@@ -32,6 +35,7 @@ import torch
 
 from benchmarks.common import base_parser, median_time, print_table, write_results
 from benchmarks.generator import error_map, quality
+from benchmarks.response import real_references, sim_references
 from benchmarks.pose_estimation import fit_cnn, fit_pca, pose_errors, predict_cnn, predict_pca
 from controltac_il.generator import ForceGenerator
 from controltac_il.generator.config import FZ_RANGE, SHEAR_MAX
@@ -39,7 +43,8 @@ from controltac_il.generator.pose_data import POSE_SPREAD, PoseScenes, render_sc
 from controltac_il.generator.pipeline import SHIPPED_ADAPTERS, locate_checkpoint
 from controltac_il.io import atomic_path, write_json
 from controltac_il.tactile import HELDOUT_OBJECTS, TRAIN_OBJECTS, contact_mask, from_residual
-from controltac_il.tactile.pose import move_mask, transform_between
+from controltac_il.tactile.residual import residual_magnitude
+from controltac_il.tactile.pose import mask_centroid, move_mask, transform_between
 
 SIZE = (120, 160)
 SPLITS = {"seen": (TRAIN_OBJECTS, 2001), "unseen": (HELDOUT_OBJECTS, 2002)}
@@ -141,6 +146,43 @@ def speed(gen: ForceGenerator, scenes: PoseScenes, pairs: np.ndarray, repeats: i
         grid.append({"steps": steps, "img_per_s": 32 / sec, "unseen_mse_ratio_to_copy": q["mse"] / copy_mse, "unseen_ssim": q["ssim"]})
     return {"batch": 32, "size": list(SIZE), "steps": gen.config.default_steps,
             "pose_img_per_s": 32 / t_mask, "stage1_img_per_s": 32 / t_plain, "steps_grid": grid}
+
+
+REAL_MOVES = {"right 40 px": (40, 0, 0), "up 30 px": (0, -30, 0), "turn 30°": (0, 0, 30),
+              "left 40 px, down 25 px, turn 45°": (-40, 25, 45)}  # at 240x320 (dθ in degrees)
+
+
+def moved_contact_metrics(gen: ForceGenerator, references: dict[str, np.ndarray]) -> dict:
+    """Each reference's contact pixels (``contact_mask``) moved by each of ``REAL_MOVES`` through the API (ΔF = 0):
+    how far the generated frame's contact pixels are from the moved mask. iou: with the moved mask; centroid_error_px;
+    area_ratio: generated / moved contact area; old_contact_left: share of the old contact's pixels outside the moved
+    mask still in contact (a ghost: 0 is ideal). These threshold the generated frame (``contact_mask``, 12 grey
+    levels), so a fainter contact scores lower; without a threshold: energy_in_target / energy_left_behind, the share
+    of the frame's residual magnitude above the bare gel's inside the moved mask (dilated 3 px) / on the old contact
+    outside it, beside the reference's own share inside its mask (``reference_energy_in_contact``)."""
+    out = {}
+    for name, ref in references.items():
+        m, rows = contact_mask(ref), {}
+        def shares(res, inside, behind=None):
+            e = np.clip(residual_magnitude(res) - np.median(residual_magnitude(res)), 0, None)
+            near = cv2.dilate(inside.astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
+            return float(e[near].sum() / e.sum()), (None if behind is None else float(e[behind & ~near].sum() / e.sum()))
+        for label, (dx, dy, deg) in REAL_MOVES.items():
+            try:
+                want = move_mask(m, (dx, dy, np.radians(deg)))
+            except ValueError:
+                continue
+            generated = gen.generate(ref[None], [[0.0, 0.0, 0.0]], mask=want)[0]
+            got = contact_mask(generated)
+            old = m & ~want
+            rows[label] = {"iou": float((got & want).sum() / max((got | want).sum(), 1)),
+                           "centroid_error_px": float(np.hypot(*np.subtract(mask_centroid(got), mask_centroid(want))))
+                           if got.any() else None,
+                           "area_ratio": float(got.sum() / want.sum()),
+                           "old_contact_left": float((got & old).sum() / old.sum()) if old.any() else None}
+            rows[label]["energy_in_target"], rows[label]["energy_left_behind"] = shares(generated, want, old)
+        out[name] = {"contact_pixels": int(m.sum()), "reference_energy_in_contact": shares(ref, m)[0], "moves": rows}
+    return out
 
 
 def generated_views(gen: ForceGenerator, real: PoseScenes, per_frame: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -245,6 +287,10 @@ def main(argv=None) -> dict:
     results["robustness"] = robustness(gen, *scenes_of["unseen"], a.quick)
     results["speed"] = speed(gen, *scenes_of["unseen"], 1 if a.quick else 7, () if a.quick else (1, 2, 5, 10))
     results["pose_estimation"] = pose_estimation(gen, a.quick)
+    # the real GelSight Mini frames of ../shared (measured, never written) beside sensor-model contacts at 240x320
+    sim = {k: v for k, v in sim_references(HELDOUT_OBJECTS[:2] if a.quick else HELDOUT_OBJECTS, (240, 320)).items()
+           if 0 < contact_mask(v).sum() < 0.5 * v.shape[0] * v.shape[1]}  # a contact to move, not larger than half the pad
+    results["moved_contacts_240"] = moved_contact_metrics(gen, {**({} if a.quick else real_references()), **sim})
     results["wall_s"] = round(time.perf_counter() - t0, 1)
 
     rows = [{"split": s, "method": m, "MSE": f"{r[m]['mse']:.1f} ± {r[m]['mse_sd']:.1f}", "SSIM": f"{r[m]['ssim']:.3f}",
@@ -253,6 +299,10 @@ def main(argv=None) -> dict:
     print_table(rows, ["split", "method", "MSE", "SSIM", "ratio to copy"], "pose-conditioned generation (120x160)")
     print_table([{"mask": k, **v} for k, v in results["robustness"].items()], ["mask", "mse", "ssim", "ratio_to_copy"],
                 "mask robustness (unseen objects)")
+    print_table([{"reference": k, "move": m, **v} for k, r in results["moved_contacts_240"].items()
+                 for m, v in r["moves"].items()], ["reference", "move", "iou", "centroid_error_px", "area_ratio",
+                                                   "old_contact_left", "energy_in_target", "energy_left_behind"],
+                "moved contacts at 240x320 (ΔF = 0)")
     print_table([results["speed"]], ["batch", "steps", "pose_img_per_s", "stage1_img_per_s"], "speed (images/s)")
     if results["speed"]["steps_grid"]:
         print_table(results["speed"]["steps_grid"], ["steps", "img_per_s", "unseen_mse_ratio_to_copy", "unseen_ssim"],

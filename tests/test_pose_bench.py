@@ -47,4 +47,6 @@ def test_quick_run_writes_the_tables_json_and_sheet(tmp_path, capsys):
     assert set(doc["robustness"]) == {"none", "combined 1.2, 6 px, 6°"}
     assert set(doc["pose_estimation"]) >= {"real", "generated", "real + generated", "pca baseline"}
     assert doc["speed"]["pose_img_per_s"] > 0 and out.with_suffix(".png").is_file()
+    moved = doc["moved_contacts_240"]["sim240/usb_c"]["moves"]["right 40 px"]
+    assert 0 <= moved["iou"] <= 1 and 0 <= moved["energy_left_behind"] < moved["energy_in_target"] <= 1
     assert "pose-conditioned generation" in capsys.readouterr().out
