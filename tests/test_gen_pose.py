@@ -229,6 +229,12 @@ def test_train_pose_cli_trains_resumes_and_guards_its_folder(tmp_path, capsys):
     assert json.loads((out / "adapter_state.json").read_text())["step"] == 3
     cfg, _ = load_adapter(out / "final")
     assert cfg.base_hash == ForceGenerator.from_pretrained().checkpoint_hash
+    # a longer run from a trained adapter: same widths only (the shipped one is 32 / 48 wide, these runs 8 / 8)
+    assert main([*args, "--out", str(tmp_path / "more"), "--steps", "1", "--adapter-from", str(out / "final")]) == 0
+    card = json.loads((tmp_path / "more" / "final" / CARD_FILE).read_text())
+    assert card["adapter_from"]["path"] == str(out / "final") and card["adapter_from"]["training"]["steps"] == 3
+    assert main([*args, "--out", str(tmp_path / "wide"), "--steps", "1", "--adapter-from", "pose"]) == 2
+    assert "other widths" in capsys.readouterr().err
     with pytest.raises(SystemExit) as e:
         main([*args, "--steps", "3"])
     assert e.value.code == 2 and "--resume" in capsys.readouterr().err

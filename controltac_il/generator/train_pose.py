@@ -39,9 +39,9 @@ from torch.nn import functional as F
 from controltac_il.checkpoint import (OutputInUse, claim_output, load_run_state, one_line, own_checkpoint, own_json,
                                       own_safetensors, read_json, save_run_state)
 from controltac_il.generator.adapter import PoseAdapter, masks_to_model
-from controltac_il.generator.checkpoint import checkpoint_hash, load_checkpoint, save_adapter
+from controltac_il.generator.checkpoint import checkpoint_hash, load_adapter, load_checkpoint, save_adapter
 from controltac_il.generator.config import STRICT, PosInt, PoseAdapterConfig, Positive
-from controltac_il.generator.pipeline import locate_checkpoint, residual_to_unit
+from controltac_il.generator.pipeline import SHIPPED_ADAPTERS, locate_checkpoint, residual_to_unit
 from controltac_il.generator.pose_data import render_scenes, sample_pose_pairs
 from controltac_il.generator.sampler import make_scheduler
 from controltac_il.generator.train import optimise
@@ -56,7 +56,9 @@ PROG = "python -m controltac_il.generator.train_pose"
 class PoseTrainConfig:
     """Arguments of one adapter training run.
 
-    out: run folder. base: the frozen stage-1 checkpoint (a folder, or "default" / "fast").
+    out: run folder. base: the frozen stage-1 checkpoint (a folder, or "default" / "fast"). adapter_from: start from
+    this adapter (a folder, or "pose") instead of the zero-initialised one: a longer or a fine-tuning run; it must
+    have been trained over ``base``, with the same widths.
     procedural: random training shapes besides the six training objects. scenes, poses, forces: scenes per object,
     contact poses per scene, forces per pose (render size ``size`` (H, W)); instances: training sensor instances
     drawn from. steps, batch, lr, warmup_steps, min_lr_ratio, ema_decay: optimisation. one_step_fraction: share of
@@ -67,6 +69,7 @@ class PoseTrainConfig:
 
     out: str
     base: str = "default"
+    adapter_from: str | None = None
     procedural: Annotated[int, Field(ge=0)] = 120
     scenes: PosInt = 6
     poses: Annotated[int, Field(ge=2)] = 4
@@ -140,7 +143,16 @@ def run(cfg: PoseTrainConfig) -> Path:
     acfg = PoseAdapterConfig(base=gcfg, base_hash=checkpoint_hash(base_dir), mask_channels=cfg.mask_channels,
                              head_width=cfg.head_width, alignment_px=cfg.alignment_px, alignment_deg=cfg.alignment_deg)
     torch.manual_seed(cfg.seed + 1)
-    adapter = PoseAdapter(acfg, dit).to(dev)
+    adapter = PoseAdapter(acfg, dit)
+    source_card = None
+    if cfg.adapter_from is not None:
+        folder = locate_checkpoint(cfg.adapter_from, SHIPPED_ADAPTERS)
+        source, weights = load_adapter(folder)
+        if (source.base_hash, source.mask_channels, source.head_width) != (acfg.base_hash, acfg.mask_channels, acfg.head_width):
+            raise ValueError(f"--adapter-from {folder}: trained over another --base or with other widths")
+        adapter.load_state_dict(weights.state_dict())
+        source_card = read_json(folder / "model_card.json")
+    adapter = adapter.to(dev)
     ema = EMAModel(adapter.parameters(), decay=cfg.ema_decay, update_after_step=-1)
     opt = torch.optim.AdamW(adapter.parameters(), lr=cfg.lr, weight_decay=0.0)
     stem = out / "adapter_state"
@@ -189,7 +201,8 @@ def run(cfg: PoseTrainConfig) -> Path:
     adapter.cpu()
     card = {"trained_by": PROG, "command": " ".join([PROG, *(f"--{k.replace('_', '-')} {' '.join(map(str, v)) if isinstance(v, (tuple, list)) else v}"
                                                          for k, v in dataclasses.asdict(cfg).items() if v is not None)]),
-            "base": str(cfg.base), "base_hash": acfg.base_hash, "train_config": dataclasses.asdict(cfg),
+            "base": str(cfg.base), "adapter_from": None if source_card is None else
+            {"path": str(cfg.adapter_from), "command": source_card.get("command"), "training": source_card.get("training")}, "base_hash": acfg.base_hash, "train_config": dataclasses.asdict(cfg),
             "data": {"objects": len(objects), "scenes": len(scenes.objects), "frames": len(scenes.residuals),
                      "size": list(cfg.size), "sensor_family": "train", "instances": cfg.instances},
             "training": {"steps": meta["step"], "final_loss": meta["loss"], "wall_s": round(meta["wall_s"], 1),
@@ -215,10 +228,12 @@ def parse_args(argv=None) -> PoseTrainConfig:
         "model card goes to OUT/final."))
     p.add_argument("--out", required=True, help="run folder (states, OUT/final)")
     p.add_argument("--base", default="default", help="frozen stage-1 checkpoint: a folder, or default / fast (default: default)")
+    p.add_argument("--adapter-from", default=None,
+                   help="start from this adapter (a folder, or pose) instead of a zero-initialised one; same --base")
     p.add_argument("--resume", action="store_true", help="continue the run in --out")
     p.add_argument("--overwrite", action="store_true", help="replace a previous run in --out (only this tool's files)")
     for name, f in fields.items():
-        if name in ("out", "base"):
+        if name in ("out", "base", "adapter_from"):
             continue
         default = f.default
         kw = {"nargs": 2, "type": int, "metavar": ("H", "W")} if name == "size" else {
