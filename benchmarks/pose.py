@@ -85,10 +85,14 @@ def perturbed(masks: np.ndarray, scale: float, shift_px: float, rot_deg: float, 
     return np.stack(out)
 
 
-def evaluate_split(gen: ForceGenerator, scenes: PoseScenes, pairs: np.ndarray) -> dict:
+def pair_arrays(scenes: PoseScenes, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(reference residuals, target residuals, backgrounds, ΔF (P, 3) N) of (P, 2) index pairs."""
     ref, tgt = scenes.residuals[pairs[:, 0]], scenes.residuals[pairs[:, 1]]
-    bg = scenes.backgrounds[scenes.scene[pairs[:, 0]]]
-    df = scenes.forces[pairs[:, 1]] - scenes.forces[pairs[:, 0]]
+    return ref, tgt, scenes.backgrounds[scenes.scene[pairs[:, 0]]], scenes.forces[pairs[:, 1]] - scenes.forces[pairs[:, 0]]
+
+
+def evaluate_split(gen: ForceGenerator, scenes: PoseScenes, pairs: np.ndarray) -> dict:
+    ref, tgt, bg, df = pair_arrays(scenes, pairs)
     t = moves(scenes, pairs)
     pose = gen.generate(ref, df, object_mask=scenes.masks[pairs[:, 0]], transform=t)
     # what a lab has: the reference frame's contact pixels, moved (the simulator's moved footprint where there are
@@ -111,12 +115,9 @@ def evaluate_split(gen: ForceGenerator, scenes: PoseScenes, pairs: np.ndarray) -
             "_outputs": (ref, tgt, pose, stage1, bg)}
 
 
-def robustness(gen: ForceGenerator, scenes: PoseScenes, pairs: np.ndarray, quick: bool) -> dict:
-    ref, tgt = scenes.residuals[pairs[:, 0]], scenes.residuals[pairs[:, 1]]
-    bg = scenes.backgrounds[scenes.scene[pairs[:, 0]]]
-    df = scenes.forces[pairs[:, 1]] - scenes.forces[pairs[:, 0]]
+def robustness(gen: ForceGenerator, scenes: PoseScenes, pairs: np.ndarray, copy_mse: float, quick: bool) -> dict:
+    ref, tgt, bg, df = pair_arrays(scenes, pairs)
     masks = np.stack([move_mask(scenes.masks[i], t) for i, t in zip(pairs[:, 0], moves(scenes, pairs))])
-    copy_mse = quality(ref, tgt, bg, ref)["mse"]
     out = {}
     cases = {"none": (1, 0, 0), **PERTURBATIONS}
     if quick:
@@ -127,7 +128,7 @@ def robustness(gen: ForceGenerator, scenes: PoseScenes, pairs: np.ndarray, quick
     return out
 
 
-def speed(gen: ForceGenerator, scenes: PoseScenes, pairs: np.ndarray, repeats: int, steps_grid) -> dict:
+def speed(gen: ForceGenerator, scenes: PoseScenes, pairs: np.ndarray, copy_mse: float, repeats: int, steps_grid) -> dict:
     """Images/s at batch 32 with the mask and without (stage 1) at the default steps, and per DDIM step count the
     speed with the unseen pairs' MSE ratio to a copy beside it."""
     idx = np.arange(32) % len(scenes.residuals)
@@ -136,9 +137,8 @@ def speed(gen: ForceGenerator, scenes: PoseScenes, pairs: np.ndarray, repeats: i
     warmup = int(repeats > 1)
     t_mask = median_time(lambda: gen.generate(ref, df, mask=masks), repeats=repeats, warmup=warmup)
     t_plain = median_time(lambda: gen.generate(ref, df), repeats=repeats, warmup=warmup)
-    p_ref, p_tgt = scenes.residuals[pairs[:, 0]], scenes.residuals[pairs[:, 1]]
-    bg, p_df, t = scenes.backgrounds[scenes.scene[pairs[:, 0]]], scenes.forces[pairs[:, 1]] - scenes.forces[pairs[:, 0]], moves(scenes, pairs)
-    copy_mse = quality(p_ref, p_tgt, bg, p_ref)["mse"]
+    p_ref, p_tgt, bg, p_df = pair_arrays(scenes, pairs)
+    t = moves(scenes, pairs)
     grid = []
     for steps in steps_grid:
         q = quality(gen.generate(p_ref, p_df, object_mask=scenes.masks[pairs[:, 0]], transform=t, steps=steps), p_tgt, bg, p_ref)
@@ -284,8 +284,9 @@ def main(argv=None) -> dict:
                                "copy_unseen_mse": u["copy"]["mse"], "unseen_ssim": u["pose_control"]["ssim"],
                                **{f"seen_{k}": results["splits"]["seen"][m]["mse"]
                                   for k, m in (("mse", "pose_control"), ("stage1_only_mse", "stage1_only"), ("copy_mse", "copy"))}}
-    results["robustness"] = robustness(gen, *scenes_of["unseen"], a.quick)
-    results["speed"] = speed(gen, *scenes_of["unseen"], 1 if a.quick else 7, () if a.quick else (1, 2, 5, 10))
+    copy_mse = u["copy"]["mse"]
+    results["robustness"] = robustness(gen, *scenes_of["unseen"], copy_mse, a.quick)
+    results["speed"] = speed(gen, *scenes_of["unseen"], copy_mse, 1 if a.quick else 7, () if a.quick else (1, 2, 5, 10))
     results["pose_estimation"] = pose_estimation(gen, a.quick)
     # the real GelSight Mini frames of ../shared (measured, never written) beside sensor-model contacts at 240x320
     sim = {k: v for k, v in sim_references(HELDOUT_OBJECTS[:2] if a.quick else HELDOUT_OBJECTS, (240, 320)).items()

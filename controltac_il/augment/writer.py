@@ -85,44 +85,46 @@ class CacheWriter:
         for r, m in zip(todo, masks):
             r.pose_offset = list(move) if m is not None and r.row >= 0 else None
 
+    def _asked(self, episode: int, records: list[FrameRecord], asked: list[int], ep: EpisodeFrames):
+        """The asked records, their reference residuals (n, H, W, 3), reference and requested target forces (n, 3) N."""
+        position = {t: i for i, (t, _) in enumerate(self.episodes[episode])}
+        todo = [records[i] for i in asked]
+        residuals = np.stack([ep.residuals[r.key][position[r.frame]] for r in todo]) if todo else None
+        refs = np.asarray([r.reference_force for r in todo], np.float64).reshape(-1, 3)
+        return todo, residuals, refs, np.asarray([r.target_force for r in todo], np.float64).reshape(-1, 3)
+
+    def _settle_planned(self, records, asked, refs: np.ndarray, targets: np.ndarray) -> None:
+        """``settle`` with the generator's range decision for these forces (what ``generate_at`` decides)."""
+        self.settle(records, asked, self.generator.resolve_targets(
+            targets, self.config.out_of_range, reference_force=refs, reference_out_of_range=self.REFERENCE_OUT_OF_RANGE))
+
     def plan_chunk(self, episode: int, copy: int, ep: EpisodeFrames) -> list[FrameRecord]:
         """Records of one chunk as the generator would settle them, without generating."""
         records, asked = self.draft(episode, copy, ep)
-        targets = np.asarray([records[i].target_force for i in asked], np.float64).reshape(-1, 3)
-        refs = np.asarray([records[i].reference_force for i in asked], np.float64).reshape(-1, 3)
-        self.settle(records, asked, self.generator.resolve_targets(
-            targets, self.config.out_of_range, reference_force=refs,
-            reference_out_of_range=self.REFERENCE_OUT_OF_RANGE))
-        if self.config.pose_offset is not None and asked:
-            todo = [records[i] for i in asked]
-            position = {t: i for i, (t, _) in enumerate(self.episodes[episode])}
-            self.record_moves(todo, *self.pose_masks(episode, copy, [ep.residuals[r.key][position[r.frame]] for r in todo]))
+        todo, residuals, refs, targets = self._asked(episode, records, asked, ep)
+        self._settle_planned(records, asked, refs, targets)
+        if self.config.pose_offset is not None and todo:
+            self.record_moves(todo, *self.pose_masks(episode, copy, residuals))
         return records
 
     def write_chunk(self, episode: int, copy: int, ep: EpisodeFrames) -> int:
         """Generate and write one chunk atomically; returns the number of generated images."""
         records, asked = self.draft(episode, copy, ep)
-        position = {t: i for i, (t, _) in enumerate(self.episodes[episode])}
         out = None
         if asked:  # every key of the chunk in one generator call (two with stage 2: frames moved and not)
-            todo = [records[i] for i in asked]
-            refs = np.stack([ep.residuals[r.key][position[r.frame]] for r in todo])
-            move, masks = self.pose_masks(episode, copy, refs)
+            todo, residuals, refs, targets = self._asked(episode, records, asked, ep)
+            move, masks = self.pose_masks(episode, copy, residuals)
             moved = np.array([m is not None for m in masks], bool)
-            out = np.empty_like(refs)
+            seeds = np.asarray([r.noise_seed for r in todo])
+            out = np.empty_like(residuals)
             for rows, extra in ((moved, {"mask": [m for m in masks if m is not None]}), (~moved, {})):
                 if rows.any():
-                    res = self.generator.generate_at(
-                        refs[rows], np.asarray([r.reference_force for r in todo])[rows],
-                        np.asarray([r.target_force for r in todo])[rows], steps=self.steps,
-                        seed=[r.noise_seed for r, m in zip(todo, rows) if m], batch_size=self.config.batch_size,
-                        out_of_range=self.config.out_of_range, reference_out_of_range=self.REFERENCE_OUT_OF_RANGE,
-                        **{k: np.stack(v) for k, v in extra.items()})
-                    out[rows] = res.residuals
-            targets = np.asarray([r.target_force for r in todo], np.float64)
-            self.settle(records, asked, self.generator.resolve_targets(
-                targets, self.config.out_of_range, reference_force=np.asarray([r.reference_force for r in todo]),
-                reference_out_of_range=self.REFERENCE_OUT_OF_RANGE))
+                    out[rows] = self.generator.generate_at(
+                        residuals[rows], refs[rows], targets[rows], steps=self.steps, seed=seeds[rows].tolist(),
+                        batch_size=self.config.batch_size, out_of_range=self.config.out_of_range,
+                        reference_out_of_range=self.REFERENCE_OUT_OF_RANGE,
+                        **{k: np.stack(v) for k, v in extra.items()}).residuals
+            self._settle_planned(records, asked, refs, targets)
             self.record_moves(todo, move, masks)
         with atomic_dir(chunk_dir(self.cache_dir, episode, copy)) as tmp:
             for j, k in enumerate(self.tactile_keys):

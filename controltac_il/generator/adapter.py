@@ -62,9 +62,7 @@ class PoseAdapter(nn.Module):
         self.mask_encoder = MaskEncoder(config.base.autoencoder.factor, k)
         self.mask_patch = nn.Conv2d(k, d, kernel_size=p, stride=p)
         self.mask_in = _zero(nn.Linear(d, d))
-        self.blocks = copy.deepcopy(base.blocks)  # the control branch starts as the frozen blocks
-        for blk in self.blocks:
-            blk.requires_grad_(True)
+        self.blocks = copy.deepcopy(base.blocks).requires_grad_(True)  # the control branch starts as the frozen blocks
         self.block_out = nn.ModuleList(_zero(nn.Linear(d, d)) for _ in self.blocks)
         self.out = nn.Sequential(nn.Conv2d(c + k, config.head_width, 3, padding=1), nn.SiLU(),
                                  _zero(nn.Conv2d(config.head_width, c, 3, padding=1)))

@@ -255,9 +255,27 @@ def check_same_models(src: Path, source: GeneratorConfig, gcfg: GeneratorConfig)
                              f"(field: (source, this run)): {diff}")
 
 
-def ema_weights(ema: EMAModel, dit: ForceDiT) -> dict[str, torch.Tensor]:
-    """The EMA as a ForceDiT state dict (EMA parameters, the model's buffers)."""
-    return {**dit.state_dict(), **dict(zip((n for n, _ in dit.named_parameters()), ema.shadow_params))}
+def ema_weights(ema: EMAModel, model: torch.nn.Module) -> dict[str, torch.Tensor]:
+    """The EMA as ``model``'s state dict (EMA parameters, the model's buffers)."""
+    return {**model.state_dict(), **dict(zip((n for n, _ in model.named_parameters()), ema.shadow_params))}
+
+
+def noised_batch(gcfg: GeneratorConfig, sched, x0: torch.Tensor, one_step_fraction: float, seed: int
+                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(x_t, t, target) of one training batch: x0 noised at uniform timesteps (``one_step_fraction`` of them at the
+    last, the one a 1-step sampler visits); the target is the noise or x0 per the prediction type."""
+    n, steps = len(x0), gcfg.diffusion.num_train_timesteps
+    g = torch.Generator().manual_seed(seed)
+    noise = torch.randn(x0.shape, generator=g).to(x0.device)
+    t = torch.randint(0, steps, (n,), generator=g)
+    if one_step_fraction > 0:
+        t[torch.rand(n, generator=g) < one_step_fraction] = steps - 1
+    t = t.to(x0.device)
+    return sched.add_noise(x0, noise, t), t, noise if gcfg.diffusion.prediction_type == "epsilon" else x0
+
+
+def prediction_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    return 0.5 * F.l1_loss(pred, target) + 0.5 * F.mse_loss(pred, target)
 
 
 def restore_denoiser(stem: Path, dit: ForceDiT, ema: EMAModel, opt: torch.optim.Optimizer | None = None) -> dict:
@@ -278,14 +296,8 @@ def denoiser_loss(cfg: TrainConfig, gcfg: GeneratorConfig, sched, z: torch.Tenso
     ref, tgt, df = sample_pairs(data, per_rank, rng, cfg.no_contact_prob, cfg.distinct_pairs)
     x0 = (z[tgt] - z[ref]) / torch.tensor(gcfg.delta_scale).view(1, c, 1, 1)
     zr = z[ref] / torch.tensor(gcfg.latent_scale).view(1, c, 1, 1)
-    g = torch.Generator().manual_seed(int(rng.integers(0, 2**62)))
-    noise = torch.randn(x0.shape, generator=g)
-    t = torch.randint(0, gcfg.diffusion.num_train_timesteps, (per_rank,), generator=g)
-    if cfg.one_step_fraction > 0:
-        t[torch.rand(per_rank, generator=g) < cfg.one_step_fraction] = gcfg.diffusion.num_train_timesteps - 1
-    target = noise if gcfg.diffusion.prediction_type == "epsilon" else x0
-    pred = model(sched.add_noise(x0, noise, t), zr, t, torch.from_numpy(df))
-    return 0.5 * F.l1_loss(pred, target) + 0.5 * F.mse_loss(pred, target)
+    x_t, t, target = noised_batch(gcfg, sched, x0, cfg.one_step_fraction, int(rng.integers(0, 2**62)))
+    return prediction_loss(model(x_t, zr, t, torch.from_numpy(df)), target)
 
 
 def train_denoiser(cfg: TrainConfig, gcfg: GeneratorConfig, z: torch.Tensor, data: PairData, out: Path,

@@ -34,7 +34,6 @@ import torch
 from diffusers.training_utils import EMAModel
 from pydantic import Field
 from pydantic.dataclasses import dataclass
-from torch.nn import functional as F
 
 from controltac_il.checkpoint import (OutputInUse, claim_output, load_run_state, one_line, own_checkpoint, own_json,
                                       own_safetensors, read_json, save_run_state)
@@ -44,7 +43,7 @@ from controltac_il.generator.config import STRICT, PosInt, PoseAdapterConfig, Po
 from controltac_il.generator.pipeline import SHIPPED_ADAPTERS, locate_checkpoint, residual_to_unit
 from controltac_il.generator.pose_data import render_scenes, sample_pose_pairs
 from controltac_il.generator.sampler import make_scheduler
-from controltac_il.generator.train import optimise
+from controltac_il.generator.train import ema_weights, noised_batch, optimise, prediction_loss
 from controltac_il.io import write_json
 from controltac_il.tactile.indenters import TRAIN_OBJECTS, procedural_objects
 from controltac_il.training import lr_schedule, run_cli
@@ -175,21 +174,12 @@ def run(cfg: PoseTrainConfig) -> Path:
         ref, tgt, df, masks = sample_pose_pairs(scenes, members, cfg.batch, rng, cfg.alignment_px, cfg.alignment_deg)
         ref, tgt = torch.from_numpy(ref).to(dev), torch.from_numpy(tgt).to(dev)
         x0 = (z[tgt] - z[ref]) / dlt_s
-        g = torch.Generator().manual_seed(int(rng.integers(0, 2**62)))
-        noise = torch.randn(x0.shape, generator=g).to(dev)
-        t = torch.randint(0, gcfg.diffusion.num_train_timesteps, (cfg.batch,), generator=g)
-        t[torch.rand(cfg.batch, generator=g) < cfg.one_step_fraction] = gcfg.diffusion.num_train_timesteps - 1
-        target = noise if gcfg.diffusion.prediction_type == "epsilon" else x0
+        x_t, t, target = noised_batch(gcfg, noise_sched, x0, cfg.one_step_fraction, int(rng.integers(0, 2**62)))
         m = torch.from_numpy(masks_to_model(masks, gcfg.image_size)).to(dev)
-        t = t.to(dev)
-        pred = adapter(dit, noise_sched.add_noise(x0, noise, t), z[ref] / lat_s, t, torch.from_numpy(df).to(dev), m)
-        return 0.5 * F.l1_loss(pred, target) + 0.5 * F.mse_loss(pred, target)
-
-    def ema_state() -> dict[str, torch.Tensor]:
-        return {**adapter.state_dict(), **dict(zip((n for n, _ in adapter.named_parameters()), ema.shadow_params))}
+        return prediction_loss(adapter(dit, x_t, z[ref] / lat_s, t, torch.from_numpy(df).to(dev), m), target)
 
     def save(step: int, loss: float) -> None:
-        save_run_state(stem, {"adapter": adapter, "ema": ema_state()},
+        save_run_state(stem, {"adapter": adapter, "ema": ema_weights(ema, adapter)},
                        {"step": step, "loss": loss, "wall_s": meta["wall_s"] + time.perf_counter() - t_run,
                         "config": acfg.to_dict(), "ema_step": ema.optimization_step}, opt, sched)
         meta.update(step=step, loss=loss)
