@@ -58,6 +58,8 @@ class TrainConfig:
     grad_clip: max gradient L2 norm (0 = no clipping).
     num_workers: DataLoader worker processes (0 = load in the training process).
     max_val_batches: cap on validation batches per evaluation (keeps validation cheap on CPU).
+    snapshot_every: also keep the weights of every this many steps in ``snapshots/step_<k>/`` (0 = none), for
+        choosing the number of steps afterwards by closed-loop success (``benchmarks.touch_il_verdict``).
     seed: seeds the model initialisation, the sampling order and the CVAE noise.
     """
 
@@ -69,6 +71,7 @@ class TrainConfig:
     grad_clip: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 10.0
     num_workers: Annotated[int, Field(ge=0)] = 0
     max_val_batches: PosInt = 20
+    snapshot_every: Annotated[int, Field(ge=0)] = 0
     seed: int = 0
 
 
@@ -123,8 +126,26 @@ _CHECKPOINT_FILES = ("config.json", WEIGHTS_FILE, "stats.json", BACKGROUND_FILE,
                      "optimizer.json", "model_card.json")
 _own_act_checkpoint = own_checkpoint(_CHECKPOINT_FILES, lambda c: c.get("format") == FORMAT)
 # what train() writes under its output folder, each with how it is recognised as this tool's own
+SNAPSHOTS = "snapshots"
+
+
+def snapshot_path(out_dir: str | Path, step: int) -> Path:
+    """Where ``snapshot_every`` keeps the weights of ``step``: ``OUT/snapshots/step_<step, 6 digits>``."""
+    return Path(out_dir) / SNAPSHOTS / f"step_{step:06d}"
+
+
+def _own_snapshots(path: Path) -> str | None:
+    if not path.is_dir():
+        return "not a folder"
+    for sub in sorted(path.iterdir()):
+        why = "not a step_<k> folder" if not sub.name.startswith("step_") else _own_act_checkpoint(sub)
+        if why:
+            return f"{sub}: {why}"
+    return None
+
+
 RUN_OUTPUTS = {"last": _own_act_checkpoint, "best": _own_act_checkpoint,
-               "train_log.json": own_json("step", "log", "train_config")}
+               "train_log.json": own_json("step", "log", "train_config"), SNAPSHOTS: _own_snapshots}
 
 
 def stats_change(before: dict, now: dict) -> str | None:
@@ -292,6 +313,9 @@ def train(act_config: ACTConfig, train_config: TrainConfig, train_set: Dataset, 
                             best = val_l1
                             save_checkpoint(out_dir / "best", model, backgrounds=backgrounds,
                                             meta={**run_meta, "step": step, "best_val_l1": best})
+                    if train_config.snapshot_every and step % train_config.snapshot_every == 0:
+                        save_checkpoint(snapshot_path(out_dir, step), model, backgrounds=backgrounds,
+                                        meta={**run_meta, "step": step})
                     if step % train_config.save_every == 0 or last or stop_now:
                         save(final=last or stop_now)
                 if world > 1:
