@@ -64,7 +64,7 @@ def main(argv=None) -> int:
     import torch
 
     from controltac_il.app.deploy import deploy_on_robot, evaluate_in_sim
-    from controltac_il.checkpoint import one_line
+    from controltac_il.config import one_line
     from controltac_il.io import write_json
 
     torch.set_num_threads(max(1, args.threads))

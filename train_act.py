@@ -57,7 +57,7 @@ FLAGS = {"steps": "--steps", "batch_size": "--batch-size", "val_every": "--val-e
 
 def check_args(args: argparse.Namespace):
     """The run's TrainConfig; ValueError (one line naming the flag and the expected form) for a bad option."""
-    from controltac_il.checkpoint import one_line
+    from controltac_il.config import one_line
     from policies.act.training import TrainConfig
 
     if args.resume and args.overwrite:

@@ -19,7 +19,7 @@ from typing import Callable
 import torch
 from torch.optim.lr_scheduler import CosineAnnealingLR, LinearLR, LRScheduler, SequentialLR
 
-from controltac_il.checkpoint import one_line
+from controltac_il.config import one_line
 
 
 class NonFiniteLoss(RuntimeError):

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-
 from act_fixtures import SyntheticACTDataset, tiny_config
+
 from controltac_il.datasets import Episode, write_episode
 from policies.act import ACTConfig, CheckpointError, load_checkpoint
 from policies.act.data import DataSpec, check_compatible, load_training_data
@@ -165,7 +165,7 @@ def _tree(root: Path) -> dict[str, bytes]:
 
 
 def test_out_holding_a_run_is_refused_without_resume_or_overwrite(tmp_path):
-    from controltac_il.checkpoint import OutputInUse
+    from controltac_il.outputs import OutputInUse
 
     ds, cfg = SyntheticACTDataset(16), tiny_config()
     train(cfg, TrainConfig(steps=2, batch_size=8, val_every=2), ds, ds, tmp_path / "run", stats=ds.stats(),
@@ -183,7 +183,7 @@ def test_out_holding_a_run_is_refused_without_resume_or_overwrite(tmp_path):
 
 
 def test_out_of_the_users_own_is_never_deleted_even_with_overwrite(tmp_path):
-    from controltac_il.checkpoint import OutputInUse
+    from controltac_il.outputs import OutputInUse
 
     ds, cfg = SyntheticACTDataset(16), tiny_config()
     out = tmp_path / "mine"

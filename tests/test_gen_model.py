@@ -7,26 +7,19 @@ import math
 import numpy as np
 import pytest
 import torch
-
 from diffusers.training_utils import EMAModel
 from safetensors.torch import save_file
 
-from controltac_il.checkpoint import CheckpointError, load_run_state, save_run_state
-from controltac_il.training import lr_schedule
+from controltac_il.checkpoint import CheckpointError
 from controltac_il.generator.autoencoder import TactileAutoencoder
-from controltac_il.generator.checkpoint import (
-    AE_FILE,
-    CARD_FILE,
-    CONFIG_FILE,
-    DIT_FILE,
-    checkpoint_hash,
-    load_checkpoint,
-    save_checkpoint,
-)
+from controltac_il.generator.checkpoint import (AE_FILE, CARD_FILE, CONFIG_FILE, DIT_FILE, checkpoint_hash,
+                                                load_checkpoint, save_checkpoint)
 from controltac_il.generator.config import AutoencoderConfig, DiffusionConfig, DiTConfig, GeneratorConfig
 from controltac_il.generator.dit import ForceDiT
 from controltac_il.generator.pipeline import ForceGenerator, residual_to_unit
 from controltac_il.generator.sampler import ddim_sample, make_scheduler, seeded_noise
+from controltac_il.run_state import load_run_state, save_run_state
+from controltac_il.training import lr_schedule
 
 SMALL_AE = AutoencoderConfig(image_size=(32, 40), channels=(8, 8, 8), stem_channels=4, latent_channels=4)
 SMALL_DIT = DiTConfig(in_channels=4, patch_size=1, hidden_size=16, depth=1, num_heads=2)

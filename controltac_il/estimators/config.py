@@ -5,17 +5,17 @@ from __future__ import annotations
 from dataclasses import field
 from typing import Annotated, Literal
 
-from pydantic import ConfigDict, Field
+from pydantic import Field
 from pydantic.dataclasses import dataclass
 
-from controltac_il.checkpoint import JsonConfig
+from controltac_il.config import STRICT, JsonConfig
 from controltac_il.tactile.residual import OFFSET
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 Std = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 
 
-@dataclass(config=ConfigDict(extra="forbid"))
+@dataclass(config=STRICT)
 class EstimatorConfig(JsonConfig):
     """Shape and normalisation of a :class:`~controltac_il.estimators.model.ForceCNN`; every field is
     validated at construction (ValueError naming it).

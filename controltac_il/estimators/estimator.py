@@ -8,8 +8,9 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from controltac_il.checkpoint import (CARD_FILE, CONFIG_FILE, HASH_KEY, CheckpointError, load_folder, load_into, one_line,
+from controltac_il.checkpoint import (CARD_FILE, CONFIG_FILE, HASH_KEY, CheckpointError, load_folder, load_into,
                                       read_json, save_folder)
+from controltac_il.config import one_line
 from controltac_il.estimators.config import EstimatorConfig
 from controltac_il.estimators.model import ForceCNN
 

@@ -1,7 +1,7 @@
 """Training loop for the force estimator on in-memory arrays, with resumable state.
 
 ``fit`` is what both the train CLI and the data-scaling benchmark call. Resume state is a run state of
-``controltac_il.checkpoint`` (model, AdamW moments, LR schedule, sampler RNG), never pickle.
+``controltac_il.run_state`` (model, AdamW moments, LR schedule, sampler RNG), never pickle.
 """
 
 from __future__ import annotations
@@ -13,20 +13,22 @@ from typing import Annotated, Callable
 import numpy as np
 import torch
 import torch.nn.functional as F
-from pydantic import ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
 from pydantic.dataclasses import dataclass
 from tqdm.auto import tqdm
 
-from controltac_il.checkpoint import load_run_state, read_json, save_run_state
-from controltac_il.training import StopOnInterrupt, TrainingInterrupted, check_loss, lr_schedule
+from controltac_il.checkpoint import read_json
+from controltac_il.config import STRICT
 from controltac_il.estimators.config import EstimatorConfig
 from controltac_il.estimators.estimator import ForceEstimator, preprocess, validate_residuals
 from controltac_il.io import atomic_dir
+from controltac_il.run_state import load_run_state, save_run_state
+from controltac_il.training import StopOnInterrupt, TrainingInterrupted, check_loss, lr_schedule
 
 STATE_DIR = "train_state"
 
 
-@dataclass(config=ConfigDict(extra="forbid"))
+@dataclass(config=STRICT)
 class TrainConfig:
     """Optimisation settings (pydantic: validated at construction, ValueError naming the field).
 

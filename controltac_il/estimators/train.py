@@ -19,12 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
-from controltac_il.checkpoint import OutputInUse, claim_output, one_line, own_checkpoint, own_json, own_safetensors
-from controltac_il.training import run_cli
+from controltac_il.config import one_line
 from controltac_il.estimators.config import EstimatorConfig
 from controltac_il.estimators.data import load_arrays, native_no_contact, split_by_pose
 from controltac_il.estimators.fit import TrainConfig, fit
+from controltac_il.outputs import claim_output, own_checkpoint, own_json, own_safetensors
 from controltac_il.tactile.residual import OFFSET
+from controltac_il.training import run_cli
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -21,8 +21,9 @@ from pathlib import Path
 
 import torch
 
-from controltac_il.checkpoint import (CARD_FILE, CONFIG_FILE, CheckpointError, load_folder, load_into, one_line, read_json,
+from controltac_il.checkpoint import (CARD_FILE, CONFIG_FILE, CheckpointError, load_folder, load_into, read_json,
                                       save_folder)
+from controltac_il.config import one_line
 from controltac_il.generator.adapter import PoseAdapter
 from controltac_il.generator.autoencoder import TactileAutoencoder
 from controltac_il.generator.config import GeneratorConfig, PoseAdapterConfig

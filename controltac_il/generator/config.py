@@ -9,10 +9,10 @@ from __future__ import annotations
 from dataclasses import field
 from typing import Annotated, Literal
 
-from pydantic import ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
 from pydantic.dataclasses import dataclass
 
-from controltac_il.checkpoint import JsonConfig
+from controltac_il.config import STRICT, JsonConfig
 from controltac_il.generator.forces import VALIDATED_RANGE
 
 # Validated force range of the paper, owned by ``controltac_il.generator.forces`` (these are its aliases).
@@ -23,7 +23,6 @@ DETAIL_GATE_SIGMA_PX = 2.0  # smoothing of the contact magnitudes that gate the 
 
 PosInt = Annotated[int, Field(gt=0)]
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
-STRICT = ConfigDict(extra="forbid")  # an unknown field (a config from another version) is an error
 
 
 @dataclass(config=STRICT)

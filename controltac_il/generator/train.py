@@ -37,7 +37,6 @@ import argparse
 import dataclasses
 import math
 import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -51,20 +50,21 @@ from safetensors.torch import load_file, save_file
 from torch.nn import functional as F
 from tqdm.auto import tqdm
 
-from controltac_il.checkpoint import (OutputInUse, claim_output, load_run_state, one_line, own_checkpoint, own_json,
-                                      own_safetensors, read_json, save_run_state)
-from controltac_il.training import StopOnInterrupt, TrainingInterrupted, agree, check_loss, lr_schedule, run_cli
+from controltac_il.checkpoint import read_json
+from controltac_il.config import one_line
 from controltac_il.generator.autoencoder import TactileAutoencoder, autoencoder_loss
 from controltac_il.generator.checkpoint import load_checkpoint, save_checkpoint
 from controltac_il.generator.config import AutoencoderConfig, DiffusionConfig, GeneratorConfig
 from controltac_il.generator.data import PairData, crop_batch, load_pair_data, sample_pairs
 from controltac_il.generator.dit import ForceDiT
-from controltac_il.generator.forces import VALIDATED_RANGE
 from controltac_il.generator.pipeline import CHECKPOINT_ROOT, SHIPPED, residual_to_unit
 from controltac_il.generator.sampler import make_scheduler
 from controltac_il.generator.train_config import (DIT_PRESETS, STAGES, TrainConfig, legacy_provenance, model_card,
                                                   provenance)
 from controltac_il.io import atomic_path, write_json
+from controltac_il.outputs import OutputInUse, claim_output, own_checkpoint, own_json, own_safetensors
+from controltac_il.run_state import load_run_state, save_run_state
+from controltac_il.training import StopOnInterrupt, TrainingInterrupted, agree, check_loss, lr_schedule, run_cli
 
 __all__ = ["TrainConfig", "main", "parse_args", "run"]
 

@@ -35,16 +35,18 @@ from diffusers.training_utils import EMAModel
 from pydantic import Field
 from pydantic.dataclasses import dataclass
 
-from controltac_il.checkpoint import (OutputInUse, claim_output, load_run_state, one_line, own_checkpoint, own_json,
-                                      own_safetensors, read_json, save_run_state)
+from controltac_il.checkpoint import read_json
+from controltac_il.config import one_line
 from controltac_il.generator.adapter import PoseAdapter, masks_to_model
 from controltac_il.generator.checkpoint import checkpoint_hash, load_adapter, load_checkpoint, save_adapter
-from controltac_il.generator.config import STRICT, PosInt, PoseAdapterConfig, Positive
+from controltac_il.generator.config import STRICT, PoseAdapterConfig, PosInt, Positive
 from controltac_il.generator.pipeline import SHIPPED_ADAPTERS, locate_checkpoint, residual_to_unit
 from controltac_il.generator.pose_data import render_scenes, sample_pose_pairs
 from controltac_il.generator.sampler import make_scheduler
 from controltac_il.generator.train import ema_weights, noised_batch, optimise, prediction_loss
 from controltac_il.io import write_json
+from controltac_il.outputs import OutputInUse, claim_output, own_checkpoint, own_json, own_safetensors
+from controltac_il.run_state import load_run_state, save_run_state
 from controltac_il.tactile.indenters import TRAIN_OBJECTS, procedural_objects
 from controltac_il.training import lr_schedule, run_cli
 

@@ -19,7 +19,9 @@ import numpy as np
 import torch
 
 from controltac_il.checkpoint import (CONFIG_FILE, CheckpointError, MissingCheckpointFile, load_folder, load_into,
-                                      load_run_state, one_line, read_json, save_folder, save_run_state)
+                                      read_json, save_folder)
+from controltac_il.config import one_line
+from controltac_il.run_state import load_run_state, save_run_state
 from policies.act.configuration_act import ACTConfig
 from policies.act.modeling_act import ACT
 

@@ -9,10 +9,10 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import AfterValidator, ConfigDict, Field, model_validator
+from pydantic import AfterValidator, Field, model_validator
 from pydantic.dataclasses import dataclass
 
-from controltac_il.checkpoint import JsonConfig
+from controltac_il.config import STRICT, JsonConfig
 
 BACKBONES = ("resnet18", "small_cnn")
 PosInt = Annotated[int, Field(gt=0)]
@@ -31,7 +31,7 @@ def _stream_names(names: tuple[str, ...]) -> tuple[str, ...]:
 Names = Annotated[tuple[str, ...], AfterValidator(_stream_names)]
 
 
-@dataclass(config=ConfigDict(extra="forbid"))
+@dataclass(config=STRICT)
 class ACTConfig(JsonConfig):
     """Architecture and loss of the ACT policy (CVAE with a transformer encoder/decoder).
 

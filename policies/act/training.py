@@ -29,15 +29,16 @@ from typing import Annotated
 import numpy as np
 import torch
 import torch.distributed as dist
+from pydantic import Field
+from pydantic.dataclasses import dataclass
 from torch.utils.data import DataLoader, Dataset
 from torch.utils.data.distributed import DistributedSampler
-from pydantic import ConfigDict, Field
-from pydantic.dataclasses import dataclass
 from tqdm import tqdm
 
-from controltac_il.checkpoint import claim_output, own_checkpoint, own_json
-from controltac_il.training import StopOnInterrupt, TrainingInterrupted, agree, check_loss, lr_schedule
+from controltac_il.config import STRICT
 from controltac_il.io import write_json
+from controltac_il.outputs import claim_output, own_checkpoint, own_json
+from controltac_il.training import StopOnInterrupt, TrainingInterrupted, agree, check_loss, lr_schedule
 from policies.act.checkpoint import (BACKGROUND_FILE, FORMAT, WEIGHTS_FILE, CheckpointError, load_checkpoint,
                                      load_optimizer_state, save_checkpoint)
 from policies.act.configuration_act import ACTConfig
@@ -45,7 +46,7 @@ from policies.act.modeling_act import ACT
 
 PosInt = Annotated[int, Field(gt=0)]
 
-@dataclass(config=ConfigDict(extra="forbid"))
+@dataclass(config=STRICT)
 class TrainConfig:
     """Optimisation schedule (pydantic: validated at construction, ValueError naming the field).
 

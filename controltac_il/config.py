@@ -1,0 +1,54 @@
+"""The one config idiom of the project and its errors.
+
+Every config is a pydantic dataclass with ``config=STRICT`` (fields validated at construction, unknown fields
+refused); model configs also inherit :class:`JsonConfig` (``to_dict`` / ``from_dict``, as ``config.json`` holds
+them). :func:`one_line` turns any error, a pydantic ValidationError included, into the one line a CLI prints,
+naming the fields (or their CLI flags).
+"""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+from pydantic import ConfigDict, TypeAdapter
+
+STRICT = ConfigDict(extra="forbid")
+
+
+class JsonConfig:
+    """Mixin of the project's pydantic-dataclass configs: ``to_dict`` (JSON types, as ``config.json`` holds
+    them) and ``from_dict`` (validated; unknown fields refused, so a config from another version is an error)."""
+
+    def to_dict(self) -> dict:
+        return TypeAdapter(type(self)).dump_python(self, mode="json")
+
+    @classmethod
+    def from_dict(cls, d: dict):
+        return TypeAdapter(cls).validate_python(d)
+
+
+def one_line(exc: BaseException, flags: Mapping[str, str] | None = None) -> str:
+    """One line for an error: a pydantic ValidationError becomes ``field: problem (got value)`` per error, the
+    field spelled as its CLI flag where ``flags`` maps it (``{"steps": "--steps"}``); other errors their message
+    with line breaks folded."""
+    errors = getattr(exc, "errors", None)
+    if callable(errors) and type(exc).__name__ == "ValidationError":
+        grouped: dict[tuple[str, str], tuple[list[str], str]] = {}
+        for err in exc.errors():
+            loc = [str(x) for x in err.get("loc", ())]
+            items = []
+            while len(loc) > 1 and loc[-1].isdigit():  # latent_scale.0 .. latent_scale.7 -> one entry
+                items.insert(0, loc.pop())
+            if loc and flags and loc[0] in flags:
+                name = ".".join([flags[loc[0]], *loc[1:]])
+            else:
+                name = ".".join(loc) or exc.title
+            msg = err.get("msg", "invalid").removeprefix("Value error, ")
+            plain = err.get("loc") and err.get("type") != "missing" and not isinstance(err.get("input"), dict)
+            shown = f" (got {err.get('input')!r})" if plain else ""
+            entry = grouped.setdefault((name, msg), ([], shown))
+            entry[0].extend(items)
+        parts = [f"{name}{'[' + ', '.join(items) + ']' if items else ''}: {msg}{shown}"
+                 for (name, msg), (items, shown) in grouped.items()]
+        return "; ".join(parts)
+    return " ".join(str(exc).split()) or type(exc).__name__
