@@ -9,6 +9,10 @@
 The checkpoint is checked against the set-up (cameras, tactile sensors, action size) before anything
 moves; a corrupted or mismatched checkpoint is refused with a clear error. In simulation the success
 rate is printed with its Wilson 95 % interval.
+
+Exit status: 0 done; 1 the robot side stopped the run: a device did not answer or failed (one line naming the
+setup file and the device), a safety limit or a late policy (the arm was stopped); 2 bad options, setup file
+or checkpoint (one line naming the flag, the field or the file); 130 Ctrl-C (the arm was stopped).
 """
 
 from __future__ import annotations
@@ -18,7 +22,9 @@ import json
 import sys
 from pathlib import Path
 
-from envs.config import EVAL_SEED, SCENES
+from controltac_il.app import EVAL_SEED, SCENES
+
+PROG = "deploy_policy.py"
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -52,44 +58,60 @@ def check_args(args: argparse.Namespace) -> None:
         low, high = args.grip_force
         if not (0 < low <= high < float("inf")):
             raise ValueError(f"--grip-force LOW HIGH must be finite newtons with 0 < LOW <= HIGH, got {low} {high}")
+    if args.robot != "sim" and args.config is None:
+        raise ValueError("--config setup.yaml is required with --robot xarm|ur")
+    if args.out is not None and (args.out.is_dir() or not args.out.parent.is_dir()):
+        where = "is a folder" if args.out.is_dir() else f"its folder {args.out.parent} does not exist or is not a folder"
+        raise ValueError(f"--out {args.out}: cannot write the result there ({where}); expected a file path")
 
 
 def main(argv=None) -> int:
+    """0 done; 1 the robot side stopped the run (HardwareError: a device that does not answer or fails, a safety
+    violation, a late policy; the arm was stopped); 2 bad options, setup file or checkpoint; 130 Ctrl-C. Every
+    failure is one line on stderr."""
     args = parse_args(argv)
     try:
         check_args(args)
     except ValueError as exc:
-        print(f"deploy_policy.py: error: {exc}", file=sys.stderr)
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
+    from controltac_il.app.deploy import HardwareError
+    from controltac_il.config import one_line
+
+    try:
+        run(args)
+    except (ValueError, OSError) as exc:  # bad checkpoint (CheckpointError), set-up, option or output: one line
+        print(f"{PROG}: error: {one_line(exc)}", file=sys.stderr)
+        return 2
+    except HardwareError as exc:  # a device did not answer or failed, a safety limit, a late policy: arm stopped
+        print(f"{PROG}: robot error: {one_line(exc)}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted (Ctrl-C); the control loop stopped the devices", file=sys.stderr)
+        return 130
+    return 0
+
+
+def run(args: argparse.Namespace) -> dict:
+    """Evaluate in the scene or run on the robot; print (and with --out write) the result."""
     import torch
 
     from controltac_il.app.deploy import deploy_on_robot, evaluate_in_sim
-    from controltac_il.config import one_line
     from controltac_il.io import write_json
 
     torch.set_num_threads(max(1, args.threads))
-    try:
-        if args.robot == "sim":
-            result = evaluate_in_sim(args.checkpoint, episodes=args.episodes, seed=args.seed,
-                                     grip_force_range=args.grip_force, scene=args.scene)
-            lo, hi = result["wilson95"]
-            print(f"success {result['successes']}/{result['episodes']} = {result['success_rate']:.0%}  "
-                  f"Wilson 95 % interval [{lo:.0%}, {hi:.0%}]  (grip force {result['grip_force_range_n']} N)")
-        else:
-            if args.config is None:
-                print("deploy_policy.py: error: --config setup.yaml is required with --robot xarm|ur", file=sys.stderr)
-                return 2
-            result = deploy_on_robot(args.robot, args.checkpoint, args.config, max_steps=args.max_steps)
-            print(json.dumps(result, indent=2))
-    except (ValueError, OSError) as exc:  # bad checkpoint (CheckpointError), set-up or option: one line
-        print(f"deploy_policy.py: error: {one_line(exc)}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("deploy_policy.py: interrupted (Ctrl-C); the control loop stopped the devices", file=sys.stderr)
-        return 130
+    if args.robot == "sim":
+        result = evaluate_in_sim(args.checkpoint, episodes=args.episodes, seed=args.seed,
+                                 grip_force_range=args.grip_force, scene=args.scene)
+        lo, hi = result["wilson95"]
+        print(f"success {result['successes']}/{result['episodes']} = {result['success_rate']:.0%}  "
+              f"Wilson 95 % interval [{lo:.0%}, {hi:.0%}]  (grip force {result['grip_force_range_n']} N)")
+    else:
+        result = deploy_on_robot(args.robot, args.checkpoint, args.config, max_steps=args.max_steps)
+        print(json.dumps(result, indent=2))
     if args.out is not None:
         write_json(args.out, result)
-    return 0
+    return result
 
 
 if __name__ == "__main__":

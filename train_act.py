@@ -50,15 +50,15 @@ def parse_args(argv=None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
-# TrainConfig field -> the flag that sets it (validation errors name the flag)
+# ACTTrainConfig field -> the flag that sets it (validation errors name the flag)
 FLAGS = {"steps": "--steps", "batch_size": "--batch-size", "val_every": "--val-every", "save_every": "--checkpoint-every",
          "num_workers": "--workers", "seed": "--seed"}
 
 
 def check_args(args: argparse.Namespace):
-    """The run's TrainConfig; ValueError (one line naming the flag and the expected form) for a bad option."""
+    """The run's ACTTrainConfig; ValueError (one line naming the flag and the expected form) for a bad option."""
     from controltac_il.config import one_line
-    from policies.act.training import TrainConfig
+    from controltac_il.app import ACTTrainConfig
 
     if args.resume and args.overwrite:
         raise ValueError("--resume and --overwrite exclude each other: continue the run in --out, or replace it")
@@ -73,7 +73,7 @@ def check_args(args: argparse.Namespace):
     if args.dataset is not None and not args.dataset.is_dir():
         raise ValueError(f"--dataset {args.dataset}: episode folder not found")
     try:
-        return TrainConfig(steps=args.steps, batch_size=args.batch_size, val_every=args.val_every,
+        return ACTTrainConfig(steps=args.steps, batch_size=args.batch_size, val_every=args.val_every,
                            save_every=args.checkpoint_every, num_workers=args.workers, seed=args.seed)
     except ValueError as exc:  # pydantic: one line naming the flag
         raise ValueError(one_line(exc, FLAGS)) from None

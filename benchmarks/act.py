@@ -21,7 +21,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from benchmarks.common import base_parser, median_time, print_table, run_meta, write_results
+from benchmarks.common import base_parser, median_time, print_table, write_results
+from controltac_il.app.experiment import policy_meta
 from policies.act.training import augment_change
 
 VARIANTS = {"real": 0, "fa1": 1, "fa2": 2, "fa4": 4}
@@ -83,7 +84,7 @@ def training_throughput(demos: Path, quick: bool) -> dict:
 
 
 def _trained(run: Path, steps: int) -> bool:
-    return run_meta(run).get("step", 0) >= steps
+    return policy_meta(run).get("step", 0) >= steps
 
 
 def run_variant(variant: str, *, demos: str, runs: str, steps: int, batch_size: int, eval_episodes: int,
@@ -91,16 +92,17 @@ def run_variant(variant: str, *, demos: str, runs: str, steps: int, batch_size: 
     """Train one variant (or reuse it when trained to ``steps``) and evaluate it at the demos' grip-force
     range and at ``shifted_grip``; one torch thread, so variants can run side by side."""
     torch.set_num_threads(1)
-    from controltac_il.app import ForceAugmentStage, evaluate_in_sim
-    from envs.config import EVAL_SEED
-    from policies.act.training import TrainConfig, train_on_folder
+    from controltac_il.app import evaluate_in_sim
+    from controltac_il.augment import ForceAugmentStage
+    from controltac_il.app.experiment import EVAL_SEED
+    from policies.act.training import ACTTrainConfig, train_on_folder
 
     run, copies = Path(runs) / variant, VARIANTS[variant]
     row: dict = {}
     t = time.perf_counter()
     if not _trained(run, steps):
         augment = ForceAugmentStage(copies, generator, seed=0, max_copies=max_copies) if copies else None
-        summary = train_on_folder(demos, run, preset="cpu", augment=augment, train_config=TrainConfig(
+        summary = train_on_folder(demos, run, preset="cpu", augment=augment, train_config=ACTTrainConfig(
             steps=steps, batch_size=batch_size, val_every=min(500, steps), seed=0),
             resume=(run / "last").is_dir(), progress=False)
         row.update(train_frames=summary["train_frames"], samples_per_s=summary["samples_per_s"])
@@ -121,7 +123,7 @@ def run_variant(variant: str, *, demos: str, runs: str, steps: int, batch_size: 
 def stale_runs(runs: Path, variants: list[str], generator: str | None) -> list[str]:
     """Why each policy under ``runs`` trained with another generator or augmentation cannot be reused
     as this run's (empty: all reusable or not trained yet)."""
-    from controltac_il.app import ForceAugmentStage
+    from controltac_il.augment import ForceAugmentStage
 
     stale = []
     for v in variants:
@@ -129,7 +131,7 @@ def stale_runs(runs: Path, variants: list[str], generator: str | None) -> list[s
             now = ForceAugmentStage(VARIANTS[v], generator, seed=0).description if VARIANTS[v] else None
         except OSError:
             continue  # no generator: the variant is skipped later
-        change = augment_change(run_meta(runs / v).get("augment", now), now)
+        change = augment_change(policy_meta(runs / v).get("augment", now), now)
         if change:
             stale.append(f"{runs / v} was trained with different augmentation ({change})")
     return stale
@@ -162,7 +164,8 @@ def main(argv=None) -> dict:
     if unknown:
         p.error(f"--variants: unknown {unknown}; choose from {list(VARIANTS)}")
 
-    from controltac_il.app import ForceAugmentStage, default_demos
+    from controltac_il.app import default_demos
+    from controltac_il.augment import ForceAugmentStage
 
     if not args.skip_experiment:
         stale = stale_runs(args.runs, variants, args.generator)
@@ -198,13 +201,10 @@ def main(argv=None) -> dict:
             from controltac_il.generator import ForceGenerator
 
             ForceGenerator.from_pretrained(args.generator)
-            # build the ForceAugment cache once, before any worker reads it
-            from policies.act.data import load_training_data
+            # build the ForceAugment cache once, before any worker reads it (the split train_on_folder makes below)
+            from controltac_il.app.experiment import training_split
 
-            from policies.act import ACTConfig
-
-            chunk = ACTConfig.from_preset("cpu").chunk_size  # the split train_on_folder makes below
-            ForceAugmentStage(max_copies, args.generator, seed=0)(load_training_data(demos, chunk, 0.1, 0).train)
+            ForceAugmentStage(max_copies, args.generator, seed=0)(training_split(demos))
         except (OSError, ValueError, ImportError) as exc:
             generator_problem = f"{type(exc).__name__}: {exc}"
             print(f"ForceAugment variants skipped, no generator: {generator_problem}")

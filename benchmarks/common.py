@@ -116,11 +116,3 @@ def write_results(out: Path | None, results: dict) -> dict:
         write_json(out, doc)
         print(f"\nwrote {out}")
     return doc
-
-
-def run_meta(run: Path) -> dict:
-    """The meta of a training run's ``run/last`` checkpoint ({} when there is no readable one yet)."""
-    try:
-        return json.loads((Path(run) / "last" / "config.json").read_text())["meta"]
-    except (OSError, KeyError, json.JSONDecodeError):
-        return {}

@@ -19,7 +19,6 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import numpy as np
 
 from benchmarks.common import base_parser, print_table, write_results
 from benchmarks.generator import dataset_pairs, quality

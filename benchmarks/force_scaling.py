@@ -37,7 +37,7 @@ import numpy as np
 import torch
 
 from benchmarks.common import base_parser, print_table, write_results
-from controltac_il.estimators import EstimatorConfig, ForceEstimator, TrainConfig, fit
+from controltac_il.estimators import EstimatorConfig, ForceEstimator, EstimatorTrainConfig, fit
 from controltac_il.estimators.data import estimate_noise_std, load_arrays, no_contact_residuals
 from controltac_il.io import atomic_path, write_json
 from controltac_il.metrics import force_mae
@@ -205,7 +205,7 @@ def train_row(name: str, kind: str, x: np.ndarray, f: np.ndarray, test, empty: n
     est = None
     for seed in setup.seeds:
         t0 = time.perf_counter()
-        est, _ = fit(xs, fs, cfg, TrainConfig(steps=setup.steps, batch_size=setup.batch_size, lr=setup.lr,
+        est, _ = fit(xs, fs, cfg, EstimatorTrainConfig(steps=setup.steps, batch_size=setup.batch_size, lr=setup.lr,
                                               seed=seed, eval_every=0, checkpoint_every=0),
                      progress=progress)
         secs.append(time.perf_counter() - t0)

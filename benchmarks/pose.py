@@ -31,7 +31,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import torch
 
 from benchmarks.common import base_parser, median_time, print_table, write_results
 from benchmarks.generator import error_map, quality

@@ -23,10 +23,7 @@ import json
 import time
 from pathlib import Path
 
-import numpy as np
-
-from controltac_il.tactile.residual import OFFSET, to_residual
-from envs.config import EVAL_SEED
+from controltac_il.app.experiment import EVAL_SEED
 
 BUDGETS = (20, 35, 50)
 # variant -> (augmentation kind, copies); image_aug's copies come from --image-aug-copies
@@ -81,7 +78,7 @@ def make_stage(variant: str, copies: int, generator: str | None, max_force_copie
     ForceAugment fields that differ from the paper's (``offset_range``, ``out_of_range``)."""
     kind, _ = VARIANTS[variant]
     if kind == "force":
-        from controltac_il.app import ForceAugmentStage
+        from controltac_il.augment import ForceAugmentStage
 
         return ForceAugmentStage(copies, generator, seed=0, max_copies=max_force_copies, **(force_settings or {}))
     if kind == "image":
@@ -115,25 +112,18 @@ def run_unit(variant: str, demos: int, *, demos_dir: str, runs: str, steps: int,
     import torch
 
     torch.set_num_threads(1)
-    from benchmarks.common import run_meta
-    from controltac_il.io import write_json
     from controltac_il.app import evaluate_in_sim
+    from controltac_il.app.experiment import policy_meta, train_policy
+    from controltac_il.io import write_json
     from controltac_il.metrics import wilson_interval
-    from policies.act.training import TrainConfig, train_on_folder
 
     runs = Path(runs)
     run = runs / "policies" / f"{variant}-n{demos}"
-    t = time.perf_counter()
-    meta = run_meta(run)
-    trained_now = meta.get("step", 0) < steps
-    if trained_now:
-        stage = make_stage(variant, copies, generator, max_force_copies, force_settings)
-        train_on_folder(demos_dir, run, preset="cpu", augment=stage, tactile_sensors=() if variant == "vision_only"
-                        else None, train_config=TrainConfig(steps=steps, batch_size=batch_size,
-                                                            val_every=min(500, steps), seed=train_seed),
-                        split_seed=0, resume=(run / "last").is_dir(), progress=False)
-        meta = run_meta(run)
-    train_s = time.perf_counter() - t
+    trained_now = policy_meta(run).get("step", 0) < steps
+    train_s = train_policy(demos_dir, run, steps=steps, batch_size=batch_size, seed=train_seed,
+                           augment=make_stage(variant, copies, generator, max_force_copies, force_settings),
+                           vision_only=variant == "vision_only")
+    meta = policy_meta(run)
     best = json.loads((run / "best" / "config.json").read_text())["meta"]
     cells = []
     for setting in todo_settings:
@@ -199,96 +189,6 @@ def plot(cells: list[dict], path: Path, budgets: list[int], image_aug_copies: in
     with atomic_path(path, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
-
-
-def _stripe_column(residual: np.ndarray) -> float:
-    """Column centroid (px) of the contact in a tactile residual uint8 (H, W, 3)."""
-    cols = np.abs(residual.astype(np.float32) - OFFSET).sum(axis=2).mean(axis=0)
-    cols = np.clip(cols - np.median(cols), 0, None)
-    return float((cols * np.arange(cols.size)).sum() / cols.sum())
-
-
-def vision_check(seeds=range(20), offsets_mm=(-8.0, -5.0, 5.0, 8.0)) -> dict:
-    """Can the cameras see the in-hand offset? For each seeded episode, at the start and at the moment
-    of insertion (peg 35 mm lower, in the hole's mouth), render every camera with the held peg moved to
-    each offset and nothing else changed: ``max_pixel_diff`` 0 means byte-identical images, so no
-    model can read the offset from them. The left pad's contact column (px) shows what touch sees."""
-    from envs.config import PegInHoleConfig
-    from envs.peg_in_hole import PegInHoleEnv  # before mujoco: it selects the headless GL backend
-
-    cfg = PegInHoleConfig.touch_critical(tactile_noise=False)
-    diffs = {c: 0 for c in cfg.cameras}
-    columns = []
-    with PegInHoleEnv(cfg) as env:
-        for seed in seeds:
-            env.reset(seed=seed)
-            for moment in ("start", "insertion"):
-                if moment == "insertion":
-                    a = env.command
-                    a[:2] = env.hole_xy - np.array([env.in_hand_offset_m, 0.0])
-                    a[2] -= 0.035
-                    for _ in range(8):
-                        env.step(a)
-                images, cols = {c: [] for c in cfg.cameras}, []
-                for off in offsets_mm:
-                    env.set_peg_offset_in_hand(off / 1000.0)
-                    for c in cfg.cameras:
-                        images[c].append(env.render_camera(c).astype(np.int16))
-                    residual = to_residual(env.render_tactile("left"), env.tactile_background("left"))
-                    cols.append(_stripe_column(residual))
-                for c in cfg.cameras:
-                    diffs[c] = max(diffs[c], max(int(np.abs(images[c][0] - im).max()) for im in images[c][1:]))
-                columns.append(cols)
-    cols = np.asarray(columns)
-    return {"episodes": len(list(seeds)), "offsets_mm": list(offsets_mm), "moments": ["start", "insertion"],
-            "max_pixel_diff": diffs, "tactile_column_px_mean": cols.mean(axis=0).round(1).tolist(),
-            "tactile_column_px_min_step": float(np.abs(np.diff(cols, axis=1)).min().round(1)),
-            "tactile_width_px": cfg.tactile_size[1]}
-
-
-def _contact_stats(residuals: np.ndarray, threshold: float = 6.0) -> tuple[float, float]:
-    """(contact area as a fraction of the pad, mean |residual - 127| summed over RGB) of uint8 (N, H, W, 3)."""
-    mag = np.abs(residuals.astype(np.float32) - OFFSET).sum(axis=-1)
-    return float((mag > threshold).mean()), float(mag.mean())
-
-
-def grip_response(bands: dict, seeds=range(12), generator: str | None = None) -> dict:
-    """Does ForceAugment reach the shifted grip bands, and how well? For each seeded episode the left
-    pad's first frame (peg held, nothing else touching) is rendered with the grip at the centre of each
-    band: same in-hand pose, only the force changes. The generator turns the nominal frame into each
-    band's force (ΔF from the measured pad forces, DDIM default steps); its MSE to the true frame is
-    reported beside a reference copy's, with the contact area and intensity of true and generated frames."""
-    from controltac_il.generator import ForceGenerator
-    from controltac_il.tactile.residual import to_residual
-    from envs.config import PegInHoleConfig
-    from envs.peg_in_hole import PegInHoleEnv
-
-    frames, forces = {}, {}
-    for name, (lo, hi) in bands.items():
-        grip = (lo + hi) / 2
-        cfg = PegInHoleConfig.touch_critical(cameras=(), grip_force_range_n=(grip, grip))
-        with PegInHoleEnv(cfg) as env:
-            out = [env.reset(seed=s)[0] for s in seeds]
-            background = env.tactile_background("left")
-        frames[name] = np.stack([to_residual(o["tactile/left"], background) for o in out])
-        forces[name] = np.stack([o["force/left"] for o in out]).astype(np.float32)
-    gen = ForceGenerator.from_pretrained(generator)
-    ref, f_ref = frames["nominal"], forces["nominal"]
-    rows = {}
-    for name in bands:
-        res = gen.generate_at(ref, f_ref, forces[name], reference_out_of_range="skip")
-        fake = res.residuals
-        true = frames[name].astype(np.float32)
-        area, mag = _contact_stats(frames[name])
-        g_area, g_mag = _contact_stats(fake)
-        rows[name] = {"grip_n": (bands[name][0] + bands[name][1]) / 2,
-                      "pad_fz_n": float(forces[name][:, 2].mean()),
-                      "true_area": area, "true_intensity": mag, "generated_area": g_area, "generated_intensity": g_mag,
-                      "generated_mse": float(((fake.astype(np.float32) - true) ** 2).mean()),
-                      "copy_mse": float(((ref.astype(np.float32) - true) ** 2).mean()),
-                      "clamped": int(res.decision.clamped.sum()),
-                      "reference_outside": int(res.decision.reference_outside.sum())}
-    return {"episodes": len(list(seeds)), "sensor": "left", "bands": rows}
 
 
 def _band(p, flag: str, value) -> tuple[float, float]:
@@ -361,9 +261,9 @@ def parse_args(argv=None):
     for name in ("steps", "batch_size", "eval_episodes", "jobs", "image_aug_copies"):
         if getattr(args, name) < 1:
             p.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
-    from envs.config import PegInHoleConfig
+    from controltac_il.app.experiment import touch_scene
 
-    nominal = args.nominal_grip or PegInHoleConfig.touch_critical().grip_force_range_n
+    nominal = args.nominal_grip or touch_scene().grip_force_range_n
     args.bands = {"nominal": _band(p, "--nominal-grip", nominal),
                   "shifted_low": _band(p, "--shifted-low", args.shifted_low),
                   "shifted_high": _band(p, "--shifted-high", args.shifted_high)}
@@ -378,11 +278,10 @@ def main(argv=None) -> dict:
     p, args = parse_args(argv)
     import torch
 
-    from benchmarks.common import print_table, run_meta, write_results
+    from benchmarks.common import print_table, write_results
     from controltac_il.app import default_demos
-    from envs.config import PegInHoleConfig
-    from policies.act import ACTConfig
-    from policies.act.training import augment_change
+    from controltac_il.app.experiment import augment_change, policy_meta, touch_scene, training_split
+    from controltac_il.app.touch_probes import grip_response, vision_check
 
     torch.set_num_threads(2 if args.jobs == 1 else 1)
     t_start = time.perf_counter()
@@ -395,7 +294,7 @@ def main(argv=None) -> dict:
 
         generator_hash = checkpoint_hash(locate_checkpoint(args.generator))
     # cells of a grid with other training or evaluation settings are never mixed into this one
-    sig_fields = {"scene": "touch_critical", "scene_config": repr(PegInHoleConfig.touch_critical()),
+    sig_fields = {"scene": "touch_critical", "scene_config": repr(touch_scene()),
                   "steps": args.steps, "batch_size": args.batch_size, "eval_episodes": args.eval_episodes,
                   "eval_seed": args.eval_seed, "bands": args.bands, "generator_hash": generator_hash,
                   "collect": args.collect, "image_aug_copies": args.image_aug_copies, "checkpoint": "last",
@@ -435,19 +334,16 @@ def main(argv=None) -> dict:
     results["collect_s"] = round(time.perf_counter() - t, 1)
     dirs = {n: budget_demos(all_demos, args.runs, n) for n in args.budgets}
     if max_force:  # build each budget's ForceAugment cache once, before any worker reads it
-        from policies.act.data import load_training_data
-
-        chunk = ACTConfig.from_preset("cpu").chunk_size
         for n in args.budgets:
             t = time.perf_counter()
             make_stage("fa1", 1, args.generator, max_force, args.force_settings)(
-                load_training_data(dirs[n], chunk, 0.1, 0).train)
+                training_split(dirs[n]))
             results.setdefault("cache_s", {})[str(n)] = round(time.perf_counter() - t, 1)
     for v in args.variant_list:  # a policy trained on other augmentation is never reused as this grid's
         stage = make_stage(v, copies[v], args.generator, max_force, args.force_settings)
         for n in args.budgets:
             run = args.runs / "policies" / f"{v}-n{n}"
-            meta = run_meta(run)
+            meta = policy_meta(run)
             change = augment_change(meta.get("augment"), stage.description if stage else None)
             if meta and change:
                 p.error(f"--runs: {run} was trained with different augmentation ({change}); "

@@ -67,7 +67,7 @@ COPIES = {"fa2": 2, "fa4": 4, "image_aug": 2}
 
 def protocol_of(args) -> dict:
     """Everything that fixes the experiment (hashed into ``signature``; a resumed grid must match it)."""
-    from envs.config import PegInHoleConfig
+    from controltac_il.app.experiment import touch_scene
 
     return {"demo_seeds": list(args.demo_seeds), "validation_seeds": list(args.validation_seeds),
             "test_seeds": list(args.test_seeds), "train_seeds": list(args.seeds), "demos": args.demos,
@@ -80,8 +80,8 @@ def protocol_of(args) -> dict:
             "shift_rule": f"largest real drop below and above the nominal band, each if >= {MIN_DROP:.0%}; else the largest",
             "force_augment": "shipped generator, offsets U[-3, 10] N, jitter {0, +-0.5, +-1} N, clamp to Fz 1-10 N",
             "statistics": "two-level bootstrap (seeds, episodes); CMH per seed, Holm; sign-flip p over seeds",
-            "scene": "PegInHoleConfig.touch_critical()", "scene_config": repr(PegInHoleConfig.touch_critical()),
-            "nominal_grip_n": list(PegInHoleConfig.touch_critical().grip_force_range_n)}
+            "scene": "PegInHoleConfig.touch_critical()", "scene_config": repr(touch_scene()),
+            "nominal_grip_n": list(touch_scene().grip_force_range_n)}
 
 
 def signature_of(protocol: dict) -> str:
@@ -100,19 +100,12 @@ def _evaluate(checkpoint: Path, seeds: tuple[int, int], grip: tuple[float, float
 def _train(variant: str, seed: int, steps: int, demos_dir: str, run: Path, snapshot_every: int, batch_size: int,
            max_force_copies: int) -> float:
     """Train (or finish training) one policy; returns the seconds spent now (0 when already trained)."""
-    from benchmarks.common import run_meta
     from benchmarks.touch_il import make_stage
-    from policies.act.training import TrainConfig, train_on_folder
+    from controltac_il.app.experiment import train_policy
 
-    if run_meta(run).get("step", 0) >= steps:
-        return 0.0
-    t = time.perf_counter()
     stage = make_stage(variant, COPIES.get(variant, 0), None, max_force_copies) if variant in COPIES else None
-    train_on_folder(demos_dir, run, preset="cpu", augment=stage, tactile_sensors=() if variant == "vision_only" else None,
-                    train_config=TrainConfig(steps=steps, batch_size=batch_size, val_every=min(500, steps),
-                                             snapshot_every=snapshot_every, seed=seed),
-                    split_seed=0, resume=(run / "last").is_dir(), progress=False)
-    return round(time.perf_counter() - t, 1)
+    return train_policy(demos_dir, run, steps=steps, batch_size=batch_size, seed=seed, augment=stage,
+                        vision_only=variant == "vision_only", snapshot_every=snapshot_every)
 
 
 def run_unit(unit: dict, ctx: dict) -> dict:
@@ -121,7 +114,7 @@ def run_unit(unit: dict, ctx: dict) -> dict:
 
     torch.set_num_threads(1)
     from controltac_il.io import write_json
-    from policies.act.training import snapshot_path
+    from controltac_il.app.experiment import snapshot_path
 
     runs = Path(ctx["runs"])
     v, seed, kind = unit["variant"], unit["seed"], unit["kind"]
@@ -333,23 +326,17 @@ def _run(units: list[dict], ctx: dict, jobs: int, done: dict, save) -> None:
 
 
 def _clamped(demos_dir: Path, copies: dict) -> dict:
-    """Build the shared ForceAugment cache once (before any worker reads it); per fa variant the fraction of its
-    copies' tactile frames whose target was clamped into Fz 1-10 N, and the counts."""
+    """Build the shared ForceAugment cache once (before any worker reads it); per fa variant what its copies hold
+    (``ForceAugmentStage``'s summary) and the fraction of its contact frames whose target was clamped to Fz 1-10 N."""
     from benchmarks.touch_il import make_stage
-    from policies.act import ACTConfig
-    from policies.act.data import load_training_data
+    from controltac_il.app.experiment import training_split
 
-    top = max(copies.values())
-    aug = make_stage("fa4", top, None, top)(load_training_data(demos_dir, ACTConfig.from_preset("cpu").chunk_size,
-                                                               0.1, 0).train)
-    records = aug.provenance()
+    train = training_split(demos_dir)
     out = {}
-    for v, k in copies.items():
-        recs = [r for r in records if 1 <= r["copy"] <= k]
-        counts = {s: sum(r["status"] == s for r in recs) for s in ("no_contact", "regenerated", "clamped", "skipped")}
-        contact = len(recs) - counts["no_contact"]
-        out[v] = {"tactile_frames": len(recs), **counts,
-                  "clamped_fraction_of_contact": round(counts["clamped"] / contact, 4) if contact else 0.0}
+    for v, k in sorted(copies.items(), key=lambda x: -x[1]):  # the largest builds the cache the others read
+        summary = make_stage(v, k, None, max(copies.values()))(train).summary
+        contact = summary["tactile_frames"] - summary["no_contact"]
+        out[v] = {**summary, "clamped_fraction_of_contact": round(summary["clamped"] / contact, 4) if contact else 0.0}
     return out
 
 
@@ -361,7 +348,7 @@ def main(argv=None) -> dict:
     from benchmarks.touch_il import budget_demos
     from controltac_il.app import default_demos
     from controltac_il.io import write_json
-    from envs.config import PegInHoleConfig
+    from controltac_il.app.experiment import touch_scene
 
     torch.set_num_threads(2 if args.jobs == 1 else 1)
     t_start = time.perf_counter()
@@ -377,7 +364,7 @@ def main(argv=None) -> dict:
     write_json(args.runs / "protocol.json", {"signature": signature, **protocol})
     protocol.update(signature=signature, fixed_at_commit=_protocol_commit())
     demos_dir = budget_demos(all_demos, args.runs, args.demos)
-    nominal = PegInHoleConfig.touch_critical().grip_force_range_n
+    nominal = touch_scene().grip_force_range_n
     ctx = {"runs": str(args.runs), "demos_dir": str(demos_dir), "snapshots": args.snapshots, "batch_size": args.batch_size,
            "validation_seeds": args.validation_seeds, "test_seeds": args.test_seeds, "nominal": nominal,
            "shift_candidates": args.shift_candidates, "signature": signature, "max_force_copies": 0}

@@ -16,6 +16,8 @@ ran); two such lists compared are paired by position (the same training seed, th
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 

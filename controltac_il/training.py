@@ -1,25 +1,30 @@
-"""What every training run of the project shares: the learning-rate schedule, the NaN / inf guard, Ctrl-C
-handling, and the exit codes of the training CLIs.
+"""What every training run of the project shares: the one optimisation loop, the learning-rate schedule, the
+distributed set-up, the NaN / inf guard, Ctrl-C handling, and the exit codes of the training CLIs.
 
-A NaN / inf loss stops the run (:func:`check_loss` raises :class:`NonFiniteLoss`) with the last saved state
-kept; the first Ctrl-C inside :class:`StopOnInterrupt` lets the loop finish and save its step, then it raises
-:class:`TrainingInterrupted`; :func:`agree` makes every rank of a torch.distributed run stop together.
-:func:`run_cli` maps these to one line on stderr and the CLIs' exit codes (0 done, 1 NaN / inf loss, 2 bad
-options or data, 130 Ctrl-C).
+:func:`optimise` is the loop of the generator (autoencoder, denoiser), the pose adapter, the force estimator and
+ACT: each brings its loss (``batch_loss(step)``), what happens after an update (EMA, validation, snapshots) and
+how it saves. A NaN / inf loss stops the run (:func:`check_loss` raises :class:`NonFiniteLoss`) before any
+update from it, the last saved state kept; the first Ctrl-C inside :class:`StopOnInterrupt` lets the loop
+finish and save its step, then it raises :class:`TrainingInterrupted`; :func:`agree` makes every rank of a
+torch.distributed run (:func:`setup_distributed`) stop together. :func:`run_cli` maps these to one line on
+stderr and the CLIs' exit codes (0 done, 1 NaN / inf loss, 2 bad options or data, 130 Ctrl-C).
 """
 
 from __future__ import annotations
 
 import math
+import os
 import signal
 import sys
 import warnings
 from typing import Callable
 
 import torch
+import torch.distributed as dist
 from torch.optim.lr_scheduler import CosineAnnealingLR, LinearLR, LRScheduler, SequentialLR
+from tqdm.auto import tqdm
 
-from controltac_il.config import one_line
+from controltac_il.cli import guard
 
 
 class NonFiniteLoss(RuntimeError):
@@ -113,23 +118,80 @@ def check_loss(loss: float, step: int, kept: str) -> None:
                             "(lower the learning rate or check the data for NaN / outliers, then --resume)")
 
 
+def setup_distributed() -> tuple[int, int]:
+    """(rank, world size); initialises the process group when launched by torchrun with WORLD_SIZE > 1 (nccl on
+    CUDA, gloo on CPU)."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world > 1 and not dist.is_initialized():
+        dist.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
+    return (dist.get_rank(), dist.get_world_size()) if world > 1 and dist.is_initialized() else (0, 1)
+
+
+def barrier(world: int) -> None:
+    if world > 1:
+        dist.barrier()
+
+
+def wrap(model: torch.nn.Module, world: int) -> torch.nn.Module:
+    """``model`` under DistributedDataParallel when ``world`` > 1 (gradients averaged across ranks)."""
+    return torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
+
+
+def optimise(step: int, total: int, batch_loss: Callable[[int], torch.Tensor | dict], optimizer: torch.optim.Optimizer,
+             scheduler, params, save: Callable[[int, float], None] | None, every: int, desc: str, *, rank: int = 0,
+             grad_clip: float = 1.0, after_step: Callable[[int, object], None] | None = None,
+             state: str | None = None, progress: bool = True) -> int:
+    """Optimiser updates ``step`` .. ``total``; returns the step reached (``total``).
+
+    batch_loss(step): the loss of one batch (a scalar tensor, or a dict with ``"loss"`` and other outputs).
+    Each update: backward, NaN / inf check (every rank agrees), gradients clipped to ``grad_clip`` (0 = none),
+    optimizer and ``scheduler`` step, then ``after_step(step, outputs)`` (EMA, logging, validation).
+    save(step, smoothed loss): on rank 0 every ``every`` steps (0 = only at the end), at the end, and at a Ctrl-C;
+    None = nothing saved. state: the saved state's name for messages (None = nothing has been saved)."""
+    bar = tqdm(total=total, initial=step, desc=desc, unit="step", disable=rank != 0 or not progress, dynamic_ncols=True)
+    loss_ema, saved = None, step if state is not None and step > 0 else None
+    with StopOnInterrupt() as stop:
+        try:
+            while step < total:
+                out = batch_loss(step)
+                loss = out["loss"] if isinstance(out, dict) else out
+                optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                value = loss.item()
+                bad, stop_now = agree(not math.isfinite(value), stop.requested)
+                if bad:
+                    check_loss(value if not math.isfinite(value) else math.nan, step + 1,
+                               f"{state} holds step {saved}, the last good state" if saved is not None
+                               else "no state had been saved yet")
+                if grad_clip:
+                    torch.nn.utils.clip_grad_norm_(params, grad_clip)
+                optimizer.step()
+                scheduler.step()
+                step += 1
+                if after_step is not None:
+                    after_step(step, out)
+                loss_ema = value if loss_ema is None else 0.98 * loss_ema + 0.02 * value
+                bar.update()
+                bar.set_postfix(loss=f"{loss_ema:.4f}")
+                if save is not None and rank == 0 and ((every and step % every == 0) or step == total or stop_now):
+                    save(step, loss_ema)
+                    saved = step
+                if stop_now and step < total:
+                    where = f"{state} holds step {step} of {total}; continue with --resume" if save is not None \
+                        else "nothing was saved"
+                    raise TrainingInterrupted(f"interrupted (Ctrl-C) at step {step}: {where}")
+        finally:
+            bar.close()
+    return step
+
+
 def run_cli(prog: str, job: Callable[[], object]) -> int:
     """Run a training CLI's ``job`` and return its exit code, each failure one line on stderr: 0 done;
     1 stopped on a NaN / inf loss; 2 bad options, data, output folder or checkpoint (ValueError / OSError, of
     which CheckpointError and OutputInUse are kinds); 130 Ctrl-C (inside a step: after saving it)."""
     try:
-        job()
-    except TrainingInterrupted as exc:
-        print(f"{prog}: {exc}", file=sys.stderr)
-        return 130
-    except KeyboardInterrupt:
-        print(f"{prog}: interrupted (Ctrl-C) outside a training step; files already written are complete "
-              "(atomic writes)", file=sys.stderr)
-        return 130
+        return guard(prog, lambda: job() and 0, "interrupted (Ctrl-C) outside a training step; files already "
+                                                "written are complete (atomic writes)")
     except NonFiniteLoss as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 1
-    except (ValueError, OSError) as exc:
-        print(f"{prog}: error: {one_line(exc)}", file=sys.stderr)
-        return 2
-    return 0

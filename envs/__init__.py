@@ -2,6 +2,8 @@
 
 Modules (one job each)::
 
+    geometry.py     the scene's dimensions, one owner each: the MJCF's (peg, table, timestep, home pose)
+                    read from its text, and the receptacle's (wall and floor thickness)
     config.py       PegInHoleConfig: what is rendered, sizes, randomisation ranges, workspace
     scene.py        builds the MJCF (assets/peg_in_hole.xml including assets/tactile_gripper.xml) plus
                     the receptacle sized from the config

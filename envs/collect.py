@@ -192,4 +192,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from controltac_il.cli import guard
+
+    sys.exit(guard("python -m envs.collect", main, "interrupted (Ctrl-C): the episode files written so far are complete"))

@@ -1,10 +1,25 @@
-"""Configuration of the peg-in-hole scene (one dataclass, validated on construction)."""
+"""Configuration of the peg-in-hole scene: ``PegInHoleConfig``, the project's config idiom (a pydantic
+dataclass with ``config=STRICT``, ``controltac_il.config``), validated on construction.
+
+Every invalid field raises one ValueError of one line naming the field(s) and the expected form
+(``controltac_il.config.one_line`` of pydantic's errors, see ``one_line_errors``). The field types below
+keep numbers honest: booleans must be ``bool`` (not "no" or 1), ints ``int`` (not True or 2.5), numbers
+real (not "10") and finite; numbers become floats and sequences tuples.
+"""
 
 from __future__ import annotations
 
+import functools
 import math
 import numbers
-from dataclasses import dataclass, field
+from dataclasses import field
+from typing import Annotated, Literal
+
+from pydantic import BeforeValidator, Field, ValidationError, ValidationInfo, field_validator, model_validator
+from pydantic.dataclasses import dataclass
+
+from controltac_il.config import STRICT, one_line
+from envs.geometry import HOME_TCP, PEG_RADIUS_M, PHYSICS_HZ, TABLE_HALF_SIZE_M, WALL_THICKNESS_M
 
 CAMERAS = ("third_view", "wrist")
 SENSORS = ("left", "right")
@@ -12,76 +27,158 @@ OPTICS = ("polynomial", "three_light")
 CAMERA_LAYOUTS = ("side", "occluding")
 EVAL_SEED = 100_000  # first scene seed of every evaluation; demos use seeds below it
 
-
-# Geometry of the scene the checks below need (the MJCF and envs.scene / envs.peg_in_hole own these
-# values; tests/test_env_scene.py checks that they agree). Importing them would pull in MuJoCo.
-PHYSICS_HZ = 500.0  # the MJCF's 2 ms timestep
-HOME_TCP = (0.0, 0.0, 0.15, 0.0)  # the "home" keyframe: where the hand starts (x, y, z m, yaw rad)
-PEG_RADIUS_M = 0.0125
-PEG_HALF_LENGTH_M = 0.04
-WALL_THICKNESS_M = 0.012  # the receptacle's wall around the hole; its floor plate is a square of
-BASE_THICKNESS_M = 0.008  # half-size hole radius + wall, this thick (the hole's floor)
-TABLE_HALF_SIZE_M = 0.3
+# Plausibility bounds of the checks (the scene's dimensions are envs.geometry's)
 WORKSPACE_Z_M = (0.0, 0.5)  # plausible TCP heights: on the table up to half a metre above it
 AXES = ("x", "y", "z", "yaw")
+XY_RANGE_M = 0.15  # peg and hole positions lie within this of the table's centre
+# hole_diameter_mm, hole_depth_mm and grasp_depth_mm in mm: the hole clears the peg by 0.25 mm radially.
+# 10 <= grasp depth and hole depth <= 60 keep a held peg's bottom (home z + grasp depth - peg length
+# >= 80 mm) above the highest rim (base + 60 mm): a peg in hand never starts inserted
+BOUNDS_MM = {"hole_diameter_mm": (2000.0 * PEG_RADIUS_M + 0.5, 60.0, f" (the peg is Ø{2000.0 * PEG_RADIUS_M:g} mm)"),
+             "hole_depth_mm": (10.0, 60.0, ""),
+             "grasp_depth_mm": (10.0, 30.0, " (the gel is 15.2 mm tall)")}
 
+
+def one_line_errors(cls):
+    """Class decorator for a pydantic dataclass: its constructor (``dataclasses.replace`` included) raises
+    a ValueError of one line naming the field(s) (``one_line``) instead of the multi-line ValidationError."""
+    validate = cls.__init__
+
+    @functools.wraps(validate)
+    def __init__(self, *args, **kwargs):
+        try:
+            validate(self, *args, **kwargs)
+        except ValidationError as exc:
+            raise ValueError(one_line(exc)) from None
+
+    cls.__init__ = __init__
+    return cls
+
+
+# -- field types. Each check returns the normalised value or raises a message without the field's name
+# (``one_line`` puts the name and the value given in front and behind).
 
 def _is_number(value) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, bool)
 
 
-def _check_number(name: str, value, unit: str) -> float:
-    """A finite real number (not a bool or a string); returns it as a float."""
-    if not _is_number(value):
-        raise ValueError(f"{name} must be a number ({unit}), got {value!r} ({type(value).__name__})")
-    if not math.isfinite(float(value)):
-        raise ValueError(f"{name} must be a finite number ({unit}), got {value!r}")
-    return float(value)
-
-
-def _check_int(name: str, value, low: int, high: int) -> int:
-    if not isinstance(value, numbers.Integral) or isinstance(value, bool) or not low <= value <= high:
-        raise ValueError(f"{name} must be an int in [{low}, {high}], got {value!r}")
-    return int(value)
-
-
-def _check_bool(name: str, value) -> bool:
+def _flag(value) -> bool:
     if not isinstance(value, bool):
-        raise ValueError(f"{name} must be True or False, got {value!r} ({type(value).__name__})")
+        raise ValueError(f"must be True or False, not {type(value).__name__}")
     return value
 
 
-def _numbers(name: str, value, n: int, form: str) -> tuple[float, ...]:
-    """``n`` finite real numbers as floats, or a one-line ValueError naming ``name`` and ``form``."""
+def _int(value) -> int:
+    if not isinstance(value, numbers.Integral) or isinstance(value, bool):
+        raise ValueError(f"must be an int, not {type(value).__name__}")
+    return int(value)
+
+
+def finite(unit: str) -> BeforeValidator:
+    """A finite real number in ``unit`` (not a bool or a string), as a float."""
+
+    def check(value) -> float:
+        if not _is_number(value):
+            raise ValueError(f"must be a number ({unit}), not {type(value).__name__}")
+        if not math.isfinite(float(value)):
+            raise ValueError(f"must be a finite number ({unit})")
+        return float(value)
+
+    return BeforeValidator(check)
+
+
+def _numbers(value, n: int, form: str) -> tuple[float, ...]:
+    """``n`` finite real numbers as floats, or a ValueError naming ``form``."""
     try:
         items = tuple(value)
     except TypeError:
         items = ()
     if len(items) != n or not all(_is_number(v) for v in items):
-        raise ValueError(f"{name} must be {form}, {n} numbers, got {value!r}")
+        raise ValueError(f"must be {form}, {n} numbers")
     if not all(math.isfinite(float(v)) for v in items):
-        raise ValueError(f"{name} must be finite numbers {form}, got {value!r}")
+        raise ValueError(f"must be finite: {form}")
     return tuple(float(v) for v in items)
 
 
-def _check_range(name: str, value, low: float = -math.inf, high: float = math.inf) -> tuple[float, float]:
-    lo, hi = _numbers(name, value, 2, "a (low, high) pair")
+def _range(value, low: float = -math.inf, high: float = math.inf) -> tuple[float, float]:
+    lo, hi = _numbers(value, 2, "a (low, high) pair")
     if not low <= lo <= hi <= high:
-        raise ValueError(f"{name} must satisfy {low} <= low <= high <= {high}, got {value!r}")
+        raise ValueError(f"must satisfy {low:g} <= low <= high <= {high:g}")
     return lo, hi
 
 
-def _check_size(name: str, value) -> tuple[int, int]:
+def bounded_range(low: float = -math.inf, high: float = math.inf):
+    """A (low, high) pair of finite floats with ``low_bound <= low <= high <= high_bound``."""
+    return Annotated[tuple[float, float], BeforeValidator(functools.partial(_range, low=low, high=high))]
+
+
+def _xy_range(value) -> tuple[tuple[float, float], tuple[float, float]]:
+    try:
+        pair = tuple(value)
+    except TypeError:
+        pair = ()
+    if len(pair) != 2:
+        raise ValueError("must be ((x_low, x_high), (y_low, y_high)) in m")
+    out = []
+    for axis, r in zip("xy", pair):
+        try:
+            out.append(_range(r, -XY_RANGE_M, XY_RANGE_M))
+        except ValueError as exc:
+            raise ValueError(f"its {axis} range {exc}") from None
+    return tuple(out)
+
+
+def _size(value) -> tuple[int, int]:
     try:
         items = tuple(value)
     except TypeError:
         items = ()
     if len(items) != 2 or not all(isinstance(v, numbers.Integral) and not isinstance(v, bool) for v in items):
-        raise ValueError(f"{name} must be a (height, width) pair of ints, got {value!r}")
+        raise ValueError("must be a (height, width) pair of ints")
     h, w = (int(v) for v in items)
-    if h < 8 or w < 8 or h > 2048 or w > 2048:
-        raise ValueError(f"{name} must be (height, width) in pixels, each in [8, 2048], got {value!r}")
+    if not (8 <= h <= 2048 and 8 <= w <= 2048):
+        raise ValueError("must be (height, width) in pixels, each in [8, 2048]")
     return h, w
+
+
+def _cameras(value) -> tuple[str, ...]:
+    form = f"must be a tuple of camera names (a subset of {CAMERAS})"
+    if isinstance(value, str):
+        raise ValueError(form)
+    try:
+        names = tuple(value)
+    except TypeError:
+        raise ValueError(form) from None
+    unknown = [c for c in names if c not in CAMERAS]
+    if unknown:
+        raise ValueError(f"unknown camera {unknown[0]!r}, expected a subset of {CAMERAS}")
+    if len(set(names)) != len(names):
+        raise ValueError("must not repeat a name")
+    return names
+
+
+def _pose_bound(value) -> tuple[float, float, float, float]:
+    """A workspace bound (x, y, z, yaw): finite, x and y over the table, plausible height and yaw."""
+    pose = _numbers(value, 4, "(x, y, z in m, yaw in rad)")
+    limits = {"x": (-TABLE_HALF_SIZE_M, TABLE_HALF_SIZE_M, "m, over the table"),
+              "y": (-TABLE_HALF_SIZE_M, TABLE_HALF_SIZE_M, "m, over the table"),
+              "z": (*WORKSPACE_Z_M, "m above the table"), "yaw": (-math.pi, math.pi, "rad")}
+    for axis, v in zip(AXES, pose):
+        lo, hi, what = limits[axis]
+        if not lo <= v <= hi:
+            raise ValueError(f"{axis} must be in [{lo:g}, {hi:g}] ({what}), got {v!r}")
+    return pose
+
+
+Flag = Annotated[bool, BeforeValidator(_flag)]
+Int = Annotated[int, BeforeValidator(_int)]
+Mm = Annotated[float, finite("mm")]
+Pixels = Annotated[tuple[int, int], BeforeValidator(_size)]
+XYRange = Annotated[tuple[tuple[float, float], tuple[float, float]], BeforeValidator(_xy_range)]
+PoseBound = Annotated[tuple[float, float, float, float], BeforeValidator(_pose_bound)]
+GripRange = bounded_range(0.5, 15.0)  # above ~15 N the finger servo would no longer saturate on the peg
+YawRange = bounded_range(-math.pi, math.pi)
+OffsetRange = bounded_range(0.0, 9.0)
 
 
 def _rect_gap(a: tuple[tuple[float, float], tuple[float, float]],
@@ -91,7 +188,8 @@ def _rect_gap(a: tuple[tuple[float, float], tuple[float, float]],
     return math.hypot(*gaps)
 
 
-@dataclass
+@one_line_errors
+@dataclass(config=STRICT)
 class PegInHoleConfig:
     """Peg-in-hole scene settings. Lengths in the names' units; angles in rad; forces in N.
 
@@ -108,18 +206,18 @@ class PegInHoleConfig:
         0.0016 / 0.003 mm of one ray per pixel at stride 2 / 3 / 4 (same contact mask), at 1/3, 1/8,
         1/18 of the cost.
     hole_diameter_mm: diameter of the receptacle's hole (30 = the paper; 26 = a tight variant);
-        the peg is Ø25 mm.
+        the peg is Ø25 mm (the MJCF's geom "peg").
     hole_depth_mm: depth of the hole from rim to floor (paper: 40).
     hole_chamfer_mm: width of the 45° lead-in chamfer at the rim (mm; 0 = sharp rim). A peg whose
         bottom lands within clearance + chamfer of the axis is guided in, as on a machined fixture.
-    control_hz: rate of ``step`` calls in Hz, in [1, 500]; physics runs at 500 Hz (timestep 2 ms in the
-        MJCF), so 500 / control_hz substeps per step (must divide evenly).
+    control_hz: rate of ``step`` calls in Hz, in [1, 500]; physics runs at 500 Hz (``PHYSICS_HZ``: the
+        MJCF's 2 ms timestep), so 500 / control_hz substeps per step (must divide evenly).
     max_steps: an episode is truncated after this many control steps.
     grip_force_range_n: grip force (per finger, N) drawn uniformly per episode: the finger servos
         are force-limited at this value, so it sets how hard the gels are pressed.
     peg_xy_range_m: ((x_low, x_high), (y_low, y_high)) where the peg stands at reset: the peg must
-        clear the receptacle (hole radius + 12 mm wall, a square footprint) of every hole position by its
-        12.5 mm radius, or an episode could start inserted (refused).
+        clear the receptacle (hole radius + ``WALL_THICKNESS_M``, a square footprint) of every hole position
+        by its radius (``PEG_RADIUS_M``), or an episode could start inserted (refused).
     peg_yaw_range_rad: (low, high) of the peg's yaw at reset (the stripe shows it).
     hole_xy_range_m: ((x_low, x_high), (y_low, y_high)) of the hole's centre at reset.
         Defaults (peg +-10 x +-20 mm, yaw +-45°; hole +-5 mm, like a fixture set by hand) are what
@@ -129,8 +227,8 @@ class PegInHoleConfig:
     workspace_low / workspace_high: bounds of the end-effector target (x, y, z, yaw): the hand
         actuators' ``ctrlrange`` in the model and so the env's ``action_space``; targets outside are
         clipped and flagged in ``info["clipped"]``. Finite, low < high, x and y over the table (+-0.3 m),
-        z in [0, 0.5] m, yaw in [-pi, pi]; it must contain the hand's start (the home keyframe
-        (0, 0, 0.15 m, 0), or ``peg_xy_range_m`` with ``peg_in_hand``) and the peg and hole ranges.
+        z in [0, 0.5] m, yaw in [-pi, pi]; it must contain the hand's start (the home keyframe,
+        ``envs.geometry.HOME_TCP``, or ``peg_xy_range_m`` with ``peg_in_hand``) and the peg and hole ranges.
     success_depth_mm: the peg counts as inserted when its bottom is this far below the rim and
         its axis is inside the hole.
     tactile_noise: add the sensor model's pixel noise (seeded per episode and step).
@@ -148,34 +246,35 @@ class PegInHoleConfig:
     ring_segments: number of wall boxes around the hole (the hole is a regular polygon of this many
         sides inscribed around the circle; 16 keeps the corners within 0.3 mm of it).
 
-    Booleans must be ``bool`` (not "no" or 1), ints ``int``, every number finite; each invalid field
-    raises a one-line ValueError naming it and the expected form.
+    A pydantic dataclass (``config=STRICT``: unknown fields refused). Booleans must be ``bool`` (not "no"
+    or 1), ints ``int``, every number finite; each invalid field raises a one-line ValueError naming it
+    and the expected form. ``repr`` is stable (``benchmarks.touch_il`` hashes it).
     """
 
-    cameras: tuple[str, ...] = CAMERAS
-    camera_size: tuple[int, int] = (96, 128)
-    tactile: bool = True
-    tactile_size: tuple[int, int] = (120, 160)
-    tactile_optics: str = "three_light"
-    ray_stride: int = 3
-    hole_diameter_mm: float = 30.0
-    hole_depth_mm: float = 40.0
-    hole_chamfer_mm: float = 3.0
-    control_hz: float = 10.0
-    max_steps: int = 120
-    grip_force_range_n: tuple[float, float] = (3.0, 9.0)
-    peg_xy_range_m: tuple[tuple[float, float], tuple[float, float]] = ((-0.07, -0.05), (-0.02, 0.02))
-    peg_yaw_range_rad: tuple[float, float] = (-math.pi / 4, math.pi / 4)
-    hole_xy_range_m: tuple[tuple[float, float], tuple[float, float]] = ((0.065, 0.075), (-0.005, 0.005))
-    workspace_low: tuple[float, float, float, float] = (-0.16, -0.14, 0.012, -math.pi / 2)
-    workspace_high: tuple[float, float, float, float] = (0.16, 0.14, 0.25, math.pi / 2)
-    success_depth_mm: float = 30.0
-    tactile_noise: bool = True
-    peg_in_hand: bool = False
-    in_hand_offset_mm: tuple[float, float] = (0.0, 0.0)
-    grasp_depth_mm: float = 18.0
-    camera_layout: str = "side"
-    ring_segments: int = field(default=16, repr=False)
+    cameras: Annotated[tuple[str, ...], BeforeValidator(_cameras)] = CAMERAS
+    camera_size: Pixels = (96, 128)
+    tactile: Flag = True
+    tactile_size: Pixels = (120, 160)
+    tactile_optics: Literal[OPTICS] = "three_light"
+    ray_stride: Annotated[Int, Field(ge=1, le=8)] = 3
+    hole_diameter_mm: Mm = 30.0
+    hole_depth_mm: Mm = 40.0
+    hole_chamfer_mm: Mm = 3.0
+    control_hz: Annotated[float, finite("Hz")] = 10.0
+    max_steps: Annotated[Int, Field(ge=1, le=1_000_000)] = 120
+    grip_force_range_n: GripRange = (3.0, 9.0)
+    peg_xy_range_m: XYRange = ((-0.07, -0.05), (-0.02, 0.02))
+    peg_yaw_range_rad: YawRange = (-math.pi / 4, math.pi / 4)
+    hole_xy_range_m: XYRange = ((0.065, 0.075), (-0.005, 0.005))
+    workspace_low: PoseBound = (-0.16, -0.14, 0.012, -math.pi / 2)
+    workspace_high: PoseBound = (0.16, 0.14, 0.25, math.pi / 2)
+    success_depth_mm: Mm = 30.0
+    tactile_noise: Flag = True
+    peg_in_hand: Flag = False
+    in_hand_offset_mm: OffsetRange = (0.0, 0.0)
+    grasp_depth_mm: Mm = 18.0
+    camera_layout: Literal[CAMERA_LAYOUTS] = "side"
+    ring_segments: Annotated[Int, Field(ge=8, le=64)] = field(default=16, repr=False)
 
     @classmethod
     def touch_critical(cls, **overrides) -> "PegInHoleConfig":
@@ -198,94 +297,62 @@ class PegInHoleConfig:
         settings.update(overrides)
         return cls(**settings)
 
-    def __post_init__(self):
-        """Validate every field (types first, then ranges, then the scene's geometry); each error is a
-        one-line ValueError naming the field(s) and the expected form."""
-        for name in ("tactile", "tactile_noise", "peg_in_hand"):
-            _check_bool(name, getattr(self, name))
-        if isinstance(self.cameras, str):
-            raise ValueError(f"cameras must be a tuple of camera names (a subset of {CAMERAS}), got {self.cameras!r}")
-        try:
-            self.cameras = tuple(self.cameras)
-        except TypeError:
-            raise ValueError(f"cameras must be a tuple of camera names (a subset of {CAMERAS}), "
-                             f"got {self.cameras!r}") from None
-        for cam in self.cameras:
-            if cam not in CAMERAS:
-                raise ValueError(f"cameras: unknown camera {cam!r}, expected a subset of {CAMERAS}")
-        if len(set(self.cameras)) != len(self.cameras):
-            raise ValueError(f"cameras must not repeat a name, got {self.cameras}")
-        self.camera_size = _check_size("camera_size", self.camera_size)
-        self.tactile_size = _check_size("tactile_size", self.tactile_size)
-        if abs(self.tactile_size[0] / self.tactile_size[1] - 0.75) > 0.015:
-            raise ValueError(
-                f"tactile_size must keep the GelSight Mini pad's 3:4 (height:width) aspect, e.g. (120, 160), "
-                f"got {self.tactile_size}")
-        if self.tactile_optics not in OPTICS:
-            raise ValueError(f"tactile_optics must be one of {OPTICS}, got {self.tactile_optics!r}")
-        self.ray_stride = _check_int("ray_stride", self.ray_stride, 1, 8)
-        self.max_steps = _check_int("max_steps", self.max_steps, 1, 1_000_000)
-        self.ring_segments = _check_int("ring_segments", self.ring_segments, 8, 64)
-        units = {"hole_diameter_mm": "mm", "hole_depth_mm": "mm", "hole_chamfer_mm": "mm", "control_hz": "Hz",
-                 "success_depth_mm": "mm", "grasp_depth_mm": "mm"}
-        num = {name: _check_number(name, getattr(self, name), unit) for name, unit in units.items()}
-        if not 25.5 <= num["hole_diameter_mm"] <= 60.0:
-            raise ValueError(
-                f"hole_diameter_mm must be in [25.5, 60] (the peg is 25 mm), got {self.hole_diameter_mm!r}")
-        if not 10.0 <= num["hole_depth_mm"] <= 60.0:
-            raise ValueError(f"hole_depth_mm must be in [10, 60], got {self.hole_depth_mm!r}")
-        if not 0.0 <= num["hole_chamfer_mm"] <= min(8.0, num["hole_depth_mm"] / 2):
-            raise ValueError(f"hole_chamfer_mm must be in [0, min(8, hole_depth_mm / 2)], got {self.hole_chamfer_mm!r}")
-        hz = num["control_hz"]
+    # -- checks that a field's type alone does not make (pydantic runs them in field order, so a check
+    # may read the fields above it from ``info.data``; a field missing there had its own error)
+    @field_validator("tactile_size")
+    @classmethod
+    def _gel_aspect(cls, size: tuple[int, int]) -> tuple[int, int]:
+        if abs(size[0] / size[1] - 0.75) > 0.015:
+            raise ValueError("must keep the GelSight Mini pad's 3:4 (height:width) aspect, e.g. (120, 160)")
+        return size
+
+    @field_validator(*BOUNDS_MM)
+    @classmethod
+    def _bounded_mm(cls, value: float, info: ValidationInfo) -> float:
+        low, high, why = BOUNDS_MM[info.field_name]
+        if not low <= value <= high:
+            raise ValueError(f"must be in [{low:g}, {high:g}]{why}")
+        return value
+
+    @field_validator("hole_chamfer_mm", "success_depth_mm")
+    @classmethod
+    def _within_hole_depth(cls, value: float, info: ValidationInfo) -> float:
+        depth = info.data.get("hole_depth_mm")
+        if depth is None:
+            return value
+        if info.field_name == "hole_chamfer_mm" and not 0.0 <= value <= min(8.0, depth / 2):
+            raise ValueError("must be in [0, min(8, hole_depth_mm / 2)]")
+        if info.field_name == "success_depth_mm" and not 1.0 <= value <= depth:
+            raise ValueError(f"must be in [1, hole_depth_mm={depth:g}]")
+        return value
+
+    @field_validator("control_hz")
+    @classmethod
+    def _divides_physics(cls, hz: float) -> float:
         substeps = PHYSICS_HZ / hz if hz > 0 else 0.0
         if not 1.0 <= hz <= PHYSICS_HZ or abs(substeps - round(substeps)) > 1e-9:
-            raise ValueError(f"control_hz must be a rate in Hz in [1, {PHYSICS_HZ:g}] that divides the "
-                             f"{PHYSICS_HZ:g} Hz physics rate evenly (e.g. 10, 25, 50), got {self.control_hz!r}")
-        # grip above ~15 N would no longer saturate the finger servo on the Ø25 mm peg
-        self.grip_force_range_n = _check_range("grip_force_range_n", self.grip_force_range_n, 0.5, 15.0)
-        for name in ("peg_xy_range_m", "hole_xy_range_m"):
-            try:
-                pair = tuple(getattr(self, name))
-            except TypeError:
-                pair = ()
-            if len(pair) != 2:
-                raise ValueError(f"{name} must be ((x_low, x_high), (y_low, y_high)) in m, got {getattr(self, name)!r}")
-            setattr(self, name, tuple(_check_range(f"{name}[{i}]", r, -0.15, 0.15) for i, r in enumerate(pair)))
-        self.peg_yaw_range_rad = _check_range("peg_yaw_range_rad", self.peg_yaw_range_rad, -math.pi, math.pi)
-        self.workspace_low, self.workspace_high = self._check_workspace()
-        self.in_hand_offset_mm = _check_range("in_hand_offset_mm", self.in_hand_offset_mm, 0.0, 9.0)
-        if any(self.in_hand_offset_mm) and not self.peg_in_hand:
-            raise ValueError("in_hand_offset_mm needs peg_in_hand=True (otherwise the grasp sets the offset)")
-        # 10 <= grasp depth and hole depth <= 60 keep a held peg's bottom (home z + grasp depth - 80 mm
-        # >= 80 mm) above the highest rim (8 + 60 mm): a peg in hand never starts inserted
-        if not 10.0 <= num["grasp_depth_mm"] <= 30.0:
-            raise ValueError(f"grasp_depth_mm must be in [10, 30] (the gel is 15.2 mm tall), got {self.grasp_depth_mm!r}")
-        if self.camera_layout not in CAMERA_LAYOUTS:
-            raise ValueError(f"camera_layout must be one of {CAMERA_LAYOUTS}, got {self.camera_layout!r}")
-        if not 1.0 <= num["success_depth_mm"] <= num["hole_depth_mm"]:
-            raise ValueError(
-                f"success_depth_mm must be in [1, hole_depth_mm={self.hole_depth_mm}], got {self.success_depth_mm!r}")
-        self._check_start()
+            raise ValueError(f"must be a rate in Hz in [1, {PHYSICS_HZ:g}] that divides the {PHYSICS_HZ:g} Hz "
+                             f"physics rate evenly (e.g. 10, 25, 50)")
+        return hz
 
-    def _check_workspace(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
-        """workspace_low / workspace_high: finite, low < high, over the table, plausible heights and yaw."""
-        form = "(x, y, z in m, yaw in rad)"
-        bounds = {name: _numbers(name, getattr(self, name), 4, form) for name in ("workspace_low", "workspace_high")}
-        low, high = bounds["workspace_low"], bounds["workspace_high"]
-        if not all(a < b for a, b in zip(low, high)):
-            raise ValueError(f"workspace_low / workspace_high must satisfy low < high on every axis {form}, "
-                             f"got {low} / {high}")
-        limits = {"x": (-TABLE_HALF_SIZE_M, TABLE_HALF_SIZE_M, "m, over the table"),
-                  "y": (-TABLE_HALF_SIZE_M, TABLE_HALF_SIZE_M, "m, over the table"),
-                  "z": (*WORKSPACE_Z_M, "m above the table"), "yaw": (-math.pi, math.pi, "rad")}
-        for name, values in bounds.items():
-            for axis, v in zip(AXES, values):
-                lo, hi, what = limits[axis]
-                if not lo <= v <= hi:
-                    raise ValueError(f"{name} {axis} must be in [{lo:g}, {hi:g}] ({what}), got {v!r} in {values}")
-        return low, high
+    @field_validator("workspace_high")
+    @classmethod
+    def _above_low(cls, high: tuple[float, ...], info: ValidationInfo) -> tuple[float, ...]:
+        low = info.data.get("workspace_low")
+        if low is not None and not all(a < b for a, b in zip(low, high)):
+            raise ValueError(f"workspace_low / workspace_high must satisfy low < high on every axis "
+                             f"(x, y, z in m, yaw in rad), got workspace_low {low}")
+        return high
 
-    def _check_start(self) -> None:
+    @field_validator("in_hand_offset_mm")
+    @classmethod
+    def _needs_peg_in_hand(cls, offset: tuple[float, float], info: ValidationInfo) -> tuple[float, float]:
+        if any(offset) and info.data.get("peg_in_hand") is False:
+            raise ValueError("needs peg_in_hand=True (otherwise the grasp sets the offset)")
+        return offset
+
+    @model_validator(mode="after")
+    def _check_start(self) -> "PegInHoleConfig":
         """Refuse starts that break an episode at reset (``envs.peg_in_hole`` success test: the peg's
         bottom centre inside the hole's radius, ``success_depth_mm`` below the rim).
 
@@ -321,6 +388,7 @@ class PegInHoleConfig:
                     f"start on or in the receptacle (an episode could succeed at reset): every peg position must "
                     f"be {PEG_RADIUS_M * 1000:g} mm (its radius) clear of the {2 * half * 1000:g} mm square "
                     f"receptacle around every hole position; move the ranges apart")
+        return self
 
     @property
     def substeps(self) -> int:

@@ -13,17 +13,27 @@ grasp depth below the peg's top) and per-step Gaussian target noise, smaller nea
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
+from pydantic import Field
+from pydantic.dataclasses import dataclass
 
-from envs.peg_in_hole import PEG_HALF_LENGTH_M, PegInHoleEnv
-from envs.scene import BASE_THICKNESS_M, rim_height_m
+from controltac_il.config import STRICT
+from envs.config import bounded_range, finite, one_line_errors
+from envs.geometry import BASE_THICKNESS_M, rim_height_m
+from envs.peg_in_hole import PegInHoleEnv
+
+NonNegativeMm = Annotated[float, finite("mm"), Field(ge=0)]
+GraspOffsetRange = bounded_range(-8.0, 8.0)  # mm along the gel from the peg axis
+GraspDepthRange = bounded_range(8.0, 40.0)  # mm below the peg's top
 
 
-@dataclass
+@one_line_errors
+@dataclass(config=STRICT)
 class ExpertConfig:
-    """Scripted expert settings.
+    """Scripted expert settings (a pydantic dataclass like ``PegInHoleConfig``: an invalid field raises a
+    one-line ValueError naming it).
 
     free_noise_mm: std of the per-step target noise (x, y, z) while moving in free space (mm).
     fine_noise_mm: std of the per-step target noise while aligning and inserting (mm); must stay
@@ -36,23 +46,13 @@ class ExpertConfig:
     floor_gap_mm: the insertion stops with the peg's bottom this far above the hole's floor (mm).
     """
 
-    free_noise_mm: float = 1.0
-    fine_noise_mm: float = 0.25
-    yaw_noise_rad: float = 0.01
-    grasp_offset_mm: tuple[float, float] = (-3.0, 3.0)
-    grasp_depth_mm: tuple[float, float] = (14.0, 22.0)
-    clearance_mm: float = 25.0
-    floor_gap_mm: float = 3.0
-
-    def __post_init__(self):
-        for name in ("free_noise_mm", "fine_noise_mm", "yaw_noise_rad", "clearance_mm", "floor_gap_mm"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                raise ValueError(f"ExpertConfig.{name} must be a finite number >= 0, got {v!r}")
-        for name, lo_min, hi_max in (("grasp_offset_mm", -8.0, 8.0), ("grasp_depth_mm", 8.0, 40.0)):
-            lo, hi = getattr(self, name)
-            if not lo_min <= lo <= hi <= hi_max:
-                raise ValueError(f"ExpertConfig.{name} must be (low, high) within [{lo_min}, {hi_max}], got {(lo, hi)}")
+    free_noise_mm: NonNegativeMm = 1.0
+    fine_noise_mm: NonNegativeMm = 0.25
+    yaw_noise_rad: Annotated[float, finite("rad"), Field(ge=0)] = 0.01
+    grasp_offset_mm: GraspOffsetRange = (-3.0, 3.0)
+    grasp_depth_mm: GraspDepthRange = (14.0, 22.0)
+    clearance_mm: NonNegativeMm = 25.0
+    floor_gap_mm: NonNegativeMm = 3.0
 
 
 # (phase, control steps)
@@ -127,7 +127,7 @@ class ScriptedExpert:
         if name in ("approach", "descend"):
             yaw = wrap_half_turn(math.atan2(rot[1, 0], rot[0, 0]))
             xy = pos[:2] + self._offset * np.array([math.cos(yaw), math.sin(yaw)])
-            top = pos[2] + PEG_HALF_LENGTH_M
+            top = pos[2] + env.peg_half_length_m
             z = top - self._depth + (0.05 if name == "approach" else 0.0)
             return np.array([*xy, z, yaw, 0.0])
         if name == "close":

@@ -32,12 +32,11 @@ os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 import mujoco  # noqa: E402
 
 from envs.config import SENSORS, PegInHoleConfig  # noqa: E402
-from envs.scene import HAND_ACTUATORS, build_model, rim_height_m  # noqa: E402
+from envs.geometry import rim_height_m  # noqa: E402
+from envs.scene import HAND_ACTUATORS, build_model  # noqa: E402
 from envs.tactile_rig import PadRays, group_mask, pad_force  # noqa: E402
 from hardware.interfaces import ACTION_DIM, GRIPPER, POSE_DIM  # noqa: E402
 
-PEG_RADIUS_M = 0.0125
-PEG_HALF_LENGTH_M = 0.04
 PEG_RAYS = group_mask(1)  # the peg's geom group
 WORLD_RAYS = group_mask(0, 3)  # table, hole floor, gripper (0) and the receptacle's collision walls (3)
 RENDER_CAMERA = "third_view"  # what render() shows
@@ -53,6 +52,8 @@ class PegInHoleEnv(gym.Env):
     ``info`` holds ``success``, ``clipped`` (the action was outside ``action_space``: a target outside
     the workspace or a gripper command outside [0, 1]), ``grip_force_n``, ``insertion_mm``,
     ``max_penetration_mm`` (deepest peg contact with the receptacle or table) and ``episode_seed``.
+    The scene's dimensions come from the compiled model (the MJCF owns them): ``peg_radius_m``,
+    ``peg_half_length_m`` (geom "peg") and ``home_tcp`` (the "home" keyframe's hand pose).
     A context manager: leaving the ``with`` block calls ``close()``.
     """
 
@@ -89,13 +90,14 @@ class PegInHoleEnv(gym.Env):
         self._warnings = 0
 
     def _index_model(self) -> None:
-        """Look up the ids and addresses the env reads and writes, and the home keyframe."""
+        """Look up the ids and addresses the env reads and writes, the peg's size and the home keyframe."""
         m = self.model
         self._jnt = {n: m.joint(n).qposadr[0] for n in (*HAND_ACTUATORS, "left_finger", "right_finger")}
         self._act = {m.actuator(i).name: i for i in range(m.nu)}
         self._peg_body = m.body("peg").id
         self._peg_qpos = m.joint("peg").qposadr[0]
         self._peg_geom = m.geom("peg").id
+        self.peg_radius_m, self.peg_half_length_m = (float(v) for v in m.geom_size[self._peg_geom][:2])
         self._receptacle = m.body("receptacle").id
         self._gel = {s: m.geom(f"{s}_gel").id for s in SENSORS}
         self._sensor_site = {s: m.site(f"{s}_sensor").id for s in SENSORS}
@@ -179,13 +181,13 @@ class PegInHoleEnv(gym.Env):
             self.in_hand_offset_m = float(rng.choice((-1.0, 1.0)) * rng.uniform(*cfg.in_hand_offset_mm)) / 1000.0
             home = np.array([*peg_xy, self._home[2], self._home[3]])
             top = home[2] + cfg.grasp_depth_mm / 1000.0
-            d.qpos[q:q + 3] = [peg_xy[0] + self.in_hand_offset_m, peg_xy[1], top - PEG_HALF_LENGTH_M]
-            d.qpos[self._jnt["left_finger"]] = d.qpos[self._jnt["right_finger"]] = PEG_RADIUS_M
+            d.qpos[q:q + 3] = [peg_xy[0] + self.in_hand_offset_m, peg_xy[1], top - self.peg_half_length_m]
+            d.qpos[self._jnt["left_finger"]] = d.qpos[self._jnt["right_finger"]] = self.peg_radius_m
             closing = 1.0
         else:
             self.in_hand_offset_m = None
             home = self._home
-            d.qpos[q:q + 3] = [*peg_xy, PEG_HALF_LENGTH_M]
+            d.qpos[q:q + 3] = [*peg_xy, self.peg_half_length_m]
             closing = 0.0  # the keyframe's fingers are open
         for name, value in zip(HAND_ACTUATORS, home):
             d.qpos[self._jnt[name]] = value
@@ -255,6 +257,11 @@ class PegInHoleEnv(gym.Env):
 
     # ------------------------------------------------------------------ state
     @property
+    def home_tcp(self) -> np.ndarray:
+        """float64 (4,) where the hand starts: the "home" keyframe's [x, y, z, yaw] (m, rad)."""
+        return self._home.copy()
+
+    @property
     def command(self) -> np.ndarray:
         """float64 (5,) the target the servos hold now: [x, y, z, yaw, gripper] (the last action)."""
         return self._target.copy()
@@ -275,7 +282,7 @@ class PegInHoleEnv(gym.Env):
     def peg_bottom(self) -> np.ndarray:
         """World position (3,) of the centre of the peg's bottom face."""
         pos, rot = self.peg_pose()
-        return pos - rot[:, 2] * PEG_HALF_LENGTH_M
+        return pos - rot[:, 2] * self.peg_half_length_m
 
     def peg_offset_in_hand(self) -> float:
         """Offset (m) of the peg's centre from the TCP along the gel: the hand's x axis, the tactile

@@ -3,8 +3,8 @@
 assets/peg_in_hole.xml is the scene (table, peg, third-view camera, the "home" keyframe); it includes
 assets/tactile_gripper.xml, the robot on its own (hand servos, fingers, gels, wrist camera, sites
 "tcp" and "<finger>_sensor"), in the MuJoCo Menagerie layout: default classes for visual and
-collision geoms, actuator ``ctrlrange`` bounding every command (``build_model`` writes the config's
-workspace into the hand servos' ranges).
+collision geoms and every repeated setting, actuator ``ctrlrange`` bounding every command
+(``build_model`` writes the config's workspace into the hand servos' ranges).
 
 The receptacle is a base plate and a ring of ``ring_segments`` wall boxes whose inner faces are
 tangent to a circle of the hole's diameter (a regular polygon inscribed around the hole): boxes
@@ -19,16 +19,14 @@ instead of sixteen: the software renderer pays per geom).
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import mujoco
 import numpy as np
 
-ASSET = Path(__file__).resolve().parent / "assets" / "peg_in_hole.xml"
+from envs.geometry import BASE_THICKNESS_M, HAND_JOINTS, SCENE_XML, WALL_THICKNESS_M
 
-WALL_THICKNESS_M = 0.012  # radial thickness of each wall box
-BASE_THICKNESS_M = 0.008  # plate under the hole (its top is the hole's floor)
-HAND_ACTUATORS = ("hand_x", "hand_y", "hand_z", "hand_yaw")  # the gripper's pose servos, in action order
+ASSET = SCENE_XML
+HAND_ACTUATORS = HAND_JOINTS  # the gripper's pose servos (each named after its joint), in action order
 
 
 def build_model(
@@ -149,8 +147,3 @@ def tube_mesh(r_in: float, r_out: float, z0: float, z1: float, n: int,
         quad = (p * n + i, p * n + j, q * n + j, q * n + i)
         faces += [np.column_stack(quad[:3]), np.column_stack([quad[0], quad[2], quad[3]])]
     return vertices, np.concatenate(faces)
-
-
-def rim_height_m(hole_depth_mm: float) -> float:
-    """Height of the hole's rim above the table (m)."""
-    return BASE_THICKNESS_M + hole_depth_mm / 1000.0

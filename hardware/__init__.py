@@ -9,7 +9,8 @@ Modules (one job each):
     dynamixel, robotiq   serial grippers (Protocol 2.0; Modbus RTU)
     cameras       OpenCV cameras and the GelSight Mini reader
     config, check one YAML file per setup, validated; ``python -m hardware.check setup.yaml``
-    fields        strict, finite pydantic field types and one-line error messages for the settings
+    sections      the setup's device sections (robot, gripper, cameras, tactile) and the arms' reach
+    fields        strict, finite pydantic field types; cross-field problems raised at their fields' paths
     fakes, fake_serial   in-memory devices and pty-served serial devices for tests and benchmarks
 Vendor SDKs are imported by their adapters only, so ``import hardware`` needs none of them.
 """

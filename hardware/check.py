@@ -10,7 +10,7 @@ sensor's frame rate and newest-frame age; the arm is stopped and everything clos
 Exit status: 0 valid (and, with --connect, every device answered); 2 the file is invalid (one line on
 stderr naming the file, the field and the expected form: fix the file); 1 a device could not be reached or
 failed while being read (one line naming the setup file and the device's address or port: fix the
-cabling, the power or the network, then run it again).
+cabling, the power or the network, then run it again); 130 Ctrl-C (the devices closed).
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ import time
 import numpy as np
 from tqdm import tqdm
 
+from controltac_il.config import one_line
 from hardware.config import ConfigError, load_setup, open_setup
 from hardware.interfaces import HardwareError
 
@@ -48,10 +49,13 @@ def main(argv=None) -> int:
         print(f"invalid setup: {exc}", file=sys.stderr)
         return 2
     except HardwareError as exc:  # open_setup names the file for a device it cannot reach; later faults get it here
-        msg = " ".join(str(exc).split())
+        msg = one_line(exc)
         print(f"device check failed: {msg if msg.startswith(str(args.config)) else f'{args.config}: {msg}'}",
               file=sys.stderr)
         return 1
+    except KeyboardInterrupt:  # the devices were closed (arm stopped first) on the way out
+        print("device check interrupted (Ctrl-C); the devices were closed", file=sys.stderr)
+        return 130
     return 0
 
 

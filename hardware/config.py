@@ -1,12 +1,16 @@
 """One YAML file per robot setup: robot, gripper, cameras, tactile sensors, safety limits, loop timing.
 
-``load_setup(path)`` reads and validates it (pydantic models, checked at construction); every error is
-one line naming the file and the field (``setup.yaml: gripper.port: required for a dynamixel gripper``).
+``load_setup(path)`` reads and validates it (pydantic dataclasses with ``config=STRICT``, the project's one config
+idiom, checked at construction); every error is one line naming the file and the field, formatted by the project's
+one formatter :func:`controltac_il.config.one_line` (``setup.yaml: gripper.port: required for a dynamixel gripper``).
 Duplicated keys and a missing ``limits`` section (the workspace box is the user's to state) are errors.
 Beyond types and ranges, a setup must be physically plausible for its robot (:data:`ARM_MODELS`): the
 workspace box within the arm's reach and above its base, the largest step and turn per control period
 within 0.25 m/s and 1 rad/s at ``control.rate_hz``, gripper positions and IDs within the device's range,
-a controller address the SDK can connect to, sensible rates and deadlines.
+a controller address the SDK can connect to, sensible rates.
+The chunk size and the ensembling decay are the policy's (its checkpoint): a setup file that states them is
+refused, and :func:`loop_config` checks the setup's timing against the policy's chunk (the inference deadline
+must fit in one chunk) when a deployment builds the loop, before anything connects.
 ``open_setup(cfg)`` validates the configuration again (devices are never built from an unvalidated one),
 connects the devices it describes and closes them again (arm stopped first); a device that cannot be
 reached is a :class:`~hardware.interfaces.HardwareError` naming the setup file and the address.
@@ -16,16 +20,20 @@ Example files: ``hardware/configs/``.
 from __future__ import annotations
 
 import contextlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import ClassVar, Iterator, Literal
+from typing import Iterator
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, Field, PrivateAttr, ValidationError, field_validator, model_validator
+from pydantic import Field, TypeAdapter, ValidationError, field_validator, model_validator
+from pydantic.dataclasses import dataclass as pydantic_dataclass
 
-from hardware.control_loop import ControlLoopConfig
-from hardware.fields import SETTINGS, Bool, Device, Float, Int, IPAddress, Size, Str, Vec2, Vec3, error_line
+from controltac_il.config import STRICT, one_line
+from hardware.control_loop import ControlLoopConfig, LoopTiming
+from hardware.fields import Problems, Str
+from hardware.sections import (ARM_MODELS, MODELS_OF, ArmModel, CameraConfig, GripperConfig,  # noqa: F401 - re-exported
+                               RobotConfig, TactileConfig)
 from hardware.interfaces import Arm, Clock, FrameSource, Gripper, HardwareError, WallClock
 from hardware.safety import SafetyLimits
 
@@ -34,303 +42,165 @@ class ConfigError(ValueError):
     """A setup file is malformed; the one-line message names the file and the field."""
 
 
-@dataclass(frozen=True)
-class ArmModel:
-    """What the plausibility check knows of an arm: its name, its reach (m, horizontally from the base axis,
-    the vendor's figure) and the highest point its tool flange reaches above the base plane (m)."""
-
-    label: str
-    reach_m: float
-    top_m: float
-
-
-_XARM = ArmModel("an xArm 5/6/7", 0.70, 0.95)  # UFACTORY: X, Y within ±700 mm, Z up to 951.5 mm
-ARM_MODELS: dict[str, ArmModel] = {  # the arms the adapters drive (xarm-python-sdk, ur-rtde)
-    "xarm5": _XARM, "xarm6": _XARM, "xarm7": _XARM,
-    "ur3": ArmModel("a UR3", 0.50, 0.65), "ur3e": ArmModel("a UR3e", 0.50, 0.65),
-    "ur5": ArmModel("a UR5", 0.85, 1.00), "ur5e": ArmModel("a UR5e", 0.85, 1.01),
-    "ur10": ArmModel("a UR10", 1.30, 1.43), "ur10e": ArmModel("a UR10e", 1.30, 1.48),
-    "ur16e": ArmModel("a UR16e", 0.90, 1.08),
-}
-MODELS_OF = {kind: [m for m in ARM_MODELS if m.startswith(kind)] for kind in ("xarm", "ur")}
 MAX_SPEED_M_S = 0.25  # largest end-effector speed a setup may allow (max_step_m * rate_hz)
 MAX_TURN_RAD_S = 1.0  # largest yaw rate a setup may allow (max_rotation_rad * rate_hz)
 MAX_ROBOT_RATE_HZ = 100.0  # control rate of a real arm (the adapters stream between targets)
 CONNECT_TIMEOUT_S: float | None = 3.0  # an arm controller must accept a TCP connection within this (None: no pre-flight)
 
 
-def _fields_used(section: BaseModel, kind: str, used: dict[str, tuple[str, ...]]) -> list[str]:
-    """Problems for fields written in the file that the chosen ``type`` does not use (they would be ignored)."""
-    own = used[kind]
-    article = "an" if kind == "xarm" or kind[0] in "aeiou" else "a"
-    what = type(section).__name__.removesuffix("Config").lower()
-    return [f"{name}: not used by {article} {kind} {what} (its fields: {', '.join(own) or 'none'})"
-            for name in type(section).model_fields
-            if name in section.model_fields_set and name != "type" and name not in own]
+POLICY_OWNED = {  # control fields a setup file must not state: the deployed policy's checkpoint sets them
+    "chunk_size": "the chunk size is the policy's: deployment takes it from the checkpoint (its config.json "
+                  "chunk_size); remove it from the setup file",
+    "ensemble_k": "the temporal-ensembling decay is the policy's: deployment takes it from the checkpoint (its "
+                  "config.json temporal_ensemble_coeff); remove it from the setup file",
+}
 
 
-def _raise(problems: list[str]) -> None:
-    if problems:
-        raise ValueError("; ".join(problems))
-
-
-class _Section(BaseModel):
-    model_config = SETTINGS
-
-
-class RobotConfig(_Section):
-    """type: "xarm", "ur" or "sim" (the MuJoCo scene; built by the deploy script, not here).
-    ip: controller IP address (xarm, ur). tool_rpy: xArm tool (roll, pitch) at yaw 0, rad.
-    tool_rotvec: UR tool orientation at yaw 0 as a rotation vector. lookahead_time, gain: UR servoL
-    settings. stream_hz: rate of the interpolated xArm servo points between two control targets.
-    stop_on_warning: xArm controller warnings stop the run too. model: the arm (:data:`ARM_MODELS`; required
-    for a UR, default any xArm 5/6/7), whose reach bounds the workspace box."""
-
-    type: Literal["xarm", "ur", "sim"]
-    ip: IPAddress | None = None
-    model: Literal[tuple(ARM_MODELS)] | None = None
-    tool_rpy: Vec2 = (float(np.pi), 0.0)
-    tool_rotvec: Vec3 = (float(np.pi), 0.0, 0.0)
-    lookahead_time: Float = Field(0.1, ge=0.03, le=0.2)
-    gain: Float = Field(300.0, ge=100, le=2000)
-    stream_hz: Float = Field(100.0, ge=10, le=250)
-    stop_on_warning: Bool = False
-
-    USED: ClassVar[dict[str, tuple[str, ...]]] = {  # the fields each type reads
-        "xarm": ("ip", "model", "tool_rpy", "stream_hz", "stop_on_warning"),
-        "ur": ("ip", "model", "tool_rotvec", "lookahead_time", "gain"),
-        "sim": (),
-    }
-
-    @model_validator(mode="after")
-    def _per_type(self):
-        problems = _fields_used(self, self.type, self.USED)
-        if self.type in ("xarm", "ur") and self.ip is None:
-            problems.append(f"ip: required for robot type {self.type!r} (the controller's IP address)")
-        if self.type == "xarm" and self.ip is not None and ":" in self.ip:
-            problems.append(f"ip: the xArm SDK connects over IPv4 only: expected an address such as 192.168.1.221, "
-                            f"got {self.ip!r}")
-        if self.type == "ur" and self.model is None:
-            problems.append(f"model: required for a UR arm (its reach bounds the workspace): one of "
-                            f"{', '.join(MODELS_OF['ur'])}")
-        if self.type in MODELS_OF and self.model is not None and self.model not in MODELS_OF[self.type]:
-            problems.append(f"model: {self.model!r} is not an {self.type} model: one of {', '.join(MODELS_OF[self.type])}")
-        _raise(problems)
-        return self
-
-    @property
-    def arm(self) -> ArmModel | None:
-        """The arm's reach figures (an xarm without ``model`` is any xArm 5/6/7: they share them); None for sim."""
-        if self.type == "sim":
-            return None
-        return ARM_MODELS[self.model or "xarm7"]
-
-
-class GripperConfig(_Section):
-    """type: "none", "xarm" (needs an xarm robot), "dynamixel" or "robotiq".
-    port: serial device (dynamixel, robotiq), preferably /dev/serial/by-id/....
-    baudrate: bus speed (default 57600 dynamixel, 115200 robotiq).
-    dxl_id, open_position, closed_position, goal_current: Dynamixel servo ID, Goal Position ticks when
-    open / closed (whole ticks, 0..4095: one turn), squeeze limit (~2.69 mA units).
-    xArm gripper: open/closed in SDK units (0..850; default 850 / 0).
-    slave_id, force: Robotiq Modbus address (9, 1..247) and grip force (0-255).
-    speed: Robotiq 0-255 (default 255); xArm gripper 1..5000 r/min (default 5000).
-    A field the chosen type does not use is an error (it would be ignored)."""
-
-    type: Literal["none", "xarm", "dynamixel", "robotiq"] = "none"
-    port: Str | None = None
-    baudrate: Int | None = Field(None, gt=0)
-    dxl_id: Int = Field(1, ge=0, le=252)
-    open_position: Float | None = None
-    closed_position: Float | None = None
-    goal_current: Int = Field(300, gt=0, lt=2048)
-    slave_id: Int = Field(9, ge=1, le=247)
-    speed: Int | None = Field(None, ge=0)
-    force: Int = Field(150, ge=0, le=255)
-
-    USED: ClassVar[dict[str, tuple[str, ...]]] = {  # the fields each type reads
-        "none": (),
-        "xarm": ("open_position", "closed_position", "speed"),
-        "dynamixel": ("port", "baudrate", "dxl_id", "open_position", "closed_position", "goal_current"),
-        "robotiq": ("port", "baudrate", "slave_id", "speed", "force"),
-    }
-    DXL_TICKS: ClassVar[tuple[int, int]] = (0, 4095)  # Goal Position within one turn (X-series e.g. XM430, 0.088 deg/tick)
-    XARM_POSITIONS: ClassVar[tuple[int, int]] = (0, 850)  # xArm gripper, SDK units (850 open, 0 closed)
-    XARM_SPEED: ClassVar[tuple[int, int]] = (1, 5000)  # xArm gripper speed, r/min as the SDK takes it
-
-    @model_validator(mode="after")
-    def _per_type(self):
-        problems = _fields_used(self, self.type, self.USED)
-        if self.type in ("dynamixel", "robotiq") and not self.port:
-            problems.append(f"port: required for a {self.type} gripper (e.g. /dev/serial/by-id/usb-...)")
-        if self.type == "dynamixel" and (self.open_position is None or self.closed_position is None):
-            problems.append("open_position: open_position and closed_position (Goal Position ticks) are "
-                            "required for a dynamixel gripper")
-        positions = [(n, getattr(self, n)) for n in ("open_position", "closed_position") if getattr(self, n) is not None]
-        if self.type == "dynamixel":
-            lo, hi = self.DXL_TICKS
-            for name, v in positions:
-                if not float(v).is_integer():
-                    problems.append(f"{name}: Goal Position ticks are whole numbers, got {v}")
-                elif not lo <= v <= hi:
-                    problems.append(f"{name}: a Dynamixel Goal Position within one turn is {lo}..{hi} ticks, got {v:g}")
-        if self.type == "xarm":
-            lo, hi = self.XARM_POSITIONS
-            problems += [f"{name}: an xArm gripper position is {lo}..{hi} (SDK units), got {v:g}"
-                         for name, v in positions if not lo <= v <= hi]
-            if self.speed is not None and not self.XARM_SPEED[0] <= self.speed <= self.XARM_SPEED[1]:
-                problems.append(f"speed: an xArm gripper speed is {self.XARM_SPEED[0]}..{self.XARM_SPEED[1]} (r/min), "
-                                f"got {self.speed}")
-        if self.open_position is not None and self.open_position == self.closed_position:
-            problems.append("closed_position: must differ from open_position")
-        if self.type == "robotiq" and self.speed is not None and self.speed > 255:
-            problems.append(f"speed: a Robotiq speed is 0-255, got {self.speed}")
-        _raise(problems)
-        return self
-
-
-class CameraConfig(_Section):
-    """device: /dev/videoN, an index, a name fragment under /dev/v4l/by-id, or a video file.
-    size: output [H, W]. fps: requested rate. crop_fraction: border removed from each side.
-    max_age_s: the newest frame may be this old before the camera counts as stalled (None: loop watchdog only)."""
-
-    device: Device
-    size: Size = (240, 320)
-    fps: Float | None = Field(30.0, gt=0, le=240)
-    crop_fraction: Float = Field(0.0, ge=0, lt=0.5)
-    max_age_s: Float | None = Field(None, gt=0)
-
-
-class TactileConfig(CameraConfig):
-    """A GelSight Mini: as a camera, with the 15 % crop, 25 fps and a background over ``background_frames``
-    no-contact frames at start (default device: the only "GelSight Mini" under /dev/v4l/by-id)."""
-
-    device: Device = "GelSight Mini"
-    fps: Float | None = Field(25.0, gt=0, le=240)
-    crop_fraction: Float = Field(0.15, ge=0, lt=0.5)
-    background_frames: Int = Field(30, ge=1)
-
-
-class SetupConfig(_Section):
+@pydantic_dataclass(frozen=True, config=STRICT)
+class SetupConfig:
     """A whole setup. name: free text. robot / gripper: see their classes. cameras / tactile: name ->
     device (observation keys images/<name>, tactile/<name>). limits: SafetyLimits fields (required, with
-    the workspace box). control: ControlLoopConfig fields (rate_hz, inference, inference_deadline_s, ...)."""
+    the workspace box). control: LoopTiming fields (rate_hz, inference, inference_deadline_s, ...); the chunk
+    size and the ensembling decay are the policy's (:data:`POLICY_OWNED`). ``source``: the file it was read
+    from (named by errors at start-up; "setup" when it was not read from a file)."""
 
     robot: RobotConfig
-    limits: SafetyLimits
+    limits: SafetyLimits = Field(None, validate_default=True)
     name: Str = "setup"
-    gripper: GripperConfig = GripperConfig()
-    cameras: dict[Str, CameraConfig] = {}
-    tactile: dict[Str, TactileConfig] = {}
-    control: ControlLoopConfig = ControlLoopConfig()
-    _source: str = PrivateAttr("setup")  # the file it was read from (named by errors at start-up)
+    gripper: GripperConfig = Field(default_factory=GripperConfig)
+    cameras: dict[Str, CameraConfig] = Field(default_factory=dict)
+    tactile: dict[Str, TactileConfig] = Field(default_factory=dict)
+    control: LoopTiming = Field(default_factory=LoopTiming)
 
     @property
     def source(self) -> str:
-        """The file this setup was read from ("setup" when it was not read from a file)."""
-        return (getattr(self, "__pydantic_private__", None) or {}).get("_source") or "setup"
+        return getattr(self, "_source", "setup")
 
     @field_validator("limits", mode="before")
     @classmethod
     def _box_stated(cls, v):
+        problems = Problems("SetupConfig")
         if v is None:
-            raise ValueError("the section is required: state workspace_min and workspace_max (x, y, z in m, base frame)")
+            problems.missing("", "the section is required: state workspace_min and workspace_max (x, y, z in m, "
+                                 "base frame); nothing has a default box")
         for key in ("workspace_min", "workspace_max"):
             if isinstance(v, dict) and key not in v:
-                raise ValueError(f"{key}: required: the box (x, y, z in m, base frame) the end effector must stay in")
+                problems.missing(key, "required: the box (x, y, z in m, base frame) the end effector must stay in")
+        problems.raise_any()
         return v
 
     @field_validator("control", mode="before")
     @classmethod
-    def _robot_rate(cls, v, info):
-        """A robot's rate bound is named before ControlLoopConfig's wider one (which the simulation uses)."""
+    def _control(cls, v, info):
+        """Fields the policy owns are refused; a robot's rate bound is named before LoopTiming's wider one
+        (which the simulation uses)."""
+        problems = Problems("SetupConfig")
+        for name, why in POLICY_OWNED.items():
+            if isinstance(v, dict) and name in v:
+                problems.add(name, why, v[name])
         robot = info.data.get("robot")
         rate = v.get("rate_hz") if isinstance(v, dict) else getattr(v, "rate_hz", None)
         if (robot is not None and robot.type != "sim" and isinstance(rate, (int, float)) and not isinstance(rate, bool)
                 and rate > MAX_ROBOT_RATE_HZ):
-            raise ValueError(f"rate_hz: a robot's control rate is at most {MAX_ROBOT_RATE_HZ:g} Hz, got {rate:g}")
+            problems.add("rate_hz", f"a robot's control rate is at most {MAX_ROBOT_RATE_HZ:g} Hz", rate)
+        problems.raise_any()
         return v
 
     @model_validator(mode="after")
-    def _gripper_fits_robot(self):
+    def _physically_plausible(self):
+        """The gripper fits the robot; the box within the arm's reach and above its base; speed and turn per
+        period at the control rate; rates a robot can keep. All problems in one error."""
+        problems = Problems("SetupConfig")
         if self.gripper.type == "xarm" and self.robot.type != "xarm":
-            raise ValueError("gripper.type: an xarm gripper needs robot.type xarm")
+            problems.add("gripper.type", "an xarm gripper needs robot.type xarm", self.gripper.type)
+        _box_problems(problems, self.limits, self.robot.arm)
+        _rate_problems(problems, self)
+        problems.raise_any()
         return self
 
-    @model_validator(mode="after")
-    def _physically_plausible(self):
-        """The box within the arm's reach and above its base; speed and turn per period at the control
-        rate; rates and the inference deadline a robot can keep. All problems in one message."""
-        lim, ctl, arm = self.limits, self.control, self.robot.arm
-        lo, hi = np.asarray(lim.workspace_min), np.asarray(lim.workspace_max)
-        problems = []
-        if lo[2] < 0:
-            problems.append(f"limits.workspace_min: z = {lo[2]:g} m is below the robot's base plane (z = 0, its "
-                            "mounting surface); the box must start at z >= 0")
-        if arm is not None:
-            far = np.where(np.abs(lo[:2]) > np.abs(hi[:2]), lo[:2], hi[:2])  # the box corner farthest from the axis
-            r = float(np.hypot(*far))
-            if r > arm.reach_m + 1e-9:
-                blame = "workspace_min" if (np.abs(lo[:2]) > np.abs(hi[:2])).any() else "workspace_max"
-                problems.append(f"limits.{blame}: the box corner {np.round(far, 4).tolist()} is {r:.2f} m from the base "
-                                f"axis, beyond the reach of {arm.label} ({arm.reach_m:g} m): every corner of "
-                                f"workspace_min..workspace_max must lie within {arm.reach_m:g} m of it horizontally")
-            if hi[2] > arm.top_m:
-                problems.append(f"limits.workspace_max: z = {hi[2]:g} m is above the highest point {arm.label} "
-                                f"reaches ({arm.top_m:g} m above its base)")
-        rate = ctl.rate_hz
-        if self.robot.type != "sim" and rate > MAX_ROBOT_RATE_HZ:
-            problems.append(f"control.rate_hz: a robot's control rate is at most {MAX_ROBOT_RATE_HZ:g} Hz, got {rate:g}")
-        for name, value, unit, bound, per in (("max_step_m", lim.max_step_m, "m", MAX_SPEED_M_S, "m/s"),
-                                              ("max_rotation_rad", lim.max_rotation_rad, "rad", MAX_TURN_RAD_S, "rad/s")):
-            if value * rate > bound * (1 + 1e-9):
-                problems.append(f"limits.{name}: {value:g} {unit} per period at control.rate_hz {rate:g} is "
-                                f"{value * rate:.3g} {per}; at most {bound:g} {per} ({name} <= {bound / rate:.4g} "
-                                f"at {rate:g} Hz)")
-        if self.robot.type == "xarm" and self.robot.stream_hz < rate:
-            problems.append(f"robot.stream_hz: must be at least control.rate_hz ({rate}), got {self.robot.stream_hz:g}")
-        chunk_s = ctl.chunk_size * ctl.period_s
-        if ctl.inference_deadline_s > chunk_s + 1e-9:
-            problems.append(f"control.inference_deadline_s: {ctl.inference_deadline_s:g} s is longer than one chunk "
-                            f"(chunk_size {ctl.chunk_size} x {ctl.period_s:g} s = {chunk_s:g} s), so it would never "
-                            f"fire; at most {chunk_s:g} s")
-        _raise(problems)
-        return self
+
+def _box_problems(problems: Problems, lim: SafetyLimits, arm: ArmModel | None) -> None:
+    """The workspace box above the base plane and, for a robot, within its arm's reach and height."""
+    lo, hi = np.asarray(lim.workspace_min), np.asarray(lim.workspace_max)
+    if lo[2] < 0:
+        problems.add("limits.workspace_min", f"z = {lo[2]:g} m is below the robot's base plane (z = 0, its mounting "
+                     "surface); the box must start at z >= 0", list(lim.workspace_min))
+    if arm is None:
+        return
+    far = np.where(np.abs(lo[:2]) > np.abs(hi[:2]), lo[:2], hi[:2])  # the box corner farthest from the axis
+    r = float(np.hypot(*far))
+    if r > arm.reach_m + 1e-9:
+        blame = "workspace_min" if (np.abs(lo[:2]) > np.abs(hi[:2])).any() else "workspace_max"
+        problems.add(f"limits.{blame}", f"the box corner {np.round(far, 4).tolist()} is {r:.2f} m from the base "
+                     f"axis, beyond the reach of {arm.label} ({arm.reach_m:g} m): every corner of "
+                     f"workspace_min..workspace_max must lie within {arm.reach_m:g} m of it horizontally",
+                     list(getattr(lim, blame)))
+    if hi[2] > arm.top_m:
+        problems.add("limits.workspace_max", f"z = {hi[2]:g} m is above the highest point {arm.label} reaches "
+                     f"({arm.top_m:g} m above its base)", list(lim.workspace_max))
+
+
+def _rate_problems(problems: Problems, cfg: SetupConfig) -> None:
+    """Speed and turn per period within MAX_SPEED_M_S and MAX_TURN_RAD_S at the control rate; the xArm's
+    interpolated stream at least as fast as the control rate."""
+    lim, rate = cfg.limits, cfg.control.rate_hz
+    for name, value, unit, bound, per in (("max_step_m", lim.max_step_m, "m", MAX_SPEED_M_S, "m/s"),
+                                          ("max_rotation_rad", lim.max_rotation_rad, "rad", MAX_TURN_RAD_S, "rad/s")):
+        if value * rate > bound * (1 + 1e-9):
+            problems.add(f"limits.{name}", f"{value:g} {unit} per period at control.rate_hz {rate:g} is "
+                         f"{value * rate:.3g} {per}; at most {bound:g} {per} ({name} <= {bound / rate:.4g} at "
+                         f"{rate:g} Hz)", value)
+    if cfg.robot.type == "xarm" and cfg.robot.stream_hz < rate:
+        problems.add("robot.stream_hz", f"must be at least control.rate_hz ({rate:g})", cfg.robot.stream_hz)
 
 
 # -- reading ---------------------------------------------------------------------------------------
 
 def parse_setup(data: dict, source: str = "setup") -> SetupConfig:
     """Validate a parsed YAML mapping; the error is one line, ``<source>: <field path>: <problem>``."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: expected a mapping of sections (robot, limits, gripper, cameras, tactile, "
+                          f"control), got {type(data).__name__}")
     try:
-        cfg = SetupConfig.model_validate(data)
+        cfg = TypeAdapter(SetupConfig).validate_python(data)
     except ValidationError as exc:
-        raise ConfigError(error_line(exc, source)) from None
-    cfg._source = source
+        raise ConfigError(f"{source}: {one_line(exc)}") from None
+    object.__setattr__(cfg, "_source", source)  # frozen: set once, here
     return cfg
 
 
 def validated(cfg: SetupConfig) -> SetupConfig:
-    """``cfg`` validated again from its values (a config built with ``model_construct`` or changed after
-    loading is caught here): every device builder and :func:`open_setup` go through this first."""
+    """``cfg`` validated again from its values (a config built without validation or changed after loading
+    is caught here): every device builder and :func:`open_setup` go through this first."""
     if not isinstance(cfg, SetupConfig):
         raise ConfigError(f"expected a SetupConfig from load_setup / parse_setup, got {type(cfg).__name__}")
     return parse_setup(_plain_data(cfg), cfg.source)
 
 
 def _plain_data(v):
-    """Models (the fields written) and pydantic dataclasses (every field) as plain dicts and lists, so that
-    validation runs on every value again."""
-    if isinstance(v, BaseModel):
-        return {k: _plain_data(getattr(v, k)) for k in type(v).model_fields if k in v.model_fields_set and hasattr(v, k)}
-    if hasattr(v, "__pydantic_fields__"):  # a pydantic dataclass (SafetyLimits, ControlLoopConfig)
-        return {k: _plain_data(getattr(v, k)) for k in v.__pydantic_fields__ if hasattr(v, k)}
+    """Dataclasses (every field; of a typed section, its type's fields only: the rest are unused defaults)
+    as plain dicts and lists, so that validation runs on every value again."""
+    if hasattr(v, "__dataclass_fields__"):
+        names = [f.name for f in fields(v)]
+        if hasattr(v, "USED") and getattr(v, "type", None) in v.USED:
+            names = ["type", *v.USED[v.type]]
+        return {k: _plain_data(getattr(v, k)) for k in names if hasattr(v, k)}
     if isinstance(v, dict):
         return {k: _plain_data(x) for k, x in v.items()}
     if isinstance(v, (list, tuple)):
         return [_plain_data(x) for x in v]
     return v
 
+
+def loop_config(cfg: SetupConfig, chunk_size: int, ensemble_k: float) -> ControlLoopConfig:
+    """The control loop's settings for a policy with ``chunk_size`` and ``ensemble_k`` on this setup; a
+    ConfigError naming the file and the field (``control.inference_deadline_s``) when the setup's timing does
+    not fit the policy's chunk. Deployment calls it before anything connects."""
+    try:
+        return ControlLoopConfig.for_policy(cfg.control, chunk_size, ensemble_k)
+    except ValidationError as exc:
+        names = {f.name: f"control.{f.name}" for f in fields(ControlLoopConfig)}
+        raise ConfigError(f"{cfg.source}: {one_line(exc, names)}") from None
 
 def _refuse_duplicate_keys(node: yaml.Node, source: str, path: str = "") -> None:
     """Raise ConfigError at the first mapping key written twice (YAML would silently keep the last)."""
@@ -363,7 +233,7 @@ def load_setup(path: str | Path) -> SetupConfig:
             _refuse_duplicate_keys(node, str(path))
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML: {' '.join(str(exc).split())}") from None
+        raise ConfigError(f"{path}: not valid YAML: {one_line(exc)}") from None
     return parse_setup(data if data is not None else {}, str(path))
 
 
@@ -434,7 +304,7 @@ class Setup:
     cameras: dict[str, FrameSource]
     tactile: dict[str, FrameSource]
     limits: SafetyLimits
-    control: ControlLoopConfig
+    control: LoopTiming  # the setup's timing; the loop's chunk size is the policy's (loop_config)
     clock: Clock = field(default_factory=WallClock)
 
 

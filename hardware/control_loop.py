@@ -27,15 +27,15 @@ from __future__ import annotations
 
 import itertools
 import threading
-import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Callable, Literal, Mapping, Protocol
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, model_validator
 from pydantic.dataclasses import dataclass as pydantic_dataclass
 
-from hardware.fields import DATACLASS_SETTINGS, Float, Int
+from controltac_il.config import STRICT
+from hardware.fields import Float, Int, Problems
 from hardware.interfaces import (ACTION_DIM, GRIPPER, POSE_DIM, Arm, ArmState, Clock, FrameSource, Gripper, HardwareError,
                                  WallClock)
 from hardware.safety import SafetyCounts, SafetyFilter, SafetyLimits, Watchdog, WatchdogTimeout
@@ -56,13 +56,13 @@ class Policy(Protocol):
     def __call__(self, observation: dict[str, np.ndarray]) -> np.ndarray: ...
 
 
-@pydantic_dataclass(frozen=True, config=DATACLASS_SETTINGS)
-class ControlLoopConfig:
-    """Timing and inference settings of :class:`ControlLoop`; validated at construction (ValueError naming the field).
+@pydantic_dataclass(frozen=True, config=STRICT)
+class LoopTiming:
+    """The loop's timing and inference settings, what a setup file states (its ``control`` section); validated at
+    construction (ValueError naming the field). The chunk size and the ensembling decay are the policy's
+    (:class:`ControlLoopConfig` adds them).
 
     rate_hz: control rate, Hz (paper: 10).
-    chunk_size: largest action chunk the policy returns (ACT N_a = 20).
-    ensemble_k: temporal-ensembling decay, weights exp(-k * i) with i = 0 the oldest chunk (ACT: 0.01).
     inference: "async" = policy in its own thread, the loop never waits (robot); "sync" = policy called in
         the loop thread every ``query_every`` steps (deterministic; for simulation with a VirtualClock).
     query_every: steps between policy calls in "sync" mode (1 = every step, as with temporal ensembling).
@@ -74,8 +74,6 @@ class ControlLoopConfig:
     """
 
     rate_hz: Float = Field(10.0, gt=0, le=1000)
-    chunk_size: Int = Field(20, ge=1)
-    ensemble_k: Float = Field(0.01, ge=0)
     inference: Literal["async", "sync"] = "async"
     query_every: Int = Field(1, ge=1)
     inference_deadline_s: Float = Field(0.5, gt=0)
@@ -87,6 +85,40 @@ class ControlLoopConfig:
         return 1.0 / self.rate_hz
 
 
+@pydantic_dataclass(frozen=True, config=STRICT)
+class ControlLoopConfig(LoopTiming):
+    """Everything :class:`ControlLoop` runs on: :class:`LoopTiming` plus what the policy owns.
+
+    chunk_size: largest action chunk the policy returns (ACT N_a = 20); a deployed ACT's own (its checkpoint).
+    ensemble_k: temporal-ensembling decay, weights exp(-k * i) with i = 0 the oldest chunk (ACT: 0.01).
+
+    With asynchronous inference, ``inference_deadline_s`` must fit in one chunk (``chunk_size`` periods):
+    a call running longer leaves the loop without actions first, so a longer deadline would never fire.
+    Checked here, against the chunk size the loop runs with (:meth:`for_policy` at deployment).
+    """
+
+    chunk_size: Int = Field(20, ge=1)
+    ensemble_k: Float = Field(0.01, ge=0)
+
+    @classmethod
+    def for_policy(cls, timing: LoopTiming, chunk_size: int, ensemble_k: float) -> "ControlLoopConfig":
+        """``timing`` (a setup's ``control`` section, or a whole config) with the policy's chunk size and
+        ensembling decay; validated, so the deadline is checked against the chunk the loop will run."""
+        return cls(**{f.name: getattr(timing, f.name) for f in fields(LoopTiming)}, chunk_size=chunk_size,
+                   ensemble_k=ensemble_k)
+
+    @model_validator(mode="after")
+    def _deadline_within_a_chunk(self):
+        chunk_s = self.chunk_size * self.period_s
+        if self.inference == "async" and self.inference_deadline_s > chunk_s + 1e-9:
+            problems = Problems("ControlLoopConfig")
+            problems.add("inference_deadline_s", f"longer than one chunk of the policy (chunk_size {self.chunk_size} "
+                         f"x {self.period_s:g} s = {chunk_s:g} s): asynchronous inference runs out of actions first, "
+                         f"so the deadline would never fire; at most {chunk_s:g} s", self.inference_deadline_s)
+            problems.raise_any()
+        return self
+
+
 def _percentiles(values, scale: float = 1.0) -> dict:
     if not values:
         return {"p50": None, "p99": None, "max": None}
@@ -96,11 +128,16 @@ def _percentiles(values, scale: float = 1.0) -> dict:
 
 @dataclass
 class LoopStats:
-    """Per-cycle timing of one run (clock seconds).
+    """Per-cycle timing of one run, in the loop's clock seconds (``ControlLoop(clock=...)``): on the wall clock
+    (a robot) real seconds, on a :class:`~hardware.interfaces.VirtualClock` virtual ones (a policy call then lasts
+    what it sleeps on that clock, zero for a model that never does), in both inference modes alike, so that the
+    statistics and the deadlines they are checked against agree and tests never depend on the wall clock. The
+    wall-clock latency of a model in simulation is its caller's to measure (``controltac_il.app.deploy``).
 
     cycle_starts: start time of every cycle; work_s: time from a cycle's start to its command sent;
-    inference_s: duration of every policy call; deadline_misses: cycles whose work overran the period;
-    safety: how many commands each limit changed; stop_reason: why the run ended.
+    inference_s: duration of every policy call (one that raised included), sync or async;
+    deadline_misses: cycles whose work overran the period; safety: how many commands each limit changed;
+    stop_reason: why the run ended.
     """
 
     period_s: float
@@ -385,15 +422,16 @@ class ControlLoop:
 
     def _predict_sync(self, step: int, obs: dict, ensembler: TemporalEnsembler, stats: LoopStats,
                       deadline: float) -> None:
-        """Call the policy in the loop thread. The deadline is checked in clock seconds (a virtual clock
-        counts only what the policy spends sleeping on it); ``stats.inference_s`` holds wall seconds."""
-        t0, c0 = time.perf_counter(), self.clock.now()
+        """Call the policy in the loop thread; its duration (clock seconds: a virtual clock counts only what the
+        policy spends sleeping on it) goes to ``stats.inference_s`` and is checked against ``deadline``."""
+        t0 = self.clock.now()
         try:
             chunk = _validate_chunk(self.policy(obs), ensembler.chunk_size)
         except Exception as exc:
             raise _policy_error(exc) from exc
-        stats.inference_s.append(time.perf_counter() - t0)
-        elapsed = self.clock.now() - c0
+        finally:
+            stats.inference_s.append(self.clock.now() - t0)
+        elapsed = stats.inference_s[-1]
         if elapsed > deadline:
             raise PolicyLateError(f"policy inference at step {step} took {elapsed:.3f} s, past its deadline of {deadline} s")
         ensembler.add_chunk(step, chunk)

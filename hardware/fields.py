@@ -1,28 +1,29 @@
-"""Field types shared by the validated settings (pydantic v2): strict scalars, finite floats, fixed-length
-vectors that YAML writes as lists, and one-line error messages with the field path.
+"""Field types shared by the validated settings (pydantic dataclasses with ``config=STRICT``, the project's one
+config idiom, :mod:`controltac_il.config`): strict scalars, finite floats, fixed-length vectors that YAML writes
+as lists, and :class:`Problems`, which raises the findings of a cross-field check at their fields' paths.
 
 Scalars are strict (no "5" -> 5, no true -> 1, no 2.5 -> int); an integer is accepted where a float is
-expected, and numpy scalars and arrays as their Python values. Floats must be finite
-(``allow_inf_nan=False`` in :data:`SETTINGS`).
+expected, and numpy scalars and arrays as their Python values. Floats must be finite (``AllowInfNan(False)``
+in :data:`Float`). Every error is formatted by the project's one formatter, :func:`controltac_il.config.one_line`
+(``field.path: problem (got value)``).
 """
 
 from __future__ import annotations
 
 import ipaddress
-import re
-from typing import Annotated
+from typing import Annotated, Any
 
 import numpy as np
-from pydantic import AfterValidator, BeforeValidator, ConfigDict, Field, Strict, ValidationError
+from pydantic import AfterValidator, BeforeValidator, Field, Strict, ValidationError
+from pydantic.types import AllowInfNan
+from pydantic_core import InitErrorDetails, PydanticCustomError
 
-SETTINGS = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)  # models (BaseModel)
-DATACLASS_SETTINGS = ConfigDict(extra="forbid", allow_inf_nan=False)  # pydantic dataclasses (frozen=True on the decorator)
 
 def _plain(v):
     return v.item() if isinstance(v, np.generic) else v
 
 
-Float = Annotated[float, Strict(), BeforeValidator(_plain)]
+Float = Annotated[float, Strict(), AllowInfNan(False), BeforeValidator(_plain)]
 Int = Annotated[int, Strict(), BeforeValidator(_plain)]
 Str = Annotated[str, Strict()]
 Bool = Annotated[bool, Strict()]
@@ -35,7 +36,7 @@ def _sequence(form: str):
     def check(v):
         if isinstance(v, (list, tuple, np.ndarray)):
             if len(v) != n:
-                raise ValueError(f"expected {form} ({n} values), got {list(v)!r}")
+                raise ValueError(f"expected {form} ({n} values)")
             return tuple(v)
         return v
 
@@ -54,10 +55,10 @@ def _ip(v: str) -> str:
     try:
         addr = ipaddress.ip_address(v)
     except ValueError:
-        raise ValueError(f"expected an IP address such as 192.168.1.221, got {v!r}") from None
+        raise ValueError("expected an IP address such as 192.168.1.221") from None
     if addr.is_unspecified or addr.is_multicast or addr == ipaddress.IPv4Address("255.255.255.255"):
-        raise ValueError(f"{v} is not a controller's address (unspecified, multicast or broadcast); "
-                         "expected the controller's own address such as 192.168.1.221")
+        raise ValueError("not a controller's address (unspecified, multicast or broadcast); expected the "
+                         "controller's own address such as 192.168.1.221")
     return v
 
 
@@ -66,46 +67,32 @@ IPAddress = Annotated[Str, AfterValidator(_ip)]
 
 def _device(v):
     if isinstance(v, bool) or not isinstance(v, (str, int)):
-        raise ValueError(f"expected a string (path or name) or an integer index, got {v!r}")
+        raise ValueError("expected a string (path or name) or an integer index")
     return v
 
 
 Device = Annotated[str | int, BeforeValidator(_device)]
 
 
-def _path(loc) -> str:
-    out = ""
-    for part in loc:
-        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
-    return out
+class Problems:
+    """What a cross-field check found, each problem at its own field's path (``"limits.max_step_m"``,
+    relative to the model that checks); :meth:`raise_any` raises them together as one pydantic
+    ValidationError, so a section's problems get the section's path in front and
+    :func:`~controltac_il.config.one_line` prints every one as ``path: problem (got value)``."""
 
+    def __init__(self, title: str):
+        self.title, self.errors = title, []
 
-def error_line(exc: ValidationError, source: str) -> str:
-    """``<source>: <field path>: <problem>`` for every error of ``exc``, joined into one line.
+    def add(self, path: str, message: str, value: Any) -> None:
+        """``path`` has a problem with its ``value`` (printed after the message)."""
+        self.errors.append(InitErrorDetails(type=PydanticCustomError("value_error", message),
+                                            loc=tuple(path.split(".")), input=value))
 
-    A validator message starting with ``<field>: `` (the field a cross-field check blames) extends the path;
-    a validator that reports several problems joins them with ``"; "``, each starting with its ``<field>: ``.
-    """
-    parts = []
-    for err in exc.errors(include_url=False):
-        path, msg = _path(err["loc"]), err["msg"]
-        kind = err["type"]
-        if kind == "value_error":
-            for problem in _PROBLEMS.split(msg.removeprefix("Value error, ")):
-                head, sep, rest = problem.partition(": ")
-                if sep and all(part.isidentifier() for part in head.split(".")):
-                    parts.append(f"{f'{path}.{head}' if path else head}: {rest}")
-                else:
-                    parts.append(f"{path or 'setup'}: {problem}")
-            continue
-        if kind in ("extra_forbidden", "unexpected_keyword_argument"):
-            msg = "unknown field"
-        elif kind in ("missing", "missing_argument"):
-            msg = "required field is missing"
-        elif "input" in err and not isinstance(err["input"], dict):
-            msg = f"{msg}, got {err['input']!r}"
-        parts.append(f"{path or 'setup'}: {msg}")
-    return f"{source}: " + "; ".join(parts)
+    def missing(self, path: str, message: str) -> None:
+        """``path`` is required here and was not given."""
+        self.errors.append(InitErrorDetails(type=PydanticCustomError("missing", message),
+                                            loc=tuple(path.split(".")) if path else (), input=None))
 
-
-_PROBLEMS = re.compile(r"; (?=[A-Za-z_][\w.]*: )")  # "; field: ..." starts the next problem of a validator
+    def raise_any(self) -> None:
+        if self.errors:
+            raise ValidationError.from_exception_data(self.title, self.errors)

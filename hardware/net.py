@@ -30,8 +30,3 @@ def preflight(who: str, ip: str, port: int, timeout_s: float | None) -> None:
         raise unreachable(who, ip, f"nothing answers on TCP port {port} within {timeout_s:g} s") from None
     except OSError as exc:
         raise unreachable(who, ip, f"nothing answers on TCP port {port}: {exc.strerror or exc}") from None
-
-
-def sdk_text(exc: BaseException) -> str:
-    """The SDK's own words, on one line."""
-    return " ".join(str(exc).split()) or type(exc).__name__

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import serial
 
+from controltac_il.config import one_line
 from hardware.interfaces import Clock, Gripper, GripperState, HardwareError, WallClock
 
 FAULTS = {
@@ -112,7 +113,7 @@ class RobotiqGripper(Gripper):
         try:
             self._ser = serial.Serial(self.port, self.baudrate, bytesize=8, parity="N", stopbits=1, timeout=self.timeout_s)
         except (serial.SerialException, OSError) as exc:  # unplugged adapter, wrong path, no permission
-            raise HardwareError(f"robotiq on {self.port}: cannot open the port ({' '.join(str(exc).split())}); check "
+            raise HardwareError(f"robotiq on {self.port}: cannot open the port ({one_line(exc)}); check "
                                 "the USB adapter and gripper.port (ls /dev/serial/by-id)") from None
         self._write_request(0x00, 0)  # clear rACT
         self._write_request(0x01, 0)  # activate

@@ -18,7 +18,8 @@ import numpy as np
 from pydantic import Field, model_validator
 from pydantic.dataclasses import dataclass as pydantic_dataclass
 
-from hardware.fields import DATACLASS_SETTINGS, Float, Vec3
+from controltac_il.config import STRICT
+from hardware.fields import Float, Problems, Vec3
 from hardware.interfaces import ACTION_DIM, POSE_DIM, Clock, HardwareError
 
 
@@ -36,7 +37,7 @@ def wrap_angle(a):
     return np.where((a >= -np.pi) & (a < np.pi), a, (a + np.pi) % (2 * np.pi) - np.pi)
 
 
-@pydantic_dataclass(frozen=True, config=DATACLASS_SETTINGS)
+@pydantic_dataclass(frozen=True, config=STRICT)
 class SafetyLimits:
     """Limits enforced on every command; validated at construction (ValueError naming the field).
 
@@ -62,13 +63,16 @@ class SafetyLimits:
 
     @model_validator(mode="after")
     def _ordered(self):
+        problems = Problems("SafetyLimits")
         if not all(lo < hi for lo, hi in zip(self.workspace_min, self.workspace_max)):
-            raise ValueError(f"workspace_min: must be below workspace_max on every axis, got "
-                             f"{list(self.workspace_min)} / {list(self.workspace_max)}")
+            problems.add("workspace_min", f"must be below workspace_max on every axis (workspace_max "
+                         f"{list(self.workspace_max)})",
+                         list(self.workspace_min))
         if not self.yaw_min < self.yaw_max:
-            raise ValueError(f"yaw_min: must be below yaw_max, got {self.yaw_min} / {self.yaw_max}")
+            problems.add("yaw_min", f"must be below yaw_max ({self.yaw_max})", self.yaw_min)
         if not self.gripper_min < self.gripper_max:
-            raise ValueError(f"gripper_min: must be below gripper_max, got {self.gripper_min} / {self.gripper_max}")
+            problems.add("gripper_min", f"must be below gripper_max ({self.gripper_max})", self.gripper_min)
+        problems.raise_any()
         return self
 
 

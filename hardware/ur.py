@@ -15,8 +15,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from controltac_il.config import one_line
 from hardware.interfaces import Arm, ArmFault, ArmState, Clock, WallClock
-from hardware.net import preflight, sdk_text, unreachable
+from hardware.net import preflight, unreachable
 from hardware.pose import tool_rotation, yaw_of
 
 SAFETY_MODES = {1: "normal", 2: "reduced", 3: "protective stop", 4: "recovery", 5: "safeguard stop",
@@ -72,7 +73,7 @@ class URArm(Arm):
 
                 self.control = rtde_control.RTDEControlInterface(self.ip)
         except (RuntimeError, OSError) as exc:  # ur-rtde raises RuntimeError when it cannot connect
-            raise unreachable("UR", self.ip, sdk_text(exc)) from None
+            raise unreachable("UR", self.ip, one_line(exc)) from None
         self.check()
 
     def check(self) -> None:

@@ -26,8 +26,9 @@ import threading
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from controltac_il.config import one_line
 from hardware.interfaces import Arm, ArmFault, ArmState, Clock, Gripper, GripperState, HardwareError, WallClock
-from hardware.net import preflight, sdk_text, unreachable
+from hardware.net import preflight, unreachable
 from hardware.pose import tool_rotation, yaw_of
 from hardware.safety import wrap_angle
 
@@ -94,7 +95,7 @@ class XArm(Arm):
             try:
                 self.api = XArmAPI(self.ip, is_radian=True)
             except Exception as exc:  # noqa: BLE001 - the SDK raises a bare Exception("connect socket failed")
-                raise unreachable("xArm", self.ip, sdk_text(exc)) from None
+                raise unreachable("xArm", self.ip, one_line(exc)) from None
         if not self.api.connected:
             raise unreachable("xArm", self.ip, "the SDK reports no connection")
         self.api.clean_error()

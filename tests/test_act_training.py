@@ -14,7 +14,7 @@ from act_fixtures import SyntheticACTDataset, tiny_config
 from controltac_il.datasets import Episode, write_episode
 from policies.act import ACTConfig, CheckpointError, load_checkpoint
 from policies.act.data import DataSpec, check_compatible, load_training_data
-from policies.act.training import TrainConfig, evaluate, resolve_checkpoint, train, train_on_folder
+from policies.act.training import ACTTrainConfig, evaluate, resolve_checkpoint, train, train_on_folder
 
 REPO = Path(__file__).resolve().parents[1]
 TINY = dict(camera_size=(24, 32), tactile_size=(24, 32), dim_model=32, n_heads=2, dim_feedforward=64,
@@ -25,7 +25,7 @@ def test_training_lowers_the_validation_error(tmp_path):
     torch.manual_seed(0)
     ds, val = SyntheticACTDataset(64, seed=0), SyntheticACTDataset(16, seed=1)
     cfg = tiny_config(kl_weight=1.0)
-    summary = train(cfg, TrainConfig(steps=100, batch_size=8, val_every=100, warmup_steps=10), ds, val,
+    summary = train(cfg, ACTTrainConfig(steps=100, batch_size=8, val_every=100, warmup_steps=10), ds, val,
                     tmp_path / "run", stats=ds.stats(), progress=False)
     log = json.loads((tmp_path / "run" / "train_log.json").read_text())
     first, last = log["log"]["train"][0], log["log"]["train"][-1]
@@ -41,46 +41,46 @@ def test_training_lowers_the_validation_error(tmp_path):
 def test_resume_continues_from_last_and_refuses_another_config(tmp_path):
     ds = SyntheticACTDataset(16)
     cfg = tiny_config()
-    train(cfg, TrainConfig(steps=3, batch_size=8, save_every=3), ds, None, tmp_path, stats=ds.stats(),
+    train(cfg, ACTTrainConfig(steps=3, batch_size=8, save_every=3), ds, None, tmp_path, stats=ds.stats(),
           progress=False)
     _, _, meta = load_checkpoint(tmp_path / "last")
     assert meta["step"] == 3 and (tmp_path / "last" / "optimizer.safetensors").is_file()
     assert resolve_checkpoint(tmp_path) == tmp_path / "last"  # no validation set -> no best
-    summary = train(cfg, TrainConfig(steps=5, batch_size=8), ds, None, tmp_path, stats=ds.stats(),
+    summary = train(cfg, ACTTrainConfig(steps=5, batch_size=8), ds, None, tmp_path, stats=ds.stats(),
                     resume=True, progress=False)
     assert summary["steps"] == 5 and load_checkpoint(tmp_path / "last")[2]["step"] == 5
     assert [r["step"] for r in load_checkpoint(tmp_path / "last")[2]["log"]["train"]] == [1, 3, 5]
     with pytest.raises(CheckpointError, match="different ACT config"):
-        train(tiny_config(dim_model=64), TrainConfig(steps=6), ds, None, tmp_path, stats=ds.stats(), resume=True,
+        train(tiny_config(dim_model=64), ACTTrainConfig(steps=6), ds, None, tmp_path, stats=ds.stats(), resume=True,
               progress=False)
     with pytest.raises(CheckpointError, match="no checkpoint"):
-        train(cfg, TrainConfig(steps=6), ds, None, tmp_path / "fresh", stats=ds.stats(), resume=True)
+        train(cfg, ACTTrainConfig(steps=6), ds, None, tmp_path / "fresh", stats=ds.stats(), resume=True)
 
 
 def test_resume_refuses_another_generator_but_not_another_augment_summary(tmp_path):
     ds = SyntheticACTDataset(16)
     cfg = tiny_config()
     aug = {"kind": "force", "copies": 1, "generator": "shipped", "generator_hash": "aaaa", "seed": 0, "steps": None}
-    train(cfg, TrainConfig(steps=2, batch_size=8, save_every=2), ds, None, tmp_path, stats=ds.stats(),
+    train(cfg, ACTTrainConfig(steps=2, batch_size=8, save_every=2), ds, None, tmp_path, stats=ds.stats(),
           meta={"augment": {**aug, "summary": {"clamped": 3}}}, progress=False)
     with pytest.raises(CheckpointError, match=r"different augmentation \(generator_hash: 'aaaa' -> 'bbbb'\)"):
-        train(cfg, TrainConfig(steps=4, batch_size=8), ds, None, tmp_path, stats=ds.stats(), resume=True,
+        train(cfg, ACTTrainConfig(steps=4, batch_size=8), ds, None, tmp_path, stats=ds.stats(), resume=True,
               meta={"augment": {**aug, "generator_hash": "bbbb"}}, progress=False)
     with pytest.raises(CheckpointError, match=r"augmentation \(copies: 1 -> None"):
-        train(cfg, TrainConfig(steps=4, batch_size=8), ds, None, tmp_path, stats=ds.stats(), resume=True,
+        train(cfg, ACTTrainConfig(steps=4, batch_size=8), ds, None, tmp_path, stats=ds.stats(), resume=True,
               progress=False)  # unaugmented now
     assert load_checkpoint(tmp_path / "last")[2]["step"] == 2  # refused runs leave the checkpoint alone
     # the counts of what the augmentation did may differ (e.g. fewer copies cached); the settings may not
-    summary = train(cfg, TrainConfig(steps=4, batch_size=8), ds, None, tmp_path, stats=ds.stats(), resume=True,
+    summary = train(cfg, ACTTrainConfig(steps=4, batch_size=8), ds, None, tmp_path, stats=ds.stats(), resume=True,
                     meta={"augment": {**aug, "summary": {"clamped": 5}}}, progress=False)
     assert summary["steps"] == 4
 
 
 def test_train_config_validation():
     with pytest.raises(ValueError, match="steps"):
-        TrainConfig(steps=0)
+        ACTTrainConfig(steps=0)
     with pytest.raises(ValueError, match="batch_size"):
-        TrainConfig(batch_size=-1)
+        ACTTrainConfig(batch_size=-1)
 
 
 def write_tiny_episodes(root: Path, n: int = 3, T: int = 10, cameras=("third_view", "wrist"),
@@ -122,7 +122,7 @@ def test_checkpoint_is_checked_against_the_data(tmp_path):
 
 def test_train_on_folder_end_to_end(tmp_path):
     root = write_tiny_episodes(tmp_path / "demos", n=3)
-    summary = train_on_folder(root, tmp_path / "run", preset="cpu", train_config=TrainConfig(steps=4, batch_size=4,
+    summary = train_on_folder(root, tmp_path / "run", preset="cpu", train_config=ACTTrainConfig(steps=4, batch_size=4,
                               val_every=2), val_fraction=0.34, stats_path=tmp_path / "stats.json", progress=False,
                               **TINY)
     assert summary["steps"] == 4 and summary["episodes"] == 3 and summary["val_episodes"] == 1
@@ -168,14 +168,14 @@ def test_out_holding_a_run_is_refused_without_resume_or_overwrite(tmp_path):
     from controltac_il.outputs import OutputInUse
 
     ds, cfg = SyntheticACTDataset(16), tiny_config()
-    train(cfg, TrainConfig(steps=2, batch_size=8, val_every=2), ds, ds, tmp_path / "run", stats=ds.stats(),
+    train(cfg, ACTTrainConfig(steps=2, batch_size=8, val_every=2), ds, ds, tmp_path / "run", stats=ds.stats(),
           progress=False)
     before = _tree(tmp_path / "run")
     with pytest.raises(OutputInUse, match=r"run.*--resume.*--overwrite"):
-        train(cfg, TrainConfig(steps=3, batch_size=8), ds, ds, tmp_path / "run", stats=ds.stats(), progress=False)
+        train(cfg, ACTTrainConfig(steps=3, batch_size=8), ds, ds, tmp_path / "run", stats=ds.stats(), progress=False)
     assert _tree(tmp_path / "run") == before
     (tmp_path / "run" / "my_notes.txt").write_text("mine")  # a file of the user's beside the run is kept
-    summary = train(cfg, TrainConfig(steps=3, batch_size=8, val_every=3), ds, None, tmp_path / "run",
+    summary = train(cfg, ACTTrainConfig(steps=3, batch_size=8, val_every=3), ds, None, tmp_path / "run",
                     stats=ds.stats(), overwrite=True, progress=False)
     assert summary["steps"] == 3 and load_checkpoint(tmp_path / "run" / "last")[2]["step"] == 3
     assert not (tmp_path / "run" / "best").exists()  # the replaced run's best/ is not passed off as this run's
@@ -194,10 +194,10 @@ def test_out_of_the_users_own_is_never_deleted_even_with_overwrite(tmp_path):
     before = _tree(out)
     for kwargs in ({}, {"overwrite": True}, {"resume": True}):
         with pytest.raises(ValueError, match=str(out)):
-            train(cfg, TrainConfig(steps=2, batch_size=8), ds, None, out, stats=ds.stats(), progress=False, **kwargs)
+            train(cfg, ACTTrainConfig(steps=2, batch_size=8), ds, None, out, stats=ds.stats(), progress=False, **kwargs)
         assert _tree(out) == before, kwargs
     with pytest.raises(OutputInUse, match="not written by"):
-        train(cfg, TrainConfig(steps=2, batch_size=8), ds, None, out, stats=ds.stats(), overwrite=True,
+        train(cfg, ACTTrainConfig(steps=2, batch_size=8), ds, None, out, stats=ds.stats(), overwrite=True,
               progress=False)
 
 
@@ -223,7 +223,7 @@ def test_nonfinite_loss_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_pat
 
     ds, cfg = SyntheticACTDataset(16), tiny_config()
     with pytest.raises(NonFiniteLoss, match=r"step 3.*last.*step 2"):
-        train(cfg, TrainConfig(steps=10, batch_size=8, save_every=2), _PoisonAfter(ds, 16), None, tmp_path,
+        train(cfg, ACTTrainConfig(steps=10, batch_size=8, save_every=2), _PoisonAfter(ds, 16), None, tmp_path,
               stats=ds.stats(), progress=False)
     model, _, meta = load_checkpoint(tmp_path / "last")  # verified: finite weights
     assert meta["step"] == 2
@@ -251,23 +251,23 @@ def test_ctrl_c_saves_the_current_step_before_stopping(tmp_path):
 
     ds, cfg = SyntheticACTDataset(16), tiny_config()
     with pytest.raises(KeyboardInterrupt) as info:  # during step 3 (items 17-24): step 3 is finished and saved
-        train(cfg, TrainConfig(steps=100, batch_size=8, save_every=50), _InterruptAt(ds, 20), None, tmp_path,
+        train(cfg, ACTTrainConfig(steps=100, batch_size=8, save_every=50), _InterruptAt(ds, 20), None, tmp_path,
               stats=ds.stats(), progress=False)
     assert isinstance(info.value, TrainingInterrupted) and "step 3" in str(info.value)
     assert load_checkpoint(tmp_path / "last")[2]["step"] == 3
     assert json.loads((tmp_path / "train_log.json").read_text())["step"] == 3
-    summary = train(cfg, TrainConfig(steps=5, batch_size=8, save_every=50), ds, None, tmp_path, stats=ds.stats(),
+    summary = train(cfg, ACTTrainConfig(steps=5, batch_size=8, save_every=50), ds, None, tmp_path, stats=ds.stats(),
                     resume=True, progress=False)
     assert summary["steps"] == 5
 
 
 def test_resume_refuses_another_dataset_naming_what_differs(tmp_path):
     ds, cfg = SyntheticACTDataset(16), tiny_config()
-    train(cfg, TrainConfig(steps=2, batch_size=8), ds, None, tmp_path, stats=ds.stats(), progress=False)
+    train(cfg, ACTTrainConfig(steps=2, batch_size=8), ds, None, tmp_path, stats=ds.stats(), progress=False)
     before = _tree(tmp_path)
     other = SyntheticACTDataset(16, seed=5)
     with pytest.raises(CheckpointError, match=r"another dataset.*action mean"):
-        train(cfg, TrainConfig(steps=4, batch_size=8), other, None, tmp_path, stats=other.stats(), resume=True,
+        train(cfg, ACTTrainConfig(steps=4, batch_size=8), other, None, tmp_path, stats=other.stats(), resume=True,
               progress=False)
     assert _tree(tmp_path) == before  # stats.json is not replaced
 
@@ -275,7 +275,7 @@ def test_resume_refuses_another_dataset_naming_what_differs(tmp_path):
 def test_chunk_size_longer_than_every_episode_is_refused(tmp_path):
     root = write_tiny_episodes(tmp_path / "demos", n=2, T=10)
     with pytest.raises(ValueError, match=r"chunk_size.*--chunk-size.*10"):
-        train_on_folder(root, tmp_path / "run", preset="cpu", train_config=TrainConfig(steps=1, batch_size=2),
+        train_on_folder(root, tmp_path / "run", preset="cpu", train_config=ACTTrainConfig(steps=1, batch_size=2),
                         stats_path=tmp_path / "stats.json", progress=False, **{**TINY, "chunk_size": 11})
 
 

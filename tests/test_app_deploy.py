@@ -8,8 +8,10 @@ import pytest
 import torch
 
 from act_fixtures import tiny_config
-from controltac_il.app.deploy import check_setup, deploy_on_robot, load_policy
+from controltac_il.app.deploy import WallTimed, check_setup, deploy, deploy_on_robot, load_policy
 from controltac_il.metrics import wilson_interval
+from hardware.config import ConfigError
+from hardware.safety import SafetyLimits
 from policies.act import ACT, ACTPolicy, save_checkpoint
 
 REPO = Path(__file__).resolve().parents[1]
@@ -61,6 +63,47 @@ def test_robot_deploy_refuses_a_setup_without_a_camera_before_connecting(checkpo
         deploy_on_robot("xarm", checkpoint, setup)
     with pytest.raises(ValueError, match="robot.type 'xarm'"):
         deploy_on_robot("ur", checkpoint, setup)
+
+
+ROBOT = ("robot: {type: xarm, ip: 127.0.0.1}\n"
+         "cameras: {third_view: {device: /dev/video0}, wrist: {device: /dev/video1}}\n"
+         "tactile: {left: {device: /dev/video2}, right: {device: /dev/video3}}\n"
+         "limits: {workspace_min: [0.2, -0.3, 0.0], workspace_max: [0.6, 0.3, 0.5]}\n")
+
+
+def test_robot_deploy_checks_the_deadline_against_the_policys_chunk_before_connecting(checkpoint, tmp_path,
+                                                                                     monkeypatch):
+    import hardware.config
+
+    def connect(*a, **k):
+        raise AssertionError("nothing may connect before the setup fits the policy")
+
+    monkeypatch.setattr(hardware.config, "build_arm", connect)
+    setup = tmp_path / "setup.yaml"
+    setup.write_text(ROBOT + "control: {inference_deadline_s: 1.0}\n")  # the tiny policy's chunk: 6 x 0.1 s
+    with pytest.raises(ConfigError, match=rf"^{setup}: control\.inference_deadline_s: longer than one chunk of the "
+                                          r"policy \(chunk_size 6 x 0\.1 s = 0\.6 s\).*at most 0\.6 s \(got 1\.0\)$"):
+        deploy_on_robot("xarm", checkpoint, setup)
+    setup.write_text(ROBOT + "control: {chunk_size: 20}\n")  # the policy owns it: never two owners
+    with pytest.raises(ConfigError, match=rf"^{setup}: control\.chunk_size: the chunk size is the policy's"):
+        deploy_on_robot("xarm", checkpoint, setup)
+
+
+def test_deploy_runs_the_loop_with_the_policys_chunk(checkpoint):
+    from hardware.config import Setup
+    from hardware.control_loop import LoopTiming
+    from hardware.fakes import FakeArm, SyntheticFrameSource
+    from hardware.interfaces import VirtualClock
+
+    clock, policy = VirtualClock(), load_policy(checkpoint)
+    frames = {n: SyntheticFrameSource(n, (24, 32), clock, background=n in ("left", "right"))
+              for n in ("third_view", "wrist", "left", "right")}
+    setup = Setup(FakeArm((0.4, 0.0, 0.2, 0.0), clock), None, {n: frames[n] for n in ("third_view", "wrist")},
+                  {n: frames[n] for n in ("left", "right")}, SafetyLimits(), LoopTiming(inference="sync"), clock)
+    stats = deploy(setup, policy, max_steps=3)
+    assert stats.steps == 3 and len(stats.inference_s) == 3 and set(stats.inference_s) == {0.0}  # clock seconds
+    timed = WallTimed(policy)
+    assert timed.config is policy.config and timed.wall_s == []
 
 
 def test_deploy_cli_reports_a_corrupted_checkpoint(checkpoint, capsys):

@@ -4,7 +4,6 @@ import shutil
 
 import pytest
 
-pytest.importorskip("controltac_il.generator")
 from controltac_il.augment import ForceAugment, main  # noqa: E402
 from controltac_il.datasets import EpisodeDataset  # noqa: E402
 from controltac_il.generator import ForceGenerator  # noqa: E402

@@ -14,7 +14,7 @@ import pytest
 import torch
 from torch.utils.data import DataLoader, Dataset
 
-gen_mod = pytest.importorskip("controltac_il.generator")
+import controltac_il.generator as gen_mod  # noqa: E402 (a broken import fails, never skips)
 from controltac_il.augment import (  # noqa: E402
     STATUS, ForceAugment, StaleCacheError, copy_offset, frame_jitter,
 )
@@ -214,6 +214,21 @@ def test_provenance_and_regenerated_force_label(data, gen, tmp_path):
     assert float(a.info(item)["offset"]) == pytest.approx(r["offset"]) and float(a.info(item)["jitter"]) == r["jitter"]
 
 
+def test_every_cached_frame_records_the_one_trajectory_plan(data, gen, tmp_path):
+    from controltac_il.augment.draws import plan_frame
+
+    a = aug(data, gen, tmp_path, copies=2, steps=1)
+    for r in a.provenance():
+        ref = None if r["reference_force"] is None else np.asarray(r["reference_force"])
+        plan = plan_frame(a.config, r["episode"], r["copy"], r["frame"], 0, ref)
+        assert (r["offset"], r["jitter"]) == (plan.offset, plan.jitter)
+        if r["status"] == "regenerated":  # in range: the target asked is the one generated
+            assert r["noise_seed"] == plan.noise_seed
+            np.testing.assert_allclose(r["target_force"], plan.target)
+        if r["status"] == "clamped":
+            assert plan.target[2] > 10.0 or plan.target[2] < 1.0
+
+
 def test_determinism_two_builds_and_online_matches_cache(data, gen, tmp_path):
     a = aug(data, gen, tmp_path, "one")
     b = aug(data, tiny_generator(), tmp_path, "two")
@@ -387,14 +402,6 @@ def test_items_without_indices_or_background(gen, tmp_path):
     assert on[len(on) - 1]["observation.images.tactile_left"].dtype == torch.float32
 
 
-class FramedSubset(torch.utils.data.Subset):
-    """Like the ACT trainer's episode split: a Subset that keeps frame_table()."""
-
-    def frame_table(self):
-        e, f = self.dataset.frame_table()
-        return e[self.indices], f[self.indices]
-
-
 class Opaque(Dataset):
     """The same items through a plain dataset (ForceAugment's generic read path)."""
 
@@ -409,7 +416,9 @@ class Opaque(Dataset):
 
 
 def test_subset_direct_reads_equal_generic_reads(data, gen, tmp_path):
-    sub = FramedSubset(data, list(range(12, 20)))  # episode 1 only
+    from controltac_il.datasets import EpisodeSubset
+
+    sub = EpisodeSubset(data, list(range(12, 20)))  # episode 1 only, as the ACT trainer splits
     fast = aug(sub, gen, tmp_path, "fast", copies=2)
     slow = aug(Opaque(sub), gen, tmp_path, "slow", copies=2)
     assert fast._source is data and slow._source is None

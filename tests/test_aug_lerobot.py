@@ -15,7 +15,6 @@ import pytest
 import torch
 from torch.utils.data import DataLoader, Dataset
 
-pytest.importorskip("controltac_il.generator")
 from test_aug_force_augment import synthetic_episode, tiny_estimator, tiny_generator  # noqa: E402
 
 from controltac_il.augment import STATUS, ForceAugment  # noqa: E402

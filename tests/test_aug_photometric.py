@@ -86,4 +86,5 @@ def test_stage_describes_itself_for_the_training_run():
     stage = PhotometricAugmentStage(2, seed=1)
     assert stage.description["kind"] == "image" and stage.description["copies"] == 2
     assert stage.description["brightness"] == [0.8, 1.2]
-    assert len(stage(Items())) == 18
+    out = stage(Items())
+    assert len(out.dataset) == 18 and out.summary == {"real_items": 6, "jittered_items": 12}

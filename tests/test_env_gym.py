@@ -70,11 +70,12 @@ def test_reset_draws_from_np_random_and_starts_from_the_home_keyframe():
 
 
 def test_gripper_mjcf_compiles_on_its_own():
-    from envs.scene import ASSET
+    from envs.geometry import GRIPPER_XML, qpos_addresses, read_mjcf
 
-    m = mujoco.MjModel.from_xml_path(str(ASSET.parent / "tactile_gripper.xml"))
+    m = mujoco.MjModel.from_xml_path(str(GRIPPER_XML))
     assert m.nu == 6 and m.nq == 6 and m.actuator_ctrllimited.all()
     assert {m.site(i).name for i in range(m.nsite)} == {"tcp", "left_sensor", "right_sensor"}
+    assert qpos_addresses(read_mjcf(GRIPPER_XML)) == {m.joint(i).name: int(m.jnt_qposadr[i]) for i in range(m.njnt)}
 
 
 def test_set_peg_offset_in_hand_moves_only_the_peg_along_the_gel():

@@ -228,24 +228,41 @@ def test_a_hand_start_outside_the_workspace_is_refused(kwargs, fields):
     assert "\n" not in msg and all(f in msg for f in fields), msg
 
 
-def test_config_geometry_constants_match_the_model(physics_env):
-    from envs import config, peg_in_hole, scene
+DIMENSIONS = ("PEG_RADIUS_M", "PEG_HALF_LENGTH_M", "TABLE_HALF_SIZE_M", "PHYSICS_HZ", "HOME_TCP",
+              "WALL_THICKNESS_M", "BASE_THICKNESS_M")
 
-    env = physics_env
-    np.testing.assert_allclose(env._home, config.HOME_TCP)
-    assert config.PEG_RADIUS_M == peg_in_hole.PEG_RADIUS_M and config.PEG_HALF_LENGTH_M == peg_in_hole.PEG_HALF_LENGTH_M
-    assert config.WALL_THICKNESS_M == scene.WALL_THICKNESS_M and config.BASE_THICKNESS_M == scene.BASE_THICKNESS_M
-    assert config.PHYSICS_HZ == pytest.approx(1.0 / env.model.opt.timestep)
+
+def test_scene_dimensions_have_one_owner_that_python_and_the_model_agree_on(physics_env):
+    """The MJCF owns the peg's size, the table's, the timestep and the home pose: envs.geometry reads them
+    from its text (what the config checks before any model exists), the env from the compiled model (its
+    public ``peg_radius_m``, ``peg_half_length_m``, ``home_tcp``); the two readings are equal. envs.geometry
+    owns the receptacle's dimensions, and the built model has them. No other module holds its own copy."""
+    from envs import config, expert, geometry, peg_in_hole, scene
+
+    env, m = physics_env, physics_env.model
+    peg = tuple(float(v) for v in m.geom("peg").size[:2])
+    assert (geometry.PEG_RADIUS_M, geometry.PEG_HALF_LENGTH_M) == (env.peg_radius_m, env.peg_half_length_m) == peg
+    hand = [m.joint(n).qposadr[0] for n in geometry.HAND_JOINTS]
+    assert geometry.HOME_TCP == tuple(float(v) for v in m.key("home").qpos[hand])
+    assert np.array_equal(env.home_tcp, geometry.HOME_TCP)
+    # the qpos layout geometry reads the keyframe with is MuJoCo's, for the scene and for the gripper alone
+    assert geometry.qpos_addresses(geometry.read_mjcf()) == {m.joint(i).name: int(m.jnt_qposadr[i]) for i in range(m.njnt)}
+    assert geometry.PHYSICS_HZ == 1.0 / m.opt.timestep
+    assert geometry.TABLE_HALF_SIZE_M == m.geom("table").size[:2].max()
+    floor = m.geom("hole_floor")
+    assert floor.size[0] == env.config.hole_diameter_mm / 2000 + geometry.WALL_THICKNESS_M
+    assert floor.size[2] == geometry.BASE_THICKNESS_M / 2
+    # one owner: every module that uses a dimension has envs.geometry's object, not a copy of its value
+    for module in (config, expert, peg_in_hole, scene):
+        for name in DIMENSIONS:
+            assert getattr(module, name, getattr(geometry, name)) is getattr(geometry, name), (module.__name__, name)
     # a held peg starts above every rim the config allows (shallowest grasp, deepest hole)
-    assert config.HOME_TCP[2] + 0.010 - 2 * config.PEG_HALF_LENGTH_M > scene.rim_height_m(60.0)
-    assert config.TABLE_HALF_SIZE_M == pytest.approx(env.model.geom("table").size[:2].max())
-    floor = env.model.geom("hole_floor")
-    assert floor.size[0] == pytest.approx(env.config.hole_diameter_mm / 2000 + config.WALL_THICKNESS_M)
+    assert geometry.HOME_TCP[2] + 0.010 - 2 * geometry.PEG_HALF_LENGTH_M > geometry.rim_height_m(60.0)
 
 
 def test_closest_allowed_ranges_start_clear_of_the_receptacle():
     """The nearest peg range the check allows (touching the receptacle's footprint) does not succeed."""
-    from envs.config import PEG_RADIUS_M, WALL_THICKNESS_M
+    from envs.geometry import PEG_RADIUS_M, WALL_THICKNESS_M
 
     hole_x, r_out = 0.07, 0.015 + WALL_THICKNESS_M
     peg_x = hole_x - r_out - PEG_RADIUS_M - 1e-4
@@ -270,7 +287,33 @@ def test_config_repr_is_unchanged():
         "success_depth_mm=30.0, tactile_noise=True, peg_in_hand=False, in_hand_offset_mm=(0.0, 0.0), grasp_depth_mm=18.0, "
         "camera_layout='side')")
     tc = PegInHoleConfig.touch_critical()
+    assert repr(tc) == (
+        "PegInHoleConfig(cameras=('third_view', 'wrist'), camera_size=(96, 128), tactile=True, tactile_size=(120, 160), "
+        "tactile_optics='three_light', ray_stride=3, hole_diameter_mm=30.0, hole_depth_mm=40.0, hole_chamfer_mm=2.0, "
+        "control_hz=10.0, max_steps=60, grip_force_range_n=(4.0, 7.0), peg_xy_range_m=((-0.06, -0.04), (-0.02, 0.02)), "
+        "peg_yaw_range_rad=(0.0, 0.0), hole_xy_range_m=((0.065, 0.075), (-0.005, 0.005)), "
+        "workspace_low=(-0.16, -0.14, 0.012, -1.5707963267948966), workspace_high=(0.16, 0.14, 0.25, 1.5707963267948966), "
+        "success_depth_mm=30.0, tactile_noise=True, peg_in_hand=True, in_hand_offset_mm=(5.0, 8.0), grasp_depth_mm=18.0, "
+        "camera_layout='occluding')")
     assert dataclasses.replace(tc) == tc and scene_config("touch_critical") == tc
+
+
+def test_configs_are_strict_pydantic_dataclasses_with_one_line_errors():
+    """The project's config idiom (controltac_il.config): unknown fields refused; every error one line
+    naming each field at fault."""
+    from pydantic.dataclasses import is_pydantic_dataclass
+
+    for cls in (PegInHoleConfig, ExpertConfig):
+        assert is_pydantic_dataclass(cls)
+        with pytest.raises(ValueError) as err:
+            cls(colour="red")
+        assert str(err.value).startswith("colour:") and "\n" not in str(err.value)
+    with pytest.raises(ValueError) as err:
+        ExpertConfig(free_noise_mm="1", grasp_offset_mm=(3.0, -3.0))
+    msg = str(err.value)
+    assert "\n" not in msg and msg.startswith("free_noise_mm:") and "; grasp_offset_mm:" in msg, msg
+    with pytest.raises(ValueError, match="^in_hand_offset_mm: needs peg_in_hand=True"):
+        PegInHoleConfig(in_hand_offset_mm=(1.0, 2.0))
 
 
 def test_expert_config_and_yaw_wrap():

@@ -9,8 +9,8 @@ import pytest
 
 from controltac_il.tactile import to_residual
 from envs.config import PegInHoleConfig
-from envs.peg_in_hole import PEG_RADIUS_M, PEG_RAYS, PegInHoleEnv
-from envs.scene import WALL_THICKNESS_M
+from envs.geometry import PEG_RADIUS_M, WALL_THICKNESS_M
+from envs.peg_in_hole import PEG_RAYS, PegInHoleEnv
 from envs.tactile_rig import PadRays
 
 SIZE = (60, 80)  # small tactile images keep the tests fast; the pad's physical size is unchanged

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from controltac_il.estimators import EstimatorConfig, TrainConfig, fit
+from controltac_il.estimators import EstimatorConfig, EstimatorTrainConfig, fit
 from controltac_il.estimators.data import (
     estimate_noise_std,
     no_contact_residuals,
@@ -36,7 +36,7 @@ def blobs(n: int, seed: int, h: int = 48, w: int = 60):
 def test_fit_learns_and_sets_force_normalisation():
     x, f = blobs(240, 0)
     xv, fv = blobs(60, 1)
-    est, hist = fit(x, f, TINY, TrainConfig(steps=150, batch_size=32, lr=3e-3, warmup=10, eval_every=0),
+    est, hist = fit(x, f, TINY, EstimatorTrainConfig(steps=150, batch_size=32, lr=3e-3, warmup=10, eval_every=0),
                     val=(xv, fv), progress=False)
     np.testing.assert_allclose(est.config.force_mean, f.mean(0), rtol=1e-5, atol=1e-6)
     baseline = np.abs(fv - f.mean(0)).mean()  # predicting the training mean
@@ -50,7 +50,7 @@ class Crash(Exception):
 
 def test_resume_after_crash_gives_identical_weights(tmp_path):
     x, f = blobs(64, 2)
-    train = TrainConfig(steps=12, batch_size=8, warmup=2, checkpoint_every=5, eval_every=0)
+    train = EstimatorTrainConfig(steps=12, batch_size=8, warmup=2, checkpoint_every=5, eval_every=0)
     ref, _ = fit(x, f, TINY, train, progress=False)
 
     def crash(est, step, history):
@@ -66,7 +66,7 @@ def test_resume_after_crash_gives_identical_weights(tmp_path):
 
 def test_resume_needs_state_and_matching_config(tmp_path):
     x, f = blobs(16, 3)
-    train = TrainConfig(steps=2, batch_size=4, warmup=1, eval_every=0)
+    train = EstimatorTrainConfig(steps=2, batch_size=4, warmup=1, eval_every=0)
     with pytest.raises(FileNotFoundError, match="no training state"):
         fit(x, f, TINY, train, state_dir=tmp_path / "st", resume=True, progress=False)
     fit(x, f, TINY, train, state_dir=tmp_path / "st", progress=False)
@@ -78,20 +78,20 @@ def test_resume_needs_state_and_matching_config(tmp_path):
 def test_fit_rejects_bad_labels():
     x, f = blobs(8, 4)
     with pytest.raises(ValueError, match=r"forces must have shape \(N, 3\)"):
-        fit(x, f[:, :2], TINY, TrainConfig(steps=1), progress=False)
+        fit(x, f[:, :2], TINY, EstimatorTrainConfig(steps=1), progress=False)
     f[0, 2] = np.nan
     with pytest.raises(ValueError, match="NaN"):
-        fit(x, f, TINY, TrainConfig(steps=1), progress=False)
+        fit(x, f, TINY, EstimatorTrainConfig(steps=1), progress=False)
 
 
 def test_train_config_validation_and_schedule():
     with pytest.raises(ValueError, match="steps"):
-        TrainConfig(steps=0)
+        EstimatorTrainConfig(steps=0)
     with pytest.raises(ValueError, match="min_lr"):
-        TrainConfig(lr=1e-3, min_lr=1e-2)
+        EstimatorTrainConfig(lr=1e-3, min_lr=1e-2)
     with pytest.raises(ValueError, match="lr"):
-        TrainConfig(lr=float("inf"))
-    t = TrainConfig(steps=100, lr=1e-3, min_lr=1e-5, warmup=10)
+        EstimatorTrainConfig(lr=float("inf"))
+    t = EstimatorTrainConfig(steps=100, lr=1e-3, min_lr=1e-5, warmup=10)
     opt = torch.optim.AdamW(torch.nn.Linear(2, 2).parameters(), lr=t.lr)
     sched, lrs = t.schedule(opt), []
     for _ in range(t.steps):
@@ -256,7 +256,7 @@ def test_nonfinite_loss_stops_the_fit_keeping_the_last_good_state(tmp_path, monk
 
     monkeypatch.setattr(fit_module, "_loss", loss)
     with pytest.raises(NonFiniteLoss, match=r"step 4.*holds step 2"):
-        fit(x, f, TINY, TrainConfig(steps=10, batch_size=8, checkpoint_every=2, eval_every=0), state_dir=tmp_path / "s",
+        fit(x, f, TINY, EstimatorTrainConfig(steps=10, batch_size=8, checkpoint_every=2, eval_every=0), state_dir=tmp_path / "s",
             progress=False)
     assert json.loads((tmp_path / "s" / "state.json").read_text())["step"] == 2
 
@@ -281,6 +281,6 @@ def test_ctrl_c_saves_the_current_step(tmp_path, monkeypatch):
 
     monkeypatch.setattr(fit_module, "_loss", loss)
     with pytest.raises(TrainingInterrupted, match="step 3"):
-        fit(x, f, TINY, TrainConfig(steps=50, batch_size=8, checkpoint_every=20, eval_every=0), state_dir=tmp_path / "s",
+        fit(x, f, TINY, EstimatorTrainConfig(steps=50, batch_size=8, checkpoint_every=20, eval_every=0), state_dir=tmp_path / "s",
             progress=False, on_checkpoint=lambda est, step, hist: written.append(step))
     assert json.loads((tmp_path / "s" / "state.json").read_text())["step"] == 3 and written == [3]

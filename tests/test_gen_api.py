@@ -306,9 +306,9 @@ def test_in_range_targets_from_float32_labels_are_not_counted_as_clamped():
     target = np.array([[0.1, 0.9, 10.0]], dtype=np.float32)
     delta = (target - ref).astype(np.float64)
     assert ref[0, 2].astype(np.float64) + delta[0, 2] > 10.0  # the float32 round trip overshoots
-    fixed = gen._apply_range(delta, ref.astype(np.float64), "error")
-    assert gen.last_range_report.clamped == 0
-    np.testing.assert_array_equal(fixed, delta)
+    residual = np.full((1, 60, 80, 3), 127, np.uint8)
+    gen.generate(residual, delta, steps=1, reference_force=ref.astype(np.float64), out_of_range="error")  # no raise
+    assert gen.last_range_report.clamped == 0 and gen.last_range_report.skipped == 0
 
 
 # -- inputs the generator was not validated on (issue #20) ---------------------------------------------

@@ -188,8 +188,7 @@ def test_a_previous_run_needs_resume_or_overwrite(dataset, tmp_path, capsys):
 
 
 def test_nonfinite_loss_stops_before_updating_and_ctrl_c_saves_the_step(tmp_path):
-    from controltac_il.training import NonFiniteLoss, TrainingInterrupted, lr_schedule
-    from controltac_il.generator.train import optimise
+    from controltac_il.training import NonFiniteLoss, TrainingInterrupted, lr_schedule, optimise
 
     module = torch.nn.Linear(2, 1)
     opt = torch.optim.AdamW(module.parameters(), lr=1e-2)
@@ -205,13 +204,13 @@ def test_nonfinite_loss_stops_before_updating_and_ctrl_c_saves_the_step(tmp_path
 
     sched = lr_schedule(opt, [1e-2], 10, 0, 1e-3)
     with pytest.raises(NonFiniteLoss, match=r"step 3.*holds step 2"):
-        optimise(0, 10, loss_at(2, _nothing), opt, sched, module, lambda s, l: saved.append(s), 1, "t", 0,
-                 state=tmp_path / "t_state")
+        optimise(0, 10, loss_at(2, _nothing), opt, sched, list(module.parameters()), lambda s, l: saved.append(s), 1,
+                 "t", state=str(tmp_path / "t_state"))
     assert saved == [1, 2] and all(torch.isfinite(p).all() for p in module.parameters())
     saved.clear()
     with pytest.raises(TrainingInterrupted, match="holds step 3 of 10"):
-        optimise(0, 10, loss_at(2, lambda: os.kill(os.getpid(), signal.SIGINT)), opt, sched, module,
-                 lambda s, l: saved.append(s), 100, "t", 0, state=tmp_path / "t_state")
+        optimise(0, 10, loss_at(2, lambda: os.kill(os.getpid(), signal.SIGINT)), opt, sched, list(module.parameters()),
+                 lambda s, l: saved.append(s), 100, "t", state=str(tmp_path / "t_state"))
     assert saved == [3]
 
 

@@ -10,7 +10,8 @@ import threading
 import numpy as np
 import pytest
 
-from hardware.control_loop import ControlLoop, ControlLoopConfig, PolicyError, PolicyLateError
+from controltac_il.config import one_line
+from hardware.control_loop import ControlLoop, ControlLoopConfig, LoopTiming, PolicyError, PolicyLateError
 from hardware.fakes import FakeArm, FakeGripper, SyntheticFrameSource
 from hardware.interfaces import ArmFault, SensorError, VirtualClock
 from hardware.safety import SafetyLimits, SafetyViolation, WatchdogTimeout
@@ -333,3 +334,49 @@ def test_slow_first_inference_does_not_trip_the_watchdog():
     stats = loop.run(max_steps=3)
     assert stats.steps == 3 and len(commands(log)) == 3
     assert stats.cycle_starts == pytest.approx([0.4, 0.5, 0.6])
+
+
+@pytest.mark.parametrize("inference", ["sync", "async"])
+def test_inference_s_is_clock_seconds_in_both_modes(inference):
+    # one meaning in both modes: the loop's clock seconds. A policy that sleeps 30 ms on the (virtual) clock
+    # takes exactly 0.03 s; one that only burns CPU takes no clock time at all, whatever the wall clock says
+    loop, _, _ = make(VirtualClock(), RampPolicy(chunk=5, delay_s=0.03), inference=inference)
+    stats = loop.run(max_steps=4)
+    assert stats.inference_s and stats.inference_s == pytest.approx([0.03] * len(stats.inference_s), abs=1e-12)
+
+    class Busy(RampPolicy):
+        def __call__(self, obs):
+            sum(i * i for i in range(20000))  # wall time only
+            return super().__call__(obs)
+
+    loop, _, _ = make(VirtualClock(), Busy(chunk=5), inference=inference)
+    assert set(loop.run(max_steps=4).inference_s) == {0.0}
+
+
+def test_sync_deadline_uses_the_recorded_clock_seconds():
+    clock = VirtualClock()
+    policy = RampPolicy(chunk=5, late_on_call=3, late_s=0.7)
+    loop, arm, log = make(clock, policy, inference_deadline_s=0.5)
+    with pytest.raises(PolicyLateError, match=r"policy inference at step 2 took 0\.700 s, past its deadline of 0\.5 s"):
+        loop.run(max_steps=10)
+    assert loop.stats.inference_s == pytest.approx([0.0, 0.0, 0.7]) and arm.stopped
+
+
+def test_async_deadline_must_fit_in_the_policys_chunk():
+    # asynchronous: a call longer than one chunk runs the loop out of actions first, so such a deadline never fires
+    with pytest.raises(ValueError) as info:
+        ControlLoopConfig(inference="async", chunk_size=3, inference_deadline_s=0.5)
+    assert one_line(info.value) == (
+        "inference_deadline_s: longer than one chunk of the policy (chunk_size 3 x 0.1 s = 0.3 s): asynchronous "
+        "inference runs out of actions first, so the deadline would never fire; at most 0.3 s (got 0.5)")
+    assert ControlLoopConfig(inference="sync", chunk_size=3, inference_deadline_s=0.5).chunk_size == 3  # the call's own
+    # the chunk size and the decay are the policy's: for_policy adds them to a setup's timing, and checks again
+    timing = LoopTiming(rate_hz=20.0, inference_deadline_s=0.2)
+    cfg = ControlLoopConfig.for_policy(timing, chunk_size=6, ensemble_k=0.02)
+    assert (cfg.rate_hz, cfg.inference_deadline_s, cfg.chunk_size, cfg.ensemble_k) == (20.0, 0.2, 6, 0.02)
+    with pytest.raises(ValueError) as info:
+        ControlLoopConfig.for_policy(timing, chunk_size=3, ensemble_k=0.02)
+    assert one_line(info.value).startswith("inference_deadline_s: longer than one chunk of the policy (chunk_size 3 x "
+                                           "0.05 s = 0.15 s)")
+    with pytest.raises(ValueError, match="chunk_size"):
+        LoopTiming(chunk_size=20)  # a setup's timing has no chunk size

@@ -30,7 +30,9 @@ def test_bad_input_is_one_line_naming_the_flag(argv, flag, capsys):
 
 def test_cameras_cannot_see_the_offset_but_touch_can():
     """Same hand pose, peg held at -8, -5, +5, +8 mm: byte-identical camera images; the contact moves."""
-    check = bench.vision_check(seeds=(0, 3))
+    from controltac_il.app.touch_probes import vision_check
+
+    check = vision_check(seeds=(0, 3))
     assert check["max_pixel_diff"] == {"third_view": 0, "wrist": 0}
     # the left pad's image x runs along -hand x: +3 / +10 / +3 mm move the contact ~24 / 79 / 24 px left
     cols = check["tactile_column_px_mean"]
@@ -97,7 +99,7 @@ def test_quick_grid_writes_cells_picture_and_resumes_without_retraining(tmp_path
 
 
 def test_force_augment_stage_records_only_settings_that_differ_from_the_paper():
-    from controltac_il.app import ForceAugmentStage
+    from controltac_il.augment import ForceAugmentStage
 
     paper = ForceAugmentStage(2)
     assert "offset_range" not in paper.description and "out_of_range" not in paper.description

@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
+import signal
 import subprocess
 import sys
+import time
 import traceback
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,20 +25,23 @@ BUG_TYPES = (IndexError, AttributeError, UnboundLocalError, ZeroDivisionError, A
 
 @dataclass(frozen=True)
 class Probe:
-    """One probe: ``run(tmp) -> (verdict, detail)`` in a fresh folder ``tmp``."""
+    """One probe: ``run(tmp) -> (verdict, detail[, outcome])`` in a fresh folder ``tmp`` (``outcome``: a command's
+    exit code and whether it reported on one line, :func:`outcome`). ``fault``: a runtime fault the user can
+    cause or meet (a missing or corrupt file, an unreachable robot, Ctrl-C, an unwritable output), not bad input."""
 
     surface: str
     name: str
-    run: Callable[[Path], tuple[str, str]]
+    run: Callable[[Path], tuple]
+    fault: bool = False
 
 
 PROBES: list[Probe] = []
 
 
-def probe(surface: str, name: str):
-    """Register the decorated ``fn(tmp) -> (verdict, detail)`` as a probe of ``surface``."""
+def probe(surface: str, name: str, fault: bool = False):
+    """Register the decorated ``fn(tmp) -> (verdict, detail[, outcome])`` as a probe of ``surface``."""
     def register(fn):
-        PROBES.append(Probe(surface, name, fn))
+        PROBES.append(Probe(surface, name, fn, fault))
         return fn
     return register
 
@@ -59,16 +65,94 @@ def _names_all(text: str, names: tuple[str, ...]) -> bool:
     return all(any(alt.lower() in text.lower() for alt in n.split("|")) for n in names)
 
 
-def judge_cli(res: subprocess.CompletedProcess, *names: str) -> tuple[str, str]:
+_BAR = re.compile(r"^.*?\[(\d+:)?\d\d:\d\d[^\]]*\]")  # a tqdm bar: ... [elapsed<remaining, rate]
+
+
+def error_lines(stderr: str) -> list[str]:
+    """The lines of ``stderr`` as a terminal shows them (the text after a line's last carriage return: tqdm
+    redraws its bar with them, and a message printed while a bar is open continues its line), progress bars
+    left out."""
+    shown = [ln.split("\r")[-1] for ln in stderr.split("\n")]
+    return [rest for ln in shown if (rest := ln[m.end():] if (m := _BAR.match(ln)) else ln).strip()]
+
+
+def outcome(res: subprocess.CompletedProcess) -> dict:
+    """What the table records of a command: its exit code and whether it reported on one line (stderr,
+    progress bars aside, is one line and holds no traceback)."""
+    lines = error_lines(res.stderr)
+    return {"exit_code": res.returncode,
+            "one_line": len(lines) == 1 and "Traceback (most recent call last)" not in res.stderr}
+
+
+def judge_cli(res: subprocess.CompletedProcess, *names: str) -> tuple[str, str, dict]:
     """A refused command: clear when it exits 2 without a traceback and its stderr names ``names``."""
-    err = res.stderr
+    err, out = res.stderr, outcome(res)
     if res.returncode == 0:
-        return SILENT, "exit 0: " + last_line(res.stdout or err)
+        return SILENT, "exit 0: " + last_line(res.stdout or err), out
     if "Traceback (most recent call last)" in err:
-        return UNCLEAR, f"exit {res.returncode}, traceback: {last_line(err)}"
+        return UNCLEAR, f"exit {res.returncode}, traceback: {last_line(err)}", out
     if res.returncode == 2 and _names_all(err, names):
-        return CLEAR, last_line(err)
-    return UNCLEAR, f"exit {res.returncode}: {last_line(err)}"
+        return CLEAR, last_line(err), out
+    return UNCLEAR, f"exit {res.returncode}: {last_line(err)}", out
+
+
+def judge_fault(res: subprocess.CompletedProcess, *names: str, code: int | None = None) -> tuple[str, str, dict]:
+    """A runtime fault a command met (a missing or corrupt file, a robot that does not answer, Ctrl-C, an output
+    it cannot write): clear when it exits non-zero (``code`` when given) with one line on stderr that names
+    ``names`` and no traceback; the row records the exit code and whether the report was one line."""
+    out, lines = outcome(res), error_lines(res.stderr)
+    if res.returncode == 0:
+        return SILENT, "exit 0: " + last_line(res.stdout or res.stderr), out
+    if "Traceback (most recent call last)" in res.stderr:
+        return UNCLEAR, f"exit {res.returncode}, traceback: {last_line(res.stderr)}", out
+    if not out["one_line"]:
+        return UNCLEAR, f"exit {res.returncode}, {len(lines)} lines: {last_line(res.stderr)}", out
+    if (code is None or res.returncode == code) and _names_all(lines[0], names):
+        return CLEAR, f"exit {res.returncode}: {lines[0][:220]}", out
+    return UNCLEAR, f"exit {res.returncode}: {lines[0][:220]}", out
+
+
+def run_cli_interrupted(args: list[str], wait_for: str, after_s: float = 2.0, timeout: float = 300,
+                        cache: Path | None = None) -> subprocess.CompletedProcess:
+    """``python ARGS`` as :func:`run_cli`, sent Ctrl-C (SIGINT) ``after_s`` seconds after ``wait_for`` (a regular
+    expression) first shows in its output. A command that never shows it is killed at ``timeout`` (exit -9);
+    one that finishes first gets no Ctrl-C; either way a line on ``stderr`` says so."""
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MUJOCO_GL": "egl", "PYTHONPATH": str(REPO), "PYTHONUNBUFFERED": "1",
+           **({"CONTROLTAC_CACHE": str(cache)} if cache else {})}
+    folder = Path(os.environ.get("TMPDIR", "/tmp"))
+    with (open(folder / f"probe-out-{os.getpid()}.txt", "w+") as out,
+          open(folder / f"probe-err-{os.getpid()}.txt", "w+") as err):
+        proc = subprocess.Popen([sys.executable, *args], cwd=REPO, env=env, stdout=out, stderr=err,
+                                stdin=subprocess.DEVNULL,
+                                # a background shell starts us with SIGINT ignored; Ctrl-C must reach the child
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+        note = _interrupt_when(proc, re.compile(wait_for), after_s, timeout, (out.name, err.name))
+        out.seek(0), err.seek(0)
+        stdout, stderr = out.read(), err.read() + note
+    for f in (out.name, err.name):
+        os.unlink(f)
+    return subprocess.CompletedProcess(args, proc.returncode, stdout, stderr)
+
+
+def _interrupt_when(proc: subprocess.Popen, pattern: re.Pattern, after_s: float, timeout: float,
+                    logs: tuple[str, str]) -> str:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and proc.poll() is None:
+        if any(pattern.search(Path(f).read_text(errors="replace")) for f in logs):
+            time.sleep(after_s)
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(timeout=max(deadline - time.monotonic(), 30))
+            except subprocess.TimeoutExpired:
+                proc.kill(), proc.wait()
+                return "\n[probe: still running 30 s after Ctrl-C, killed]"
+            return ""
+        time.sleep(0.5)
+    if proc.poll() is None:
+        proc.kill(), proc.wait()
+        return f"\n[probe: {pattern.pattern!r} never showed within {timeout:g} s, killed]"
+    return f"\n[probe: finished before {pattern.pattern!r} showed; no Ctrl-C sent]"
 
 
 def judge_call(fn: Callable[[], object], *names: str) -> tuple[str, str]:

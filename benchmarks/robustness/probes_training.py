@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.robustness.harness import (
-    CLEAR, HANDLED, LOSS, REPO, SILENT, UNCLEAR, demo_episodes, edit_episode, judge_call, judge_cli, lost, probe,
+    HANDLED, LOSS, REPO, SILENT, demo_episodes, edit_episode, judge_call, judge_cli, lost, outcome, probe,
     run_cli, snapshot, tiny_checkpoint,
 )
 
@@ -136,9 +136,10 @@ def _(tmp):
         proc.wait(timeout=120)
     cfg = out / "last" / "config.json"
     step = json.loads(cfg.read_text()).get("meta", {}).get("step", 0) if cfg.is_file() else 0
+    reported = outcome(subprocess.CompletedProcess([], proc.returncode, "", log.read_text()))
     if step > 0:
-        return HANDLED, f"exit {proc.returncode}; last/ holds step {step}"
-    return SILENT, f"exit {proc.returncode}; nothing saved ({'no last/' if not cfg.is_file() else 'step 0'})"
+        return HANDLED, f"exit {proc.returncode}; last/ holds step {step}", reported
+    return SILENT, f"exit {proc.returncode}; nothing saved ({'no last/' if not cfg.is_file() else 'step 0'})", reported
 
 
 @probe("EpisodeDataset", "stats_path pointing at a file of the user's")

@@ -1,15 +1,20 @@
 """Deploy a trained ACT through the robot's control loop: one ``deploy(setup, policy)`` for every robot.
 
 A *setup* is anything with ``arm``, ``gripper``, ``cameras``, ``tactile`` (FrameSource by name),
-``limits`` (SafetyLimits), ``control`` (ControlLoopConfig) and ``clock``: ``hardware.config.open_setup``
+``limits`` (SafetyLimits), ``control`` (LoopTiming, or a ControlLoopConfig) and ``clock``: ``hardware.config.open_setup``
 gives one for an xArm or a UR, ``envs.sim_robot.SimRobot`` one for the MuJoCo scene (virtual clock,
-synchronous inference, deterministic). The policy's own chunk size and temporal-ensembling
-coefficient are used; the setup gives the rate and the inference mode.
+synchronous inference, deterministic). The policy owns the chunk size and the temporal-ensembling
+coefficient (its checkpoint; a setup file may not state them); the setup gives the rate, the inference mode
+and the deadlines, and the inference deadline is checked against the policy's chunk when the loop is built
+(for a robot before anything connects).
+
+Times: the loop's statistics (``LoopStats``) are in its clock's seconds, virtual in the simulation; the
+simulated evaluation's ``inference_ms`` is the model's wall-clock latency, measured here around each call.
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
+import time
 from pathlib import Path
 
 import numpy as np
@@ -19,9 +24,9 @@ from controltac_il.metrics import wilson_interval
 from envs.config import EVAL_SEED, SENSORS, scene_config
 from envs.peg_in_hole import PegInHoleEnv
 from envs.sim_robot import SimRobot
-from hardware.config import load_setup, open_setup
-from hardware.control_loop import ControlLoop, LoopStats
-from hardware.interfaces import ACTION_DIM, ACTION_NAMES
+from hardware.config import load_setup, loop_config, open_setup
+from hardware.control_loop import ControlLoop, ControlLoopConfig, LoopStats
+from hardware.interfaces import ACTION_DIM, ACTION_NAMES, HardwareError  # noqa: F401 - HardwareError for the CLI
 from policies.act.policy import ACTPolicy
 from policies.act.training import resolve_checkpoint
 
@@ -50,28 +55,45 @@ def check_setup(policy: ACTPolicy, cameras, tactile) -> None:
 def deploy(setup, policy: ACTPolicy, max_steps: int | None = None, stop_when=None) -> LoopStats:
     """Run ``policy`` on ``setup`` through :class:`ControlLoop` until ``max_steps`` or ``stop_when()``.
 
-    The checkpoint and the set-up are checked against each other before anything moves; the loop stops
-    the arm on Ctrl-C, a fault, a stale frame or a late policy. Returns the loop's statistics.
+    The checkpoint and the set-up are checked against each other before anything moves (the inference
+    deadline against the policy's chunk too); the loop stops the arm on Ctrl-C, a fault, a stale frame or a
+    late policy. Returns the loop's statistics (clock seconds).
     """
     check_setup(policy, setup.cameras, setup.tactile)
-    control = replace(setup.control, chunk_size=policy.config.chunk_size,
-                      ensemble_k=policy.config.temporal_ensemble_coeff)
+    config = ControlLoopConfig.for_policy(setup.control, policy.config.chunk_size,
+                                          policy.config.temporal_ensemble_coeff)
     loop = ControlLoop(setup.arm, policy, gripper=setup.gripper, cameras=setup.cameras, tactile=setup.tactile,
-                       limits=setup.limits, clock=setup.clock, config=control)
+                       limits=setup.limits, clock=setup.clock, config=config)
     on_step = (lambda step, obs, target: stop_when()) if stop_when is not None else None
     return loop.run(max_steps=max_steps, on_step=on_step)
+
+
+class WallTimed:
+    """``policy`` with the wall-clock duration of every call in ``wall_s`` (the simulation's clock is virtual,
+    so the loop's own ``inference_s`` does not see the model's latency); ``config`` is the policy's."""
+
+    def __init__(self, policy: ACTPolicy):
+        self.policy, self.config, self.wall_s = policy, policy.config, []
+
+    def __call__(self, observation):
+        t0 = time.perf_counter()
+        try:
+            return self.policy(observation)
+        finally:
+            self.wall_s.append(time.perf_counter() - t0)
 
 
 def run_sim_episode(policy: ACTPolicy, env: PegInHoleEnv, seed: int) -> dict:
     """One seeded scene episode through :func:`deploy`; ends at success or after the scene's max_steps.
 
-    Returns success, steps, seed, inference_ms (per call), stop_reason, safety clamp counts,
-    grip_force_n and insertion_mm.
+    Returns success, steps, seed, inference_ms (wall-clock ms per policy call), stop_reason, safety clamp
+    counts, grip_force_n and insertion_mm.
     """
+    timed = WallTimed(policy)
     with SimRobot(seed=seed, env=env) as robot:
-        stats = deploy(robot, policy, max_steps=env.config.max_steps, stop_when=lambda: robot.success)
+        stats = deploy(robot, timed, max_steps=env.config.max_steps, stop_when=lambda: robot.success)
         return {"success": robot.success, "steps": robot.steps, "seed": seed,
-                "inference_ms": [t * 1e3 for t in stats.inference_s], "stop_reason": stats.stop_reason,
+                "inference_ms": [t * 1e3 for t in timed.wall_s], "stop_reason": stats.stop_reason,
                 "safety": stats.safety.as_dict(), "grip_force_n": env.grip_force_n,
                 "insertion_mm": float(robot.last_info.get("insertion_mm", 0.0))}
 
@@ -84,7 +106,8 @@ def evaluate_in_sim(checkpoint, episodes: int = 50, seed: int = EVAL_SEED,
     grip_force_range: per-finger grip force range (N) of the test episodes; None = the scene's (the
         range the demos were collected with). env_overrides: other PegInHoleConfig fields.
     scene: "default" or "touch_critical" (``envs.config.scene_config``).
-    Returns successes, episodes, success_rate, wilson95 and per-episode outcomes.
+    Returns successes, episodes, success_rate, wilson95, inference_ms_p50 (the model's wall-clock latency per
+    call, median over every call of every episode) and per-episode outcomes.
     """
     policy = load_policy(checkpoint)
     overrides = dict(env_overrides or {})
@@ -117,12 +140,15 @@ def evaluate_in_sim(checkpoint, episodes: int = 50, seed: int = EVAL_SEED,
 def deploy_on_robot(kind: str, checkpoint, setup_yaml: str | Path, max_steps: int | None = None) -> dict:
     """Run the policy on the robot described by ``setup_yaml`` (``hardware/configs/*.yaml``).
 
-    Checked before any device is connected; returns the loop's deadline statistics.
+    Checked before any device is connected (the setup, the checkpoint against it, the setup's inference
+    deadline against the policy's chunk); returns the loop's deadline statistics. A device that cannot be
+    reached or fails is a :class:`~hardware.interfaces.HardwareError` naming the setup file.
     """
     setup_cfg = load_setup(setup_yaml)
     if setup_cfg.robot.type != kind:
         raise ValueError(f"--robot {kind}, but {setup_yaml} describes robot.type {setup_cfg.robot.type!r}")
     policy = load_policy(checkpoint)
     check_setup(policy, setup_cfg.cameras, setup_cfg.tactile)
+    loop_config(setup_cfg, policy.config.chunk_size, policy.config.temporal_ensemble_coeff)
     with open_setup(setup_cfg) as setup:
         return deploy(setup, policy, max_steps=max_steps).summary()

@@ -10,45 +10,44 @@ Wilson 95 % interval and the time per stage. Demos and augmentation caches are k
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
+from typing import Annotated
+
+from pydantic import Field
+from pydantic.dataclasses import dataclass
 
 from controltac_il.app.deploy import evaluate_in_sim
 from controltac_il.app.demos import default_demos
 from controltac_il.app.train import train_act
+from controltac_il.config import STRICT
 from controltac_il.io import write_json
 from controltac_il.tactile import HELDOUT_OBJECTS, TRAIN_OBJECTS, TactileSensor
 from controltac_il.tactile.sheet import contact_sheet, save_png
 from envs.config import EVAL_SEED
-from policies.act.training import TrainConfig
+from policies.act.training import ACTTrainConfig
 
 SHEET_FORCES = (1.0, 3.0, 6.0, 10.0)  # N, the contact sheet's columns
 
 
-@dataclass
+@dataclass(config=STRICT)
 class PipelineConfig:
-    """The main job's sizes (defaults: the embedded default, < 15 min on 2 cores).
+    """The main job's sizes (defaults: the embedded default, < 15 min on 2 cores); validated at construction
+    (pydantic, ValueError naming the field; :func:`controltac_il.config.one_line` spells it as its flag).
 
-    demos: scripted demos collected in the scene. copies: ForceAugment copies (0 = real only).
-    steps / batch_size: ACT training (cpu preset). eval_episodes: seeded deployment episodes
-    (scene seeds from ``envs.config.EVAL_SEED``, disjoint from the demos').
+    demos: scripted demos collected in the scene (>= 1). copies: ForceAugment copies (0..9; 0 = real only).
+    steps / batch_size: ACT training (cpu preset; >= 1). eval_episodes: seeded deployment episodes
+    (>= 1; scene seeds from ``envs.config.EVAL_SEED``, disjoint from the demos').
     generator: generator checkpoint (None = shipped). seed: training / augmentation seed.
     """
 
-    demos: int = 20
-    copies: int = 1
-    steps: int = 1500
-    batch_size: int = 16
-    eval_episodes: int = 10
+    demos: Annotated[int, Field(ge=1)] = 20
+    copies: Annotated[int, Field(ge=0, le=9)] = 1
+    steps: Annotated[int, Field(ge=1)] = 1500
+    batch_size: Annotated[int, Field(ge=1)] = 16
+    eval_episodes: Annotated[int, Field(ge=1)] = 10
     generator: str | None = None
     seed: int = 0
-
-    def __post_init__(self) -> None:
-        for name in ("demos", "steps", "batch_size", "eval_episodes"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"PipelineConfig.{name} must be >= 1, got {getattr(self, name)}")
-        if not 0 <= self.copies <= 9:
-            raise ValueError(f"PipelineConfig.copies must be in 0..9, got {self.copies}")
 
 
 def render_contact_sheet(out: Path) -> Path:
@@ -73,7 +72,7 @@ def run_pipeline(out: str | Path = "out/pipeline", config: PipelineConfig | None
     print(f"[collect] {cfg.demos} demos in {demos} ({times['collect']:.1f} s)")
 
     t = time.perf_counter()
-    train_config = TrainConfig(steps=cfg.steps, batch_size=cfg.batch_size, seed=cfg.seed,
+    train_config = ACTTrainConfig(steps=cfg.steps, batch_size=cfg.batch_size, seed=cfg.seed,
                                val_every=max(cfg.steps // 4, 1))
     summary = train_act(out / "act", demos, train_config=train_config, copies=cfg.copies,
                         generator=cfg.generator, progress=progress)

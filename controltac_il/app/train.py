@@ -5,13 +5,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from controltac_il.app.augment_stage import ForceAugmentStage
+from controltac_il.augment import ForceAugmentStage
 from controltac_il.app.demos import default_demos
-from policies.act.training import TrainConfig, train_on_folder
+from policies.act.training import ACTTrainConfig, train_on_folder
 
 
 def train_act(out: str | Path, dataset: str | Path | None = None, *, demos: int = 20, preset: str = "cpu",
-              train_config: TrainConfig | None = None, copies: int = 0, generator: str | Path | None = None,
+              train_config: ACTTrainConfig | None = None, copies: int = 0, generator: str | Path | None = None,
               val_fraction: float = 0.1, chunk_size: int = 20, resume: bool = False, overwrite: bool = False,
               progress: bool = True) -> dict:
     """Train into ``out`` (``last/``, ``best/``, ``train_log.json``); returns the training summary.
@@ -21,7 +21,7 @@ def train_act(out: str | Path, dataset: str | Path | None = None, *, demos: int 
     resume / overwrite: continue the run in ``out`` / replace it (only what the training wrote); without
     either, an ``out`` holding a run is refused (``policies.act.training.train``).
     """
-    train_config = train_config or TrainConfig()
+    train_config = train_config or ACTTrainConfig()
     if dataset is None:
         dataset = default_demos(demos)
     augment = ForceAugmentStage(copies, generator, seed=train_config.seed) if copies else None

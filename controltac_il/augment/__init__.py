@@ -35,7 +35,7 @@ under ``force_keys`` / ``background_keys`` or our layout's naming rule (module `
 Modules: ``config`` (ForceAugmentConfig), ``keys`` (which item keys are read), ``items`` (item adapters),
 ``reference`` (contact and reference forces), ``draws`` (offset, jitter, noise seeds), ``records`` (status codes, the ``augment`` tensor),
 ``online`` (generation on access), ``provenance`` / ``writer`` / ``reader`` (the sharded cache), ``dataset``
-(``ForceAugment``), ``cli`` (``python -m controltac_il.augment``). The generator alone decides what
+(``ForceAugment``), ``stage`` (``ForceAugmentStage``, a training run's stage), ``cli`` (``python -m controltac_il.augment``). The generator alone decides what
 happens to a target outside its validated range (``controltac_il.generator.forces``).
 """
 
@@ -45,9 +45,10 @@ from controltac_il.augment.dataset import ForceAugment
 from controltac_il.augment.draws import copy_offset, frame_jitter, noise_seed
 from controltac_il.augment.provenance import CACHE_FORMAT, FrameRecord, StaleCacheError
 from controltac_il.augment.records import AUGMENT_FIELDS, STATUS
+from controltac_il.augment.stage import ForceAugmentStage
 
 __all__ = [
     "AUGMENT_FIELDS", "BUILD", "CACHE_FORMAT", "MODES", "OUT_OF_RANGE", "STATUS", "ForceAugment",
-    "ForceAugmentConfig", "FrameRecord", "StaleCacheError", "copy_offset", "frame_jitter", "main",
+    "ForceAugmentConfig", "ForceAugmentStage", "FrameRecord", "StaleCacheError", "copy_offset", "frame_jitter", "main",
     "noise_seed",
 ]

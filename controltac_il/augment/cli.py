@@ -16,6 +16,7 @@ from pathlib import Path
 from controltac_il.augment.config import ForceAugmentConfig
 from controltac_il.augment.dataset import ForceAugment
 from controltac_il.augment.provenance import StaleCacheError
+from controltac_il.config import one_line
 from controltac_il.datasets.act_dataset import EpisodeDataset
 
 PROG = "python -m controltac_il.augment"
@@ -178,6 +179,9 @@ def main(argv=None) -> int:
             raise UsageError("--out", " ".join(str(exc).split())) from exc
     except UsageError as exc:
         print(f"{PROG}: error: {exc.flag + ': ' if exc.flag else ''}{exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # e.g. --out under a file, a full disk
+        print(f"{PROG}: error: {one_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted; every chunk written so far is complete: re-run the same command to resume",

@@ -315,12 +315,14 @@ class ForceAugment(Dataset):
             raise ValueError("provenance: only in mode='cache'")
         return [{"pose_offset": None, **r} for e, k in self.chunk_list() for r in self._chunk(e, k).records]
 
-    def summary(self) -> dict:
-        """Counts over the augmented copies: tactile frames, no_contact, regenerated, clamped, skipped.
+    def summary(self, copies: int | None = None) -> dict:
+        """Counts over the augmented copies (the first ``copies`` of them; None: all): tactile frames, no_contact,
+        regenerated, clamped, skipped.
 
         From the cache's provenance in cache mode; from ``plan()`` (one pass over the data) online.
         """
         recs = self.provenance() if self.config.mode == "cache" else self.plan()
+        recs = [r for r in recs if copies is None or r["copy"] <= copies]
         counts = {name: 0 for name in ("no_contact", "regenerated", "clamped", "skipped")}
         for r in recs:
             counts[r["status"]] += 1

@@ -1,6 +1,10 @@
-"""The draws of a virtual trajectory, pure functions of (seed, episode, copy, frame), and its target force."""
+"""The plan of a virtual trajectory: every draw a pure function of (seed, episode, copy, frame), and what one
+tactile frame asks of the generator (:func:`plan_frame`, the one place both the cache writer and online mode
+take it from)."""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -53,6 +57,35 @@ def requested_target(reference, delta_fz: float) -> np.ndarray:
     """The target force (3,) N asked of the generator: reference + (0, 0, offset + jitter). Not clamped:
     the generator decides what to do with a target outside its validated range."""
     return np.asarray(reference, np.float64) + np.array([0.0, 0.0, delta_fz])
+
+
+# A reference force the generator was not validated on cannot be moved: both modes keep such a frame real.
+REFERENCE_OUT_OF_RANGE = "skip"
+
+
+@dataclass(frozen=True)
+class FramePlan:
+    """What one tactile frame (key ``key_index``) of copy ``copy`` asks of the generator.
+
+    offset: the copy's normal-force offset (N); jitter: the frame's jitter (N); target: the requested target
+    force (3,) N = reference + (0, 0, offset + jitter), None without a reference (no contact); noise_seed: the
+    generator's noise seed for this image; move: the copy's rigid contact move (dx_px, dy_px, dθ rad) or None."""
+
+    offset: float
+    jitter: float
+    target: np.ndarray | None
+    noise_seed: int
+    move: tuple[float, float, float] | None
+
+
+def plan_frame(config, episode: int, copy: int, frame: int, key_index: int, reference=None) -> FramePlan:
+    """The :class:`FramePlan` of one tactile frame under ``config`` (a ForceAugmentConfig); ``reference``: the
+    frame's reference force (3,) N, None when it is not in contact."""
+    offset = copy_offset(config.seed, episode, copy, config.offset_range)
+    jitter = frame_jitter(config.seed, episode, copy, frame, config.jitter)
+    target = None if reference is None else requested_target(reference, offset + jitter)
+    return FramePlan(offset, jitter, target, noise_seed(config.seed, episode, copy, frame, key_index),
+                     copy_pose_offset(config.seed, episode, copy, config.pose_offset))
 
 
 def status_of(decision, i: int) -> int:

@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from torch.utils.data import Subset
 
-from controltac_il.datasets.act_dataset import EpisodeDataset
+from controltac_il.datasets.act_dataset import EpisodeDataset, EpisodeSubset
+from controltac_il.datasets.stage import FrameTable
 
 
 def as_array(value) -> np.ndarray:
@@ -92,12 +92,11 @@ def check_probe(probe) -> None:
 
 
 def episode_source(dataset) -> tuple[EpisodeDataset | None, np.ndarray | None]:
-    """The EpisodeDataset behind ``dataset`` (itself or a ``Subset`` of one with ``frame_table``) and the
-    subset's indices. Those are read directly, skipping the tactile frames the cache replaces."""
+    """The EpisodeDataset behind ``dataset`` (itself or an ``EpisodeSubset`` of one) and the subset's indices.
+    Those are read directly, skipping the tactile frames the cache replaces."""
     if isinstance(dataset, EpisodeDataset):
         return dataset, None
-    if isinstance(dataset, Subset) and isinstance(dataset.dataset, EpisodeDataset) and callable(
-            getattr(dataset, "frame_table", None)):
+    if isinstance(dataset, EpisodeSubset) and isinstance(dataset.dataset, EpisodeDataset):
         return dataset.dataset, np.asarray(dataset.indices, np.int64)
     return None, None
 
@@ -105,9 +104,8 @@ def episode_source(dataset) -> tuple[EpisodeDataset | None, np.ndarray | None]:
 def index_columns(dataset, n: int) -> tuple[np.ndarray, np.ndarray] | None:
     """(episode_index, frame_index) of every item without reading images, where the dataset can tell:
     ``frame_table()`` (ours), or LeRobot's ``hf_dataset`` columns (row i is item i); None otherwise."""
-    table = getattr(dataset, "frame_table", None)
-    if callable(table):
-        eps, frames = table()
+    if isinstance(dataset, FrameTable):
+        eps, frames = dataset.frame_table()
         return np.asarray(eps, np.int64), np.asarray(frames, np.int64)
     hf = getattr(dataset, "hf_dataset", None)
     if hf is None:

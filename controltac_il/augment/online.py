@@ -13,8 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from controltac_il.augment.config import ForceAugmentConfig
-from controltac_il.augment.draws import (copy_offset, copy_pose_offset, frame_jitter, moved_contact, noise_seed,
-                                         requested_target, status_of)
+from controltac_il.augment.draws import REFERENCE_OUT_OF_RANGE, moved_contact, plan_frame, status_of
 from controltac_il.augment.items import put_force, put_image, to_hwc_uint8
 from controltac_il.augment.keys import KeyMap
 from controltac_il.augment.records import STATUS, FrameOutcome, KeyOutcome
@@ -65,14 +64,12 @@ class OnlineGenerator:
     def item(self, item: dict, episode: int, copy: int, frame: int) -> tuple[dict, FrameOutcome]:
         """Replace the frames of ``item`` (frame ``frame`` of copy ``copy`` of ``episode``) that the generator
         redraws; returns the item and what was done to its own frame per key."""
-        cfg = self.config
-        offset = copy_offset(cfg.seed, episode, copy, cfg.offset_range)
         own = []
         for j, k in enumerate(self.keys.tactile_keys):
             mine = None
             for p, f in self.keys.positions(item, k, frame):
                 image = to_hwc_uint8(item[k] if p is None else item[k][p], k)
-                outcome, new = self.frame(item, image, episode, copy, f, j, offset)
+                outcome, new = self.frame(item, image, episode, copy, f, j)
                 if new is not None:
                     put_image(item, k, new, p)
                     for q in self.keys.label_positions(item, k, frame, f):
@@ -80,10 +77,11 @@ class OnlineGenerator:
                 if f == frame:
                     mine = outcome
             own.append(mine)
-        return item, FrameOutcome(offset, frame_jitter(cfg.seed, episode, copy, frame, cfg.jitter), tuple(own))
+        plan = plan_frame(self.config, episode, copy, frame, 0)
+        return item, FrameOutcome(plan.offset, plan.jitter, tuple(own))
 
-    def frame(self, item: dict, image: np.ndarray, episode: int, copy: int, frame: int, j: int,
-              offset: float) -> tuple[KeyOutcome, np.ndarray | None]:
+    def frame(self, item: dict, image: np.ndarray, episode: int, copy: int, frame: int, j: int
+              ) -> tuple[KeyOutcome, np.ndarray | None]:
         """One frame of tactile key ``j``: its outcome and the generated image (None: keep the real one)."""
         cfg, k = self.config, self.keys.tactile_keys[j]
         if self.tables is not None:
@@ -96,12 +94,12 @@ class OnlineGenerator:
             ref = self.references.of_frame(residual, self.references.label(item, k))
         if ref is None:
             return KeyOutcome(STATUS["no_contact"]), None
-        jitter = frame_jitter(cfg.seed, episode, copy, frame, cfg.jitter)
-        mask = moved_contact(residual, copy_pose_offset(cfg.seed, episode, copy, cfg.pose_offset))
-        res = self.generator.generate_at(residual[None], ref[None], requested_target(ref, offset + jitter)[None],
-                                         steps=self.steps, seed=[noise_seed(cfg.seed, episode, copy, frame, j)],
+        plan = plan_frame(cfg, episode, copy, frame, j, ref)
+        mask = moved_contact(residual, plan.move)
+        res = self.generator.generate_at(residual[None], ref[None], plan.target[None],
+                                         steps=self.steps, seed=[plan.noise_seed],
                                          batch_size=cfg.batch_size, out_of_range=cfg.out_of_range,
-                                         reference_out_of_range="skip",  # as the cache writer: keep it real
+                                         reference_out_of_range=REFERENCE_OUT_OF_RANGE,
                                          **({} if mask is None else {"mask": mask}))
         target, status = res.decision.target[0], status_of(res.decision, 0)
         outcome = KeyOutcome(status, reference=ref, target=target)

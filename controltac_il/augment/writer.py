@@ -17,11 +17,11 @@ import numpy as np
 from tqdm import tqdm
 
 from controltac_il.augment.config import ForceAugmentConfig
-from controltac_il.augment.draws import (copy_offset, copy_pose_offset, frame_jitter, moved_contact, noise_seed,
-                                         requested_target, status_of)
+from controltac_il.augment.draws import REFERENCE_OUT_OF_RANGE, moved_contact, plan_frame, status_of
 from controltac_il.augment.provenance import ChunkSpec, FrameRecord, chunk_dir, chunk_done, provenance_text
 from controltac_il.augment.records import STATUS_NAME
 from controltac_il.augment.reference import EpisodeFrames
+from controltac_il.generator.forces import TargetDecision
 from controltac_il.io import atomic_dir, remove_leftovers
 from controltac_il.tactile.residual import from_residual
 
@@ -29,9 +29,6 @@ from controltac_il.tactile.residual import from_residual
 class CacheWriter:
     """Writes chunks of ``cache_dir``. episodes: episode -> [(frame, dataset index)] sorted by frame;
     load_episode: episode -> EpisodeFrames; spec: what each chunk records of the cache's settings."""
-
-    # A reference force the generator was not validated on cannot be moved: keep the frame real.
-    REFERENCE_OUT_OF_RANGE = "skip"
 
     def __init__(self, cache_dir: Path, generator, config: ForceAugmentConfig, steps: int, tactile_keys,
                  episodes: dict, load_episode: Callable[[int], EpisodeFrames], spec: ChunkSpec):
@@ -42,19 +39,16 @@ class CacheWriter:
     def draft(self, episode: int, copy: int, ep: EpisodeFrames) -> tuple[list[FrameRecord], list[int]]:
         """Records of one chunk (every tactile key x frame) with the requested target of each frame in
         contact, and the positions of those records (what the generator is asked for)."""
-        cfg = self.config
-        offset = copy_offset(cfg.seed, episode, copy, cfg.offset_range)
         records, asked = [], []
         for j, k in enumerate(self.tactile_keys):
             for i, (t, _) in enumerate(self.episodes[episode]):
-                jitter = frame_jitter(cfg.seed, episode, copy, t, cfg.jitter)
-                rec = FrameRecord(episode, copy, t, k, offset, jitter, None, None, "no_contact", -1, None,
+                ref = ep.reference[k][i] if ep.contact[k][i] else None
+                plan = plan_frame(self.config, episode, copy, t, j, ref)
+                rec = FrameRecord(episode, copy, t, k, plan.offset, plan.jitter, None, None, "no_contact", -1, None,
                                   str(self.generator.checkpoint_hash), self.steps, ep.background_source[k])
-                if ep.contact[k][i]:
-                    ref = ep.reference[k][i]
-                    rec.reference_force = ref.tolist()
-                    rec.target_force = requested_target(ref, offset + jitter).tolist()
-                    rec.noise_seed = noise_seed(cfg.seed, episode, copy, t, j)
+                if ref is not None:
+                    rec.reference_force, rec.target_force = ref.tolist(), plan.target.tolist()
+                    rec.noise_seed = plan.noise_seed
                     asked.append(len(records))
                 records.append(rec)
         return records, asked
@@ -77,7 +71,7 @@ class CacheWriter:
 
     def pose_masks(self, episode: int, copy: int, residuals: np.ndarray) -> tuple[tuple | None, list]:
         """The copy's rigid move and, per residual, its moved contact mask (None: the force change alone)."""
-        move = copy_pose_offset(self.config.seed, episode, copy, self.config.pose_offset)
+        move = plan_frame(self.config, episode, copy, 0, 0).move
         return move, [moved_contact(r, move) for r in residuals]
 
     @staticmethod
@@ -93,16 +87,13 @@ class CacheWriter:
         refs = np.asarray([r.reference_force for r in todo], np.float64).reshape(-1, 3)
         return todo, residuals, refs, np.asarray([r.target_force for r in todo], np.float64).reshape(-1, 3)
 
-    def _settle_planned(self, records, asked, refs: np.ndarray, targets: np.ndarray) -> None:
-        """``settle`` with the generator's range decision for these forces (what ``generate_at`` decides)."""
-        self.settle(records, asked, self.generator.resolve_targets(
-            targets, self.config.out_of_range, reference_force=refs, reference_out_of_range=self.REFERENCE_OUT_OF_RANGE))
-
     def plan_chunk(self, episode: int, copy: int, ep: EpisodeFrames) -> list[FrameRecord]:
-        """Records of one chunk as the generator would settle them, without generating."""
+        """Records of one chunk as the generator would settle them, without generating (its range decision,
+        ``resolve_targets``, is the one ``generate_at`` applies)."""
         records, asked = self.draft(episode, copy, ep)
         todo, residuals, refs, targets = self._asked(episode, records, asked, ep)
-        self._settle_planned(records, asked, refs, targets)
+        self.settle(records, asked, self.generator.resolve_targets(
+            targets, self.config.out_of_range, reference_force=refs, reference_out_of_range=REFERENCE_OUT_OF_RANGE))
         if self.config.pose_offset is not None and todo:
             self.record_moves(todo, *self.pose_masks(episode, copy, residuals))
         return records
@@ -116,15 +107,16 @@ class CacheWriter:
             move, masks = self.pose_masks(episode, copy, residuals)
             moved = np.array([m is not None for m in masks], bool)
             seeds = np.asarray([r.noise_seed for r in todo])
-            out = np.empty_like(residuals)
+            out, decisions = np.empty_like(residuals), []
             for rows, extra in ((moved, {"mask": [m for m in masks if m is not None]}), (~moved, {})):
                 if rows.any():
-                    out[rows] = self.generator.generate_at(
+                    res = self.generator.generate_at(
                         residuals[rows], refs[rows], targets[rows], steps=self.steps, seed=seeds[rows].tolist(),
                         batch_size=self.config.batch_size, out_of_range=self.config.out_of_range,
-                        reference_out_of_range=self.REFERENCE_OUT_OF_RANGE,
-                        **{k: np.stack(v) for k, v in extra.items()}).residuals
-            self._settle_planned(records, asked, refs, targets)
+                        reference_out_of_range=REFERENCE_OUT_OF_RANGE, **{k: np.stack(v) for k, v in extra.items()})
+                    out[rows] = res.residuals
+                    decisions.append((rows, res.decision))
+            self.settle(records, asked, _merged(decisions, len(todo)))
             self.record_moves(todo, move, masks)
         with atomic_dir(chunk_dir(self.cache_dir, episode, copy)) as tmp:
             for j, k in enumerate(self.tactile_keys):
@@ -159,3 +151,13 @@ class CacheWriter:
         bar.close()
         counts["seconds"] = time.perf_counter() - t0
         return counts
+
+
+def _merged(parts: list[tuple[np.ndarray, TargetDecision]], n: int) -> TargetDecision:
+    """One TargetDecision (n samples) from the decisions ``generate_at`` returned for the rows (bool (n,)) it was
+    called on."""
+    out = TargetDecision(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n, bool), np.zeros(n, bool))
+    for rows, d in parts:
+        out.requested[rows], out.target[rows] = d.requested, d.target
+        out.clamped[rows], out.skipped[rows] = d.clamped, d.skipped
+    return out

@@ -29,7 +29,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import torch
-from torch.utils.data import Dataset
+from torch.utils.data import Dataset, Subset
 
 from controltac_il.datasets.background import estimate_background
 from controltac_il.datasets.checks import check_episode, check_same_streams, open_episode, streams
@@ -249,3 +249,12 @@ class EpisodeDataset(Dataset):
         item["action"] = torch.from_numpy(np.ascontiguousarray(chunk, dtype=np.float32))
         item["action_is_pad"] = torch.from_numpy(is_pad)
         return item
+
+
+class EpisodeSubset(Subset):
+    """A Subset of an EpisodeDataset (whole episodes: a train / validation split) that keeps ``frame_table()``."""
+
+    def frame_table(self) -> tuple[np.ndarray, np.ndarray]:
+        episodes, frames = self.dataset.frame_table()
+        idx = np.asarray(self.indices, dtype=np.int64)
+        return episodes[idx], frames[idx]

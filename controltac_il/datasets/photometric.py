@@ -19,6 +19,8 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from controltac_il.datasets.stage import Augmented
+
 TACTILE_PREFIX = "observation.tactile."
 
 
@@ -95,11 +97,12 @@ class PhotometricAugment(Dataset):
 
 
 class PhotometricAugmentStage:
-    """``train_set -> PhotometricAugment(train_set)``, with the ``description`` a training run records."""
+    """``train_set -> Augmented(PhotometricAugment(train_set))`` (``controltac_il.datasets.stage``)."""
 
     def __init__(self, copies: int, seed: int = 0, jitter: PhotometricJitter | None = None):
         self.copies, self.seed, self.jitter = copies, seed, jitter or PhotometricJitter()
         self.description = PhotometricAugment([], copies, seed, self.jitter).description
 
-    def __call__(self, train_set):
-        return PhotometricAugment(train_set, self.copies, self.seed, self.jitter)
+    def __call__(self, train_set) -> Augmented:
+        aug = PhotometricAugment(train_set, self.copies, self.seed, self.jitter)
+        return Augmented(aug, {"real_items": len(train_set), "jittered_items": len(aug) - len(train_set)})

@@ -7,6 +7,6 @@ checkpoint; ``python -m controltac_il.estimators.train`` trains one.
 
 from controltac_il.estimators.config import EstimatorConfig
 from controltac_il.estimators.estimator import ForceEstimator, validate_residuals
-from controltac_il.estimators.fit import TrainConfig, fit
+from controltac_il.estimators.fit import EstimatorTrainConfig, fit
 
-__all__ = ["EstimatorConfig", "ForceEstimator", "TrainConfig", "fit", "validate_residuals"]
+__all__ = ["EstimatorConfig", "ForceEstimator", "EstimatorTrainConfig", "fit", "validate_residuals"]

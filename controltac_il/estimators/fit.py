@@ -15,7 +15,6 @@ import torch
 import torch.nn.functional as F
 from pydantic import Field, model_validator
 from pydantic.dataclasses import dataclass
-from tqdm.auto import tqdm
 
 from controltac_il.checkpoint import read_json
 from controltac_il.config import STRICT
@@ -23,13 +22,13 @@ from controltac_il.estimators.config import EstimatorConfig
 from controltac_il.estimators.estimator import ForceEstimator, preprocess, validate_residuals
 from controltac_il.io import atomic_dir
 from controltac_il.run_state import load_run_state, save_run_state
-from controltac_il.training import StopOnInterrupt, TrainingInterrupted, check_loss, lr_schedule
+from controltac_il.training import lr_schedule, optimise
 
 STATE_DIR = "train_state"
 
 
 @dataclass(config=STRICT)
-class TrainConfig:
+class EstimatorTrainConfig:
     """Optimisation settings (pydantic: validated at construction, ValueError naming the field).
 
     Fields:
@@ -82,7 +81,7 @@ def _loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 
 
 def _save_state(path: Path, est: ForceEstimator, opt: torch.optim.Optimizer, sched, gen: torch.Generator,
-                step: int, train: TrainConfig, history: list) -> None:
+                step: int, train: EstimatorTrainConfig, history: list) -> None:
     meta = {"step": step, "train": asdict(train), "model": est.config.to_dict(), "history": history}
     with atomic_dir(path) as tmp:
         save_run_state(tmp / "state", {"model": est.model}, meta, opt, sched, tensors={"rng": gen.get_state()})
@@ -96,11 +95,25 @@ def _load_state(path: Path, est: ForceEstimator, opt: torch.optim.Optimizer, gen
     return meta
 
 
+def _prepared(residuals: np.ndarray, forces: np.ndarray, model_config: EstimatorConfig | None
+              ) -> tuple[EstimatorConfig, np.ndarray, np.ndarray]:
+    """(the model config with ``force_mean`` / ``force_std`` set from ``forces``, validated residuals, forces)."""
+    residuals = validate_residuals(residuals)
+    forces = np.asarray(forces, dtype=np.float32)
+    if forces.ndim != 2 or forces.shape[1] != 3 or len(forces) != len(residuals):
+        raise ValueError(f"forces must have shape (N, 3) matching residuals (N={len(residuals)}), got {forces.shape}")
+    if not np.isfinite(forces).all():
+        raise ValueError("forces contain NaN or infinite values")
+    mean, std = force_stats(forces)
+    cfg = EstimatorConfig(**{**(model_config or EstimatorConfig()).to_dict(), "force_mean": mean, "force_std": std})
+    return cfg, residuals, forces
+
+
 def fit(
     residuals: np.ndarray,
     forces: np.ndarray,
     model_config: EstimatorConfig | None = None,
-    train: TrainConfig | None = None,
+    train: EstimatorTrainConfig | None = None,
     val: tuple[np.ndarray, np.ndarray] | None = None,
     state_dir: str | Path | None = None,
     resume: bool = False,
@@ -111,26 +124,17 @@ def fit(
 
     Images are resized once to the model input size. ``force_mean``/``force_std`` of the model
     config are set from ``forces``. With ``state_dir`` the resumable state is written there every
-    ``train.checkpoint_every`` steps; ``resume=True`` continues from it; ``on_checkpoint(est, step, history)`` is called after each
-    intermediate state write. A NaN / inf loss raises NonFiniteLoss before any update from it (the last saved
-    state is the last good one); Ctrl-C saves the current step (and calls ``on_checkpoint``), then raises
-    TrainingInterrupted. Returns the estimator
-    (eval mode) and the evaluation history (step, val MAE per axis).
+    ``train.checkpoint_every`` steps and at the end; ``resume=True`` continues from it; ``on_checkpoint(est, step,
+    history)`` is called after each intermediate state write. A NaN / inf loss raises NonFiniteLoss before any
+    update from it (the last saved state is the last good one); Ctrl-C saves the current step (and calls
+    ``on_checkpoint``), then raises TrainingInterrupted. Returns the estimator (eval mode) and the evaluation
+    history (step, val MAE per axis).
     """
-    train = train or TrainConfig()
-    residuals = validate_residuals(residuals)
-    forces = np.asarray(forces, dtype=np.float32)
-    if forces.ndim != 2 or forces.shape[1] != 3 or len(forces) != len(residuals):
-        raise ValueError(f"forces must have shape (N, 3) matching residuals (N={len(residuals)}), got {forces.shape}")
-    if not np.isfinite(forces).all():
-        raise ValueError("forces contain NaN or infinite values")
-    mean, std = force_stats(forces)
-    cfg = EstimatorConfig(**{**(model_config or EstimatorConfig()).to_dict(), "force_mean": mean, "force_std": std})
-
+    train = train or EstimatorTrainConfig()
+    cfg, residuals, forces = _prepared(residuals, forces, model_config)
     torch.manual_seed(train.seed)
     est = ForceEstimator(cfg)
-    x_all = _to_input(residuals, cfg)
-    y_all = est.normalise_forces(torch.from_numpy(forces))
+    x_all, y_all = _to_input(residuals, cfg), est.normalise_forces(torch.from_numpy(forces))
     opt = torch.optim.AdamW(est.model.parameters(), lr=train.lr, weight_decay=train.weight_decay)
     gen = torch.Generator().manual_seed(train.seed)
     step, history, meta = 0, [], {}
@@ -142,51 +146,27 @@ def fit(
         step, history = int(meta["step"]), list(meta["history"])
     sched = train.schedule(opt, meta.get("lr_schedule") if resume else None, step)
 
-    def evaluate(at: int) -> None:
-        if val is not None:
+    def batch_loss(step: int) -> torch.Tensor:
+        idx = torch.randint(0, len(x_all), (min(train.batch_size, len(x_all)),), generator=gen)
+        x = x_all[idx].float().sub_(cfg.residual_offset).div_(cfg.residual_scale)
+        return _loss(est.model(x), y_all[idx])
+
+    def after_step(at: int, out) -> None:
+        if val is not None and ((train.eval_every and at % train.eval_every == 0) or at == train.steps):
             mae = mae_per_axis(est, *val)
             history.append({"step": at, "val_mae": [float(v) for v in mae], "val_mae_mean": float(mae.mean())})
             est.model.train()
 
+    def save(at: int, loss: float) -> None:
+        _save_state(state_path, est, opt, sched, gen, at, train, history)
+        if on_checkpoint is not None and at < train.steps:
+            on_checkpoint(est, at, history)
+
     est.model.train()
-    bar = tqdm(total=train.steps, initial=step, desc="train estimator", disable=not progress, dynamic_ncols=True)
-    n = len(x_all)
-    saved = step if resume else None
-    with StopOnInterrupt() as stop:
-        try:
-            while step < train.steps:
-                idx = torch.randint(0, n, (min(train.batch_size, n),), generator=gen)
-                x = x_all[idx].float().sub_(cfg.residual_offset).div_(cfg.residual_scale)
-                loss = _loss(est.model(x), y_all[idx])
-                value = loss.item()
-                check_loss(value, step + 1, f"{state_path} holds step {saved}, the last good state" if saved is not None
-                           else "no state had been saved yet")
-                opt.zero_grad(set_to_none=True)
-                loss.backward()
-                opt.step()
-                sched.step()
-                step += 1
-                bar.update(1)
-                bar.set_postfix(loss=f"{value:.4f}")
-                if train.eval_every and step % train.eval_every == 0 and step < train.steps:
-                    evaluate(step)
-                periodic = train.checkpoint_every and step % train.checkpoint_every == 0
-                if state_path is not None and (periodic or stop.requested) and step < train.steps:
-                    _save_state(state_path, est, opt, sched, gen, step, train, history)
-                    saved = step
-                    if on_checkpoint is not None:
-                        on_checkpoint(est, step, history)
-                if stop.requested and step < train.steps:
-                    where = f"{state_path} holds step {step}; continue with --resume" if state_path is not None \
-                        else "nothing was saved (no state_dir)"
-                    raise TrainingInterrupted(f"interrupted (Ctrl-C) at step {step} of {train.steps}: {where}")
-        finally:
-            bar.close()
-    if not history or history[-1]["step"] != step:
-        evaluate(step)
+    optimise(step, train.steps, batch_loss, opt, sched, list(est.model.parameters()),
+             save if state_path is not None else None, train.checkpoint_every, "train estimator", grad_clip=0.0,
+             after_step=after_step, state=str(state_path), progress=progress)
     est.model.eval()
-    if state_path is not None:
-        _save_state(state_path, est, opt, sched, gen, step, train, history)
     return est, history
 
 

@@ -22,7 +22,7 @@ import numpy as np
 from controltac_il.config import one_line
 from controltac_il.estimators.config import EstimatorConfig
 from controltac_il.estimators.data import load_arrays, native_no_contact, split_by_pose
-from controltac_il.estimators.fit import TrainConfig, fit
+from controltac_il.estimators.fit import EstimatorTrainConfig, fit
 from controltac_il.outputs import claim_output, own_checkpoint, own_json, own_safetensors
 from controltac_il.tactile.residual import OFFSET
 from controltac_il.training import run_cli
@@ -56,7 +56,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 PROG = "python -m controltac_il.estimators.train"
-# TrainConfig / EstimatorConfig field -> the flag that sets it (validation errors name the flag)
+# EstimatorTrainConfig / EstimatorConfig field -> the flag that sets it (validation errors name the flag)
 FLAGS = {"steps": "--steps", "batch_size": "--batch-size", "lr": "--lr", "min_lr": "--lr", "seed": "--seed",
          "checkpoint_every": "--checkpoint-every", "eval_every": "--checkpoint-every",
          "input_height": "--input-size", "input_width": "--input-size"}
@@ -80,10 +80,10 @@ def outputs(out: Path) -> dict:
             out.name + ".train_state": _own_state_dir}
 
 
-def check_args(args: argparse.Namespace) -> tuple[TrainConfig, EstimatorConfig]:
+def check_args(args: argparse.Namespace) -> tuple[EstimatorTrainConfig, EstimatorConfig]:
     """The run's configs; ValueError (one line naming the flag and the expected form) for a bad option or --out."""
     try:
-        train = TrainConfig(steps=args.steps, batch_size=args.batch_size, lr=args.lr, min_lr=min(2e-5, args.lr),
+        train = EstimatorTrainConfig(steps=args.steps, batch_size=args.batch_size, lr=args.lr, min_lr=min(2e-5, args.lr),
                             seed=args.seed, checkpoint_every=args.checkpoint_every, eval_every=args.checkpoint_every)
         cfg = EstimatorConfig(input_height=args.input_size[0], input_width=args.input_size[1])
     except ValueError as exc:  # pydantic: one line naming the flag
@@ -106,7 +106,7 @@ def check_args(args: argparse.Namespace) -> tuple[TrainConfig, EstimatorConfig]:
     return train, cfg
 
 
-def model_card(data: Path, n_train: int, n_val: int, history: list, cfg: EstimatorConfig, train: TrainConfig) -> str:
+def model_card(data: Path, n_train: int, n_val: int, history: list, cfg: EstimatorConfig, train: EstimatorTrainConfig) -> str:
     last = history[-1] if history else None
     mae = "n/a" if last is None else ", ".join(f"{a} {v:.3f} N" for a, v in zip(("Fx", "Fy", "Fz"), last["val_mae"]))
     return (
@@ -134,7 +134,7 @@ def main(argv=None) -> int:
     return run_cli(PROG, lambda: run(args, train, cfg))
 
 
-def run(args: argparse.Namespace, train: TrainConfig, cfg: EstimatorConfig) -> None:
+def run(args: argparse.Namespace, train: EstimatorTrainConfig, cfg: EstimatorConfig) -> None:
     import torch
 
     from controltac_il.tactile.dataset import load_dataset

@@ -34,7 +34,7 @@ from controltac_il.generator.autoencoder import TactileAutoencoder
 from controltac_il.generator.checkpoint import ADAPTER_FILE, checkpoint_hash, load_adapter, load_checkpoint
 from controltac_il.generator.config import DETAIL_GATE_SIGMA_PX, GeneratorConfig
 from controltac_il.generator.dit import ForceDiT
-from controltac_il.generator.forces import RANGE_POLICIES, VALIDATED_RANGE, TargetDecision, decide_targets
+from controltac_il.generator.forces import VALIDATED_RANGE, TargetDecision, decide_targets
 from controltac_il.generator.sampler import ddim_sample, make_scheduler, seeded_noise
 from controltac_il.tactile.pose import check_mask, move_mask
 from controltac_il.tactile.residual import OFFSET
@@ -246,10 +246,6 @@ class ForceGenerator:
         self.range_report.total += self.last_range_report.total
         self.range_report.clamped += self.last_range_report.clamped
         self.range_report.skipped += self.last_range_report.skipped
-
-    def _apply_range(self, delta: np.ndarray, reference_force: np.ndarray | None, out_of_range: str) -> np.ndarray:
-        """ΔF of ``generate`` after the range policy (see ``_resolve_delta``)."""
-        return self._resolve_delta(delta, reference_force, out_of_range)[0]
 
     def _resolve_delta(self, delta: np.ndarray, reference_force: np.ndarray | None,
                        out_of_range: str) -> tuple[np.ndarray, np.ndarray]:

@@ -35,19 +35,16 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import os
 import sys
 import time
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import torch
 import torch.distributed as dist
 from diffusers.training_utils import EMAModel
 from safetensors.torch import load_file, save_file
-from torch.nn import functional as F
 from tqdm.auto import tqdm
 
 from controltac_il.checkpoint import read_json
@@ -57,82 +54,22 @@ from controltac_il.generator.checkpoint import load_checkpoint, save_checkpoint
 from controltac_il.generator.config import AutoencoderConfig, DiffusionConfig, GeneratorConfig
 from controltac_il.generator.data import PairData, crop_batch, load_pair_data, sample_pairs
 from controltac_il.generator.dit import ForceDiT
+from controltac_il.generator.objectives import ema_weights, noised_batch, prediction_loss, restore_ema
 from controltac_il.generator.pipeline import CHECKPOINT_ROOT, SHIPPED, residual_to_unit
 from controltac_il.generator.sampler import make_scheduler
-from controltac_il.generator.train_config import (DIT_PRESETS, STAGES, TrainConfig, legacy_provenance, model_card,
+from controltac_il.generator.train_config import (DIT_PRESETS, STAGES, GeneratorTrainConfig, legacy_provenance, model_card,
                                                   provenance)
 from controltac_il.io import atomic_path, write_json
 from controltac_il.outputs import OutputInUse, claim_output, own_checkpoint, own_json, own_safetensors
 from controltac_il.run_state import load_run_state, save_run_state
-from controltac_il.training import StopOnInterrupt, TrainingInterrupted, agree, check_loss, lr_schedule, run_cli
+from controltac_il.training import barrier, lr_schedule, optimise, run_cli, setup_distributed, wrap
 
-__all__ = ["TrainConfig", "main", "parse_args", "run"]
-
-
-# -- distributed helpers -----------------------------------------------------------------------
-
-def setup_distributed() -> tuple[int, int]:
-    """(rank, world size); initialises gloo when launched by torchrun with WORLD_SIZE > 1."""
-    world = int(os.environ.get("WORLD_SIZE", "1"))
-    if world > 1 and not dist.is_initialized():
-        dist.init_process_group("gloo")
-    return (dist.get_rank(), dist.get_world_size()) if world > 1 else (0, 1)
-
-
-def barrier(world: int) -> None:
-    if world > 1:
-        dist.barrier()
-
-
-def wrap(model: torch.nn.Module, world: int) -> torch.nn.Module:
-    return torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
-
-
-def optimise(step: int, total: int, batch_loss: Callable[[int], torch.Tensor], opt: torch.optim.Optimizer, sched,
-             module: torch.nn.Module, save: Callable[[int, float], None], every: int, desc: str, rank: int,
-             after_step: Callable[[], None] | None = None, state: str | Path | None = None) -> None:
-    """AdamW steps ``step`` .. ``total`` on ``batch_loss(step)`` (gradients clipped to norm 1), the LR schedule
-    stepped after each; ``save(step, smoothed loss)`` on rank 0 every ``every`` steps and at the end.
-
-    A NaN / inf loss raises NonFiniteLoss before any update from it (``state``, the saved state's name for the
-    message, keeps the last good step); Ctrl-C saves the current step, then raises TrainingInterrupted."""
-    bar = tqdm(total=total, initial=step, desc=desc, unit="step", disable=rank != 0)
-    loss_ema = None
-    saved = step if state is not None and Path(str(state) + ".json").is_file() else None
-    with StopOnInterrupt() as stop:
-        try:
-            while step < total:
-                loss = batch_loss(step)
-                opt.zero_grad(set_to_none=True)
-                loss.backward()
-                value = loss.item()
-                bad, stop_now = agree(not math.isfinite(value), stop.requested)
-                if bad:
-                    check_loss(value if not math.isfinite(value) else math.nan, step + 1,
-                               f"{state or desc} holds step {saved}, the last good state" if saved is not None
-                               else "no state had been saved yet")
-                torch.nn.utils.clip_grad_norm_(module.parameters(), 1.0)
-                opt.step()
-                sched.step()
-                step += 1
-                if after_step is not None:
-                    after_step()
-                loss_ema = value if loss_ema is None else 0.98 * loss_ema + 0.02 * value
-                bar.update()
-                bar.set_postfix(loss=f"{loss_ema:.4f}")
-                if rank == 0 and (step % every == 0 or step == total or stop_now):
-                    save(step, loss_ema)
-                    saved = step
-                if stop_now and step < total:
-                    raise TrainingInterrupted(f"interrupted (Ctrl-C): {state or desc} holds step {step} of {total}; "
-                                              "continue with --resume")
-        finally:
-            bar.close()
+__all__ = ["GeneratorTrainConfig", "main", "parse_args", "run"]
 
 
 # -- stage 1: autoencoder ----------------------------------------------------------------------
 
-def fit_autoencoder(cfg: TrainConfig, ae: TactileAutoencoder, data: PairData, out: Path, rank: int, world: int,
+def fit_autoencoder(cfg: GeneratorTrainConfig, ae: TactileAutoencoder, data: PairData, out: Path, rank: int, world: int,
                     steps: int, state: str, stream: int, desc: str, extra: dict) -> dict:
     """AdamW on all of ``ae``'s weights for ``steps`` steps on random crops of ``data`` (the loss of
     ``autoencoder_loss``; crops drawn from the rng stream ``stream``), resumable from ``out/<state>``; ``extra``
@@ -154,14 +91,15 @@ def fit_autoencoder(cfg: TrainConfig, ae: TactileAutoencoder, data: PairData, ou
         save_run_state(stem, {"autoencoder": ae}, {"step": step, "wall_s": meta["wall_s"] + time.perf_counter() - t0,
                                                    "loss": loss, **extra, "trained_by": provenance(cfg)}, opt, sched)
 
-    optimise(meta["step"], steps, batch_loss, opt, sched, ae, save, cfg.checkpoint_every, desc, rank, state=stem)
+    optimise(meta["step"], steps, batch_loss, opt, sched, list(ae.parameters()), save, cfg.checkpoint_every, desc,
+             rank=rank, state=str(stem))
     barrier(world)
     if stem.with_suffix(".json").is_file():  # every rank reads rank 0's final state (identical weights anyway under DDP)
         meta, _ = load_run_state(stem, {"autoencoder": ae})
     return meta
 
 
-def train_autoencoder(cfg: TrainConfig, data: PairData, out: Path, rank: int, world: int) -> tuple[TactileAutoencoder, dict]:
+def train_autoencoder(cfg: GeneratorTrainConfig, data: PairData, out: Path, rank: int, world: int) -> tuple[TactileAutoencoder, dict]:
     torch.manual_seed(cfg.seed)
     ae_cfg = AutoencoderConfig(image_size=cfg.image_size, channels=cfg.ae_channels, latent_channels=cfg.latent_channels)
     ae = TactileAutoencoder(ae_cfg)
@@ -170,7 +108,7 @@ def train_autoencoder(cfg: TrainConfig, data: PairData, out: Path, rank: int, wo
     return ae.eval(), meta
 
 
-def finetune_autoencoder(cfg: TrainConfig, ae: TactileAutoencoder, ae_meta: dict, data: PairData, out: Path,
+def finetune_autoencoder(cfg: GeneratorTrainConfig, ae: TactileAutoencoder, ae_meta: dict, data: PairData, out: Path,
                          rank: int, world: int) -> tuple[TactileAutoencoder, dict]:
     """Fine-tune a reused autoencoder (encoder and decoder) for ``cfg.ae_finetune_steps`` on this run's data;
     ``ae_meta`` gains ``finetune`` (steps, cost, command). Its latent space moves: the DiT trains after it."""
@@ -218,7 +156,7 @@ def latent_scales(z: torch.Tensor, data: PairData, seed: int, pairs: int = 4096)
     return latent.tolist(), delta.tolist()
 
 
-def cached_latents(cfg: TrainConfig, ae: TactileAutoencoder, data: PairData, out: Path, rank: int, world: int) -> torch.Tensor:
+def cached_latents(cfg: GeneratorTrainConfig, ae: TactileAutoencoder, data: PairData, out: Path, rank: int, world: int) -> torch.Tensor:
     path = out / "latents.safetensors"
     if rank == 0 and not path.is_file():
         z = encode_all(ae, data)
@@ -255,39 +193,15 @@ def check_same_models(src: Path, source: GeneratorConfig, gcfg: GeneratorConfig)
                              f"(field: (source, this run)): {diff}")
 
 
-def ema_weights(ema: EMAModel, model: torch.nn.Module) -> dict[str, torch.Tensor]:
-    """The EMA as ``model``'s state dict (EMA parameters, the model's buffers)."""
-    return {**model.state_dict(), **dict(zip((n for n, _ in model.named_parameters()), ema.shadow_params))}
-
-
-def noised_batch(gcfg: GeneratorConfig, sched, x0: torch.Tensor, one_step_fraction: float, seed: int
-                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """(x_t, t, target) of one training batch: x0 noised at uniform timesteps (``one_step_fraction`` of them at the
-    last, the one a 1-step sampler visits); the target is the noise or x0 per the prediction type."""
-    n, steps = len(x0), gcfg.diffusion.num_train_timesteps
-    g = torch.Generator().manual_seed(seed)
-    noise = torch.randn(x0.shape, generator=g).to(x0.device)
-    t = torch.randint(0, steps, (n,), generator=g)
-    if one_step_fraction > 0:
-        t[torch.rand(n, generator=g) < one_step_fraction] = steps - 1
-    t = t.to(x0.device)
-    return sched.add_noise(x0, noise, t), t, noise if gcfg.diffusion.prediction_type == "epsilon" else x0
-
-
-def prediction_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    return 0.5 * F.l1_loss(pred, target) + 0.5 * F.mse_loss(pred, target)
-
-
 def restore_denoiser(stem: Path, dit: ForceDiT, ema: EMAModel, opt: torch.optim.Optimizer | None = None) -> dict:
     """Load a denoiser state into ``dit``, ``ema`` (and ``opt``); returns its metadata. States written before the
     EMA's step count was recorded count one EMA update per step, as they were made."""
     meta, tensors = load_run_state(stem, {"denoiser": dit}, opt)
-    ema.load_state_dict({"optimization_step": meta.get("ema", {}).get("optimization_step", meta["step"]),
-                         "shadow_params": [tensors[f"ema.{n}"].float().clone() for n, _ in dit.named_parameters()]})
+    restore_ema(ema, dit, tensors, meta.get("ema", {}).get("optimization_step", meta["step"]))
     return meta
 
 
-def denoiser_loss(cfg: TrainConfig, gcfg: GeneratorConfig, sched, z: torch.Tensor, data: PairData,
+def denoiser_loss(cfg: GeneratorTrainConfig, gcfg: GeneratorConfig, sched, z: torch.Tensor, data: PairData,
                   model: torch.nn.Module, rank: int, step: int, per_rank: int) -> torch.Tensor:
     """0.5 L1 + 0.5 MSE of the DiT's prediction (noise or x0) on one batch of same-pose latent pairs;
     ``sched``: the training noise schedule (diffusers)."""
@@ -300,7 +214,7 @@ def denoiser_loss(cfg: TrainConfig, gcfg: GeneratorConfig, sched, z: torch.Tenso
     return prediction_loss(model(x_t, zr, t, torch.from_numpy(df)), target)
 
 
-def train_denoiser(cfg: TrainConfig, gcfg: GeneratorConfig, z: torch.Tensor, data: PairData, out: Path,
+def train_denoiser(cfg: GeneratorTrainConfig, gcfg: GeneratorConfig, z: torch.Tensor, data: PairData, out: Path,
                    rank: int, world: int, init: dict[str, torch.Tensor] | None = None) -> tuple[ForceDiT, dict]:
     """Train (or resume) the DiT; ``init``: starting weights when there is no state to resume."""
     torch.manual_seed(cfg.seed + 1)
@@ -327,8 +241,8 @@ def train_denoiser(cfg: TrainConfig, gcfg: GeneratorConfig, z: torch.Tensor, dat
                        opt, sched)
 
     optimise(meta["step"], cfg.dit_steps, lambda step: denoiser_loss(cfg, gcfg, noise_sched, z, data, model, rank, step, per_rank),
-             opt, sched, dit, save, cfg.checkpoint_every, f"denoiser ({cfg.dit_preset})", rank,
-             after_step=lambda: ema.step(dit.parameters()), state=stem)
+             opt, sched, list(dit.parameters()), save, cfg.checkpoint_every, f"denoiser ({cfg.dit_preset})", rank=rank,
+             after_step=lambda step, out: ema.step(dit.parameters()), state=str(stem))
     barrier(world)
     if stem.with_suffix(".json").is_file():
         meta = restore_denoiser(stem, dit, ema)
@@ -338,7 +252,7 @@ def train_denoiser(cfg: TrainConfig, gcfg: GeneratorConfig, z: torch.Tensor, dat
 
 # -- driver ------------------------------------------------------------------------------------
 
-def autoencoder_for(cfg: TrainConfig, data: PairData, out: Path, rank: int, world: int) -> tuple[TactileAutoencoder, dict]:
+def autoencoder_for(cfg: GeneratorTrainConfig, data: PairData, out: Path, rank: int, world: int) -> tuple[TactileAutoencoder, dict]:
     """The run's autoencoder: reused from ``--autoencoder-from`` (fine-tuned with ``--ae-finetune-steps``), trained (stages "all", "autoencoder") or this run's."""
     if cfg.autoencoder_from is not None:
         ae, ae_meta = reuse_autoencoder(Path(cfg.autoencoder_from))
@@ -350,7 +264,7 @@ def autoencoder_for(cfg: TrainConfig, data: PairData, out: Path, rank: int, worl
     return reuse_autoencoder(out)
 
 
-def run(cfg: TrainConfig) -> Path:
+def run(cfg: GeneratorTrainConfig) -> Path:
     """Train per ``cfg``; returns the final checkpoint folder (``<out>/final``)."""
     rank, world = setup_distributed()
     if cfg.threads:
@@ -390,8 +304,8 @@ def run(cfg: TrainConfig) -> Path:
     return final
 
 
-def parse_args(argv=None) -> TrainConfig:
-    d = TrainConfig.__dataclass_fields__
+def build_parser() -> argparse.ArgumentParser:
+    d = GeneratorTrainConfig.__dataclass_fields__
     p = argparse.ArgumentParser(
         prog="python -m controltac_il.generator.train",
         description="Train the stage-1 force-control generator (autoencoder, then the ΔF-conditioned DiT on "
@@ -432,13 +346,17 @@ def parse_args(argv=None) -> TrainConfig:
                         "G grey levels (default 0 = always keep; the shipped default uses 4)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace a previous run in --out (only the files this tool wrote there; never anything else)")
-    a = vars(p.parse_args(argv))
+    return p
+
+
+def parse_args(argv=None) -> GeneratorTrainConfig:
+    a = vars(build_parser().parse_args(argv))
     resume, overwrite = a.pop("resume"), a.pop("overwrite")
     for key in ("autoencoder_from", "denoiser_from"):  # a shipped checkpoint by name
         if a[key] in SHIPPED:
             a[key] = str(CHECKPOINT_ROOT / a[key])
     try:
-        cfg = TrainConfig(**a)
+        cfg = GeneratorTrainConfig(**a)
     except ValueError as exc:  # pydantic: one line naming the flag
         fail(one_line(exc, {f: "--" + f.replace("_", "-") for f in a}))
     if not Path(cfg.data).is_dir():

@@ -1,4 +1,4 @@
-"""Arguments of a generator training run (``TrainConfig``, a pydantic dataclass saved as ``train_config.json``)
+"""Arguments of a generator training run (``GeneratorTrainConfig``, a pydantic dataclass saved as ``train_config.json``)
 and the provenance a run records: the command that reproduces it, its dataset, the model card."""
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ Share = Annotated[float, Field(ge=0, lt=1)]
 
 
 @dataclass(config=STRICT)
-class TrainConfig:
+class GeneratorTrainConfig:
     """Arguments of one training run.
 
     data: dataset folder written by ``controltac_il.tactile.dataset.write_dataset``.
@@ -125,7 +125,7 @@ class TrainConfig:
         return self
 
 
-def cli_args(cfg: TrainConfig) -> list[str]:
+def cli_args(cfg: GeneratorTrainConfig) -> list[str]:
     """The command-line arguments that reproduce ``cfg`` (defaults and ``threads`` left out)."""
     args = []
     for f in dataclasses.fields(cfg):
@@ -142,7 +142,7 @@ def cli_args(cfg: TrainConfig) -> list[str]:
     return args
 
 
-def provenance(cfg: TrainConfig) -> dict:
+def provenance(cfg: GeneratorTrainConfig) -> dict:
     """The command that reproduces ``cfg`` and its dataset (path, seed, image count from its meta.json)."""
     meta_path = Path(cfg.data) / "meta.json"
     meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
@@ -152,12 +152,12 @@ def provenance(cfg: TrainConfig) -> dict:
 
 def legacy_provenance(run: Path) -> dict | None:
     """``provenance`` rebuilt from a run folder's ``train_config.json`` (its latest invocation's arguments;
-    None without one). Fields added to TrainConfig since take their defaults."""
+    None without one). Fields added to GeneratorTrainConfig since take their defaults."""
     path = run / "train_config.json"
     if not path.is_file():
         return None
     saved = json.loads(path.read_text())
-    return provenance(TrainConfig(**{f.name: saved[f.name] for f in dataclasses.fields(TrainConfig) if f.name in saved}))
+    return provenance(GeneratorTrainConfig(**{f.name: saved[f.name] for f in dataclasses.fields(GeneratorTrainConfig) if f.name in saved}))
 
 
 def denoiser_lineage(src: Path) -> list[dict]:
@@ -177,7 +177,7 @@ def denoiser_lineage(src: Path) -> list[dict]:
                                     "steps": d.get("steps"), "wall_s": d.get("wall_s")}]
 
 
-def model_card(cfg: TrainConfig, data: PairData, ae: TactileAutoencoder, ae_meta: dict, dit: ForceDiT, dit_meta: dict,
+def model_card(cfg: GeneratorTrainConfig, data: PairData, ae: TactileAutoencoder, ae_meta: dict, dit: ForceDiT, dit_meta: dict,
                world: int, wall_s: float) -> dict:
     """The final checkpoint's ``model_card.json``: command, data, each stage's cost and lineage, machine."""
     meta = read_json(Path(cfg.data) / "meta.json") if (Path(cfg.data) / "meta.json").is_file() else {}

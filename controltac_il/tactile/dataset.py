@@ -81,18 +81,9 @@ def _is_int(value) -> bool:
     return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
 
 
-def write_dataset(out_dir, objects: Sequence[str] = TRAIN_OBJECTS, poses_per_object: int = 50,
-                  forces_per_pose: int = 8, seed: int = 0, spec: SensorSpec | None = None,
-                  optics: str = "three_light", fz_range=(0.5, 11.0), shear_max: float = 1.0,
-                  progress: bool = True, sensors: str | None = None, instances: int = 16) -> Path:
-    """Render a sensor-model dataset into ``out_dir`` (built in a temporary folder, renamed when complete).
-
-    Every image is a pure function of (seed, object, pose_id, k): the same arguments give the same files.
-    sensors: None renders every image with ``spec`` and ``optics``; a family of
-    ``controltac_il.tactile.instances`` ("train" | "unseen") renders each contact pose with one of its first
-    ``instances`` sensor instances, drawn per pose (``spec`` then only gives the size).
-    """
-    objects = tuple(objects)
+def _check_write_args(objects: tuple, poses_per_object, forces_per_pose, seed, fz_range, shear_max, sensors,
+                      instances) -> None:
+    """ValueError naming the first bad argument of :func:`write_dataset`."""
     if not objects or len(set(objects)) != len(objects):
         raise ValueError(f"objects must name each indenter once (images are stored per object), got {list(objects)}")
     for name in objects:
@@ -113,33 +104,30 @@ def write_dataset(out_dir, objects: Sequence[str] = TRAIN_OBJECTS, poses_per_obj
         raise ValueError(f"shear_max must be a finite number >= 0 N, got {shear_max!r}")
     if sensors is not None and not (sensors in FAMILIES and _is_int(instances) and instances >= 1):
         raise ValueError(f"sensors must be None or one of {FAMILIES} with instances >= 1, got {sensors!r}, {instances!r}")
+
+
+def write_dataset(out_dir, objects: Sequence[str] = TRAIN_OBJECTS, poses_per_object: int = 50,
+                  forces_per_pose: int = 8, seed: int = 0, spec: SensorSpec | None = None,
+                  optics: str = "three_light", fz_range=(0.5, 11.0), shear_max: float = 1.0,
+                  progress: bool = True, sensors: str | None = None, instances: int = 16) -> Path:
+    """Render a sensor-model dataset into ``out_dir`` (built in a temporary folder, renamed when complete).
+
+    Every image is a pure function of (seed, object, pose_id, k): the same arguments give the same files.
+    sensors: None renders every image with ``spec`` and ``optics``; a family of
+    ``controltac_il.tactile.instances`` ("train" | "unseen") renders each contact pose with one of its first
+    ``instances`` sensor instances, drawn per pose (``spec`` then only gives the size).
+    """
+    objects = tuple(objects)
+    _check_write_args(objects, poses_per_object, forces_per_pose, seed, fz_range, shear_max, sensors, instances)
     spec = spec or SensorSpec.gelsight_mini()
     sensor = TactileSensor(spec, optics=optics)
     out_dir = Path(out_dir)
     total = len(objects) * poses_per_object * forces_per_pose
     with atomic_dir(out_dir) as tmp:
-        rows, used = [], {}
         if sensors is None:
             cv2.imwrite(str(tmp / "background.png"), cv2.cvtColor(sensor.background, cv2.COLOR_RGB2BGR))
-        with tqdm(total=total, desc=f"rendering {out_dir.name}", unit="img", disable=not progress) as bar:
-            for name, pid, pose, forces, noise in sample_contacts(objects, poses_per_object, forces_per_pose, seed, spec, fz_range, shear_max):
-                (tmp / "images" / name).mkdir(parents=True, exist_ok=True)
-                if sensors is not None:
-                    which = int(np.random.default_rng([seed, objects.index(name), pid, 9]).integers(instances))
-                    inst = sensor_instance(sensors, which, (spec.height, spec.width))
-                    if inst.name not in used:
-                        used[inst.name] = TactileSensor(inst.spec, optics=inst.optics)
-                        (tmp / "backgrounds").mkdir(exist_ok=True)
-                        cv2.imwrite(str(tmp / "backgrounds" / f"{inst.name}.png"),
-                                    cv2.cvtColor(used[inst.name].background, cv2.COLOR_RGB2BGR))
-                    sensor = used[inst.name]
-                for k, (force, ns) in enumerate(zip(forces, noise)):
-                    c = sensor.press(name, pose, force, noise_seed=ns)
-                    rel = f"images/{name}/{pid:04d}_{k:02d}.png"
-                    cv2.imwrite(str(tmp / rel), cv2.cvtColor(c.image, cv2.COLOR_RGB2BGR))
-                    rows.append([rel, name, pid, *(f"{v:.6f}" for v in pose), *(f"{v:.6f}" for v in c.force)]
-                                + ([inst.name] if sensors is not None else []))
-                    bar.update()
+        rows, used = _render(tmp, sensor, objects, poses_per_object, forces_per_pose, seed, spec, fz_range, shear_max,
+                             sensors, instances, f"rendering {out_dir.name}" if progress else None)
         with open(tmp / "manifest.csv", "w", newline="") as f:
             w = csv.writer(f)
             w.writerow(MANIFEST_FIELDS + ((SENSOR_FIELD,) if sensors is not None else ()))
@@ -151,6 +139,35 @@ def write_dataset(out_dir, objects: Sequence[str] = TRAIN_OBJECTS, poses_per_obj
             meta.update(sensors=sensors, instances=instances, sensor_names=sorted(used))
         (tmp / "meta.json").write_text(json.dumps(meta, indent=2))
     return out_dir
+
+
+def _render(tmp: Path, sensor: TactileSensor, objects: tuple, poses_per_object: int, forces_per_pose: int, seed: int,
+            spec: SensorSpec, fz_range, shear_max: float, sensors: str | None, instances: int, desc: str | None
+            ) -> tuple[list[list], dict]:
+    """Press every (object, pose, force) and write its PNG under ``tmp/images``; returns the manifest rows and the
+    sensor instances used (their backgrounds written under ``tmp/backgrounds``)."""
+    rows, used = [], {}
+    total = len(objects) * poses_per_object * forces_per_pose
+    with tqdm(total=total, desc=desc, unit="img", disable=desc is None) as bar:
+        for name, pid, pose, forces, noise in sample_contacts(objects, poses_per_object, forces_per_pose, seed, spec, fz_range, shear_max):
+            (tmp / "images" / name).mkdir(parents=True, exist_ok=True)
+            if sensors is not None:
+                which = int(np.random.default_rng([seed, objects.index(name), pid, 9]).integers(instances))
+                inst = sensor_instance(sensors, which, (spec.height, spec.width))
+                if inst.name not in used:
+                    used[inst.name] = TactileSensor(inst.spec, optics=inst.optics)
+                    (tmp / "backgrounds").mkdir(exist_ok=True)
+                    cv2.imwrite(str(tmp / "backgrounds" / f"{inst.name}.png"),
+                                cv2.cvtColor(used[inst.name].background, cv2.COLOR_RGB2BGR))
+                sensor = used[inst.name]
+            for k, (force, ns) in enumerate(zip(forces, noise)):
+                c = sensor.press(name, pose, force, noise_seed=ns)
+                rel = f"images/{name}/{pid:04d}_{k:02d}.png"
+                cv2.imwrite(str(tmp / rel), cv2.cvtColor(c.image, cv2.COLOR_RGB2BGR))
+                rows.append([rel, name, pid, *(f"{v:.6f}" for v in pose), *(f"{v:.6f}" for v in c.force)]
+                            + ([inst.name] if sensors is not None else []))
+                bar.update()
+    return rows, used
 
 
 class TactileDataset:
@@ -252,7 +269,7 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
 
 
-def main(argv=None) -> Path:
+def _parser() -> "_Parser":
     p = _Parser(
         prog="python -m controltac_il.tactile.dataset",
         description="Render a sensor-model tactile dataset (manifest.csv, background.png, meta.json, "
@@ -284,6 +301,11 @@ def main(argv=None) -> Path:
                    help="normal force range in N, 0 <= LOW < HIGH, drawn uniformly (default {} {})".format(*d["fz_range"]))
     p.add_argument("--shear-max", type=float, default=d["shear_max"],
                    help=f"|Fx|, |Fy| bound in N, >= 0 (default {d['shear_max']})")
+    return p
+
+
+def main(argv=None) -> Path:
+    p = _parser()
     a = p.parse_args(argv)
     if Path(a.out).exists():
         p.error(f"--out {a.out} exists; choose a new folder (datasets are never overwritten)")
@@ -319,4 +341,7 @@ def main(argv=None) -> Path:
 
 
 if __name__ == "__main__":
-    main()
+    from controltac_il.cli import guard
+
+    raise SystemExit(guard("python -m controltac_il.tactile.dataset", lambda: main() and 0,
+                           "interrupted (Ctrl-C): nothing was written (the folder appears only when complete)"))

@@ -107,10 +107,6 @@ class TactileSensor:
         image, _ = self._render(pen, pen > 0, (fx, fy), noise_seed)
         return image
 
-    def height_to_image(self, height_mm: np.ndarray, noise_seed: int | None = None) -> np.ndarray:
-        """Optics only: image uint8 (H, W, 3) of a gel surface displacement map (mm)."""
-        return self._shade(np.asarray(height_mm, dtype=np.float32), noise_seed)
-
     def _render(self, pen, mask, shear, noise_seed):
         height = mechanics.gel_surface(pen, self.spec)
         height = mechanics.apply_shear(height, mask, shear, self.spec)

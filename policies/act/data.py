@@ -10,9 +10,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from torch.utils.data import Dataset, Subset
+from torch.utils.data import Dataset
 
-from controltac_il.datasets import EpisodeDataset
+from controltac_il.datasets import EpisodeDataset, EpisodeSubset
 from policies.act.configuration_act import ACTConfig
 
 
@@ -57,15 +57,6 @@ def split_by_episode(ds: EpisodeDataset, val_fraction: float, seed: int = 0) -> 
     val_ids = set(np.random.default_rng(seed).permutation(ids)[:n_val].tolist())
     is_val = np.isin(episodes, list(val_ids))
     return np.flatnonzero(~is_val).tolist(), np.flatnonzero(is_val).tolist()
-
-
-class EpisodeSubset(Subset):
-    """A Subset of an EpisodeDataset that keeps ``frame_table()`` (ForceAugment reads it, no image loads)."""
-
-    def frame_table(self) -> tuple[np.ndarray, np.ndarray]:
-        episodes, frames = self.dataset.frame_table()
-        idx = np.asarray(self.indices, dtype=np.int64)
-        return episodes[idx], frames[idx]
 
 
 @dataclass

@@ -9,7 +9,7 @@ Output folder::
 
     OUT/last/        newest checkpoint + optimizer state (what --resume continues from)
     OUT/best/        checkpoint with the lowest validation L1 (z = 0, as deployed)
-    OUT/train_log.json   losses and validation curve
+    OUT/train_log.json   losses and validation curve up to the step last/ holds
 
 The folder is only written where it is new, empty, or holds this tool's own run: a previous run is refused
 unless resumed (``resume``) or replaced (``overwrite``: removes only what this tool wrote), and files of the
@@ -20,7 +20,6 @@ good step; Ctrl-C saves the current step to ``last/`` before stopping (``Trainin
 from __future__ import annotations
 
 import math
-import os
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -38,7 +37,7 @@ from tqdm import tqdm
 from controltac_il.config import STRICT
 from controltac_il.io import write_json
 from controltac_il.outputs import claim_output, own_checkpoint, own_json
-from controltac_il.training import StopOnInterrupt, TrainingInterrupted, agree, check_loss, lr_schedule
+from controltac_il.training import barrier, lr_schedule, optimise, setup_distributed, wrap
 from policies.act.checkpoint import (BACKGROUND_FILE, FORMAT, WEIGHTS_FILE, CheckpointError, load_checkpoint,
                                      load_optimizer_state, save_checkpoint)
 from policies.act.configuration_act import ACTConfig
@@ -47,7 +46,7 @@ from policies.act.modeling_act import ACT
 PosInt = Annotated[int, Field(gt=0)]
 
 @dataclass(config=STRICT)
-class TrainConfig:
+class ACTTrainConfig:
     """Optimisation schedule (pydantic: validated at construction, ValueError naming the field).
 
     steps: optimiser steps in total, >= 1 (a resumed run continues up to this number).
@@ -74,16 +73,6 @@ class TrainConfig:
     max_val_batches: PosInt = 20
     snapshot_every: Annotated[int, Field(ge=0)] = 0
     seed: int = 0
-
-
-def _dist_info() -> tuple[int, int]:
-    """(rank, world size); initialises the process group when launched by torchrun."""
-    world = int(os.environ.get("WORLD_SIZE", "1"))
-    if world > 1 and not dist.is_initialized():
-        dist.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
-    if dist.is_initialized():
-        return dist.get_rank(), dist.get_world_size()
-    return 0, 1
 
 
 def _optimizer(model: ACT) -> torch.optim.AdamW:
@@ -200,7 +189,7 @@ def _resume(out_dir: Path, model: ACT, optimizer: torch.optim.Optimizer, act_con
             last_meta.get("log", {"train": [], "val": []}), schedule_state)
 
 
-def _train_loader(train_set: Dataset, train_config: TrainConfig, step: int, rank: int, world: int
+def _train_loader(train_set: Dataset, train_config: ACTTrainConfig, step: int, rank: int, world: int
                   ) -> tuple[DataLoader, DistributedSampler | None]:
     """The shuffled training loader (a DistributedSampler under torch.distributed), seeded by the run's seed and
     the step it starts at, so a resumed run does not replay the first batches."""
@@ -212,35 +201,34 @@ def _train_loader(train_set: Dataset, train_config: TrainConfig, step: int, rank
     return loader, sampler
 
 
-def _validate(model: ACT, val_loader: DataLoader, train_config: TrainConfig, step: int, log: dict, bar) -> float:
+def _val_loader(val_set: Dataset | None, train_config: ACTTrainConfig) -> DataLoader | None:
+    return DataLoader(val_set, batch_size=train_config.batch_size, shuffle=False) if val_set is not None and len(val_set) else None
+
+
+def _validate(model: ACT, val_loader: DataLoader, train_config: ACTTrainConfig, step: int, log: dict) -> float:
     """Evaluate on the held-out episodes, log the result at ``step``; returns the validation L1 (z = 0)."""
     val = evaluate(model, val_loader, train_config.max_val_batches)
     log["val"].append({"step": step, **{k: round(v, 5) for k, v in val.items()}})
-    bar.write(f"step {step}: val_loss {val['val_loss']:.4f}  val_l1 (z=0) {val['val_l1']:.4f}")
+    tqdm.write(f"step {step}: val_loss {val['val_loss']:.4f}  val_l1 (z=0) {val['val_l1']:.4f}")
     return val["val_l1"]
 
 
-def _update(ddp: torch.nn.Module, model: ACT, batch: dict, optimizer: torch.optim.Optimizer, scheduler,
-            grad_clip: float, stop: StopOnInterrupt, step: int, kept) -> tuple[dict, bool]:
-    """One optimiser update on ``batch``; returns (the model's losses, whether every process stops after it).
-
-    A NaN / inf loss here or on another process raises NonFiniteLoss before any update (``kept()`` says which
-    checkpoint is the last good one)."""
-    out = ddp(batch)
-    optimizer.zero_grad(set_to_none=True)
-    out["loss"].backward()
-    loss_value = float(out["loss"].detach())
-    bad, stop_now = agree(not math.isfinite(loss_value), stop.requested)
-    if bad:
-        check_loss(loss_value if not math.isfinite(loss_value) else math.nan, step + 1, kept())
-    if grad_clip:
-        torch.nn.utils.clip_grad_norm_(model.parameters(), grad_clip)
-    optimizer.step()
-    scheduler.step()
-    return out, stop_now
+def _start(act_config: ACTConfig, train_config: ACTTrainConfig, out_dir: Path, stats: dict, meta: dict, resume: bool
+           ) -> tuple[ACT, torch.optim.Optimizer, object, int, float, dict]:
+    """The model, optimizer and LR schedule of a fresh or resumed run; (…, step, best validation L1, log)."""
+    torch.manual_seed(train_config.seed)
+    model = ACT(act_config)
+    model.set_stats(stats)
+    optimizer = _optimizer(model)
+    step, best, log, schedule_state = 0, math.inf, {"train": [], "val": []}, None
+    if resume:
+        step, best, log, schedule_state = _resume(out_dir, model, optimizer, act_config, stats, meta)
+    scheduler = lr_schedule(optimizer, [act_config.lr, act_config.lr_backbone], train_config.steps,
+                            train_config.warmup_steps, resume=schedule_state, step=step)
+    return model, optimizer, scheduler, step, best, log
 
 
-def train(act_config: ACTConfig, train_config: TrainConfig, train_set: Dataset, val_set: Dataset | None,
+def train(act_config: ACTConfig, train_config: ACTTrainConfig, train_set: Dataset, val_set: Dataset | None,
           out_dir: str | Path, *, stats: dict, backgrounds: dict[str, np.ndarray] | None = None,
           resume: bool = False, overwrite: bool = False, meta: dict | None = None, progress: bool = True) -> dict:
     """Train ACT and write checkpoints under ``out_dir``; returns the run summary (also in train_log.json).
@@ -248,91 +236,57 @@ def train(act_config: ACTConfig, train_config: TrainConfig, train_set: Dataset, 
     stats: normalisation statistics (``{"qpos": {"mean", "std"}, "action": {...}}``) of the training data.
     backgrounds: tactile no-contact frames stored with the checkpoint for deployment.
     resume: continue from ``out_dir/last`` (its config, data statistics and augmentation must equal this run's).
-    overwrite: replace a previous run in ``out_dir`` (only ``last/``, ``best/`` and ``train_log.json`` this
-        tool wrote; anything else there is never touched). Without it or ``resume`` a previous run is refused.
-    Raises OutputInUse (a ValueError) for an output folder it may not write, NonFiniteLoss when the loss
-    becomes NaN / inf (``last/`` keeps the last good step), TrainingInterrupted (a KeyboardInterrupt) on Ctrl-C
-    after saving the current step.
+    overwrite: replace a previous run in ``out_dir`` (only ``last/``, ``best/``, ``snapshots/`` and ``train_log.json``
+        this tool wrote; anything else there is never touched). Without it or ``resume`` a previous run is refused.
+    Raises OutputInUse (a ValueError) for an output folder it may not write, NonFiniteLoss when the loss becomes
+    NaN / inf (``last/`` keeps the last good step), TrainingInterrupted on Ctrl-C after saving the current step.
     """
     out_dir = Path(out_dir)
-    rank, world = _dist_info()
+    rank, world = setup_distributed()
     claim_output(out_dir, RUN_OUTPUTS, resume=resume, overwrite=overwrite and rank == 0, tool="train_act.py")
-    if world > 1 and overwrite:
-        dist.barrier()  # rank 0 removed the replaced run
-    torch.manual_seed(train_config.seed)
-    model = ACT(act_config)
-    model.set_stats(stats)
-    optimizer = _optimizer(model)
-    step, log = 0, {"train": [], "val": []}
-    best, schedule_state = math.inf, None
-    if resume:
-        step, best, log, schedule_state = _resume(out_dir, model, optimizer, act_config, stats, meta or {})
-    scheduler = lr_schedule(optimizer, [act_config.lr, act_config.lr_backbone], train_config.steps,
-                            train_config.warmup_steps, resume=schedule_state, step=step)
-    model.train()
-    ddp = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
+    if overwrite:
+        barrier(world)  # rank 0 removed the replaced run
+    model, optimizer, scheduler, step, best, log = _start(act_config, train_config, out_dir, stats, meta or {}, resume)
+    ddp = wrap(model.train(), world)
     loader, sampler = _train_loader(train_set, train_config, step, rank, world)
-    val_loader = (DataLoader(val_set, batch_size=train_config.batch_size, shuffle=False)
-                  if val_set is not None and len(val_set) and rank == 0 else None)
+    val_loader = _val_loader(val_set, train_config) if rank == 0 else None
     run_meta = {**(meta or {}), "train_config": asdict(train_config), "world_size": world}
-
-    saved = [step if resume else None]  # the step last/ holds
-
-    def save(final: bool) -> None:
-        m = {**run_meta, "step": step, "best_val_l1": best, "log": log}
-        save_checkpoint(out_dir / "last", model, backgrounds=backgrounds, meta=m, optimizer=optimizer, scheduler=scheduler)
-        saved[0] = step
-        if final:
-            write_json(out_dir / "train_log.json", {k: v for k, v in m.items()})
-
-    def kept() -> str:
-        return (f"{out_dir / 'last'} holds step {saved[0]}, the last good checkpoint" if saved[0] is not None
-                else "no checkpoint had been written yet")
-
-    bar = tqdm(total=train_config.steps, initial=step, desc="train ACT", disable=not progress or rank != 0,
-               dynamic_ncols=True)
-    t0, samples = time.perf_counter(), 0
     batches = _batches(loader, sampler, start_epoch=step // max(len(loader), 1))
-    with StopOnInterrupt() as stop:
-        try:
-            while step < train_config.steps:
-                batch = next(batches)
-                out, stop_now = _update(ddp, model, batch, optimizer, scheduler, train_config.grad_clip, stop, step,
-                                        kept)
-                step += 1
-                samples += batch["observation.qpos"].shape[0] * world
-                last = step == train_config.steps
-                if rank == 0:
-                    row = {"step": step, **{k: round(float(v.detach()), 5) for k, v in out.items()}}
-                    if step % 10 == 0 or step == 1 or last or stop_now:
-                        log["train"].append(row)
-                    bar.update(1)
-                    bar.set_postfix(loss=f"{row['loss']:.3f}", l1=f"{row['l1']:.3f}", kl=f"{row['kl']:.3f}")
-                    if val_loader is not None and (step % train_config.val_every == 0 or last):
-                        val_l1 = _validate(model, val_loader, train_config, step, log, bar)
-                        if val_l1 < best:
-                            best = val_l1
-                            save_checkpoint(out_dir / "best", model, backgrounds=backgrounds,
-                                            meta={**run_meta, "step": step, "best_val_l1": best})
-                    if train_config.snapshot_every and step % train_config.snapshot_every == 0:
-                        save_checkpoint(snapshot_path(out_dir, step), model, backgrounds=backgrounds,
-                                        meta={**run_meta, "step": step})
-                    if step % train_config.save_every == 0 or last or stop_now:
-                        save(final=last or stop_now)
-                if world > 1:
-                    dist.barrier()
-                if stop_now and not last:
-                    raise TrainingInterrupted(f"interrupted (Ctrl-C): {out_dir / 'last'} holds step {step} of "
-                                              f"{train_config.steps}; continue with --resume")
-        finally:
-            bar.close()
+    best_l1, samples, t0 = [best], [0], time.perf_counter()
+
+    def batch_loss(at: int) -> dict:
+        batch = next(batches)
+        samples[0] += batch["observation.qpos"].shape[0] * world
+        return ddp(batch)
+
+    def after_step(at: int, out: dict) -> None:
+        if rank != 0:
+            return
+        if at % 10 == 0 or at == 1 or at == train_config.steps:
+            log["train"].append({"step": at, **{k: round(float(v.detach()), 5) for k, v in out.items()}})
+        if val_loader is not None and (at % train_config.val_every == 0 or at == train_config.steps):
+            val_l1 = _validate(model, val_loader, train_config, at, log)
+            if val_l1 < best_l1[0]:
+                best_l1[0] = val_l1
+                save_checkpoint(out_dir / "best", model, backgrounds=backgrounds,
+                                meta={**run_meta, "step": at, "best_val_l1": val_l1})
+        if train_config.snapshot_every and at % train_config.snapshot_every == 0:
+            save_checkpoint(snapshot_path(out_dir, at), model, backgrounds=backgrounds, meta={**run_meta, "step": at})
+
+    def save(at: int, loss: float) -> None:
+        m = {**run_meta, "step": at, "best_val_l1": best_l1[0], "log": log}
+        save_checkpoint(out_dir / "last", model, backgrounds=backgrounds, meta=m, optimizer=optimizer, scheduler=scheduler)
+        write_json(out_dir / "train_log.json", m)  # with last/: the curve up to the step it holds
+
+    step = optimise(step, train_config.steps, batch_loss, optimizer, scheduler, list(model.parameters()), save,
+                    train_config.save_every, "train ACT", rank=rank, grad_clip=train_config.grad_clip,
+                    after_step=after_step, state=str(out_dir / "last"), progress=progress)
     elapsed = time.perf_counter() - t0
-    summary = {"steps": step, "samples_per_s": samples / elapsed if elapsed > 0 else None,
-               "best_val_l1": best if math.isfinite(best) else None,
-               "final_loss": log["train"][-1]["loss"] if log["train"] else None, "world_size": world}
     if world > 1:
         dist.destroy_process_group()
-    return summary
+    return {"steps": step, "samples_per_s": samples[0] / elapsed if elapsed > 0 else None,
+            "best_val_l1": best_l1[0] if math.isfinite(best_l1[0]) else None,
+            "final_loss": log["train"][-1]["loss"] if log["train"] else None, "world_size": world}
 
 
 def resolve_checkpoint(path: str | Path) -> Path:
@@ -346,7 +300,7 @@ def resolve_checkpoint(path: str | Path) -> Path:
     raise CheckpointError(f"no ACT checkpoint at {path} (expected config.json there or in best/ or last/)")
 
 
-def train_on_folder(dataset: str | Path, out_dir: str | Path, *, preset: str = "cpu", train_config: TrainConfig,
+def train_on_folder(dataset: str | Path, out_dir: str | Path, *, preset: str = "cpu", train_config: ACTTrainConfig,
                     val_fraction: float = 0.1, augment=None, resume: bool = False, overwrite: bool = False,
                     stats_path=None,
                     tactile_sensors=None, split_seed: int | None = None, progress: bool = True,
@@ -356,8 +310,8 @@ def train_on_folder(dataset: str | Path, out_dir: str | Path, *, preset: str = "
     tactile_sensors: tactile streams the policy reads (None = every one recorded; () = vision only).
     split_seed: seed of the train / validation split by episode (None = ``train_config.seed``), so that
         training seeds can vary on one split (and one ForceAugment cache).
-    augment: optional callable ``train_set -> train_set`` (e.g. ForceAugment over the training split);
-        validation always stays on the recorded episodes.
+    augment: optional ``AugmentStage`` (``controltac_il.datasets.stage``: e.g. ForceAugment copies of the training
+        split); validation always stays on the recorded episodes. The run records its settings and its summary.
     act_overrides: ACTConfig fields to change from the preset (e.g. chunk_size).
     resume / overwrite: see :func:`train`; the output folder is checked before the data is read.
     """
@@ -377,9 +331,11 @@ def train_on_folder(dataset: str | Path, out_dir: str | Path, *, preset: str = "
                                        tactile_names=data.spec.tactile_names, state_dim=data.spec.state_dim,
                                        action_dim=data.spec.action_dim, **act_overrides)
     check_compatible(act_config, data.spec, where=str(dataset))
-    train_set = augment(data.train) if augment is not None else data.train
+    augmented = augment(data.train) if augment is not None else None
+    train_set = augmented.dataset if augmented is not None else data.train
     meta = {"dataset": str(Path(dataset).resolve()), "episodes": data.n_episodes, "val_episodes": data.val_episodes,
-            "train_frames": len(train_set), "augment": getattr(augment, "description", None)}
+            "train_frames": len(train_set),
+            "augment": None if augment is None else {**augment.description, "summary": augmented.summary}}
     summary = train(act_config, train_config, train_set, data.val, out_dir, stats=data.stats,
                     backgrounds=data.backgrounds, resume=resume, overwrite=overwrite, meta=meta, progress=progress)
     return {**summary, **meta}

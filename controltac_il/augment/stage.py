@@ -1,4 +1,4 @@
-"""The ForceAugment stage of training: ``train_set -> ForceAugment(train_set)``."""
+"""The ForceAugment stage of a training run (``controltac_il.datasets.stage``): ``train_set -> K generated copies``."""
 
 from __future__ import annotations
 
@@ -7,7 +7,9 @@ from pathlib import Path
 
 from torch.utils.data import Subset
 
-from controltac_il.augment import ForceAugment, ForceAugmentConfig
+from controltac_il.augment.config import ForceAugmentConfig
+from controltac_il.augment.dataset import ForceAugment
+from controltac_il.datasets.stage import Augmented
 from controltac_il.generator import ForceGenerator
 from controltac_il.generator.checkpoint import checkpoint_hash
 from controltac_il.generator.pipeline import locate_checkpoint
@@ -38,12 +40,12 @@ class ForceAugmentStage:
                             "seed": seed, "steps": steps,
                             **{k: list(v) if isinstance(v, tuple) else v for k, v in self.settings.items()}}
 
-    def __call__(self, train_set):
-        """ForceAugment over ``train_set``; its counts and wall seconds go into ``description["summary"]``."""
+    def __call__(self, train_set) -> Augmented:
+        """ForceAugment over ``train_set`` (its first ``copies`` copies); the summary counts those copies' frames."""
         t0 = time.perf_counter()
         gen = ForceGenerator.from_pretrained(self.generator)
         aug = ForceAugment(train_set, gen, copies=self.max_copies, seed=self.seed, steps=self.steps,
                            cache_dir=self.cache_dir, **self.settings)
-        self.description["summary"] = {**aug.summary(), "seconds": time.perf_counter() - t0}
+        summary = {**aug.summary(self.copies), "seconds": time.perf_counter() - t0}
         n = len(train_set)
-        return aug if self.copies == self.max_copies else Subset(aug, range((self.copies + 1) * n))
+        return Augmented(aug if self.copies == self.max_copies else Subset(aug, range((self.copies + 1) * n)), summary)

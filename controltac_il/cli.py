@@ -1,0 +1,22 @@
+"""What every command line of the project does with a fault it meets at run time: one line on stderr and an exit
+code, never a traceback (2 bad input, data, file or folder; 130 Ctrl-C)."""
+
+from __future__ import annotations
+
+import sys
+from typing import Callable
+
+from controltac_il.config import one_line
+
+
+def guard(prog: str, job: Callable[[], int | None], interrupted: str = "interrupted (Ctrl-C)") -> int:
+    """Run ``job()`` and return its exit code (None = 0). A ValueError or OSError becomes ``PROG: error: <one
+    line>`` and 2; Ctrl-C its own message (e.g. where a run can be continued) or ``interrupted`` and 130."""
+    try:
+        return job() or 0
+    except KeyboardInterrupt as exc:
+        print(f"{prog}: {str(exc) or interrupted}", file=sys.stderr)
+        return 130
+    except (ValueError, OSError) as exc:
+        print(f"{prog}: error: {one_line(exc)}", file=sys.stderr)
+        return 2
