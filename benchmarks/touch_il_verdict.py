@@ -131,8 +131,10 @@ def run_unit(unit: dict, ctx: dict) -> dict:
                              for name, band in ctx["shift_candidates"].items()}
     else:
         step = unit["step"]
-        if v in TUNED:
+        if v in TUNED:  # the tuning run's snapshot; retrained to it (same weights: constant LR) if --runs was lost
             ckpt, out["train_s"] = snapshot_path(run, step), None
+            if not ckpt.is_dir():
+                out["train_s"] = _train(v, seed, step, ctx["demos_dir"], run, ctx["snapshots"][0], ctx["batch_size"], 0)
         else:
             out["train_s"] = _train(v, seed, step, ctx["demos_dir"], run, 0, ctx["batch_size"], ctx["max_force_copies"])
             ckpt = run / "last"
@@ -380,6 +382,18 @@ def main(argv=None) -> dict:
         if args.out:
             write_results(args.out, results)
 
+    _phases(args, ctx, results, done, save, Path(demos_dir))
+    history.append(round(time.perf_counter() - t_start, 1))
+    write_json(history_path, history)
+    save(picture=True)
+    print_table(results["table"], ["variant", "setting", "mean", "ci95", "per_seed"], "Test success over seeds")
+    print_table(results["comparisons"], ["variant", "setting", "diff", "ci95", "p", "p_holm", "verdict"], "Against real")
+    return results
+
+
+def _phases(args, ctx: dict, results: dict, done: dict, save, demos_dir: Path) -> None:
+    """Tune (real, vision_only on validation), choose the steps, validate real's shifts, choose them, then train
+    and test every (variant, seed): the protocol's order; each phase skips the units already done."""
     tuned = [v for v in TUNED if v in args.variants]
     _run([{"id": f"tune-{v}-s{s}", "kind": "tune", "variant": v, "seed": s} for s in args.seeds for v in tuned],
          ctx, args.jobs, done, save)
@@ -390,20 +404,14 @@ def main(argv=None) -> dict:
           for s in args.seeds], ctx, args.jobs, done, save)
     shift = {u["seed"]: u for u in done.values() if u["kind"] == "shift" and u["step"] == step}
     nominal_rates = results["steps"]["real_curve"][str(step)]["rates"]
-    results["shifts"] = choose_shifts(shift, nominal_rates, args.shift_candidates, nominal)
-    settings = {NOMINAL: list(nominal), **{n: list(args.shift_candidates[n]) for n in results["shifts"]["chosen"]}}
+    results["shifts"] = choose_shifts(shift, nominal_rates, args.shift_candidates, ctx["nominal"])
+    settings = {NOMINAL: list(ctx["nominal"]), **{n: list(args.shift_candidates[n]) for n in results["shifts"]["chosen"]}}
     fa = {v: COPIES[v] for v in args.variants if v.startswith("fa")}
     if fa:
         results["force_augment_counts"] = _clamped(demos_dir, fa)
         ctx["max_force_copies"] = max(fa.values())
     _run([{"id": f"policy-{v}-s{s}", "kind": "policy", "variant": v, "seed": s, "step": step, "settings": settings}
           for s in args.seeds for v in args.variants], ctx, args.jobs, done, save)
-    history.append(round(time.perf_counter() - t_start, 1))
-    write_json(history_path, history)
-    save(picture=True)
-    print_table(results["table"], ["variant", "setting", "mean", "ci95", "per_seed"], "Test success over seeds")
-    print_table(results["comparisons"], ["variant", "setting", "diff", "ci95", "p", "p_holm", "verdict"], "Against real")
-    return results
 
 
 def _report(results: dict, args, picture: bool) -> None:

@@ -1,16 +1,17 @@
 """The one config idiom of the project and its errors.
 
 Every config is a pydantic dataclass with ``config=STRICT`` (fields validated at construction, unknown fields
-refused); model configs also inherit :class:`JsonConfig` (``to_dict`` / ``from_dict``, as ``config.json`` holds
+refused; ``one_line_errors`` makes its constructor raise one line); model configs also inherit :class:`JsonConfig` (``to_dict`` / ``from_dict``, as ``config.json`` holds
 them). :func:`one_line` turns any error, a pydantic ValidationError included, into the one line a CLI prints,
 naming the fields (or their CLI flags).
 """
 
 from __future__ import annotations
 
+import functools
 from typing import Mapping
 
-from pydantic import ConfigDict, TypeAdapter
+from pydantic import ConfigDict, TypeAdapter, ValidationError
 
 STRICT = ConfigDict(extra="forbid")
 
@@ -52,3 +53,19 @@ def one_line(exc: BaseException, flags: Mapping[str, str] | None = None) -> str:
                  for (name, msg), (items, shown) in grouped.items()]
         return "; ".join(parts)
     return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def one_line_errors(cls):
+    """Class decorator for a pydantic dataclass: its constructor (``dataclasses.replace`` included) raises
+    a ValueError of one line naming the field(s) (``one_line``) instead of the multi-line ValidationError."""
+    validate = cls.__init__
+
+    @functools.wraps(validate)
+    def __init__(self, *args, **kwargs):
+        try:
+            validate(self, *args, **kwargs)
+        except ValidationError as exc:
+            raise ValueError(one_line(exc)) from None
+
+    cls.__init__ = __init__
+    return cls

@@ -15,10 +15,10 @@ import numbers
 from dataclasses import field
 from typing import Annotated, Literal
 
-from pydantic import BeforeValidator, Field, ValidationError, ValidationInfo, field_validator, model_validator
+from pydantic import BeforeValidator, Field, ValidationInfo, field_validator, model_validator
 from pydantic.dataclasses import dataclass
 
-from controltac_il.config import STRICT, one_line
+from controltac_il.config import STRICT, one_line_errors
 from envs.geometry import HOME_TCP, PEG_RADIUS_M, PHYSICS_HZ, TABLE_HALF_SIZE_M, WALL_THICKNESS_M
 
 CAMERAS = ("third_view", "wrist")
@@ -37,22 +37,6 @@ XY_RANGE_M = 0.15  # peg and hole positions lie within this of the table's centr
 BOUNDS_MM = {"hole_diameter_mm": (2000.0 * PEG_RADIUS_M + 0.5, 60.0, f" (the peg is Ø{2000.0 * PEG_RADIUS_M:g} mm)"),
              "hole_depth_mm": (10.0, 60.0, ""),
              "grasp_depth_mm": (10.0, 30.0, " (the gel is 15.2 mm tall)")}
-
-
-def one_line_errors(cls):
-    """Class decorator for a pydantic dataclass: its constructor (``dataclasses.replace`` included) raises
-    a ValueError of one line naming the field(s) (``one_line``) instead of the multi-line ValidationError."""
-    validate = cls.__init__
-
-    @functools.wraps(validate)
-    def __init__(self, *args, **kwargs):
-        try:
-            validate(self, *args, **kwargs)
-        except ValidationError as exc:
-            raise ValueError(one_line(exc)) from None
-
-    cls.__init__ = __init__
-    return cls
 
 
 # -- field types. Each check returns the normalised value or raises a message without the field's name

@@ -107,3 +107,19 @@ def test_the_protocol_fixes_disjoint_seed_ranges_and_every_variant_on_the_same_s
     assert proto["variants"] == ["vision_only", "real", "fa2", "fa4", "image_aug"]
     assert len(proto["train_seeds"]) >= 5 and proto["test_seeds"][1] - proto["test_seeds"][0] >= 50
     assert verdict.signature_of(proto) == verdict.signature_of(verdict.protocol_of(args))
+
+
+@pytest.mark.slow
+def test_quick_grid_end_to_end_then_resume_runs_nothing_again(tmp_path):
+    out, runs = tmp_path / "v.json", tmp_path / "runs"
+    argv = ["--quick", "--variants", "real,fa2", "--shift-candidates", "1.5-3", "--out", str(out), "--runs", str(runs)]
+    first = verdict.main(argv)
+    assert {u["id"] for u in first["units"]} == {"tune-real-s0", "tune-real-s1", "shift-real-s0-step2",
+                                                "shift-real-s1-step2", "policy-real-s0", "policy-real-s1",
+                                                "policy-fa2-s0", "policy-fa2-s1"}
+    assert [c["variant"] for c in first["comparisons"]] == ["fa2", "fa2"]
+    assert first["force_augment_counts"]["fa2"]["tactile_frames"] > 0 and out.with_suffix(".png").is_file()
+    with pytest.raises(SystemExit):  # a grid in --runs needs --resume
+        verdict.main(argv)
+    again = verdict.main([*argv, "--resume"])
+    assert again["units"] == first["units"]  # every unit read back, none rerun

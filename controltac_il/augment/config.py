@@ -1,12 +1,19 @@
-"""``ForceAugmentConfig``: every setting of ForceAugment, each field with its help (the CLI is built from it)."""
+"""``ForceAugmentConfig``: every setting of ForceAugment, each field with its help (the CLI is built from it).
+
+The project's config idiom (``controltac_il.config``): a pydantic dataclass; each field's check runs before its type
+is validated and says what it expects, ``one_line`` puts the field's name in front (one-line ValueError)."""
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass, field
+from dataclasses import field
 
 import numpy as np
+from pydantic import field_validator
+from pydantic.dataclasses import dataclass
+
+from controltac_il.config import STRICT, one_line_errors
 
 MODES = ("cache", "online")
 OUT_OF_RANGE = ("clamp", "skip")
@@ -19,23 +26,41 @@ def _setting(default, help: str, flag: bool = True, **argparse_kwargs):
     return field(default=default, metadata={"help": help, "cli": argparse_kwargs if flag else None})
 
 
-def _int(value, name: str, low: int, none_ok: bool = False) -> int | None:
+def _int(value, low: int, none_ok: bool = False) -> int | None:
     if value is None and none_ok:
         return None
     if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < low:
-        raise ValueError(f"{name}: expected {'None or ' if none_ok else ''}an int >= {low}, got {value!r}")
+        raise ValueError(f"expected {'None or ' if none_ok else ''}an int >= {low}")
     return int(value)
 
 
-def _floats(value, name: str, what: str) -> tuple[float, ...]:
+def _floats(value, what: str) -> tuple[float, ...]:
     try:
-        out = tuple(float(v) for v in value)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name}: expected {what}, got {value!r}") from exc
-    return out
+        return tuple(float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ValueError(f"expected {what}") from None
 
 
-@dataclass
+def _number(value, what: str, low: float = 0.0, high: float = math.inf, none_ok: bool = False) -> float | None:
+    if value is None and none_ok:
+        return None
+    if not isinstance(value, (int, float, np.number)) or isinstance(value, bool) or not low <= value < high:
+        raise ValueError(f"expected {'None or ' if none_ok else ''}{what}")
+    return float(value)
+
+
+def _key_map(value, values_are_keys: bool = True) -> dict | None:
+    if value is None:
+        return None
+    if not isinstance(value, dict) or not all(isinstance(k, str) and k for k in value):
+        raise ValueError("expected a dict {tactile key: item key or None}")
+    if values_are_keys and not all(v is None or (isinstance(v, str) and v) for v in value.values()):
+        raise ValueError("expected item keys (str) or None as values")
+    return dict(value)
+
+
+@one_line_errors
+@dataclass(config=STRICT)
 class ForceAugmentConfig:
     """Settings of ForceAugment (everything that decides the augmented frames is recorded in the cache).
 
@@ -87,63 +112,95 @@ class ForceAugmentConfig:
     fps: float | None = _setting(None, "frame rate turning the dataset's delta_timestamps (s) into frame offsets; "
                                        "default: the dataset's fps (LeRobot: dataset.fps)", flag=False)
 
-    def __post_init__(self):
-        self.copies = _int(self.copies, "copies", 0)
-        rng = _floats(self.offset_range, "offset_range", "(low, high) in N")
-        if len(rng) != 2 or not all(math.isfinite(v) for v in rng):
-            raise ValueError(f"offset_range: expected two finite numbers (low, high) in N, got {self.offset_range!r}")
-        if rng[0] > rng[1]:
-            raise ValueError(f"offset_range: inverted, expected low <= high in N, got low {rng[0]:g} > high {rng[1]:g}")
-        self.offset_range = rng
-        jit = _floats(self.jitter, "jitter", "a sequence of numbers in N")
-        if not jit or not all(math.isfinite(v) for v in jit):
-            raise ValueError(f"jitter: expected a non-empty sequence of finite numbers in N, got {self.jitter!r}")
-        self.jitter = jit
-        if self.tactile_keys is not None:
-            keys = (self.tactile_keys,) if isinstance(self.tactile_keys, str) else tuple(self.tactile_keys)
-            if not keys or not all(isinstance(k, str) and k for k in keys):
-                raise ValueError(f"tactile_keys: expected non-empty key names, got {self.tactile_keys!r}")
-            self.tactile_keys = keys
-        for name, allowed in (("mode", MODES), ("out_of_range", OUT_OF_RANGE)):
-            if getattr(self, name) not in allowed:
-                raise ValueError(f"{name}: expected one of {allowed}, got {getattr(self, name)!r}")
-        self.seed = _int(self.seed, "seed", 0)
-        if self.steps is not None and (not isinstance(self.steps, (int, np.integer)) or self.steps < 1):
-            raise ValueError(f"steps: expected None or an int >= 1, got {self.steps!r}")
-        if not (isinstance(self.contact_force, (int, float, np.number)) and 0 <= self.contact_force < math.inf):
-            raise ValueError(f"contact_force: expected a finite number >= 0 (N), got {self.contact_force!r}")
-        if not 0 <= self.min_contact_area < 1:
-            raise ValueError(f"min_contact_area: expected a fraction in [0, 1), got {self.min_contact_area!r}")
-        if not isinstance(self.batch_size, int) or self.batch_size < 1:
-            raise ValueError(f"batch_size: expected an int >= 1, got {self.batch_size!r}")
-        for name in ("force_keys", "background_keys"):
-            self._check_mapping(name)
-        if self.window_offsets is not None:
-            self._check_mapping("window_offsets")
-            try:
-                self.window_offsets = {k: tuple(_int(o, "window_offsets", -10**9) for o in v)
-                                       for k, v in self.window_offsets.items()}
-            except (TypeError, ValueError) as exc:
-                raise ValueError(f"window_offsets: expected {{tactile key: [int frame offsets]}}, got "
-                                 f"{self.window_offsets!r}") from exc
-        if self.pose_offset is not None:
-            off = _floats(self.pose_offset, "pose_offset", "(max_dx_px, max_dy_px, max_dtheta_deg)")
-            if len(off) != 3 or not all(math.isfinite(v) and v >= 0 for v in off):
-                raise ValueError(f"pose_offset: expected None or three finite numbers >= 0 (max_dx_px, max_dy_px, "
-                                 f"max_dtheta_deg), got {self.pose_offset!r}")
-            self.pose_offset = off
-        if self.fps is not None and not (isinstance(self.fps, (int, float, np.number)) and 0 < self.fps < math.inf):
-            raise ValueError(f"fps: expected None or a frame rate > 0, got {self.fps!r}")
+    @field_validator("copies", "seed", mode="before")
+    @classmethod
+    def _count(cls, v):
+        return _int(v, 0)
 
-    def _check_mapping(self, name: str) -> None:
-        value = getattr(self, name)
-        if value is None:
-            return
-        if not isinstance(value, dict) or not all(isinstance(k, str) and k for k in value):
-            raise ValueError(f"{name}: expected a dict {{tactile key: item key or None}}, got {value!r}")
-        if name != "window_offsets" and not all(v is None or (isinstance(v, str) and v) for v in value.values()):
-            raise ValueError(f"{name}: expected item keys (str) or None as values, got {value!r}")
-        setattr(self, name, dict(value))
+    @field_validator("steps", mode="before")
+    @classmethod
+    def _steps(cls, v):
+        return _int(v, 1, none_ok=True)
+
+    @field_validator("batch_size", mode="before")
+    @classmethod
+    def _batch(cls, v):
+        return _int(v, 1)
+
+    @field_validator("offset_range", mode="before")
+    @classmethod
+    def _offset_range(cls, v):
+        rng = _floats(v, "(low, high) in N")
+        if len(rng) != 2 or not all(math.isfinite(x) for x in rng):
+            raise ValueError("expected two finite numbers (low, high) in N")
+        if rng[0] > rng[1]:
+            raise ValueError(f"inverted: low {rng[0]:g} N is above high {rng[1]:g} N")
+        return rng
+
+    @field_validator("jitter", mode="before")
+    @classmethod
+    def _jitter(cls, v):
+        jit = _floats(v, "a sequence of numbers in N")
+        if not jit or not all(math.isfinite(x) for x in jit):
+            raise ValueError("expected a non-empty sequence of finite numbers in N")
+        return jit
+
+    @field_validator("tactile_keys", mode="before")
+    @classmethod
+    def _tactile_keys(cls, v):
+        if v is None:
+            return None
+        keys = (v,) if isinstance(v, str) else tuple(v)
+        if not keys or not all(isinstance(k, str) and k for k in keys):
+            raise ValueError("expected non-empty key names")
+        return keys
+
+    @field_validator("mode", "out_of_range", mode="before")
+    @classmethod
+    def _choice(cls, v, info):
+        allowed = MODES if info.field_name == "mode" else OUT_OF_RANGE
+        if v not in allowed:
+            raise ValueError(f"expected one of {allowed}")
+        return v
+
+    @field_validator("contact_force", mode="before")
+    @classmethod
+    def _contact_force(cls, v):
+        return _number(v, "a finite number >= 0 (N)")
+
+    @field_validator("min_contact_area", mode="before")
+    @classmethod
+    def _area(cls, v):
+        return _number(v, "a fraction in [0, 1)", high=1.0)
+
+    @field_validator("fps", mode="before")
+    @classmethod
+    def _fps(cls, v):
+        return _number(v, "a frame rate > 0", low=math.ulp(0.0), none_ok=True)
+
+    @field_validator("force_keys", "background_keys", mode="before")
+    @classmethod
+    def _maps(cls, v):
+        return _key_map(v)
+
+    @field_validator("window_offsets", mode="before")
+    @classmethod
+    def _windows(cls, v):
+        out = _key_map(v, values_are_keys=False)
+        try:
+            return None if out is None else {k: tuple(_int(o, -10**9) for o in w) for k, w in out.items()}
+        except (TypeError, ValueError):
+            raise ValueError("expected {tactile key: [int frame offsets]}") from None
+
+    @field_validator("pose_offset", mode="before")
+    @classmethod
+    def _pose_offset(cls, v):
+        if v is None:
+            return None
+        off = _floats(v, "(max_dx_px, max_dy_px, max_dtheta_deg)")
+        if len(off) != 3 or not all(math.isfinite(x) and x >= 0 for x in off):
+            raise ValueError("expected None or three finite numbers >= 0 (max_dx_px, max_dy_px, max_dtheta_deg)")
+        return off
 
     @classmethod
     def help(cls) -> dict[str, str]:
