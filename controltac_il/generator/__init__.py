@@ -2,8 +2,9 @@
 
 Modules: ``config`` (pydantic dataclasses), ``autoencoder`` (compact residual codec), ``dit`` (ΔF-conditioned
 diffusion transformer), ``sampler`` (DDIM via diffusers), ``checkpoint`` (safetensors + JSON + model card,
-``controltac_il.checkpoint``), ``pipeline`` (``ForceGenerator``, the inference API), ``data``, ``train_config``
-and ``train`` (training CLI). Stage 2, the pose-control adapter over a frozen stage 1: ``adapter``, ``pose_data``
+``controltac_il.checkpoint``), ``pipeline`` (``ForceGenerator``, the inference API), ``data``, ``objectives`` (the
+denoiser's training objective and EMA, stage 1 and 2 alike), ``stages`` (autoencoder, latents, DiT of a run),
+``train_config`` and ``train`` (the training CLI). Stage 2, the pose-control adapter over a frozen stage 1: ``adapter``, ``pose_data``
 and ``train_pose`` (its training CLI); ``ForceGenerator.generate(..., mask=...)`` uses it.
 """
 

@@ -1,0 +1,225 @@
+"""The stages of a generator training run (``python -m controltac_il.generator.train`` drives them): the
+autoencoder (trained, reused or fine-tuned), the latents it gives the dataset (cached), and the DiT denoiser on
+them; each resumable from its run state in the run folder, under torchrun ranks alike."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from diffusers.training_utils import EMAModel
+from safetensors.torch import load_file, save_file
+from tqdm.auto import tqdm
+
+from controltac_il.checkpoint import read_json
+from controltac_il.generator.autoencoder import TactileAutoencoder, autoencoder_loss
+from controltac_il.generator.checkpoint import load_checkpoint
+from controltac_il.generator.config import AutoencoderConfig, GeneratorConfig
+from controltac_il.generator.data import PairData, crop_batch, sample_pairs
+from controltac_il.generator.dit import ForceDiT
+from controltac_il.generator.objectives import ema_weights, noised_batch, prediction_loss, restore_ema
+from controltac_il.generator.pipeline import residual_to_unit
+from controltac_il.generator.sampler import make_scheduler
+from controltac_il.generator.train_config import (GeneratorTrainConfig, legacy_provenance, provenance)
+from controltac_il.io import atomic_path
+from controltac_il.run_state import load_run_state, save_run_state
+from controltac_il.training import barrier, lr_schedule, optimise, wrap
+
+
+# -- stage 1: autoencoder ----------------------------------------------------------------------
+
+def fit_autoencoder(cfg: GeneratorTrainConfig, ae: TactileAutoencoder, data: PairData, out: Path, rank: int, world: int,
+                    steps: int, state: str, stream: int, desc: str, extra: dict) -> dict:
+    """AdamW on all of ``ae``'s weights for ``steps`` steps on random crops of ``data`` (the loss of
+    ``autoencoder_loss``; crops drawn from the rng stream ``stream``), resumable from ``out/<state>``; ``extra``
+    joins the saved state's metadata. Returns that metadata."""
+    opt = torch.optim.AdamW(ae.parameters(), lr=cfg.ae_lr, weight_decay=0.0)
+    stem = out / state
+    meta = {"step": 0, "wall_s": 0.0}
+    if stem.with_suffix(".json").is_file():
+        meta, _ = load_run_state(stem, {"autoencoder": ae}, opt)
+    sched = lr_schedule(opt, [cfg.ae_lr], steps, cfg.warmup_steps, cfg.min_lr_ratio * cfg.ae_lr,
+                        meta.get("lr_schedule"), meta["step"])
+    model, per_rank, t0 = wrap(ae, world), max(1, cfg.ae_batch // world), time.perf_counter()
+
+    def batch_loss(step: int) -> torch.Tensor:
+        x = crop_batch(data, np.random.default_rng([cfg.seed, stream, rank, step]), per_rank, cfg.ae_crop)
+        return autoencoder_loss(model(x), x, cfg.ae_contact_weight)
+
+    def save(step: int, loss: float) -> None:
+        save_run_state(stem, {"autoencoder": ae}, {"step": step, "wall_s": meta["wall_s"] + time.perf_counter() - t0,
+                                                   "loss": loss, **extra, "trained_by": provenance(cfg)}, opt, sched)
+
+    optimise(meta["step"], steps, batch_loss, opt, sched, list(ae.parameters()), save, cfg.checkpoint_every, desc,
+             rank=rank, state=str(stem))
+    barrier(world)
+    if stem.with_suffix(".json").is_file():  # every rank reads rank 0's final state (identical weights anyway under DDP)
+        meta, _ = load_run_state(stem, {"autoencoder": ae})
+    return meta
+
+
+def train_autoencoder(cfg: GeneratorTrainConfig, data: PairData, out: Path, rank: int, world: int) -> tuple[TactileAutoencoder, dict]:
+    torch.manual_seed(cfg.seed)
+    ae_cfg = AutoencoderConfig(image_size=cfg.image_size, channels=cfg.ae_channels, latent_channels=cfg.latent_channels)
+    ae = TactileAutoencoder(ae_cfg)
+    meta = fit_autoencoder(cfg, ae, data, out, rank, world, cfg.ae_steps, "autoencoder_state", 1, "autoencoder",
+                           {"config": ae_cfg.to_dict()})
+    return ae.eval(), meta
+
+
+def finetune_autoencoder(cfg: GeneratorTrainConfig, ae: TactileAutoencoder, ae_meta: dict, data: PairData, out: Path,
+                         rank: int, world: int) -> tuple[TactileAutoencoder, dict]:
+    """Fine-tune a reused autoencoder (encoder and decoder) for ``cfg.ae_finetune_steps`` on this run's data;
+    ``ae_meta`` gains ``finetune`` (steps, cost, command). Its latent space moves: the DiT trains after it."""
+    torch.manual_seed(cfg.seed + 2)
+    meta = fit_autoencoder(cfg, ae, data, out, rank, world, cfg.ae_finetune_steps, "autoencoder_finetune_state", 4,
+                           "autoencoder fine-tune", {})
+    return ae.eval(), {**ae_meta, "finetune": {k: meta.get(k) for k in ("step", "wall_s", "loss", "trained_by")}}
+
+
+def reuse_autoencoder(src: Path) -> tuple[TactileAutoencoder, dict]:
+    """The trained autoencoder of another run folder (its state) or of a checkpoint folder (its weights),
+    with the training that made it (``trained_by``: command and data) where the source records it."""
+    stem = src / "autoencoder_state"
+    if stem.with_suffix(".json").is_file():
+        meta = read_json(stem.with_suffix(".json"))
+        ae = TactileAutoencoder(AutoencoderConfig.from_dict(meta["config"]))
+        load_run_state(stem, {"autoencoder": ae})
+        if "trained_by" not in meta:  # states written before it was recorded: the run's saved arguments
+            meta["trained_by"] = legacy_provenance(src)
+        return ae.eval(), {**meta, "from": str(src)}
+    config, ae, _ = load_checkpoint(src)
+    card = read_json(src / "model_card.json") if (src / "model_card.json").is_file() else {}
+    a = card.get("autoencoder", {})
+    return ae.eval(), {"step": a.get("steps"), "wall_s": a.get("wall_s"), "loss": a.get("final_loss"),
+                       "trained_by": a.get("trained_by"), "from": str(src), "config": config.autoencoder.to_dict()}
+
+
+# -- latents -----------------------------------------------------------------------------------
+
+@torch.no_grad()
+def encode_all(ae: TactileAutoencoder, data: PairData, batch: int = 64) -> torch.Tensor:
+    zs = [ae.encode(residual_to_unit(torch.from_numpy(data.residuals[s:s + batch])))
+          for s in tqdm(range(0, len(data.residuals), batch), desc="encoding dataset", unit="batch")]
+    return torch.cat(zs)
+
+
+def latent_scales(z: torch.Tensor, data: PairData, seed: int, pairs: int = 4096) -> tuple[list[float], list[float]]:
+    """Per-channel std of latents and of same-pose latent differences (self pairs excluded)."""
+    latent = z.std(dim=(0, 2, 3)).clamp_min(1e-3)
+    rng = np.random.default_rng([seed, 3])
+    ref, tgt, _ = sample_pairs(data, pairs, rng, no_contact_prob=0.0)
+    keep = ref != tgt
+    d = z[tgt[keep]] - z[ref[keep]]
+    delta = d.std(dim=(0, 2, 3)).clamp_min(1e-3) if keep.any() else torch.ones_like(latent)
+    return latent.tolist(), delta.tolist()
+
+
+def cached_latents(cfg: GeneratorTrainConfig, ae: TactileAutoencoder, data: PairData, out: Path, rank: int, world: int) -> torch.Tensor:
+    path = out / "latents.safetensors"
+    if rank == 0 and not path.is_file():
+        z = encode_all(ae, data)
+        with atomic_path(path) as tmp:
+            save_file({"latents": z.contiguous()}, str(tmp))
+    barrier(world)
+    z = load_file(str(path))["latents"]
+    if z.shape[0] != len(data.residuals):
+        raise ValueError(f"{path} holds {z.shape[0]} latents but the dataset has {len(data.residuals)} images; delete it")
+    return z
+
+
+# -- stage 2: DiT ------------------------------------------------------------------------------
+
+def source_denoiser(src: Path) -> tuple[GeneratorConfig, dict[str, torch.Tensor]]:
+    """(config, float32 DiT weights) of a run folder's latest state (its EMA) or of a checkpoint folder."""
+    stem = src / "denoiser_state"
+    if stem.with_suffix(".json").is_file():
+        meta, tensors = load_run_state(stem, {})
+        config = GeneratorConfig.from_dict(meta["config"])
+        return config, {k[len("ema."):]: v.float() for k, v in tensors.items() if k.startswith("ema.")}
+    if not (src / "config.json").is_file():
+        raise FileNotFoundError(f"denoiser_from: {src} holds neither a denoiser_state.json (run folder) nor a config.json (checkpoint)")
+    config, _, dit = load_checkpoint(src)
+    return config, dit.state_dict()
+
+
+def check_same_models(src: Path, source: GeneratorConfig, gcfg: GeneratorConfig) -> None:
+    for part in ("dit", "autoencoder"):
+        a, b = getattr(source, part).to_dict(), getattr(gcfg, part).to_dict()
+        diff = {k: (a.get(k), b.get(k)) for k in a.keys() | b.keys() if a.get(k) != b.get(k)}
+        if diff:
+            raise ValueError(f"denoiser_from: {src} has another {part} config than this run "
+                             f"(field: (source, this run)): {diff}")
+
+
+def restore_denoiser(stem: Path, dit: ForceDiT, ema: EMAModel, opt: torch.optim.Optimizer | None = None) -> dict:
+    """Load a denoiser state into ``dit``, ``ema`` (and ``opt``); returns its metadata. States written before the
+    EMA's step count was recorded count one EMA update per step, as they were made."""
+    meta, tensors = load_run_state(stem, {"denoiser": dit}, opt)
+    restore_ema(ema, dit, tensors, meta.get("ema", {}).get("optimization_step", meta["step"]))
+    return meta
+
+
+def denoiser_loss(cfg: GeneratorTrainConfig, gcfg: GeneratorConfig, sched, z: torch.Tensor, data: PairData,
+                  model: torch.nn.Module, rank: int, step: int, per_rank: int) -> torch.Tensor:
+    """0.5 L1 + 0.5 MSE of the DiT's prediction (noise or x0) on one batch of same-pose latent pairs;
+    ``sched``: the training noise schedule (diffusers)."""
+    c = gcfg.autoencoder.latent_channels
+    rng = np.random.default_rng([cfg.seed, 2, rank, step])
+    ref, tgt, df = sample_pairs(data, per_rank, rng, cfg.no_contact_prob, cfg.distinct_pairs)
+    x0 = (z[tgt] - z[ref]) / torch.tensor(gcfg.delta_scale).view(1, c, 1, 1)
+    zr = z[ref] / torch.tensor(gcfg.latent_scale).view(1, c, 1, 1)
+    x_t, t, target = noised_batch(gcfg, sched, x0, cfg.one_step_fraction, int(rng.integers(0, 2**62)))
+    return prediction_loss(model(x_t, zr, t, torch.from_numpy(df)), target)
+
+
+def train_denoiser(cfg: GeneratorTrainConfig, gcfg: GeneratorConfig, z: torch.Tensor, data: PairData, out: Path,
+                   rank: int, world: int, init: dict[str, torch.Tensor] | None = None) -> tuple[ForceDiT, dict]:
+    """Train (or resume) the DiT; ``init``: starting weights when there is no state to resume."""
+    torch.manual_seed(cfg.seed + 1)
+    dit = ForceDiT(gcfg.dit)
+    if init is not None:
+        dit.load_state_dict(init)
+    ema = EMAModel(dit.parameters(), decay=cfg.ema_decay, update_after_step=-1)  # decay min(ema_decay, (1+n)/(10+n))
+    opt = torch.optim.AdamW(dit.parameters(), lr=cfg.dit_lr, weight_decay=0.0)
+    stem = out / "denoiser_state"
+    meta = restore_denoiser(stem, dit, ema, opt) if stem.with_suffix(".json").is_file() else {"step": 0, "wall_s": 0.0}
+    sched = lr_schedule(opt, [cfg.dit_lr], cfg.dit_steps, cfg.warmup_steps, cfg.min_lr_ratio * cfg.dit_lr,
+                        meta.get("lr_schedule"), meta["step"])
+    # one entry per (re)start: resumed runs may change the step budget or the prediction target
+    history = meta.get("history", []) + [{"from_step": meta["step"], "dit_steps": cfg.dit_steps, "lr": cfg.dit_lr,
+                                          "prediction_type": gcfg.diffusion.prediction_type, "batch": cfg.dit_batch,
+                                          "one_step_fraction": cfg.one_step_fraction, "denoiser_from": cfg.denoiser_from}]
+    model, per_rank, t0 = wrap(dit, world), max(1, cfg.dit_batch // world), time.perf_counter()
+    noise_sched = make_scheduler(gcfg.diffusion)
+
+    def save(step: int, loss: float) -> None:
+        save_run_state(stem, {"denoiser": dit, "ema": ema_weights(ema, dit)},
+                       {"step": step, "wall_s": meta["wall_s"] + time.perf_counter() - t0, "loss": loss,
+                        "config": gcfg.to_dict(), "history": history, "ema": {"optimization_step": ema.optimization_step}},
+                       opt, sched)
+
+    optimise(meta["step"], cfg.dit_steps, lambda step: denoiser_loss(cfg, gcfg, noise_sched, z, data, model, rank, step, per_rank),
+             opt, sched, list(dit.parameters()), save, cfg.checkpoint_every, f"denoiser ({cfg.dit_preset})", rank=rank,
+             after_step=lambda step, out: ema.step(dit.parameters()), state=str(stem))
+    barrier(world)
+    if stem.with_suffix(".json").is_file():
+        meta = restore_denoiser(stem, dit, ema)
+    ema.copy_to(dit.parameters())
+    return dit.eval(), meta
+
+
+# -- driver ------------------------------------------------------------------------------------
+
+def autoencoder_for(cfg: GeneratorTrainConfig, data: PairData, out: Path, rank: int, world: int) -> tuple[TactileAutoencoder, dict]:
+    """The run's autoencoder: reused from ``--autoencoder-from`` (fine-tuned with ``--ae-finetune-steps``), trained (stages "all", "autoencoder") or this run's."""
+    if cfg.autoencoder_from is not None:
+        ae, ae_meta = reuse_autoencoder(Path(cfg.autoencoder_from))
+        if tuple(ae.config.image_size) != cfg.image_size:
+            raise ValueError(f"--autoencoder-from has image_size {ae.config.image_size}, this run {cfg.image_size}")
+        return finetune_autoencoder(cfg, ae, ae_meta, data, out, rank, world) if cfg.ae_finetune_steps else (ae, ae_meta)
+    if cfg.stage in ("all", "autoencoder"):
+        return train_autoencoder(cfg, data, out, rank, world)
+    return reuse_autoencoder(out)
