@@ -1,0 +1,336 @@
+"""A LeRobot v3.0 dataset folder read without LeRobot (pyarrow for parquet, PyAV for mp4).
+
+    from controltac_il.datasets.lerobot_v3 import LeRobotFolder
+    dataset = LeRobotFolder("you/peg_in_hole", delta_timestamps={"observation.images.gelsight_left": [-0.1, 0.0]})
+
+Items are what ``LeRobotDataset(repo_id, root=...)`` (lerobot 0.4.4) returns, key for key and in its order:
+video keys first, then the data columns in ``meta/info.json`` order, the ``<key>_is_pad`` masks, ``task``::
+
+    observation.images.<camera>   float32 (3, H, W) in [0, 1]   image (PNG in the parquet) or video (mp4) feature, RGB
+    <vector feature>              float32 / int64 / bool (D,)  (any float column as float32, any integer as int64)
+    timestamp                     float32 ()                   s from the episode's start
+    frame_index, episode_index, index, task_index   int64 ()
+    task                          str                          (``subtask`` too where the dataset has subtasks)
+
+With ``delta_timestamps={key: [offsets s]}`` item ``key`` is a window (T, ...) of the frames at ``index +
+round(offset * fps)``, positions outside the episode repeating its first or last frame, and ``<key>_is_pad``
+bool (T,) marks them (a video key with one offset stays (3, H, W), as in LeRobot).
+
+Memory: at open, the episode, frame and timestamp of every frame (20 bytes a frame) and the episode table
+without its stats; the other columns are read per parquet row group (LeRobot writes one per
+episode) into a per-process LRU bounded by ``cache_mb``, images kept as PNG bytes and decoded per item.
+Videos: ``lerobot_v3_video`` (one open file per video key and file per process, forward decoding without
+seeking). Nothing stays open across pickling or a fork: DataLoader workers open their own files.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from collections import OrderedDict
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+import torch
+from torch.utils.data import Dataset
+
+from controltac_il.datasets.lerobot_v3_video import TOLERANCE_S, VideoFrames
+
+INDEX_COLUMNS = ("episode_index", "frame_index", "index", "timestamp")  # held in memory, read at open
+CACHE_MB = 256  # default bound on the decoded row groups kept per process, MB
+VERSION = re.compile(r"v3(\.\d+)*")
+UNIT = (torch.arange(256, dtype=torch.float32) / 255).numpy()  # uint8 -> [0, 1] exactly as torch divides
+
+
+def read_info(root: Path) -> dict:
+    """``meta/info.json`` of a v3.x folder (feature shapes as tuples, as LeRobot loads them), checked."""
+    path = root / "meta" / "info.json"
+    if not root.is_dir() or not path.is_file():
+        raise ValueError(f"root: {root} is not a LeRobot dataset folder (no meta/info.json)")
+    try:
+        info = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"root: {path} is not readable JSON ({exc})") from None
+    version = info.get("codebase_version") if isinstance(info, dict) else None
+    if not isinstance(version, str) or not VERSION.fullmatch(version):
+        raise ValueError(f"root: unsupported codebase_version {version!r} in {path}; this reader reads v3.x "
+                         "(convert v2.1 with LeRobot's convert_dataset_v21_to_v30)")
+    missing = [k for k in ("fps", "features", "data_path") if k not in info]
+    if missing:
+        raise ValueError(f"root: {path} lacks {missing}")
+    for ft in info["features"].values():
+        ft["shape"] = tuple(ft["shape"])
+    return info
+
+
+def read_tasks(root: Path, name: str = "tasks") -> list[str]:
+    """Strings of ``meta/<name>.parquet`` in row order (LeRobot takes row ``task_index`` / ``subtask_index``):
+    a pandas frame indexed by the string, or a column named ``task`` / ``subtask``."""
+    path = root / "meta" / f"{name}.parquet"
+    if not path.is_file():
+        raise ValueError(f"root: {root} has no meta/{name}.parquet")
+    table = pq.read_table(path)
+    pandas = json.loads((table.schema.metadata or {}).get(b"pandas", b"{}"))
+    named = [c for c in pandas.get("index_columns", []) if isinstance(c, str)]
+    column = name[:-1] if name[:-1] in table.column_names else (named[0] if named else None)
+    if column is None:
+        raise ValueError(f"root: {path} has no strings (a {name[:-1]!r} column or a pandas index of them)")
+    return [str(t) for t in table.column(column).to_pylist()]
+
+
+def read_episodes(root: Path) -> dict[int, dict]:
+    """Rows of ``meta/episodes/*/*.parquet`` by episode_index, ``stats/`` columns left unread."""
+    paths = sorted((root / "meta" / "episodes").glob("*/*.parquet"))
+    if not paths:
+        raise ValueError(f"root: {root} has no meta/episodes/*/*.parquet")
+    episodes = {}
+    for p in paths:
+        names = [n for n in pq.read_schema(p).names if not n.startswith("stats/")]
+        for row in pq.read_table(p, columns=names).to_pylist():
+            episodes[int(row["episode_index"])] = row
+    return episodes
+
+
+def delta_indices(delta_timestamps, features: dict, fps: int, tolerance_s: float) -> dict[str, list[int]] | None:
+    """LeRobot's frame offsets ``round(d * fps)`` of ``delta_timestamps`` {key: [d s]}, checked as LeRobot
+    checks them: |d * fps - round(d * fps)| / fps <= tolerance_s."""
+    if delta_timestamps is None:
+        return None
+    if not isinstance(delta_timestamps, dict):
+        raise ValueError(f"delta_timestamps: expected {{key: [offsets s]}}, got {type(delta_timestamps).__name__}")
+    out = {}
+    for key, deltas in delta_timestamps.items():
+        if key not in features:
+            raise ValueError(f"delta_timestamps: unknown key {key!r}; the features are {list(features)}")
+        if features[key]["dtype"] == "string" or len(deltas) == 0:
+            raise ValueError(f"delta_timestamps: {key!r} needs a non-empty list of offsets of a non-string feature")
+        bad = [d for d in deltas if abs(d * fps - round(d * fps)) / fps > tolerance_s]
+        if bad:
+            raise ValueError(f"delta_timestamps: offsets {bad} s of {key!r} are not multiples of 1/{fps} s "
+                             f"within tolerance_s={tolerance_s}")
+        out[key] = [round(d * fps) for d in deltas]
+    return out
+
+
+def _column(array: pa.ChunkedArray, feature: dict):
+    """A row group's column: PNG bytes (pa.BinaryArray) of an image, strings as a list, else NumPy (N, *shape)
+    ((N,) for shape (1,))."""
+    arr = array.combine_chunks()
+    if isinstance(arr.type, pa.ExtensionType):
+        arr = arr.storage
+    if feature["dtype"] == "image":
+        return pc.struct_field(arr, "bytes")
+    if feature["dtype"] == "string":
+        return arr.to_pylist()
+    n = len(arr)
+    while pa.types.is_list(arr.type) or pa.types.is_large_list(arr.type) or pa.types.is_fixed_size_list(arr.type):
+        arr = arr.flatten()
+    values = arr.to_numpy(zero_copy_only=False)
+    shape = tuple(feature["shape"])
+    return values.reshape(n) if shape == (1,) else values.reshape(n, *shape)
+
+
+def _nbytes(column) -> int:
+    return column.nbytes if hasattr(column, "nbytes") else sum(len(s) for s in column)
+
+
+class _RowGroups:
+    """Per-process LRU of decoded row groups (every data column), bounded by ``budget`` bytes (the newest
+    group is always kept)."""
+
+    def __init__(self, paths: list[Path], features: dict, budget: int):
+        self.paths, self.features, self.budget = paths, features, budget
+        self._reset()
+
+    def _reset(self) -> None:
+        self._files, self._cache, self._bytes, self._pid = {}, OrderedDict(), 0, os.getpid()
+
+    def get(self, file: int, group: int) -> dict:
+        """{column: values} of row group ``group`` of data file ``file``."""
+        if self._pid != os.getpid():
+            self._reset()
+        entry = self._cache.pop((file, group), None)
+        if entry is None:
+            if file not in self._files:
+                self._files[file] = pq.ParquetFile(self.paths[file])
+            table = self._files[file].read_row_group(group)
+            columns = {k: _column(table.column(k), self.features[k]) for k in table.column_names if k in self.features}
+            entry = (columns, sum(_nbytes(c) for c in columns.values()))
+            self._bytes += entry[1]
+        self._cache[(file, group)] = entry
+        while self._bytes > self.budget and len(self._cache) > 1:
+            self._bytes -= self._cache.popitem(last=False)[1][1]
+        return entry[0]
+
+    def __getstate__(self):
+        return {"paths": self.paths, "features": self.features, "budget": self.budget}
+
+    def __setstate__(self, state):
+        self.__init__(**state)
+
+
+def _decode_png(data: bytes, key: str) -> np.ndarray:
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    if image is None:
+        raise ValueError(f"{key}: an image of the parquet is not a readable PNG")
+    return image[..., ::-1]
+
+
+def _chw_float(images: np.ndarray) -> torch.Tensor:
+    """uint8 (..., H, W, 3) -> float32 (..., 3, H, W) in [0, 1], the values of LeRobot's ``x / 255``."""
+    return torch.from_numpy(UNIT[np.moveaxis(images, -1, -3)])
+
+
+def _tensor(values: np.ndarray) -> torch.Tensor:
+    """Numbers as LeRobot returns them: floats float32, integers int64, bools bool."""
+    kind = np.asarray(values).dtype.kind
+    dtype = np.float32 if kind == "f" else np.int64 if kind in "iu" else bool
+    return torch.from_numpy(np.array(values, dtype=dtype))
+
+
+def _index_data(root: Path, features: dict):
+    """Data files (sorted, as LeRobot concatenates them), (file, row group) of every row group, the global row
+    where each starts (G + 1,) and the INDEX_COLUMNS of every row, checked."""
+    paths = sorted((root / "data").glob("*/*.parquet"))
+    if not paths:
+        raise ValueError(f"root: {root} has no data/*/*.parquet")
+    wanted = [k for k, ft in features.items() if ft["dtype"] != "video"]
+    groups, starts, parts = [], [0], {k: [] for k in INDEX_COLUMNS}
+    for f, path in enumerate(paths):
+        pf = pq.ParquetFile(path)
+        missing = [k for k in (*INDEX_COLUMNS, *wanted) if k not in pf.schema_arrow.names]
+        if missing:
+            raise ValueError(f"root: {path} lacks the columns {missing} of meta/info.json's features")
+        for g in range(pf.num_row_groups):
+            groups.append((f, g))
+            starts.append(starts[-1] + pf.metadata.row_group(g).num_rows)
+        table = pf.read(columns=list(INDEX_COLUMNS))
+        for k in INDEX_COLUMNS:
+            parts[k].append(table.column(k).to_numpy())
+    cols = {k: np.concatenate(v).astype(np.int64) for k, v in parts.items() if k != "timestamp"}
+    cols["timestamp"] = np.concatenate(parts["timestamp"]).astype(features["timestamp"]["dtype"])
+    if not np.array_equal(cols["index"], np.arange(len(cols["index"]))):
+        raise ValueError(f"root: the data rows of {root} are not in 'index' order 0..N-1 (LeRobot reads rows by "
+                         "position)")
+    return paths, np.asarray(groups, np.int64).reshape(-1, 2), np.asarray(starts, np.int64), cols
+
+
+class LeRobotFolder(Dataset):
+    """Frames of a LeRobot v3.x folder as ``LeRobotDataset`` items (module docstring), without LeRobot.
+
+    Args:
+        root: the dataset folder (``meta/``, ``data/``, ``videos/``); never written to.
+        delta_timestamps: {feature key: [offsets s]}: windows, as ``LeRobotDataset``'s; None: single frames.
+        tolerance_s: LeRobot's tolerance, s, of the offsets against multiples of 1/fps and of video frame times.
+        cache_mb: bound on the decoded parquet row groups kept per process, MB.
+
+    Attributes: ``meta`` (meta/info.json), ``features`` (its features, shapes as tuples), ``fps`` (frames/s),
+    ``tasks`` (task strings by task_index), ``episodes`` ({episode_index: that row of meta/episodes without its
+    stats: ``length``, ``dataset_from_index``, ``dataset_to_index`` (rows [from, to)), ``tasks``,
+    ``videos/<key>/...``}), ``subtasks`` (or None), ``delta_timestamps`` and ``delta_indices`` ({key: [frame
+    offsets]} or None), ``video_keys``.
+    """
+
+    def __init__(self, root, delta_timestamps=None, tolerance_s: float = TOLERANCE_S, cache_mb: float = CACHE_MB):
+        if not cache_mb > 0:
+            raise ValueError(f"cache_mb: expected a positive number of MB, got {cache_mb!r}")
+        self.root = Path(root)
+        self.meta = read_info(self.root)
+        self.fps = int(self.meta["fps"])
+        self.features = self.meta["features"]
+        self.video_keys = [k for k, ft in self.features.items() if ft["dtype"] == "video"]
+        self.delta_timestamps = delta_timestamps
+        self.delta_indices = delta_indices(delta_timestamps, self.features, self.fps, tolerance_s)
+        self.tasks = read_tasks(self.root)
+        has_subtasks = "subtask_index" in self.features and (self.root / "meta" / "subtasks.parquet").is_file()
+        self.subtasks = read_tasks(self.root, "subtasks") if has_subtasks else None
+        self.episodes = read_episodes(self.root)
+        paths, self._groups, self._starts, cols = _index_data(self.root, self.features)
+        self._episode, self._frame, self._timestamp = cols["episode_index"], cols["frame_index"], cols["timestamp"]
+        self._check_episodes()
+        self._rows = _RowGroups(paths, self.features, int(cache_mb * 2**20))
+        windows = [len(d) for k, d in (self.delta_indices or {}).items() if k in self.video_keys]
+        self._videos = VideoFrames(keep=max(windows, default=1) + 1, tolerance_s=tolerance_s)
+
+    def _check_episodes(self) -> None:
+        """Every episode of the data is in meta/episodes, spans its rows [from, to) and has its videos."""
+        found, counts = np.unique(self._episode, return_counts=True)
+        unknown = sorted(set(found.tolist()) - set(self.episodes))
+        if unknown:
+            raise ValueError(f"root: episodes {unknown[:5]} of data/ are missing from meta/episodes")
+        count = dict(zip(found.tolist(), counts.tolist()))
+        if self.video_keys and not self.meta.get("video_path"):
+            raise ValueError(f"root: meta/info.json has video features {self.video_keys} but no video_path")
+        for e, ep in self.episodes.items():
+            a, b = int(ep["dataset_from_index"]), int(ep["dataset_to_index"])
+            if not (0 <= a < b <= len(self) and count.get(e) == b - a and np.all(self._episode[a:b] == e)):
+                raise ValueError(f"root: meta/episodes puts episode {e} at rows [{a}, {b}), which data/ does not "
+                                 f"hold ({count.get(e, 0)} rows of it)")
+        videos = {self._video_path(key, ep): (key, e) for e, ep in self.episodes.items() for key in self.video_keys}
+        for path, (key, e) in videos.items():
+            if not path.is_file():
+                raise ValueError(f"root: {path} (video {key!r} of episode {e}) is missing")
+
+    def __len__(self) -> int:
+        return len(self._episode)
+
+    def frame_table(self) -> tuple[np.ndarray, np.ndarray]:
+        """(episode_index, frame_index) int64 (N,) of every item, without reading any."""
+        return self._episode.copy(), self._frame.copy()
+
+    def _video_path(self, key: str, ep: dict) -> Path:
+        chunk, file = int(ep[f"videos/{key}/chunk_index"]), int(ep[f"videos/{key}/file_index"])
+        return self.root / self.meta["video_path"].format(video_key=key, chunk_index=chunk, file_index=file)
+
+    def _window(self, i: int, ep: dict) -> tuple[dict, dict]:
+        """Rows of every windowed key (clamped to the episode, as LeRobot) and their pad masks (T,) bool."""
+        a, b = int(ep["dataset_from_index"]), int(ep["dataset_to_index"])
+        rows, pads = {}, {}
+        for key, offsets in (self.delta_indices or {}).items():
+            rows[key] = [min(max(i + d, a), b - 1) for d in offsets]
+            pads[f"{key}_is_pad"] = torch.tensor([not a <= i + d < b for d in offsets], dtype=torch.bool)
+        return rows, pads
+
+    def _data(self, key: str, rows: list[int], window: bool):
+        """Column ``key`` at ``rows``: (T, ...) for a window, else its one value."""
+        values = []
+        for r in rows:
+            g = int(np.searchsorted(self._starts, r, side="right") - 1)
+            values.append(self._rows.get(*self._groups[g])[key][r - int(self._starts[g])])
+        dtype = self.features[key]["dtype"]
+        if dtype == "string":
+            return values[0]
+        if dtype == "image":
+            out = _chw_float(np.stack([_decode_png(v.as_py(), key) for v in values]))
+        else:
+            out = _tensor(np.stack(values))
+        return out if window else out[0]
+
+    def _video(self, key: str, ep: dict, rows: list[int]) -> torch.Tensor:
+        """Frames of video ``key`` at the data timestamps of ``rows`` (one row: (3, H, W), as LeRobot squeezes)."""
+        start = float(ep[f"videos/{key}/from_timestamp"])
+        times = [start + float(self._timestamp[r]) for r in rows]
+        frames = _chw_float(self._videos.frames(self._video_path(key, ep), times))
+        return frames[0] if len(rows) == 1 else frames
+
+    def __getitem__(self, index) -> dict:
+        n = len(self)
+        if not -n <= int(index) < n:
+            raise IndexError(f"index {index} out of range for {n} frames")
+        i = int(index) % n
+        ep = self.episodes[int(self._episode[i])]
+        rows, pads = self._window(i, ep)
+        item = {key: self._video(key, ep, rows.get(key, [i])) for key in self.video_keys}
+        for key, ft in self.features.items():
+            if ft["dtype"] != "video":
+                item[key] = self._data(key, rows.get(key, [i]), key in rows)
+        item.update(pads)
+        item["task"] = self.tasks[int(item["task_index"])]
+        if self.subtasks is not None:
+            item["subtask"] = self.subtasks[int(item["subtask_index"])]
+        return item
