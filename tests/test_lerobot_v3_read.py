@@ -13,14 +13,13 @@ import pickle
 import time
 from fractions import Fraction
 
+import av
 import cv2
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 import torch
-
-pa = pytest.importorskip("pyarrow", reason="LeRobot v3.0 folders are parquet")
-av = pytest.importorskip("av", reason="LeRobot v3.0 videos are decoded with PyAV")
-import pyarrow.parquet as pq
 
 from controltac_il.augment.items import index_columns
 from controltac_il.datasets.lerobot_v3 import LeRobotFolder
