@@ -309,3 +309,18 @@ def test_force_augment_wraps_a_folder_with_windows_and_labels(folder, tmp_path):
     assert torch.equal(real[LEFT], ds[6][LEFT]) and copy[LEFT].shape == (2, 3, H, W)
     assert torch.equal(copy[VIDEO], ds[6][VIDEO]) and torch.equal(copy[f"{LEFT}_is_pad"], ds[6][f"{LEFT}_is_pad"])
     assert int(aug.info(copy)["copy"]) == 1
+
+
+def test_cache_cli_takes_a_lerobot_folder_and_its_force_keys(folder, tmp_path, capsys):
+    from controltac_il.augment import main
+    from controltac_il.generator.checkpoint import save_checkpoint
+    from test_aug_force_augment import tiny_generator
+
+    g = tiny_generator()
+    ckpt = save_checkpoint(tmp_path / "gen", g.config, g.autoencoder, g.denoiser)
+    args = ["--dataset", str(folder), "--out", str(tmp_path / "cache"), "--copies", "1", "--steps", "1",
+            "--generator", str(ckpt), "--tactile-keys", LEFT, RIGHT]
+    assert main([*args, "--force-keys", f"{LEFT}={FORCE}"]) == 0
+    assert "cache complete: 30 augmented tactile frames" in capsys.readouterr().out  # 15 frames x 2 keys, 1 copy
+    assert main([*args, "--force-keys", LEFT]) == 2
+    assert "--force-keys: expected TACTILE_KEY=FORCE_KEY" in capsys.readouterr().err

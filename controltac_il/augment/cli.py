@@ -67,9 +67,14 @@ def parser() -> argparse.ArgumentParser:
     p = _Parser(
         prog=PROG,
         description="Build a ForceAugment cache: generate every augmented tactile frame of a folder of ACT "
-                    "episodes once (batched), with provenance. Resumable (re-run the same command) and "
+                    "episodes or of a LeRobot v3.0 dataset once (batched), with provenance. Resumable (re-run the same command) and "
                     "shardable (torchrun --nproc_per_node N -m controltac_il.augment ...).")
-    p.add_argument("--dataset", required=True, type=Path, help="folder of episode_<i>.hdf5 files (read-only)")
+    p.add_argument("--dataset", required=True, type=Path,
+                   help="folder of episode_<i>.hdf5 files, or a LeRobot v3.0 dataset folder (meta/info.json; name its "
+                        "tactile cameras with --tactile-keys); read-only")
+    p.add_argument("--force-keys", nargs="+", default=None, metavar="TACTILE_KEY=FORCE_KEY",
+                   help="the force label [Fx, Fy, Fz] N of each tactile key, e.g. observation.images.gelsight_left="
+                        "observation.gelsight_left.force (default: our layout's rule; unlabelled keys use the estimator)")
     p.add_argument("--out", required=True, type=Path, help="cache folder to create or complete")
     add_config_flags(p)
     p.add_argument("--generator", default=None, help="generator checkpoint folder (default: shipped)")
@@ -121,7 +126,10 @@ def _setup(args) -> ForceAugment:
         raise _field_error(exc, "--copies") from exc
     if not args.dataset.is_dir():
         what = "does not exist" if not args.dataset.exists() else "is not a folder"
-        raise UsageError("--dataset", f"expected a folder of episode_<i>.hdf5 files; {args.dataset} {what}")
+        raise UsageError("--dataset", f"expected a folder of episode_<i>.hdf5 files or a LeRobot v3.0 folder; "
+                                      f"{args.dataset} {what}")
+    if args.force_keys is not None:
+        kwargs["force_keys"] = _force_keys(args.force_keys)
     if args.out.exists() and not args.out.is_dir():
         raise UsageError("--out", f"expected a cache folder (new, empty, or a cache of these settings); "
                                   f"{args.out} is a file")
@@ -133,10 +141,7 @@ def _setup(args) -> ForceAugment:
         raise UsageError("--device", f"expected a torch device such as cpu, cuda or cuda:0, got {args.device!r}") from exc
     if device.type == "cuda" and not torch.cuda.is_available():
         raise UsageError("--device", f"{args.device!r} asked for, but no CUDA device is available; use --device cpu")
-    try:
-        dataset = EpisodeDataset(args.dataset, chunk_size=1, cameras=[])
-    except (ValueError, OSError) as exc:
-        raise UsageError("--dataset", " ".join(str(exc).split())) from exc
+    dataset = _open_dataset(args.dataset)
     from controltac_il.generator import ForceGenerator
 
     estimator = None
@@ -165,6 +170,24 @@ def _setup(args) -> ForceAugment:
         raise UsageError("--out", " ".join(str(exc).split())) from exc
     except ValueError as exc:
         raise _field_error(exc, "--dataset") from exc
+
+
+def _force_keys(pairs: list[str]) -> dict[str, str]:
+    if not all("=" in x and all(x.split("=", 1)) for x in pairs):
+        raise UsageError("--force-keys", f"expected TACTILE_KEY=FORCE_KEY pairs, got {' '.join(pairs)}")
+    return dict(x.split("=", 1) for x in pairs)
+
+
+def _open_dataset(root: Path):
+    """--dataset: a LeRobot v3.x folder (it has meta/info.json) or a folder of ACT episodes."""
+    try:
+        if (root / "meta" / "info.json").is_file():
+            from controltac_il.datasets.lerobot_v3 import LeRobotFolder
+
+            return LeRobotFolder(root)
+        return EpisodeDataset(root, chunk_size=1, cameras=[])
+    except (ValueError, OSError) as exc:
+        raise UsageError("--dataset", " ".join(str(exc).split())) from exc
 
 
 def main(argv=None) -> int:
