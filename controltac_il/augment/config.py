@@ -41,6 +41,14 @@ def _floats(value, what: str) -> tuple[float, ...]:
         raise ValueError(f"expected {what}") from None
 
 
+def _finite(value, what: str, count: int | None = None) -> tuple[float, ...]:
+    """Non-empty finite floats (``count`` of them if given), else ValueError("expected <what>")."""
+    out = _floats(value, what)
+    if not out or (count is not None and len(out) != count) or not all(math.isfinite(x) for x in out):
+        raise ValueError(f"expected {what}")
+    return out
+
+
 def _number(value, what: str, low: float = 0.0, high: float = math.inf, none_ok: bool = False) -> float | None:
     if value is None and none_ok:
         return None
@@ -130,9 +138,7 @@ class ForceAugmentConfig:
     @field_validator("offset_range", mode="before")
     @classmethod
     def _offset_range(cls, v):
-        rng = _floats(v, "(low, high) in N")
-        if len(rng) != 2 or not all(math.isfinite(x) for x in rng):
-            raise ValueError("expected two finite numbers (low, high) in N")
+        rng = _finite(v, "two finite numbers (low, high) in N", count=2)
         if rng[0] > rng[1]:
             raise ValueError(f"inverted: low {rng[0]:g} N is above high {rng[1]:g} N")
         return rng
@@ -140,10 +146,7 @@ class ForceAugmentConfig:
     @field_validator("jitter", mode="before")
     @classmethod
     def _jitter(cls, v):
-        jit = _floats(v, "a sequence of numbers in N")
-        if not jit or not all(math.isfinite(x) for x in jit):
-            raise ValueError("expected a non-empty sequence of finite numbers in N")
-        return jit
+        return _finite(v, "a non-empty sequence of finite numbers in N")
 
     @field_validator("tactile_keys", mode="before")
     @classmethod
