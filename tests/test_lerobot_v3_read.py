@@ -311,16 +311,16 @@ def test_force_augment_wraps_a_folder_with_windows_and_labels(folder, tmp_path):
     assert int(aug.info(copy)["copy"]) == 1
 
 
-def test_cache_cli_takes_a_lerobot_folder_and_its_force_keys(folder, tmp_path, capsys):
+def test_cli_takes_a_lerobot_folder_and_its_force_keys(folder, tmp_path, capsys):
     from controltac_il.augment import main
     from controltac_il.generator.checkpoint import save_checkpoint
     from test_aug_force_augment import tiny_generator
 
     g = tiny_generator()
     ckpt = save_checkpoint(tmp_path / "gen", g.config, g.autoencoder, g.denoiser)
-    args = ["--dataset", str(folder), "--out", str(tmp_path / "cache"), "--copies", "1", "--steps", "1",
+    args = ["--dataset", str(folder), "--out", str(tmp_path / "augmented"), "--copies", "1", "--steps", "1",
             "--generator", str(ckpt), "--tactile-keys", LEFT, RIGHT]
     assert main([*args, "--force-keys", f"{LEFT}={FORCE}"]) == 0
-    assert "cache complete: 30 augmented tactile frames" in capsys.readouterr().out  # 15 frames x 2 keys, 1 copy
+    assert "6 episodes (3 original + 1 copies of each), 30 frames" in capsys.readouterr().out
     assert main([*args, "--force-keys", LEFT]) == 2
     assert "--force-keys: expected TACTILE_KEY=FORCE_KEY" in capsys.readouterr().err

@@ -66,16 +66,21 @@ def config_kwargs(args: argparse.Namespace) -> dict:
 def parser() -> argparse.ArgumentParser:
     p = _Parser(
         prog=PROG,
-        description="Build a ForceAugment cache: generate every augmented tactile frame of a folder of ACT "
-                    "episodes or of a LeRobot v3.0 dataset once (batched), with provenance. Resumable (re-run the same command) and "
-                    "shardable (torchrun --nproc_per_node N -m controltac_il.augment ...).")
+        description="Augment a dataset's touch. A folder of ACT episodes: build its ForceAugment cache (every "
+                    "augmented tactile frame generated once, batched, with provenance) into --out. A LeRobot v3.0 "
+                    "folder: write --out as a LeRobot v3.0 folder holding the original episodes, then --copies "
+                    "augmented copies of each (regenerated tactile frames, per-frame provenance features "
+                    "augment.*, new meta and stats), ready for lerobot-train. Resumable (re-run the same command) "
+                    "and shardable (torchrun --nproc_per_node N -m controltac_il.augment ...).")
     p.add_argument("--dataset", required=True, type=Path,
                    help="folder of episode_<i>.hdf5 files, or a LeRobot v3.0 dataset folder (meta/info.json; name its "
                         "tactile cameras with --tactile-keys); read-only")
     p.add_argument("--force-keys", nargs="+", default=None, metavar="TACTILE_KEY=FORCE_KEY",
                    help="the force label [Fx, Fy, Fz] N of each tactile key, e.g. observation.images.gelsight_left="
                         "observation.gelsight_left.force (default: our layout's rule; unlabelled keys use the estimator)")
-    p.add_argument("--out", required=True, type=Path, help="cache folder to create or complete")
+    p.add_argument("--out", required=True, type=Path,
+                   help="ACT episodes: the cache folder to create or complete. LeRobot: the augmented dataset folder "
+                        "to write (new or empty; written under OUT.partial and renamed when complete)")
     add_config_flags(p)
     p.add_argument("--generator", default=None, help="generator checkpoint folder (default: shipped)")
     p.add_argument("--estimator", default=None, help="force estimator checkpoint (only for data without force labels)")
@@ -98,6 +103,32 @@ def _report(aug: ForceAugment, counts: dict) -> None:
           f"{s['clamped']} clamped, {s['skipped']} skipped (kept real), {s['no_contact']} without contact")
 
 
+def _write(aug: ForceAugment, out: Path) -> dict:
+    from controltac_il.augment.to_lerobot import write_lerobot
+
+    try:
+        return write_lerobot(aug, aug.dataset, out)
+    except ValueError as exc:
+        if isinstance(exc, StaleCacheError):
+            raise
+        raise _field_error(exc, "--dataset") from exc
+
+
+def _report_lerobot(out: Path, counts: dict) -> None:
+    if not counts["published"]:
+        print(f"wrote {counts['episodes']} episode(s) of {out}; the other ranks' share or a later run finishes it")
+        return
+    m = counts["marker"]
+    if counts.get("already"):
+        print(f"{out} already holds this augmented dataset ({m['episodes']['written']} episodes); nothing to do")
+        return
+    mse = m["video_round_trip_mse"]
+    codec = "" if mse is None else f"; video round trip MSE {mse:.2f} (PSNR {m['video_round_trip_psnr_db']:.1f} dB)"
+    print(f"wrote {out}: {m['episodes']['written']} episodes ({m['episodes']['source']} original + "
+          f"{m['episodes']['copies']} copies of each), {m['frames']} frames, {m['regenerated_frames']} tactile "
+          f"images regenerated{codec}")
+
+
 def _flag(name: str) -> str:
     return "--" + name.replace("_", "-")
 
@@ -111,6 +142,8 @@ def _field_error(exc: Exception, default_flag: str) -> UsageError:
         return UsageError(_flag(m[1]), m[2])
     if m and m[1] in ("dataset", "root"):
         return UsageError("--dataset", m[2])
+    if m and m[1] == "out":
+        return UsageError("--out", m[2])
     return UsageError(default_flag, text)
 
 
@@ -130,9 +163,33 @@ def _setup(args) -> ForceAugment:
                                       f"{args.dataset} {what}")
     if args.force_keys is not None:
         kwargs["force_keys"] = _force_keys(args.force_keys)
-    if args.out.exists() and not args.out.is_dir():
+    lerobot = args.lerobot = (args.dataset / "meta" / "info.json").is_file()
+    if lerobot:
+        from controltac_il.augment.to_lerobot import check_destination
+
+        try:
+            check_destination(args.dataset, args.out)
+        except ValueError as exc:
+            raise _field_error(exc, "--out") from exc
+    elif args.out.exists() and not args.out.is_dir():
         raise UsageError("--out", f"expected a cache folder (new, empty, or a cache of these settings); "
                                   f"{args.out} is a file")
+    dataset = _open_dataset(args.dataset)
+    generator, estimator = _models(args, bool(kwargs.get("pose_offset")))
+    if lerobot:
+        from controltac_il.augment.to_lerobot import staging_dir
+    cache_dir = staging_dir(args.out) / "cache" if lerobot else args.out
+    try:
+        return ForceAugment(dataset, generator, cache_dir=cache_dir, estimator=estimator, build="manual",
+                            progress=True, **kwargs)
+    except StaleCacheError as exc:
+        raise UsageError("--out", " ".join(str(exc).split())) from exc
+    except ValueError as exc:
+        raise _field_error(exc, "--dataset") from exc
+
+
+def _models(args, pose: bool):
+    """(generator, estimator or None) of the flags; UsageError naming the flag."""
     import torch
 
     try:
@@ -141,7 +198,6 @@ def _setup(args) -> ForceAugment:
         raise UsageError("--device", f"expected a torch device such as cpu, cuda or cuda:0, got {args.device!r}") from exc
     if device.type == "cuda" and not torch.cuda.is_available():
         raise UsageError("--device", f"{args.device!r} asked for, but no CUDA device is available; use --device cpu")
-    dataset = _open_dataset(args.dataset)
     from controltac_il.generator import ForceGenerator
 
     estimator = None
@@ -158,18 +214,12 @@ def _setup(args) -> ForceAugment:
     except (ValueError, OSError) as exc:
         raise UsageError("--generator", f"expected a generator checkpoint folder (or default / fast): "
                                         f"{' '.join(str(exc).split())}") from exc
-    if kwargs.get("pose_offset"):
+    if pose:
         try:
             generator.load_pose_adapter(args.pose_adapter)
         except (ValueError, OSError) as exc:
             raise UsageError("--pose-adapter", " ".join(str(exc).split())) from exc
-    try:
-        return ForceAugment(dataset, generator, cache_dir=args.out, estimator=estimator, build="manual",
-                            progress=True, **kwargs)
-    except StaleCacheError as exc:
-        raise UsageError("--out", " ".join(str(exc).split())) from exc
-    except ValueError as exc:
-        raise _field_error(exc, "--dataset") from exc
+    return generator, estimator
 
 
 def _force_keys(pairs: list[str]) -> dict[str, str]:
@@ -187,7 +237,7 @@ def _open_dataset(root: Path):
             return LeRobotFolder(root)
         return EpisodeDataset(root, chunk_size=1, cameras=[])
     except (ValueError, OSError) as exc:
-        raise UsageError("--dataset", " ".join(str(exc).split())) from exc
+        raise _field_error(exc, "--dataset") from exc
 
 
 def main(argv=None) -> int:
@@ -196,8 +246,10 @@ def main(argv=None) -> int:
         args = parser().parse_args(argv)
         aug = _setup(args)
         try:
-            counts = aug.build_cache()
-            _report(aug, counts)
+            if args.lerobot:
+                _report_lerobot(args.out, _write(aug, args.out))
+            else:
+                _report(aug, aug.build_cache())
         except StaleCacheError as exc:  # a chunk that does not provably belong to the cache
             raise UsageError("--out", " ".join(str(exc).split())) from exc
     except UsageError as exc:

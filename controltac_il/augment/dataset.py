@@ -95,7 +95,7 @@ class ForceAugment(Dataset):
         check_manifest(self.cache_dir, settings)
         if build == "now":
             self.build_cache(progress=progress)
-            self._wait_complete()
+            self.wait_complete()
         if build != "manual":
             self._require_complete()
 
@@ -147,7 +147,7 @@ class ForceAugment(Dataset):
         copy, base = divmod(int(index) % n, self.n_base)
         if copy and self._frames is not None:  # the project's dataset: do not read frames about to be replaced
             episode, frame = int(self._frames[0][base]), int(self._frames[1][base])
-            outcome = self._chunk(episode, copy).frames.get(frame)
+            outcome = self.chunk(episode, copy).frames.get(frame)
             regenerated = [k for k, o in zip(self.tactile_keys, outcome.keys) if o.row >= 0] if outcome else []
             src = base if self._source_index is None else int(self._source_index[base])
             return self._from_cache(self._source.item(src, skip_keys=regenerated), episode, copy, frame)
@@ -161,15 +161,16 @@ class ForceAugment(Dataset):
         item, outcome = self._online.item(item, episode, copy, frame)
         return self._annotate(item, copy, outcome)
 
-    def _chunk(self, episode: int, copy: int):
-        """The opened (and checked) chunk; the reader learns each episode's frames first."""
+    def chunk(self, episode: int, copy: int):
+        """The opened and checked cache chunk of (episode, copy): ``frames`` {frame: FrameOutcome}, ``files``
+        (one FrameFile per tactile key: ``read(row)``), ``records``."""
         if self._reader.frames is None:
             self._reader.frames = {e: [t for t, _ in rows] for e, rows in self._episodes().items()}
         return self._reader.chunk(episode, copy)
 
     def _from_cache(self, item: dict, episode: int, copy: int, frame: int) -> dict:
         """The cached images of every frame the item's tactile keys hold (its own, each unpadded window position)."""
-        self._chunk(episode, copy)
+        self.chunk(episode, copy)
         outcome, files = self._reader.frame(episode, copy, frame)
         for j, k in enumerate(self.tactile_keys):
             for p, f in self.keys.positions(item, k, frame):
@@ -271,7 +272,7 @@ class ForceAugment(Dataset):
         number of chunks checked."""
         done = [c for c in self.chunk_list() if chunk_done(self.cache_dir, *c)]
         for e, k in done:
-            self._chunk(e, k)
+            self.chunk(e, k)
         return len(done)
 
     def plan(self, progress: bool = False) -> list[dict]:
@@ -286,7 +287,7 @@ class ForceAugment(Dataset):
                 out.extend(r.to_json() for r in writer.plan_chunk(e, k, ep))
         return out
 
-    def _wait_complete(self, poll_s: float = 2.0) -> None:
+    def wait_complete(self, poll_s: float = 2.0) -> None:
         """Under torchrun, wait until the other ranks have written their chunks."""
         if int(os.environ.get("WORLD_SIZE", 1)) <= 1:
             return
@@ -313,7 +314,7 @@ class ForceAugment(Dataset):
         chunks written before stage 2 existed have none)."""
         if self.config.mode != "cache":
             raise ValueError("provenance: only in mode='cache'")
-        return [{"pose_offset": None, **r} for e, k in self.chunk_list() for r in self._chunk(e, k).records]
+        return [{"pose_offset": None, **r} for e, k in self.chunk_list() for r in self.chunk(e, k).records]
 
     def summary(self, copies: int | None = None) -> dict:
         """Counts over the augmented copies (the first ``copies`` of them; None: all): tactile frames, no_contact,

@@ -25,6 +25,7 @@ seeking). Nothing stays open across pickling or a fork: DataLoader workers open 
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
@@ -174,7 +175,7 @@ class _RowGroups:
         self.__init__(**state)
 
 
-def _decode_png(data: bytes, key: str) -> np.ndarray:
+def decode_png(data: bytes, key: str) -> np.ndarray:
     image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
     if image is None:
         raise ValueError(f"{key}: an image of the parquet is not a readable PNG")
@@ -283,6 +284,42 @@ class LeRobotFolder(Dataset):
         """(episode_index, frame_index) int64 (N,) of every item, without reading any."""
         return self._episode.copy(), self._frame.copy()
 
+    def fingerprint(self) -> dict:
+        """Digest of the folder's meta files and its data files' names and sizes (what ForceAugment's cache
+        records of its dataset)."""
+        digest = hashlib.sha256()
+        for path in [self.root / "meta" / "info.json", *sorted((self.root / "meta").glob("episodes/*/*.parquet")),
+                     self.root / "meta" / "tasks.parquet"]:
+            digest.update(path.read_bytes())
+        for path in self._rows.paths:
+            digest.update(f"{path.relative_to(self.root)}:{path.stat().st_size};".encode())
+        return {"lerobot_sha256": digest.hexdigest()[:16]}
+
+    def episode_table(self, episode: int) -> pa.Table:
+        """The data rows of ``episode`` as stored (every column, arrow types kept), in row order."""
+        ep = self.episodes[int(episode)]
+        a, b = int(ep["dataset_from_index"]), int(ep["dataset_to_index"])
+        first = int(np.searchsorted(self._starts, a, side="right") - 1)
+        last = int(np.searchsorted(self._starts, b - 1, side="right") - 1)
+        parts = []
+        for g in range(first, last + 1):
+            file, group = (int(x) for x in self._groups[g])
+            table = pq.ParquetFile(self._rows.paths[file]).read_row_group(group)
+            lo, hi = max(a - int(self._starts[g]), 0), min(b, int(self._starts[g + 1])) - int(self._starts[g])
+            parts.append(table.slice(lo, hi - lo))
+        return pa.concat_tables(parts).combine_chunks()
+
+    def video_frames(self, key: str, episode: int) -> np.ndarray:
+        """RGB uint8 (L, H, W, 3): every frame of video ``key`` in ``episode``, at its data timestamps."""
+        ep = self.episodes[int(episode)]
+        a, b = int(ep["dataset_from_index"]), int(ep["dataset_to_index"])
+        start = float(ep[f"videos/{key}/from_timestamp"])
+        return self._videos.frames(self._video_path(key, ep), [start + float(t) for t in self._timestamp[a:b]])
+
+    def video_path(self, key: str, episode: int) -> Path:
+        """The mp4 holding video ``key`` of ``episode``."""
+        return self._video_path(key, self.episodes[int(episode)])
+
     def _video_path(self, key: str, ep: dict) -> Path:
         chunk, file = int(ep[f"videos/{key}/chunk_index"]), int(ep[f"videos/{key}/file_index"])
         return self.root / self.meta["video_path"].format(video_key=key, chunk_index=chunk, file_index=file)
@@ -306,7 +343,7 @@ class LeRobotFolder(Dataset):
         if dtype == "string":
             return values[0]
         if dtype == "image":
-            out = _chw_float(np.stack([_decode_png(v.as_py(), key) for v in values]))
+            out = _chw_float(np.stack([decode_png(v.as_py(), key) for v in values]))
         else:
             out = _tensor(np.stack(values))
         return out if window else out[0]

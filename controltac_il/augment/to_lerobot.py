@@ -1,0 +1,135 @@
+"""``write_lerobot``: a LeRobot v3.0 folder in, an augmented LeRobot v3.0 folder out (``lerobot_out``).
+
+Everything is written under ``OUT.partial`` (``staging_dir``): ``write.json`` (what is being written: the
+ForceAugment settings, the source, the writer format), ``cache/`` (the ForceAugment cache), ``dataset/`` (the
+folder being written) and ``done/`` (one meta row per finished episode). Re-running the same command resumes;
+under torchrun every rank builds its share of the cache, then writes its share of the episodes, and rank 0
+writes ``meta/`` and publishes: ``dataset/`` is renamed to OUT, and ``OUT.partial`` removed. OUT is never the
+source (nor inside it, nor around it) and never a folder this tool did not write (``check_destination``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+
+from controltac_il.augment.lerobot_out import LeRobotExport
+from controltac_il.datasets.lerobot_v3_write import aggregate_stats, write_meta
+from controltac_il.io import write_json
+
+WRITER_FORMAT = 1  # bump when what is written changes
+MARKER = Path("meta") / "controltac_il_augment.json"  # in a published folder: what wrote it
+
+
+def staging_dir(out: Path) -> Path:
+    """Where a write to ``out`` happens until it is published."""
+    out = Path(out)
+    return out.with_name(out.name + ".partial")
+
+
+def signature(aug, source) -> dict:
+    """What a write is: the ForceAugment settings (they fix every frame), the source folder, the writer format."""
+    return {"writer_format": WRITER_FORMAT, "source": str(Path(source.root).resolve()), "settings": aug.settings()}
+
+
+def _digest(sig: dict) -> str:
+    return hashlib.sha256(json.dumps(sig, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def check_destination(root: Path, out: Path) -> bool:
+    """True when ``out`` already holds this tool's finished write (read its marker to compare); False when it
+    can be written. ValueError naming ``out`` otherwise."""
+    root, out = Path(root).resolve(), Path(out).resolve()
+    if out == root or root in out.parents or out in root.parents:
+        raise ValueError(f"out: {out} must be a folder of its own, not the source {root}, inside it or around it")
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"out: {out} is a file")
+    if out.is_dir() and any(out.iterdir()):
+        if (out / MARKER).is_file():
+            return True
+        raise ValueError(f"out: {out} is a non-empty folder this tool did not write; choose a new or empty folder")
+    staging = staging_dir(out)
+    if staging.exists() and not (staging / "write.json").is_file() and any(staging.iterdir()):
+        raise ValueError(f"out: {staging} exists and was not made by this tool; move it away")
+    return False
+
+
+def claim(staging: Path, sig: dict) -> None:
+    """Start or resume a write in ``staging``; ValueError naming ``out`` when it holds another write."""
+    path = staging / "write.json"
+    if path.is_file():
+        held = json.loads(path.read_text())
+        if held.get("digest") != _digest(sig):
+            raise ValueError(f"out: {staging} holds an unfinished write of other settings or another source; "
+                             "re-run that command to finish it, or delete the folder")
+        return
+    staging.mkdir(parents=True, exist_ok=True)
+    write_json(path, {"digest": _digest(sig), **sig})
+
+
+def published(out: Path, aug, source) -> bool:
+    """Whether ``out`` holds this very write (its marker names the same digest); ValueError naming ``out`` for
+    another write of this tool."""
+    marker = json.loads((Path(out) / MARKER).read_text())
+    if marker.get("digest") != _digest(signature(aug, source)):
+        raise ValueError(f"out: {out} holds an augmented dataset of other settings or another source; choose "
+                         "another folder")
+    return True
+
+
+def write_lerobot(aug, source, out: Path, *, rank: int | None = None, world_size: int | None = None,
+                  progress: bool = True, stop_after: int | None = None, poll_s: float = 2.0) -> dict:
+    """Write the augmented folder ``out`` of ``source`` (a LeRobotFolder) through ``aug`` (a ForceAugment of it
+    in cache mode whose ``cache_dir`` is ``staging_dir(out) / "cache"``). Returns the counts of this run and,
+    once published, the marker (``published``: True)."""
+    out = Path(out)
+    if check_destination(source.root, out):
+        return {"published": published(out, aug, source), "already": True,
+                "marker": json.loads((out / MARKER).read_text())}
+    rank = int(os.environ.get("RANK", 0)) if rank is None else int(rank)
+    world_size = int(os.environ.get("WORLD_SIZE", 1)) if world_size is None else int(world_size)
+    staging, sig = staging_dir(out), signature(aug, source)
+    claim(staging, sig)
+    built = aug.build_cache(rank=rank, world_size=world_size, progress=progress)
+    aug.wait_complete(poll_s)
+    export = LeRobotExport(aug, source, staging / "dataset", staging / "done")
+    counts = {"cache": built, **export.write(rank, world_size, progress, stop_after), "published": False}
+    if rank != 0 or (stop_after is not None and export.missing()):
+        return counts
+    while export.missing():  # other ranks' episodes
+        time.sleep(poll_s)
+    marker = finish(export, sig)
+    if out.is_dir():
+        out.rmdir()  # empty (check_destination)
+    os.replace(staging / "dataset", out)
+    shutil.rmtree(staging)
+    return {**counts, "published": True, "marker": marker}
+
+
+def finish(export: LeRobotExport, sig: dict) -> dict:
+    """meta/ of the written folder (info, episodes, stats, tasks) and the marker; returns the marker."""
+    source, folder = export.source, export.folder
+    rows = export.rows()
+    writer = [row.pop("writer") for row in rows]
+    total_frames = int(sum(row["length"] for row in rows))
+    info = {**source.meta, "total_episodes": len(rows), "total_frames": total_frames,
+            "splits": {"train": f"0:{len(rows)}"}, "features": export.features()}
+    write_meta(folder, info, rows, aggregate_stats([row["stats"] for row in rows]))
+    for name in ("tasks", "subtasks"):
+        path = source.root / "meta" / f"{name}.parquet"
+        if path.is_file():
+            shutil.copyfile(path, folder / "meta" / f"{name}.parquet")
+    sse, values = sum(w["video_sse"] for w in writer), sum(w["video_values"] for w in writer)
+    marker = {"tool": "controltac_il.augment", "digest": _digest(sig), **sig,
+              "episodes": {"source": len(export.sources), "copies": export.copies, "written": len(rows)},
+              "frames": total_frames, "regenerated_frames": int(sum(w["regenerated"] for w in writer)),
+              "video_round_trip_mse": float(sse / values) if values else None,
+              "video_round_trip_psnr_db": float(10 * np.log10(255 ** 2 * values / sse)) if sse else None}
+    write_json(folder / MARKER, marker)
+    return marker

@@ -1,0 +1,167 @@
+"""Writing the pieces of a LeRobot v3.0 folder (facts: ``docs/lerobot_v3_format.md``), each file atomically:
+data parquet files (one row group), mp4 videos in a source's codec, per-episode and dataset stats as LeRobot
+computes them, ``meta/episodes`` and ``meta/stats.json``.
+
+Stats follow LeRobot 0.4.4 (``compute_stats.py``): per episode min, max, mean, std, count and the quantiles
+``QUANTILES`` of every feature; cameras per channel as (3, 1, 1) lists in [0, 1] over the frames
+``sample_indices`` picks (strided when the long side is >= 300 px), count = frames sampled; across episodes
+count-weighted means, pooled variance, min of mins, max of maxes, quantiles as the count-weighted mean of the
+episodes'. Two departures, both in LeRobot's favour: camera std in float (0.4.4 squares uint8 and overflows,
+huggingface/lerobot#3682) and exact per-episode quantiles (LeRobot bins a 5000-bin histogram).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from fractions import Fraction
+from pathlib import Path
+
+import av
+import cv2
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from controltac_il.io import atomic_path, write_json
+
+QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)
+STAT_NAMES = ("min", "max", "mean", "std", "count", *(f"q{round(q * 100):02d}" for q in QUANTILES))
+# encoder and settings per source codec: LeRobot's g=2 (a keyframe every 2 frames), a lower crf than its 30 as
+# generated frames are encoded once more after the generator's own error (round trip measured per write)
+ENCODERS = {"av1": ("libsvtav1", {"crf": "10", "g": "2", "preset": "8"}),
+            "h264": ("libx264", {"crf": "10", "g": "2"}),
+            "hevc": ("libx265", {"crf": "10", "g": "2"})}
+FALLBACK = "h264"  # a source codec without an encoder here (or none known) is written as this
+EPISODES_META = Path("meta/episodes/chunk-000/file-000.parquet")
+
+
+def png_bytes(rgb: np.ndarray) -> bytes:
+    """PNG of an RGB uint8 (H, W, 3) image (LeRobot's image feature bytes)."""
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
+    if not ok:
+        raise ValueError("could not encode a PNG")
+    return buf.tobytes()
+
+
+def write_parquet(path: Path, table: pa.Table) -> None:
+    """``table`` as one row group, snappy (as LeRobot writes an episode), atomically."""
+    with atomic_path(path, ".parquet") as tmp:
+        pq.write_table(table, tmp, row_group_size=max(len(table), 1), compression="snappy")
+
+
+def video_codec(path: Path) -> tuple[str, str]:
+    """(codec name as the stream reports it, pix_fmt) of an mp4's first video stream."""
+    with av.open(str(path), metadata_errors="ignore") as container:
+        ctx = container.streams.video[0].codec_context
+        return ctx.name, ctx.pix_fmt or "yuv420p"
+
+
+def encoder_for(codec: str) -> tuple[str, str, dict]:
+    """(codec written, encoder, options) for a source ``codec``: the same where an encoder is here, else FALLBACK."""
+    name = codec if codec in ENCODERS and ENCODERS[codec][0] in av.codecs_available else FALLBACK
+    encoder, options = ENCODERS[name]
+    return name, encoder, dict(options)
+
+
+def encode_video(path: Path, frames: np.ndarray, fps: int, codec: str, pix_fmt: str = "yuv420p") -> str:
+    """Encode RGB uint8 (T, H, W, 3) as an mp4, frame k at k / fps s; returns the codec written."""
+    name, encoder, options = encoder_for(codec)
+    os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1: errors only, not its banner per file
+    with atomic_path(path, ".mp4") as tmp, av.open(str(tmp), "w", format="mp4") as container:
+        stream = container.add_stream(encoder, rate=fps)
+        stream.height, stream.width = frames.shape[1:3]
+        stream.pix_fmt, stream.options = pix_fmt, options
+        for k, rgb in enumerate(frames):
+            frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb), format="rgb24")
+            frame.pts, frame.time_base = k, Fraction(1, fps)
+            container.mux(stream.encode(frame))
+        container.mux(stream.encode())
+    return name
+
+
+def decode_video(path: Path) -> np.ndarray:
+    """Every frame of an mp4's first video stream, RGB uint8 (T, H, W, 3), in presentation order."""
+    with av.open(str(path), metadata_errors="ignore") as container:
+        frames = [(f.pts, f.to_ndarray(format="rgb24")) for f in container.decode(video=0)]
+    return np.stack([img for _, img in sorted(frames, key=lambda x: x[0])])
+
+
+# --- stats ----------------------------------------------------------------------------------------
+
+def sample_indices(length: int) -> np.ndarray:
+    """Frames of an episode of ``length`` whose images enter its stats (LeRobot's rule)."""
+    n = length if length < 100 else max(100, min(int(length ** 0.75), 10000))
+    return np.round(np.linspace(0, length - 1, n)).astype(int)
+
+
+def image_stats(frames: np.ndarray) -> dict:
+    """Stats of RGB uint8 (n, H, W, 3) sampled frames: per channel, (3, 1, 1) lists in [0, 1]."""
+    long_side = max(frames.shape[1:3])
+    stride = int(long_side / 150) if long_side >= 300 else 1
+    pixels = frames[:, ::stride, ::stride].reshape(-1, 3).astype(np.float64) / 255.0
+    stats = _stats(pixels)
+    out = {k: [[[v]] for v in np.asarray(stats[k]).tolist()] for k in STAT_NAMES if k != "count"}
+    return {**out, "count": [len(frames)]}
+
+
+def vector_stats(values: np.ndarray, name: str) -> dict:
+    """Stats of a numeric column (N,) or (N, D): lists of D (of 1 for scalars); integers' min / max stay ints."""
+    values = np.asarray(values)
+    if values.dtype.kind == "f" and not np.isfinite(values).all():
+        raise ValueError(f"dataset: feature {name!r} holds NaN or inf; refusing to write stats of it")
+    as_2d = values.reshape(len(values), -1)
+    stats = _stats(as_2d.astype(np.float64))
+    out = {k: np.asarray(stats[k]).tolist() for k in STAT_NAMES if k != "count"}
+    if values.dtype.kind in "iub":
+        out["min"], out["max"] = as_2d.min(0).astype(int).tolist(), as_2d.max(0).astype(int).tolist()
+    return {**out, "count": [len(values)]}
+
+
+def _stats(x: np.ndarray) -> dict:
+    """min, max, mean, std and quantiles over the rows of (N, D) float64."""
+    out = {"min": x.min(0), "max": x.max(0), "mean": x.mean(0), "std": x.std(0)}
+    for q, v in zip(QUANTILES, np.quantile(x, QUANTILES, axis=0)):
+        out[f"q{round(q * 100):02d}"] = v
+    return out
+
+
+def aggregate_stats(episodes: list[dict]) -> dict:
+    """Dataset stats {feature: {stat: list}} from per-episode stats (module docstring)."""
+    out = {}
+    for key in episodes[0]:
+        per = [ep[key] for ep in episodes]
+        count = np.array([p["count"][0] for p in per], np.float64)
+        w = (count / count.sum()).reshape(-1, *([1] * np.asarray(per[0]["mean"]).ndim))
+        mean = np.stack([np.asarray(p["mean"], np.float64) for p in per])
+        std = np.stack([np.asarray(p["std"], np.float64) for p in per])
+        total_mean = (w * mean).sum(0)
+        variance = (w * (std ** 2 + (mean - total_mean) ** 2)).sum(0)
+        agg = {"min": np.min([p["min"] for p in per], 0), "max": np.max([p["max"] for p in per], 0),
+               "mean": total_mean, "std": np.sqrt(variance), "count": [int(count.sum())]}
+        for q in STAT_NAMES[5:]:
+            agg[q] = (w * np.stack([np.asarray(p[q], np.float64) for p in per])).sum(0)
+        out[key] = {k: (v if isinstance(v, list) else v.tolist()) for k, v in agg.items()}
+    return out
+
+
+# --- meta -----------------------------------------------------------------------------------------
+
+def episodes_table(rows: list[dict]) -> pa.Table:
+    """meta/episodes rows (one dict per episode, LeRobot's columns; ``stats`` as {feature: {stat: list}})."""
+    flat = []
+    for row in rows:
+        stats = row.get("stats", {})
+        out = {k: v for k, v in row.items() if k != "stats"}
+        out.update({f"stats/{f}/{s}": v for f, st in stats.items() for s, v in st.items()})
+        out["meta/episodes/chunk_index"], out["meta/episodes/file_index"] = 0, 0
+        flat.append(out)
+    return pa.Table.from_pylist(flat)
+
+
+def write_meta(root: Path, info: dict, rows: list[dict], stats: dict) -> None:
+    """meta/info.json, meta/episodes (one file) and meta/stats.json of a folder whose data is written."""
+    write_parquet(root / EPISODES_META, episodes_table(rows))
+    write_json(root / "meta" / "stats.json", stats)
+    with atomic_path(root / "meta" / "info.json", ".json") as tmp:
+        tmp.write_text(json.dumps(info, indent=4))
