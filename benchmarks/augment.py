@@ -16,6 +16,14 @@ force labels under ``observation.gelsight_<s>.force``, named by ``force_keys=``.
 estimator reads these sensor-model renders with more than 1 N of shear, outside the generator's validated
 range, so every frame would be kept real and online mode would generate nothing: the counts without labels
 are reported beside the row.
+
+The LeRobot writer row (``--rows lerobot_write``) writes the same episodes as a LeRobot v3.0 folder
+(``benchmarks.lerobot_source``: gelsight_left an image feature, gelsight_right an AV1 video) and times
+``python -m controltac_il.augment --dataset ROOT --out OUT``'s whole write (cache build with the episodes'
+reading, then the export: PNGs, re-encoded videos, stats, meta) against the time the generator itself spends
+on the same frames (its ``generate_at`` calls inside that write). Target: the writer at >= 0.8x the
+generator's throughput. The video round trip (MSE, uint8 units) of the regenerated frames is reported beside
+the generator's own error (README, ``benchmarks/results/generator.json``).
 """
 
 from __future__ import annotations
@@ -134,6 +142,54 @@ def lerobot_row(tmp: Path, gen, copies: int, steps, items: int, epochs: int, onl
             "images": "float32 (3, H, W) in [0, 1]", "tactile_keys": keys}
 
 
+class TimedGenerator:
+    """The generator, with the seconds spent in its ``generate_at`` calls summed in ``seconds``."""
+
+    def __init__(self, generator):
+        self.generator, self.seconds = generator, 0.0
+
+    def __getattr__(self, name):
+        return getattr(self.generator, name)
+
+    def generate_at(self, *args, **kwargs):
+        t0 = time.perf_counter()
+        try:
+            return self.generator.generate_at(*args, **kwargs)
+        finally:
+            self.seconds += time.perf_counter() - t0
+
+
+def lerobot_write_row(tmp: Path, gen, copies: int, steps) -> dict:
+    """A LeRobot folder in, an augmented LeRobot folder out: writer vs generator throughput, codec round trip."""
+    import warnings
+
+    from benchmarks.lerobot_source import FORCES, write_source
+    from controltac_il.augment.to_lerobot import staging_dir, write_lerobot
+    from controltac_il.datasets.lerobot_v3 import LeRobotFolder
+
+    source = LeRobotFolder(write_source(tmp / "demos", tmp / "lerobot_source"))
+    out, timed = tmp / "lerobot_augmented", TimedGenerator(gen)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", ".*background estimated", UserWarning)
+        t0 = time.perf_counter()
+        tactile_only = LeRobotFolder(source.root, keys=[*FORCES, *FORCES.values()])  # as the CLI reads
+        aug = ForceAugment(tactile_only, timed, copies=copies, steps=steps, tactile_keys=list(FORCES), force_keys=FORCES,
+                           cache_dir=staging_dir(out) / "cache", build="manual", progress=True)
+        marker = write_lerobot(aug, source, out)["marker"]
+        write_s = time.perf_counter() - t0
+    n = marker["regenerated_frames"]
+    row = {"regenerated_frames": n, "write_seconds": write_s, "generator_seconds": timed.seconds,
+           "writer_frames_per_s": n / write_s, "generator_frames_per_s": n / timed.seconds,
+           "writer_vs_generator": timed.seconds / write_s, "target_0_8x": timed.seconds / write_s >= 0.8,
+           "episodes_written": marker["episodes"]["written"], "frames_written": marker["frames"],
+           "video_round_trip_mse": marker["video_round_trip_mse"],
+           "video_round_trip_psnr_db": marker["video_round_trip_psnr_db"], "steps": aug.steps,
+           "source": "gelsight_left image (PNG), gelsight_right AV1 video, two AV1 cameras"}
+    print_table([row], ["regenerated_frames", "write_seconds", "generator_seconds", "writer_vs_generator",
+                        "video_round_trip_mse"], title="LeRobot folder in, augmented LeRobot folder out")
+    return row
+
+
 def items_per_s(readers: dict, items: int, rounds: int, seed: int = 0) -> dict:
     """Median items/s of each reader over ``rounds`` epochs of ``items`` random items.
 
@@ -204,8 +260,9 @@ def main(argv=None) -> dict:
     p.add_argument("--threads", type=int, default=2, help="torch threads for the cache build (default 2)")
     p.add_argument("--steps", type=int, default=None,
                    help="sampler steps (default: the generator's; 2 with --quick)")
-    p.add_argument("--rows", choices=("all", "hdf5", "lerobot"), default="all",
-                   help="which datasets to measure: our HDF5 episodes, the LeRobot-convention view, or both")
+    p.add_argument("--rows", nargs="+", choices=("all", "hdf5", "lerobot", "lerobot_write"), default=["all"],
+                   help="which rows: our HDF5 episodes, the LeRobot-convention view, the LeRobot folder writer "
+                        "(default all)")
     args = p.parse_args(argv)
     episodes, frames, copies, items, epochs, online_items = (
         (3, 20, 2, 96, 2, 16) if args.quick else (6, 40, 4, 960, 9, 48))
@@ -217,10 +274,14 @@ def main(argv=None) -> dict:
         tmp = Path(tmp)
         record_episodes(tmp / "demos", episodes, frames)
         sizes = (copies, steps, items, epochs, online_items)
-        if args.rows in ("all", "hdf5"):
+        rows = {"hdf5", "lerobot", "lerobot_write"} if "all" in args.rows else set(args.rows)
+        if "hdf5" in rows:
             results.update(hdf5_row(tmp, gen, args, *sizes))
-        if args.rows in ("all", "lerobot"):
+        if "lerobot" in rows:
             results["lerobot"] = lerobot_row(tmp, gen, *sizes)
+        if "lerobot_write" in rows:
+            torch.set_num_threads(args.threads)
+            results["lerobot_write"] = lerobot_write_row(tmp, gen, copies, steps)
     table = [{"dataset": name, "reader": k, "items/s": v, "vs bare": v / rates["bare"]}
              for name, rates in (("hdf5", results.get("items_per_s")), ("lerobot", results.get("lerobot", {}).get(
                  "items_per_s"))) if rates for k, v in rates.items()]
@@ -228,7 +289,7 @@ def main(argv=None) -> dict:
     return write_results(args.out, {
         "benchmark": "augment",
         "quick": args.quick,
-        "rows": args.rows,
+        "rows": sorted(rows),
         "generator": gen_name,
         "generator_hash": str(gen.checkpoint_hash),
         "data": {"episodes": episodes, "frames_per_episode": frames, "tactile": "2 x 240x320",

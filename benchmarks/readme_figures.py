@@ -257,6 +257,20 @@ def act() -> str:
     return table(header, rows) + "\n\n" + provenance("act.json", doc, *ACT_GENERATOR)
 
 
+def augment_lerobot_write() -> str:
+    doc = load("augment_lerobot_write.json")
+    r, gen = doc["lerobot_write"], load("generator.json")
+    default = next(m for m in gen["methods"] if m["method"] == "default")
+    rows = [[r["regenerated_frames"], r["episodes_written"], f"{r['write_seconds']:.1f}",
+             f"{r['generator_seconds']:.1f}", f"{r['writer_frames_per_s']:.1f}", f"{r['generator_frames_per_s']:.1f}",
+             f"{r['writer_vs_generator']:.2f} (target 0.80)",
+             f"{r['video_round_trip_mse']:.2f}", f"{default['unseen_240']['mse']:.1f}"]]
+    header = ["regenerated frames", "episodes written", "write s", "of which generator s", "writer frames/s",
+              "generator frames/s", "writer ÷ generator", "video round trip MSE",
+              "generator's own MSE (unseen, 240×320)"]
+    return table(header, rows) + "\n\n" + provenance("augment_lerobot_write.json", doc, doc["generator_hash"])
+
+
 def _p(cell: dict) -> str:
     p = cell["p_vs_real"]
     if cell["variant"] == "vision_only":
@@ -329,6 +343,7 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "pose": pose, "pose-robustness": pose_robustness, "pose-speed": pose_speed, "pose-moved": pose_moved,
     "pose-estimation": pose_estimation, "act-speed": act_speed, "act": act, "touch-il": touch_il,
     "touch-il-reruns": touch_il_reruns, "results-provenance": results_provenance,
+    "augment-lerobot-write": augment_lerobot_write,
 }
 
 # model cards whose ``benchmark`` copies the figures of one JSON: card -> (JSON, the card's view of it)

@@ -259,3 +259,23 @@ def test_cli_writes_and_refuses_in_one_line_naming_the_flag(written, tmp_path, c
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and expected in err, (args, err)
     assert (tmp_path / "foreign" / "notes.txt").read_text() == "mine" and not (root / "inside").exists()
+
+
+@pytest.mark.parametrize("values", [[7], [0, 255], [3] * 5, list(range(256)) * 3 + [9], "random"])
+def test_camera_stats_from_the_histogram_equal_numpys(values):
+    from controltac_il.datasets.lerobot_v3_write import QUANTILES, _uint8_stats
+
+    v = np.random.default_rng(0).integers(0, 256, 4099) if values == "random" else np.asarray(values)
+    st = _uint8_stats(v.astype(np.uint8))
+    np.testing.assert_allclose([st[f"q{round(q * 100):02d}"] for q in QUANTILES], np.quantile(v, QUANTILES))
+    np.testing.assert_allclose([st["min"], st["max"], st["mean"], st["std"]], [v.min(), v.max(), v.mean(), v.std()])
+
+
+def test_items_can_hold_only_the_keys_asked_for(written):
+    root = written[0]
+    ds = LeRobotFolder(root, keys=[LEFT, FORCES[LEFT]])
+    assert set(ds[3]) == {LEFT, FORCES[LEFT], "timestamp", "frame_index", "episode_index", "index", "task_index",
+                          "task"}
+    assert torch.equal(ds[3][LEFT], LeRobotFolder(root)[3][LEFT])
+    with pytest.raises(ValueError, match=r"^keys: \['observation.images.x'\] are not features"):
+        LeRobotFolder(root, keys=["observation.images.x"])

@@ -103,11 +103,12 @@ def _report(aug: ForceAugment, counts: dict) -> None:
           f"{s['clamped']} clamped, {s['skipped']} skipped (kept real), {s['no_contact']} without contact")
 
 
-def _write(aug: ForceAugment, out: Path) -> dict:
+def _write(aug: ForceAugment, out: Path, root: Path) -> dict:
     from controltac_il.augment.to_lerobot import write_lerobot
+    from controltac_il.datasets.lerobot_v3 import LeRobotFolder
 
     try:
-        return write_lerobot(aug, aug.dataset, out)
+        return write_lerobot(aug, LeRobotFolder(root), out)  # every feature (aug reads the tactile ones alone)
     except ValueError as exc:
         if isinstance(exc, StaleCacheError):
             raise
@@ -174,7 +175,7 @@ def _setup(args) -> ForceAugment:
     elif args.out.exists() and not args.out.is_dir():
         raise UsageError("--out", f"expected a cache folder (new, empty, or a cache of these settings); "
                                   f"{args.out} is a file")
-    dataset = _open_dataset(args.dataset)
+    dataset = _open_dataset(args.dataset, _needed_keys(kwargs) if lerobot else None)
     generator, estimator = _models(args, bool(kwargs.get("pose_offset")))
     if lerobot:
         from controltac_il.augment.to_lerobot import staging_dir
@@ -228,13 +229,23 @@ def _force_keys(pairs: list[str]) -> dict[str, str]:
     return dict(x.split("=", 1) for x in pairs)
 
 
-def _open_dataset(root: Path):
-    """--dataset: a LeRobot v3.x folder (it has meta/info.json) or a folder of ACT episodes."""
+def _needed_keys(kwargs: dict) -> list[str] | None:
+    """The item keys ForceAugment reads when the tactile keys are named (their labels, backgrounds); None: all."""
+    if not kwargs.get("tactile_keys"):
+        return None
+    maps = [kwargs.get(m) or {} for m in ("force_keys", "background_keys")]
+    return [*kwargs["tactile_keys"], *(v for m in maps for v in m.values() if v)]
+
+
+def _open_dataset(root: Path, keys: list[str] | None = None):
+    """--dataset: a LeRobot v3.x folder (it has meta/info.json; items of ``keys`` alone) or a folder of ACT
+    episodes."""
     try:
         if (root / "meta" / "info.json").is_file():
-            from controltac_il.datasets.lerobot_v3 import LeRobotFolder
+            from controltac_il.datasets.lerobot_v3 import LeRobotFolder, read_info
 
-            return LeRobotFolder(root)
+            known = read_info(root)["features"]  # an unknown key is the wrapper's to name (its flag)
+            return LeRobotFolder(root, keys=None if keys is None else [k for k in keys if k in known])
         return EpisodeDataset(root, chunk_size=1, cameras=[])
     except (ValueError, OSError) as exc:
         raise _field_error(exc, "--dataset") from exc
@@ -247,7 +258,7 @@ def main(argv=None) -> int:
         aug = _setup(args)
         try:
             if args.lerobot:
-                _report_lerobot(args.out, _write(aug, args.out))
+                _report_lerobot(args.out, _write(aug, args.out, args.dataset))
             else:
                 _report(aug, aug.build_cache())
         except StaleCacheError as exc:  # a chunk that does not provably belong to the cache

@@ -221,6 +221,16 @@ def _index_data(root: Path, features: dict):
     return paths, np.asarray(groups, np.int64).reshape(-1, 2), np.asarray(starts, np.int64), cols
 
 
+def _item_keys(keys, features: dict) -> set[str]:
+    if keys is None:
+        return set(features)
+    unknown = [k for k in keys if k not in features]
+    if unknown:
+        raise ValueError(f"keys: {unknown} are not features of the dataset ({list(features)})")
+    always = {"timestamp", "frame_index", "episode_index", "index", "task_index", "subtask_index"}
+    return set(keys) | (always & set(features))
+
+
 class LeRobotFolder(Dataset):
     """Frames of a LeRobot v3.x folder as ``LeRobotDataset`` items (module docstring), without LeRobot.
 
@@ -229,6 +239,7 @@ class LeRobotFolder(Dataset):
         delta_timestamps: {feature key: [offsets s]}: windows, as ``LeRobotDataset``'s; None: single frames.
         tolerance_s: LeRobot's tolerance, s, of the offsets against multiples of 1/fps and of video frame times.
         cache_mb: bound on the decoded parquet row groups kept per process, MB.
+        keys: the features items hold (the index columns and ``task_index`` always); None: every feature.
 
     Attributes: ``meta`` (meta/info.json), ``features`` (its features, shapes as tuples), ``fps`` (frames/s),
     ``tasks`` (task strings by task_index), ``episodes`` ({episode_index: that row of meta/episodes without its
@@ -237,7 +248,8 @@ class LeRobotFolder(Dataset):
     offsets]} or None), ``video_keys``.
     """
 
-    def __init__(self, root, delta_timestamps=None, tolerance_s: float = TOLERANCE_S, cache_mb: float = CACHE_MB):
+    def __init__(self, root, delta_timestamps=None, tolerance_s: float = TOLERANCE_S, cache_mb: float = CACHE_MB,
+                 keys=None):
         if not cache_mb > 0:
             raise ValueError(f"cache_mb: expected a positive number of MB, got {cache_mb!r}")
         self.root = Path(root)
@@ -245,6 +257,7 @@ class LeRobotFolder(Dataset):
         self.fps = int(self.meta["fps"])
         self.features = self.meta["features"]
         self.video_keys = [k for k, ft in self.features.items() if ft["dtype"] == "video"]
+        self.item_keys = _item_keys(keys, self.features)
         self.delta_timestamps = delta_timestamps
         self.delta_indices = delta_indices(delta_timestamps, self.features, self.fps, tolerance_s)
         self.tasks = read_tasks(self.root)
@@ -362,9 +375,9 @@ class LeRobotFolder(Dataset):
         i = int(index) % n
         ep = self.episodes[int(self._episode[i])]
         rows, pads = self._window(i, ep)
-        item = {key: self._video(key, ep, rows.get(key, [i])) for key in self.video_keys}
+        item = {key: self._video(key, ep, rows.get(key, [i])) for key in self.video_keys if key in self.item_keys}
         for key, ft in self.features.items():
-            if ft["dtype"] != "video":
+            if ft["dtype"] != "video" and key in self.item_keys:
                 item[key] = self._data(key, rows.get(key, [i]), key in rows)
         item.update(pads)
         item["task"] = self.tasks[int(item["task_index"])]

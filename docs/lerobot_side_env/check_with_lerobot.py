@@ -1,0 +1,29 @@
+"""Side env: load the augmented folder with LeRobot 0.4.4 and compare every item with the source / our reader's dump."""
+import os, sys, json
+os.environ.setdefault("HF_HUB_OFFLINE", "1")
+import numpy as np, torch
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+out, src = sys.argv[1], sys.argv[2]  # argv[3]: the WORK_DIR of dump_ours.py
+ds = LeRobotDataset("controltac/peg_aug", root=out, video_backend="pyav",
+                    delta_timestamps={"observation.images.gelsight_left": [-0.1, 0.0], "action": [0.0, 0.1]})
+s = LeRobotDataset("controltac/peg_src", root=src, video_backend="pyav")
+print("episodes", ds.meta.total_episodes, "frames", len(ds), "features", [k for k in ds.meta.features if k.startswith("augment")])
+ours = np.load(os.path.join(sys.argv[3], "ours.npz"))
+n, worst = len(s), {}
+for i in range(len(ds)):
+    it = ds[i]
+    assert it["episode_index"].item() == i // 36 and it["index"].item() == i, i
+    if i < n:
+        sit = s[i]
+        for k in ("observation.images.gelsight_left", "observation.images.gelsight_right", "observation.images.wrist", "action", "observation.state"):
+            a = it[k][-1] if k == "observation.images.gelsight_left" else (it[k][0] if k == "action" else it[k])
+            assert torch.equal(a, sit[k]), (i, k)
+    for k in ("observation.images.gelsight_left", "observation.images.gelsight_right", "observation.images.wrist"):
+        a = (it[k][-1] if k.endswith("left") else it[k]).numpy()
+        worst[k] = max(worst.get(k, 0), float(np.abs(a - ours[f"{k}_{i}"]).max()))
+    assert int(it["augment.copy"]) == i // n
+    assert it["task"] == "insert the peg"
+print("originals equal to the source items: yes; max |LeRobot item - our reader's item|:", worst)
+stats = ds.meta.stats
+print("stats std of gelsight_left:", np.ravel(stats["observation.images.gelsight_left"]["std"]))
