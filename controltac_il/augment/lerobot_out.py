@@ -252,8 +252,8 @@ class LeRobotExport:
         codec, pix_fmt = video_codec(self.source.video_path(key, e))
         encode_video(dest, rgb, self.source.fps, codec, pix_fmt)
         decoded = decode_video(dest)
-        diff = decoded[regen].astype(np.float64) - rgb[regen]
-        counts["video_sse"] += float((diff ** 2).sum())
+        diff = decoded[regen].astype(np.int32) - rgb[regen]
+        counts["video_sse"] += float(np.einsum("i,i->", diff.ravel(), diff.ravel(), dtype=np.int64))
         counts["video_values"] += diff.size
         return {f"videos/{key}/chunk_index": chunk, f"videos/{key}/file_index": file,
                 f"videos/{key}/from_timestamp": 0.0, f"videos/{key}/to_timestamp": len(rgb) / self.source.fps}
