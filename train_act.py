@@ -1,5 +1,6 @@
 #!/usr/bin/env python
-"""Train an ACT policy on a folder of episodes (episode_<i>.hdf5), optionally with ForceAugment.
+"""Train an ACT policy on a folder of episodes (episode_<i>.hdf5) or a LeRobot v3.0 folder, optionally with
+ForceAugment.
 
     python train_act.py                                   # embedded default: demos from the MuJoCo scene
     python train_act.py --dataset DEMOS --preset cpu --steps 2000 --out runs/act
@@ -25,7 +26,9 @@ from pathlib import Path
 def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--dataset", type=Path, default=None,
-                   help="folder of episode_<i>.hdf5 files (default: collect/reuse the embedded MuJoCo demos)")
+                   help="folder of episode_<i>.hdf5 files, or a LeRobot v3.0 folder (observation.state, action; "
+                        "tactile cameras are those named gelsight / tactile / digit, their force labels "
+                        "observation.<camera>.force) (default: collect/reuse the embedded MuJoCo demos)")
     p.add_argument("--out", type=Path, default=Path("runs/act"), help="output folder (default: runs/act)")
     p.add_argument("--preset", choices=("cpu", "gpu"), default="cpu",
                    help="cpu: small CNN, dim 128 (minutes on 2 cores); gpu: ResNet-18, dim 512 (the paper's ACT)")

@@ -279,3 +279,36 @@ def test_items_can_hold_only_the_keys_asked_for(written):
     assert torch.equal(ds[3][LEFT], LeRobotFolder(root)[3][LEFT])
     with pytest.raises(ValueError, match=r"^keys: \['observation.images.x'\] are not features"):
         LeRobotFolder(root, keys=["observation.images.x"])
+
+
+def test_train_act_takes_a_lerobot_folder_and_its_augmented_copy(written, tmp_path, monkeypatch):
+    import sys
+    from pathlib import Path
+
+    from controltac_il.datasets.lerobot_episodes import LeRobotEpisodes
+    from controltac_il.generator.checkpoint import save_checkpoint
+
+    root, out, _, reference = written
+    ds = LeRobotEpisodes(out, chunk_size=4)
+    assert (ds.cameras, ds.tactile_sensors, ds.force_sensors) == (["wrist"], ["gelsight_left", "gelsight_right"],
+                                                                  ["gelsight_left", "gelsight_right"])
+    item, src = ds[5], LeRobotFolder(out, delta_timestamps={"action": [0.0, 0.1, 0.2, 0.3]})[5]  # episode 0's last
+    assert torch.equal(item["action"][0], src["action"][0]) and item["action_is_pad"].tolist() == [False] + [True] * 3
+    assert item["observation.tactile.gelsight_left"].dtype == torch.uint8
+    assert torch.equal(item["observation.tactile.gelsight_left"].float() / 255, src[LEFT])
+    assert item["observation.tactile_background.gelsight_left"].shape == (3, H, W)
+    np.testing.assert_allclose(ds.stats["action"]["mean"], np.stack([LeRobotFolder(out)[i]["action"].numpy()
+                                                                     for i in range(len(ds))]).mean(0), rtol=1e-6)
+    monkeypatch.setenv("CONTROLTAC_CACHE", str(tmp_path / "cache"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    import train_act
+
+    g = reference.generator
+    ckpt = save_checkpoint(tmp_path / "gen", g.config, g.autoencoder, g.denoiser)
+    flags = ["--steps", "2", "--batch-size", "2", "--chunk-size", "4", "--val-every", "1", "--threads", "1"]
+    assert train_act.main(["--dataset", str(root), "--out", str(tmp_path / "run"), *flags,
+                           "--augment", "force", "--copies", "1", "--generator", str(ckpt)]) == 0
+    log = json.loads((tmp_path / "run" / "train_log.json").read_text())
+    assert log["augment"]["summary"]["regenerated"] > 0 and log["episodes"] == 2 and log["step"] == 2
+    config = json.loads((tmp_path / "run" / "last" / "config.json").read_text())["act"]
+    assert config["tactile_names"] == ["gelsight_left", "gelsight_right"] and config["camera_names"] == ["wrist"]

@@ -13,6 +13,7 @@ import numpy as np
 from torch.utils.data import Dataset
 
 from controltac_il.datasets import EpisodeDataset, EpisodeSubset
+from controltac_il.datasets.lerobot_episodes import LeRobotEpisodes
 from policies.act.configuration_act import ACTConfig
 
 
@@ -75,10 +76,14 @@ class TrainingData:
 
 def load_training_data(root: str | Path, chunk_size: int, val_fraction: float = 0.1, seed: int = 0,
                        stats_path: str | Path | None = None, tactile_sensors=None) -> TrainingData:
-    """Open ``root`` as an :class:`EpisodeDataset` and split it by episode.
+    """Open ``root`` (a folder of ACT episodes: :class:`EpisodeDataset`; a LeRobot v3.0 folder, with
+    ``meta/info.json``: :class:`LeRobotEpisodes`, its default tactile and force keys) and split it by episode.
 
     tactile_sensors: the tactile streams to train on (None = all; () = none, a vision-only policy)."""
-    ds = EpisodeDataset(root, chunk_size=chunk_size, stats_path=stats_path, tactile_sensors=tactile_sensors)
+    if (Path(root) / "meta" / "info.json").is_file():
+        ds = LeRobotEpisodes(root, chunk_size=chunk_size, tactile_sensors=tactile_sensors)
+    else:
+        ds = EpisodeDataset(root, chunk_size=chunk_size, stats_path=stats_path, tactile_sensors=tactile_sensors)
     train_idx, val_idx = split_by_episode(ds, val_fraction, seed)
     episodes, _ = ds.frame_table()
     stats = {k: {m: np.asarray(v).astype(float).tolist() for m, v in d.items()} for k, d in ds.stats.items()}

@@ -1,0 +1,164 @@
+"""A LeRobot v3.0 folder as ACT's training data: ``EpisodeDataset``'s items and attributes, so that
+``train_act.py --dataset ROOT`` (and ForceAugment on the training split) take it directly.
+
+Per item, from the folder's (``LeRobotFolder``, without LeRobot)::
+
+    observation.state                  -> observation.qpos          float32 (D,)
+    action window [0, chunk_size) / fps -> action (chunk_size, A), action_is_pad (chunk_size,) bool (the
+                                          episode's last action repeated past its end)
+    camera observation.images.<c>      -> observation.images.<c>    uint8 (3, H, W)
+    tactile camera (``tactile_keys``)  -> observation.tactile.<s>   uint8 (3, H, W), s = the camera's last name
+                                          part, with observation.tactile_background.<s> (estimated per episode
+                                          from its no-contact frames, ``background``) and, where the folder has
+                                          its label (``force_keys``), observation.force.<s> float32 (3,) N
+
+Default tactile keys: the cameras whose name holds "gelsight", "tactile" or "digit"; default force key of
+``observation.images.<s>``: ``observation.<s>.force`` where the folder has it. ``stats`` (qpos and action
+mean / std, std floored at ``STD_FLOOR``) come from the data's columns, no image decoded.
+"""
+
+from __future__ import annotations
+
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import torch
+from torch.utils.data import Dataset
+from tqdm import tqdm
+
+from controltac_il.datasets.act_dataset import STD_FLOOR
+from controltac_il.datasets.background import estimate_background
+from controltac_il.datasets.lerobot_v3 import LeRobotFolder, read_info
+
+TACTILE_WORDS = ("gelsight", "tactile", "digit")
+
+
+def _name(key: str) -> str:
+    return key.rsplit(".", 1)[-1]
+
+
+def _flat(column, dtype=np.float64) -> np.ndarray:
+    """A numeric column (scalars or lists) as (N, D)."""
+    arr = column.combine_chunks()
+    n = len(arr)
+    while pa.types.is_list(arr.type) or pa.types.is_large_list(arr.type) or pa.types.is_fixed_size_list(arr.type):
+        arr = arr.flatten()
+    return arr.to_numpy(zero_copy_only=False).astype(dtype).reshape(n, -1)
+
+
+def _numeric(root: Path, key: str) -> np.ndarray:
+    """Column ``key`` of every data file, in row order, as float64 (N, D)."""
+    return np.concatenate([_flat(pq.read_table(p, columns=[key]).column(key))
+                           for p in sorted((root / "data").glob("*/*.parquet"))])
+
+
+class LeRobotEpisodes(Dataset):
+    """Frames of a LeRobot v3.0 folder as ``EpisodeDataset`` items (module docstring).
+
+    Args:
+        root: the folder (never written to).
+        chunk_size: actions per item (ACT's N_a), >= 1.
+        tactile_keys: camera keys that are tactile streams (default: names holding TACTILE_WORDS).
+        force_keys: {tactile key: force feature} (default: ``observation.<s>.force`` where present).
+        tactile_sensors: tactile names to return (None = all; () = none: a vision-only policy).
+    """
+
+    def __init__(self, root, chunk_size: int = 20, tactile_keys=None, force_keys=None, tactile_sensors=None):
+        if not isinstance(chunk_size, int) or chunk_size < 1:
+            raise ValueError(f"chunk_size: expected an int >= 1, got {chunk_size!r}")
+        self.root, self.chunk_size = Path(root).resolve(), chunk_size
+        info = read_info(self.root)
+        features, fps = info["features"], int(info["fps"])
+        for key in ("observation.state", "action"):
+            if key not in features:
+                raise ValueError(f"root: {self.root} has no {key!r} feature (ACT needs the state and the actions)")
+        cams = [k for k, ft in features.items() if ft["dtype"] in ("image", "video")]
+        every = [k for k in cams if any(w in k for w in TACTILE_WORDS)] if tactile_keys is None else list(tactile_keys)
+        unknown = [k for k in every if k not in cams]
+        if unknown:
+            raise ValueError(f"tactile_keys: {unknown} are not cameras of the dataset ({cams})")
+        tactile = [k for k in every if tactile_sensors is None or _name(k) in set(tactile_sensors)]
+        self.tactile_keys = {_name(k): k for k in tactile}
+        self.camera_keys = {_name(k): k for k in cams if k not in every}
+        self.force_keys = self._forces(tactile, force_keys, features)
+        self.folder = LeRobotFolder(self.root, delta_timestamps={"action": [k / fps for k in range(chunk_size)]})
+        self.cameras, self.tactile_sensors = list(self.camera_keys), list(self.tactile_keys)
+        self.force_sensors = [s for s in self.tactile_sensors if s in self.force_keys]
+        self.episode_ids = sorted(self.folder.episodes)
+        self._position = {e: n for n, e in enumerate(self.episode_ids)}
+        self.lengths = np.asarray([int(self.folder.episodes[e]["length"]) for e in self.episode_ids], np.int64)
+        self.stats = {name: {"mean": v.mean(0).astype(np.float32), "std": np.maximum(v.std(0), STD_FLOOR).astype(np.float32)}
+                      for name, v in (("qpos", _numeric(self.root, "observation.state")),
+                                      ("action", _numeric(self.root, "action")))}
+        self.backgrounds = self._backgrounds()
+
+    @staticmethod
+    def _forces(tactile: list[str], force_keys, features: dict) -> dict[str, str]:
+        if force_keys is None:
+            found = {_name(k): f"observation.{_name(k)}.force" for k in tactile}
+            return {s: f for s, f in found.items() if f in features}
+        bad = [f for k, f in force_keys.items() if k not in tactile or f not in features or
+               tuple(features[f]["shape"]) != (3,)]
+        if bad:
+            raise ValueError(f"force_keys: {bad} are not (3,) force features of tactile keys of the dataset")
+        return {_name(k): f for k, f in force_keys.items()}
+
+    def _backgrounds(self) -> dict:
+        """{(episode position, sensor): uint8 (H, W, 3)}, each estimated from the episode's own frames."""
+        out = {}
+        if self.tactile_sensors:
+            warnings.warn(f"{self.root.name}: LeRobot folders record no tactile background; estimated per episode "
+                          "from its no-contact frames", stacklevel=3)
+        for n, e in enumerate(tqdm(self.episode_ids, desc="tactile backgrounds", file=sys.stderr,
+                                   disable=not self.tactile_sensors)):
+            table = self.folder.episode_table(e) if self.tactile_sensors else None
+            for s, key in self.tactile_keys.items():
+                frames = (self.folder.video_frames(key, e) if self.folder.features[key]["dtype"] == "video"
+                          else _pngs(table.column(key)))
+                force = _flat(table.column(self.force_keys[s]), np.float32) if s in self.force_keys else None
+                out[(n, s)] = estimate_background(frames, force)[0]
+        return out
+
+    def fingerprint(self) -> dict:
+        return {"root": str(self.root), **self.folder.fingerprint()}
+
+    def __len__(self) -> int:
+        return len(self.folder)
+
+    def frame_table(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.folder.frame_table()
+
+    def __getitem__(self, index: int) -> dict:
+        return self.item(index)
+
+    def item(self, index: int, skip_keys=()) -> dict:
+        """Item ``index`` in EpisodeDataset's layout (``skip_keys`` is accepted for its interface)."""
+        src = self.folder[index]
+        e = int(src["episode_index"])
+        item = {"episode_index": e, "frame_index": int(src["frame_index"]),
+                "observation.qpos": src["observation.state"].float()}
+        for c, key in self.camera_keys.items():
+            item[f"observation.images.{c}"] = _uint8(src[key])
+        for s, key in self.tactile_keys.items():
+            item[f"observation.tactile.{s}"] = _uint8(src[key])
+            bg = self.backgrounds[(self._position[e], s)]
+            item[f"observation.tactile_background.{s}"] = torch.from_numpy(bg).permute(2, 0, 1)
+        for s in self.force_sensors:
+            item[f"observation.force.{s}"] = src[self.force_keys[s]].float()
+        item["action"], item["action_is_pad"] = src["action"].float(), src["action_is_pad"]
+        return item
+
+
+def _uint8(image: torch.Tensor) -> torch.Tensor:
+    """float (3, H, W) in [0, 1] (x / 255 of uint8) -> the uint8 it came from."""
+    return (image * 255).round().to(torch.uint8)
+
+
+def _pngs(column) -> np.ndarray:
+    from controltac_il.datasets.lerobot_v3 import decode_png
+
+    return np.stack([decode_png(b, "tactile") for b in column.combine_chunks().field("bytes").to_pylist()])
