@@ -133,10 +133,7 @@ class LeRobotEpisodes(Dataset):
         return self.folder.frame_table()
 
     def __getitem__(self, index: int) -> dict:
-        return self.item(index)
-
-    def item(self, index: int, skip_keys=()) -> dict:
-        """Item ``index`` in EpisodeDataset's layout (``skip_keys`` is accepted for its interface)."""
+        """Item ``index`` in EpisodeDataset's layout."""
         src = self.folder[index]
         e = int(src["episode_index"])
         item = {"episode_index": e, "frame_index": int(src["frame_index"]),
