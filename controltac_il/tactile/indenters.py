@@ -171,8 +171,8 @@ def procedural_indenter(index: int) -> Indenter:
     """Random training shape ``index`` (>= 0), a pure function of it: the union (pointwise max) of one to three
     primitives, each a spherical cap (radius 2-9 mm, 0.8-3 mm high), a lying cylinder (radius 0.6-4 mm, 2-16 mm
     long) or a filleted elliptical plateau (semi-axes 0.6-5 mm), shifted up to 3.5 mm and rotated at random;
-    a quarter carry bumps 0.03-0.1 mm high every 0.6-1.5 mm. No primitive is a ring, a T, a box or an edge,
-    the held-out families."""
+    a quarter of those without a cap carry bumps 0.03-0.1 mm high every 0.6-1.5 mm. No primitive is a ring, a
+    T, a box or an edge, and no cap is bumpy: the held-out families (a bumpy cap is ``textured_bead``'s)."""
     if not isinstance(index, (int, np.integer)) or isinstance(index, bool) or index < 0:
         raise ValueError(f"procedural indenter index must be an int >= 0, got {index!r}")
     rng = np.random.default_rng([_PROCEDURAL_SEED, int(index)])
@@ -199,7 +199,8 @@ def procedural_indenter(index: int) -> Indenter:
     bumps = None
     if rng.random() < 0.25:
         amp, period = rng.uniform(0.03, 0.1), rng.uniform(0.6, 1.5)
-        bumps, words = (amp, period), words + ["bumps"]
+        if "cap" not in words:  # a bumpy cap is the held-out textured bead's family: never drawn
+            bumps, words = (amp, period), words + ["bumps"]
 
     def relief(u, v):
         h = np.maximum.reduce([part(u, v) for part in parts])
