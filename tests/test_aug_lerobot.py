@@ -352,10 +352,20 @@ class OffSensorEstimator:
         return np.tile(np.float32([1.5, 0.0, 4.0]), (len(residuals), 1))
 
 
-def test_estimated_references_outside_the_range_are_kept_real_and_said(gen):
-    with pytest.warns(UserWarning, match=r"force estimator reads frames of 'observation.images.gelsight' outside the "
-                                         r"generator's validated range .*force_keys="):
+@pytest.mark.parametrize("policy, fz", [("nominal", 5.5), ("clip", 4.0), ("skip", None)])
+def test_estimated_references_outside_the_range_follow_the_policy_said_once(gen, policy, fz):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
         a = ForceAugment(LeRobotLike(episodes(labels=False)), gen, copies=2, tactile_keys=[GEL], mode="online",
-                         estimator=OffSensorEstimator(), progress=False)
-    s = a.summary()
-    assert s["regenerated"] == s["clamped"] == 0 and s["skipped"] == s["tactile_frames"] - s["no_contact"] > 0
+                         estimator=OffSensorEstimator(), estimated_reference=policy, progress=False)
+        s = a.summary()
+    said = [str(w.message) for w in caught if "force estimator reads" in str(w.message)]
+    assert len(said) == 1 and f"estimated_reference={policy!r}" in said[0] and "[1.5, 0.0, 4.0] N" in said[0]
+    contact = s["tactile_frames"] - s["no_contact"]
+    if fz is None:  # kept real
+        assert s["regenerated"] == s["clamped"] == 0 and s["skipped"] == contact > 0
+        return
+    assert s["skipped"] == 0 and s["regenerated"] + s["clamped"] == contact > 0
+    plans = [r for r in a.plan() if r["status"] != "no_contact"]
+    assert {tuple(r["reference_force"]) for r in plans} == {(0.0, 0.0, fz)}  # no shear, Fz by the policy
+    assert all(r["target_force"][:2] == [0.0, 0.0] for r in plans)

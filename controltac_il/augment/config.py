@@ -17,6 +17,7 @@ from controltac_il.config import STRICT, one_line_errors
 
 MODES = ("cache", "online")
 OUT_OF_RANGE = ("clamp", "skip")
+ESTIMATED_REFERENCE = ("nominal", "clip", "skip")
 BUILD = ("now", "require", "manual")
 
 
@@ -92,6 +93,11 @@ class ForceAugmentConfig:
     out_of_range: str = _setting("clamp", "target outside the generator's validated force range: 'clamp' (the "
                                           "generator moves it into range) or 'skip' (keep the real frame); both "
                                           "are counted", choices=OUT_OF_RANGE)
+    estimated_reference: str = _setting(
+        "nominal", "an estimated reference force (no label) outside the generator's validated range: 'nominal' "
+                   "uses (0, 0, NOMINAL_FZ) N in its place, 'clip' its Fz clipped into the range and no shear, "
+                   "'skip' keeps the frame real; only ΔF conditions the generator, so the image's own force need "
+                   "not be known (benchmarks.unlabelled_real)", choices=ESTIMATED_REFERENCE)
     seed: int = _setting(0, "root of every random draw (int >= 0)", type=int)
     steps: int | None = _setting(None, "sampler steps; None = the generator's default", type=int)
     contact_force: float = _setting(0.2, "with force labels, a frame is in contact when Fz >= this (N)", type=float)
@@ -158,10 +164,11 @@ class ForceAugmentConfig:
             raise ValueError("expected non-empty key names")
         return keys
 
-    @field_validator("mode", "out_of_range", mode="before")
+    @field_validator("mode", "out_of_range", "estimated_reference", mode="before")
     @classmethod
     def _choice(cls, v, info):
-        allowed = MODES if info.field_name == "mode" else OUT_OF_RANGE
+        allowed = {"mode": MODES, "out_of_range": OUT_OF_RANGE, "estimated_reference": ESTIMATED_REFERENCE}[
+            info.field_name]
         if v not in allowed:
             raise ValueError(f"expected one of {allowed}")
         return v

@@ -62,7 +62,8 @@ class ForceAugment(Dataset):
         adapters.check_probe(probe)
         self.keys = resolve_keys(probe, self.config, dataset)
         self.tactile_keys = self.keys.tactile_keys
-        self.references = ReferenceForces(self.keys, self.config.contact_force, self.config.min_contact_area, estimator)
+        self.references = ReferenceForces(self.keys, self.config.contact_force, self.config.min_contact_area, estimator,
+                                          self.config.estimated_reference)
         self.labelled = self.references.labelled
         self.progress = progress
         if generator is None:
@@ -122,6 +123,8 @@ class ForceAugment(Dataset):
         cfg.update(self.keys.settings(self.config.force_keys is not None, self.config.background_keys is not None))
         if not all(self.labelled.values()):
             cfg["estimator_hash"] = str(getattr(self.estimator, "checkpoint_hash", None))
+        else:
+            cfg.pop("estimated_reference")  # labels only: caches built before the setting existed stay valid
         source, index = adapters.episode_source(self.dataset)
         fp = getattr(source if source is not None else self.dataset, "fingerprint", None)
         data = dict(fp()) if callable(fp) else {}

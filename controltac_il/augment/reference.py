@@ -11,6 +11,23 @@ import numpy as np
 from controltac_il.augment.keys import KeyMap
 from controltac_il.datasets.background import estimate_background
 from controltac_il.generator.forces import VALIDATED_RANGE
+
+NOMINAL_FZ = 5.5  # N: the validated range's middle, the working reference of an untrusted estimate ("nominal")
+
+
+def working_reference(estimates: np.ndarray, policy: str) -> np.ndarray:
+    """Reference forces (N, 3) N the generator is asked from, for estimates (N, 3) N: those inside the validated
+    range as they are; those outside it (not a force the model was validated on, and an estimator's reading of a
+    sensor it does not know) under ``policy``: "nominal" (0, 0, NOMINAL_FZ), "clip" (0, 0, Fz clipped into the
+    range), "skip" unchanged (the generator keeps the frame real). Shear is dropped with them: ForceAugment's
+    offsets are normal-only, so it would only matter where a target is clamped."""
+    out = np.array(estimates, np.float64)
+    bad = VALIDATED_RANGE.outside(out).any(axis=-1)
+    if policy == "skip" or not bad.any():
+        return out
+    fz = np.full(int(bad.sum()), NOMINAL_FZ) if policy == "nominal" else np.clip(out[bad, 2], *VALIDATED_RANGE.fz)
+    out[bad] = np.stack([np.zeros_like(fz), np.zeros_like(fz), fz], axis=-1)
+    return out
 from controltac_il.tactile.residual import contact_mask, to_residual
 
 
@@ -31,8 +48,9 @@ class ReferenceForces:
     """Contact and reference force of tactile frames, per tactile key (``keys``: where labels and
     backgrounds are found in an item)."""
 
-    def __init__(self, keys: KeyMap, contact_force: float, min_contact_area: float, estimator=None):
-        self.keys = keys
+    def __init__(self, keys: KeyMap, contact_force: float, min_contact_area: float, estimator=None,
+                 estimated_reference: str = "nominal"):
+        self.keys, self.estimated_reference, self._warned = keys, estimated_reference, False
         self.labelled = {k: keys.labels[k] is not None for k in keys.tactile_keys}
         self.contact_force = contact_force
         self.min_contact_area = min_contact_area
@@ -71,6 +89,22 @@ class ReferenceForces:
             return None
         return label if label is not None else self.estimator.predict(residual[None])[0].astype(np.float64)
 
+    def _warn_outside(self, key: str, estimates: np.ndarray) -> None:
+        """Say once what is done with estimates outside the validated range, and why."""
+        bad = VALIDATED_RANGE.outside(estimates).any(axis=-1)
+        if self._warned or not bad.any():
+            return
+        self._warned = True
+        done = {"skip": "those frames are kept real (summary()['skipped'])",
+                "nominal": f"those frames are augmented from the working reference (0, 0, {NOMINAL_FZ:g}) N",
+                "clip": "those frames are augmented from their Fz clipped into the range, without shear"}
+        warnings.warn(f"the force estimator reads {int(bad.sum())} of {len(bad)} contact frames of {key!r} (first "
+                      f"episode read) outside the generator's validated range ({VALIDATED_RANGE.describe()}), e.g. "
+                      f"{np.round(estimates[np.flatnonzero(bad)[0]], 1).tolist()} N; estimated_reference="
+                      f"{self.estimated_reference!r}: {done[self.estimated_reference]}. Only ΔF conditions the "
+                      "generator; for force-labelled targets pass force_keys= or an estimator= fitted to this sensor",
+                      stacklevel=4)
+
     def load_episode(self, items: list, tactile_keys, episode: int) -> EpisodeFrames:
         """The EpisodeFrames of one episode's items (sorted by frame)."""
         ep = EpisodeFrames({}, {}, {}, {}, {})
@@ -89,11 +123,8 @@ class ReferenceForces:
             if labels is not None:
                 ref[:] = labels
             elif touch.any():
-                ref[touch] = self.estimator.predict(res[touch]).astype(np.float64)
-                if VALIDATED_RANGE.outside(ref[touch]).any():
-                    warnings.warn(f"the force estimator reads frames of {k!r} outside the generator's validated range "
-                                  f"({VALIDATED_RANGE.describe()}); those frames are kept real (summary()['skipped']). "
-                                  "The shipped estimator knows the sensor model's GelSight Mini: for another sensor "
-                                  "pass force_keys= (recorded labels) or an estimator= fitted to it", stacklevel=3)
+                estimates = self.estimator.predict(res[touch]).astype(np.float64)
+                ref[touch] = working_reference(estimates, self.estimated_reference)
+                self._warn_outside(k, estimates)
             ep.residuals[k], ep.backgrounds[k], ep.contact[k], ep.reference[k] = res, bg, touch, ref
         return ep
