@@ -167,12 +167,12 @@ def lerobot_write_row(tmp: Path, gen, copies: int, steps) -> dict:
     from controltac_il.augment.to_lerobot import staging_dir, write_lerobot
     from controltac_il.datasets.lerobot_v3 import LeRobotFolder
 
-    source = LeRobotFolder(write_source(tmp / "demos", tmp / "lerobot_source"))
+    source = LeRobotFolder(write_source(tmp / "demos", tmp / "lerobot_source"), video_threads=0)  # as the CLI
     out, timed = tmp / "lerobot_augmented", TimedGenerator(gen)
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", ".*background estimated", UserWarning)
         t0 = time.perf_counter()
-        tactile_only = LeRobotFolder(source.root, keys=[*FORCES, *FORCES.values()])  # as the CLI reads
+        tactile_only = LeRobotFolder(source.root, keys=[*FORCES, *FORCES.values()], video_threads=0)  # as the CLI
         aug = ForceAugment(tactile_only, timed, copies=copies, steps=steps, tactile_keys=list(FORCES), force_keys=FORCES,
                            cache_dir=staging_dir(out) / "cache", build="manual", progress=True)
         marker = write_lerobot(aug, source, out)["marker"]

@@ -108,7 +108,8 @@ def _write(aug: ForceAugment, out: Path, root: Path) -> dict:
     from controltac_il.datasets.lerobot_v3 import LeRobotFolder
 
     try:
-        return write_lerobot(aug, LeRobotFolder(root), out)  # every feature (aug reads the tactile ones alone)
+        # every feature (aug reads the tactile ones alone); decoder threads: nothing forks while writing
+        return write_lerobot(aug, LeRobotFolder(root, video_threads=0), out)
     except ValueError as exc:
         if isinstance(exc, StaleCacheError):
             raise
@@ -245,7 +246,8 @@ def _open_dataset(root: Path, keys: list[str] | None = None):
             from controltac_il.datasets.lerobot_v3 import LeRobotFolder, read_info
 
             known = read_info(root)["features"]  # an unknown key is the wrapper's to name (its flag)
-            return LeRobotFolder(root, keys=None if keys is None else [k for k in keys if k in known])
+            return LeRobotFolder(root, keys=None if keys is None else [k for k in keys if k in known],
+                                 video_threads=0)  # the CLI never forks workers
         return EpisodeDataset(root, chunk_size=1, cameras=[])
     except (ValueError, OSError) as exc:
         raise _field_error(exc, "--dataset") from exc

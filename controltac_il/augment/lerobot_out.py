@@ -23,8 +23,10 @@ row marks it complete, so an interrupted write resumes where it stopped; ``finis
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -147,7 +149,8 @@ class LeRobotExport:
         """RGB uint8 (L, H, W, 3) of tactile ``key`` in source episode ``e``."""
         if self.source.features[key]["dtype"] == "video":
             return self.source.video_frames(key, e)
-        return np.stack([decode_png(b, key) for b in table.column(key).combine_chunks().field("bytes").to_pylist()])
+        return np.stack(_parallel(lambda b: decode_png(b, key),
+                                  table.column(key).combine_chunks().field("bytes").to_pylist()))
 
     def _shared_stats(self, table: pa.Table, e: int) -> dict:
         """Stats of the features every copy of episode ``e`` shares (all but the tactile keys, provenance,
@@ -161,7 +164,7 @@ class LeRobotExport:
                 out[key] = image_stats(self.source.video_frames(key, e)[picks])
             elif ft["dtype"] == "image":
                 column = table.column(key).combine_chunks().field("bytes")
-                out[key] = image_stats(np.stack([decode_png(column[int(i)].as_py(), key) for i in picks]))
+                out[key] = image_stats(np.stack(_parallel(lambda i: decode_png(column[int(i)].as_py(), key), picks)))
             elif ft["dtype"] != "string":
                 out[key] = vector_stats(_numbers(table.column(key)), key)
         return out
@@ -270,6 +273,13 @@ class LeRobotExport:
         return [json.loads(self._row_path(j).read_text()) for j in range(self.total)]
 
 
+def _parallel(fn, items) -> list:
+    """``[fn(x) for x in items]`` on a thread per core (PNG and video codecs release the GIL; the generator is
+    idle while the folder is written)."""
+    with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+        return list(pool.map(fn, items))
+
+
 def _numbers(column: pa.ChunkedArray) -> np.ndarray:
     """A numeric column as NumPy (N,) or (N, D)."""
     arr = column.combine_chunks()
@@ -296,6 +306,7 @@ def _replace_images(table: pa.Table, key: str, rgb: np.ndarray, regen: np.ndarra
     """Image column ``key`` with the PNG of every regenerated frame replaced (others' bytes kept)."""
     i = table.schema.get_field_index(key)
     cells = table.column(i).to_pylist()
-    for r in np.flatnonzero(regen):
-        cells[r] = {**cells[r], "bytes": png_bytes(rgb[r])}
+    rows = np.flatnonzero(regen)
+    for r, data in zip(rows, _parallel(png_bytes, [rgb[r] for r in rows])):
+        cells[r] = {**cells[r], "bytes": data}
     return table.set_column(i, table.schema.field(i), pa.array(cells, type=table.schema.field(i).type))

@@ -240,6 +240,7 @@ class LeRobotFolder(Dataset):
         tolerance_s: LeRobot's tolerance, s, of the offsets against multiples of 1/fps and of video frame times.
         cache_mb: bound on the decoded parquet row groups kept per process, MB.
         keys: the features items hold (the index columns and ``task_index`` always); None: every feature.
+        video_threads: decoder threads per video file (``VideoFrames``; keep 1 under DataLoader workers).
 
     Attributes: ``meta`` (meta/info.json), ``features`` (its features, shapes as tuples), ``fps`` (frames/s),
     ``tasks`` (task strings by task_index), ``episodes`` ({episode_index: that row of meta/episodes without its
@@ -249,7 +250,7 @@ class LeRobotFolder(Dataset):
     """
 
     def __init__(self, root, delta_timestamps=None, tolerance_s: float = TOLERANCE_S, cache_mb: float = CACHE_MB,
-                 keys=None):
+                 keys=None, video_threads: int = 1):
         if not cache_mb > 0:
             raise ValueError(f"cache_mb: expected a positive number of MB, got {cache_mb!r}")
         self.root = Path(root)
@@ -269,7 +270,7 @@ class LeRobotFolder(Dataset):
         self._check_episodes()
         self._rows = _RowGroups(paths, self.features, int(cache_mb * 2**20))
         windows = [len(d) for k, d in (self.delta_indices or {}).items() if k in self.video_keys]
-        self._videos = VideoFrames(keep=max(windows, default=1) + 1, tolerance_s=tolerance_s)
+        self._videos = VideoFrames(keep=max(windows, default=1) + 1, tolerance_s=tolerance_s, threads=video_threads)
 
     def _check_episodes(self) -> None:
         """Every episode of the data is in meta/episodes, spans its rows [from, to) and has its videos."""

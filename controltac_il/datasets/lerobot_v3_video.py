@@ -36,11 +36,11 @@ class FrameTimestampError(ValueError):
 class _Stream:
     """One open video file: its decoder position and the last frames converted to RGB."""
 
-    def __init__(self, path: Path, keep: int):
+    def __init__(self, path: Path, keep: int, threads: int = 1):
         self.path = path
         self.container = av.open(str(path), metadata_errors="ignore")
         self.stream = self.container.streams.video[0]
-        self.stream.codec_context.thread_count = 1  # no decoder threads: freeing one after a fork cannot hang
+        self.stream.codec_context.thread_count = threads  # 1: freeing the decoder after a fork cannot hang
         rate = self.stream.average_rate or self.stream.base_rate
         self.frame_s = float(1 / rate) if rate else 0.0
         self.frames = None  # decode iterator; None: the next query seeks
@@ -115,10 +115,12 @@ class VideoFrames:
     Args:
         keep: decoded frames kept per file (the longest window of a video key, plus one).
         tolerance_s: largest distance between a query time and a frame's time, s (strict, as LeRobot).
+        threads: decoder threads per file (1, the default, is safe in forked DataLoader workers; 0 = FFmpeg's
+            choice, for a process that never forks while decoding, e.g. the LeRobot writer).
     """
 
-    def __init__(self, keep: int = 2, tolerance_s: float = TOLERANCE_S):
-        self.keep, self.tolerance_s = max(int(keep), 1), float(tolerance_s)
+    def __init__(self, keep: int = 2, tolerance_s: float = TOLERANCE_S, threads: int = 1):
+        self.keep, self.tolerance_s, self.threads = max(int(keep), 1), float(tolerance_s), int(threads)
         self._streams: OrderedDict[Path, _Stream] = OrderedDict()
         self._pid = os.getpid()
 
@@ -130,7 +132,7 @@ class VideoFrames:
     def _stream(self, path: Path) -> _Stream:
         if self._pid != os.getpid():  # a forked worker: the parent's decoders are not ours
             self._streams, self._pid = OrderedDict(), os.getpid()
-        stream = self._streams.pop(path, None) or _Stream(path, self.keep)
+        stream = self._streams.pop(path, None) or _Stream(path, self.keep, self.threads)
         self._streams[path] = stream
         while len(self._streams) > MAX_OPEN:
             self._streams.popitem(last=False)[1].close()
@@ -151,7 +153,7 @@ class VideoFrames:
 
     def __getstate__(self):
         self.close()  # a pickled copy (a DataLoader worker) opens its own files
-        return {"keep": self.keep, "tolerance_s": self.tolerance_s}
+        return {"keep": self.keep, "tolerance_s": self.tolerance_s, "threads": self.threads}
 
     def __setstate__(self, state):
         self.__init__(**state)

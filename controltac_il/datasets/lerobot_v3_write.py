@@ -84,6 +84,7 @@ def encode_video(path: Path, frames: np.ndarray, fps: int, codec: str, pix_fmt: 
 def decode_video(path: Path) -> np.ndarray:
     """Every frame of an mp4's first video stream, RGB uint8 (T, H, W, 3), in presentation order."""
     with av.open(str(path), metadata_errors="ignore") as container:
+        container.streams.video[0].thread_type = "AUTO"  # no fork follows: FFmpeg's threads are safe here
         frames = [(f.pts, f.to_ndarray(format="rgb24")) for f in container.decode(video=0)]
     return np.stack([img for _, img in sorted(frames, key=lambda x: x[0])])
 
