@@ -371,21 +371,28 @@ def main(argv=None) -> dict:
            "validation_seeds": args.validation_seeds, "test_seeds": args.test_seeds, "nominal": nominal,
            "shift_candidates": args.shift_candidates, "signature": signature, "max_force_copies": 0}
     results: dict = {"benchmark": "touch_il_verdict", "protocol": protocol}
-    history_path = args.runs / "wall_s.json"
+    history_path, running_path = args.runs / "wall_s.json", args.runs / "wall_s_running.json"
     history = json.loads(history_path.read_text()) if args.resume and history_path.is_file() else []
+    if args.resume and running_path.is_file():  # an invocation that was stopped: its time up to its last save
+        history.append(json.loads(running_path.read_text()))
+        write_json(history_path, history)
+        running_path.unlink()
 
     def save(picture: bool = False) -> None:
         results["units"] = sorted(done.values(), key=lambda u: u["id"])
         _report(results, args, picture)
-        results["wall_s"] = {"this_invocation": round(time.perf_counter() - t_start, 1), "earlier_invocations": history,
-                             "total": round(sum(history) + time.perf_counter() - t_start, 1)}
+        elapsed = round(time.perf_counter() - t_start, 1)
+        write_json(running_path, elapsed)
+        results["wall_s"] = {"this_invocation": elapsed, "earlier_invocations": history,
+                             "total": round(sum(history) + elapsed, 1)}
         if args.out:
             write_results(args.out, results)
 
     _phases(args, ctx, results, done, save, Path(demos_dir))
+    save(picture=True)
     history.append(round(time.perf_counter() - t_start, 1))
     write_json(history_path, history)
-    save(picture=True)
+    running_path.unlink(missing_ok=True)
     print_table(results["table"], ["variant", "setting", "mean", "ci95", "per_seed"], "Test success over seeds")
     print_table(results["comparisons"], ["variant", "setting", "diff", "ci95", "p", "p_holm", "verdict"], "Against real")
     return results
