@@ -45,35 +45,12 @@ def render(root: Path, instance: str, images: int, seed: int) -> Path:
     return root
 
 
-def base_flags(base: Path) -> list[str]:
-    """The DiT flags of the base checkpoint's own training command (its model card), for a compatible DiT."""
-    command = read_json(base / "model_card.json")["command"].split()
-    keep, out = {"--dit-preset", "--dit-patch", "--dit-conv-head", "--prediction-type", "--default-steps",
-                 "--one-step-fraction"}, []
-    for k, v in zip(command, command[1:]):
-        if k in keep:
-            out += [k, v]
-    return out + (["--anchor-to-reference"] if "--anchor-to-reference" in command else [])
-
-
 def fine_tune(base: Path, data: Path, out: Path, steps: int, lr: float, ae_steps: int = 0) -> Path:
-    """Fine-tune ``base``'s autoencoder (``ae_steps``) and then its DiT (``steps``) on ``data`` into ``out``
-    (kept when already done); returns the checkpoint."""
-    from controltac_il.generator.train import main as train
+    """``controltac_il.generator.finetune.fine_tune`` with this benchmark's settings (batch 64, checkpoints at
+    the end: runs of this benchmark are resumed by budget, not within one)."""
+    from controltac_il.generator.finetune import fine_tune as tune
 
-    if not (out / "final" / "model_card.json").is_file():
-        gate = ForceGenerator.from_pretrained(base).config.detail_gate
-        argv = ["--data", str(data), "--out", str(out), "--stage", "denoiser", "--autoencoder-from", str(base),
-                "--denoiser-from", str(base), *base_flags(base), "--dit-steps", str(steps), "--dit-batch", "64",
-                "--dit-lr", str(lr), "--warmup-steps", "20", "--detail-gate", str(gate),
-                "--checkpoint-every", str(max(steps, ae_steps, 1))]
-        if ae_steps:
-            argv += ["--ae-finetune-steps", str(ae_steps), "--ae-lr", str(lr), "--ae-crop", "64", "80"]
-        resume = any((out / f"{s}_state.json").is_file() for s in ("autoencoder_finetune", "denoiser"))
-        rc = train(argv + (["--resume"] if resume else []))
-        if rc != 0:
-            raise RuntimeError(f"fine-tuning on {data} stopped with exit code {rc}")
-    return out / "final"
+    return tune(base, data, out, steps, lr, ae_steps)
 
 
 def score(checkpoint, pairs) -> dict:

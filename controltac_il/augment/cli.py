@@ -82,7 +82,9 @@ def parser() -> argparse.ArgumentParser:
                    help="ACT episodes: the cache folder to create or complete. LeRobot: the augmented dataset folder "
                         "to write (new or empty; written under OUT.partial and renamed when complete)")
     add_config_flags(p)
-    p.add_argument("--generator", default=None, help="generator checkpoint folder (default: shipped)")
+    p.add_argument("--generator", default=None,
+                   help="generator checkpoint folder, or a calibration bundle (python -m controltac_il.calibrate; its "
+                        "estimator too) (default: shipped)")
     p.add_argument("--estimator", default=None, help="force estimator checkpoint (only for data without force labels)")
     p.add_argument("--pose-adapter", default="pose",
                    help="with --pose-offset: the stage-2 pose adapter folder (default: pose, shipped for the default)")
@@ -203,11 +205,12 @@ def _models(args, pose: bool):
     from controltac_il.generator import ForceGenerator
 
     estimator = None
-    if args.estimator:
+    bundle = args.generator is not None and (Path(args.generator) / "estimator").is_dir()
+    if args.estimator or bundle:  # a calibration bundle (--generator) brings its estimator
         from controltac_il.estimators import ForceEstimator
 
         try:
-            estimator = ForceEstimator.from_pretrained(args.estimator)
+            estimator = ForceEstimator.from_pretrained(args.estimator or args.generator)
         except (ValueError, OSError) as exc:
             raise UsageError("--estimator", f"expected a force estimator checkpoint folder: "
                                             f"{' '.join(str(exc).split())}") from exc

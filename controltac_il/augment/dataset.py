@@ -34,9 +34,11 @@ class ForceAugment(Dataset):
         ``episode_index``, ``frame_index`` (ints >= 0) and tactile images (LeRobot convention: a tactile
         stream is a camera ``observation.images.<name>``, named in ``tactile_keys``; float CHW in [0, 1] or
         uint8, single frames or ``delta_timestamps`` windows with ``<key>_is_pad``; see ``keys``).
-    generator: a ForceGenerator (controltac_il.generator); None = the shipped checkpoint.
+    generator: a ForceGenerator (controltac_il.generator), a checkpoint folder, or a calibration bundle
+        (``python -m controltac_il.calibrate``); None = the shipped checkpoint.
     estimator: a ForceEstimator for reference forces where the items carry no force labels (``force_keys``);
-        None = the shipped estimator, loaded only when needed.
+        None = the bundle's estimator where ``generator`` names a bundle, else the shipped estimator, loaded only
+        when needed.
     build: cache mode only: "now" generates the missing part of the cache at construction (this
         rank's share under torchrun, then waits for the other ranks); "require" expects a complete
         cache (error otherwise); "manual" leaves it to ``build_cache()`` (the CLI).
@@ -62,14 +64,18 @@ class ForceAugment(Dataset):
         adapters.check_probe(probe)
         self.keys = resolve_keys(probe, self.config, dataset)
         self.tactile_keys = self.keys.tactile_keys
+        if isinstance(generator, (str, os.PathLike)) and estimator is None and (Path(generator) / "estimator").is_dir():
+            from controltac_il.estimators import ForceEstimator
+
+            estimator = ForceEstimator.from_pretrained(generator)  # a calibration bundle: its estimator too
         self.references = ReferenceForces(self.keys, self.config.contact_force, self.config.min_contact_area, estimator,
                                           self.config.estimated_reference)
         self.labelled = self.references.labelled
         self.progress = progress
-        if generator is None:
+        if generator is None or isinstance(generator, (str, os.PathLike)):
             from controltac_il.generator import ForceGenerator
 
-            generator = ForceGenerator.from_pretrained(pose_adapter="pose" if self.config.pose_offset else None)
+            generator = ForceGenerator.from_pretrained(generator, pose_adapter="pose" if self.config.pose_offset else None)
         self.generator = generator
         if self.config.pose_offset is not None and getattr(generator, "pose_adapter", None) is None:
             raise ValueError("pose_offset: needs a generator with the stage-2 pose adapter "

@@ -116,8 +116,11 @@ class ForceEstimator:
 
     @classmethod
     def from_pretrained(cls, path: str | Path | None = None, device: str = "cpu") -> "ForceEstimator":
-        """Load a checkpoint folder (weights verified against its model card); ``None`` loads the shipped default."""
+        """Load a checkpoint folder (weights verified against its model card), or the estimator of a calibration
+        bundle (``python -m controltac_il.calibrate``: its ``estimator/``); ``None`` loads the shipped default."""
         path = Path(path) if path is not None else DEFAULT_CHECKPOINT
+        if (path / BUNDLE_PART).is_dir() and not (path / WEIGHTS_FILE).is_file():
+            path = path / BUNDLE_PART
         d, weights = load_folder(path, (WEIGHTS_FILE,))
         try:
             config = EstimatorConfig.from_dict(d)
@@ -130,3 +133,6 @@ class ForceEstimator:
         return est
 
     checkpoint_hash: str | None = None
+
+
+BUNDLE_PART = "estimator"  # a calibration bundle's estimator subfolder

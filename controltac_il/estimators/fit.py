@@ -109,6 +109,17 @@ def _prepared(residuals: np.ndarray, forces: np.ndarray, model_config: Estimator
     return cfg, residuals, forces
 
 
+def _start(residuals, forces, model_config, init, seed: int):
+    """(the estimator to train: fresh with ``model_config``, or ``init``'s config (its force normalisation: its
+    weights were trained with it) and weights; checked residuals; forces)."""
+    cfg, residuals, forces = _prepared(residuals, forces, model_config if init is None else init.config)
+    torch.manual_seed(seed)
+    est = ForceEstimator(init.config if init is not None else cfg)
+    if init is not None:
+        est.model.load_state_dict(init.model.state_dict())
+    return est, residuals, forces
+
+
 def fit(
     residuals: np.ndarray,
     forces: np.ndarray,
@@ -119,21 +130,22 @@ def fit(
     resume: bool = False,
     progress: bool = True,
     on_checkpoint: Callable[[ForceEstimator, int, list], None] | None = None,
+    init: ForceEstimator | None = None,
 ) -> tuple[ForceEstimator, list[dict]]:
     """Train a force estimator on residuals uint8 (N, H, W, 3) and forces float (N, 3) in N.
 
     Images are resized once to the model input size. ``force_mean``/``force_std`` of the model
     config are set from ``forces``. With ``state_dir`` the resumable state is written there every
     ``train.checkpoint_every`` steps and at the end; ``resume=True`` continues from it; ``on_checkpoint(est, step,
-    history)`` is called after each intermediate state write. A NaN / inf loss raises NonFiniteLoss before any
+    history)`` is called after each intermediate state write. ``init``: fine-tune that estimator (its config,
+    force normalisation included, and weights) instead of a fresh one. A NaN / inf loss raises NonFiniteLoss before any
     update from it (the last saved state is the last good one); Ctrl-C saves the current step (and calls
     ``on_checkpoint``), then raises TrainingInterrupted. Returns the estimator (eval mode) and the evaluation
     history (step, val MAE per axis).
     """
     train = train or EstimatorTrainConfig()
-    cfg, residuals, forces = _prepared(residuals, forces, model_config)
-    torch.manual_seed(train.seed)
-    est = ForceEstimator(cfg)
+    est, residuals, forces = _start(residuals, forces, model_config, init, train.seed)
+    cfg = est.config
     x_all, y_all = _to_input(residuals, cfg), est.normalise_forces(torch.from_numpy(forces))
     opt = torch.optim.AdamW(est.model.parameters(), lr=train.lr, weight_decay=train.weight_decay)
     gen = torch.Generator().manual_seed(train.seed)

@@ -124,9 +124,13 @@ def _check_aspect(x: np.ndarray, model_hw: tuple[int, int], name: str) -> None:
             f"pad them to the model's {mh}:{mw} aspect first")
 
 
+BUNDLE_PART = "generator"  # a calibration bundle's generator subfolder (python -m controltac_il.calibrate)
+
+
 def locate_checkpoint(path: str | Path | None = None, shipped: tuple[str, ...] = SHIPPED) -> Path:
     """The checkpoint folder ``from_pretrained(path)`` loads: ``None``/``"default"`` and ``"fast"`` name the shipped
-    ones (``shipped``: the names to accept, ``SHIPPED_ADAPTERS`` for stage 2)."""
+    ones (``shipped``: the names to accept, ``SHIPPED_ADAPTERS`` for stage 2); a calibration bundle gives its
+    ``generator/``."""
     if path is None:
         path = shipped[0]
     if isinstance(path, str) and path in shipped:
@@ -135,6 +139,8 @@ def locate_checkpoint(path: str | Path | None = None, shipped: tuple[str, ...] =
     if not path.is_dir():
         raise FileNotFoundError(f"{'pose adapter' if shipped == SHIPPED_ADAPTERS else 'generator'} checkpoint folder "
                                 f"{path} not found")
+    if shipped != SHIPPED_ADAPTERS and (path / BUNDLE_PART).is_dir() and not (path / "config.json").is_file():
+        return path / BUNDLE_PART  # a calibration bundle (python -m controltac_il.calibrate)
     return path
 
 

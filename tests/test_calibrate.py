@@ -1,0 +1,80 @@
+"""``python -m controltac_il.calibrate`` on presses the sensor model writes: a bundle whose estimator and generator
+load by the bundle's name (ForceEstimator, ForceGenerator, ForceAugment, the augment CLI), fine-tuned from their
+bases; resume; one-line errors. Tiny bases (a generator trained here for 3 + 3 steps, a small estimator) keep it fast."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from controltac_il.calibrate import main
+from controltac_il.estimators import EstimatorConfig, ForceEstimator
+from controltac_il.generator import ForceGenerator
+from controltac_il.generator.train import main as train_generator
+from controltac_il.tactile import TRAIN_OBJECTS, SensorSpec
+from controltac_il.tactile.dataset import write_dataset
+
+TINY = ["--ae-steps", "3", "--dit-steps", "3", "--ae-batch", "2", "--dit-batch", "4", "--ae-crop", "32", "40",
+        "--checkpoint-every", "2", "--warmup-steps", "1", "--no-contact-frames", "2", "--threads", "1",
+        "--image-size", "64", "80"]
+
+
+@pytest.fixture(scope="module")
+def bases(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("calibrate")
+    presses = write_dataset(tmp / "presses", TRAIN_OBJECTS[:2], poses_per_object=5, forces_per_pose=3, seed=3,
+                            spec=SensorSpec.gelsight_mini().scaled(60, 80), progress=False)
+    assert train_generator(["--data", str(presses), "--out", str(tmp / "gen"), *TINY]) == 0
+    torch.manual_seed(0)
+    est = ForceEstimator(EstimatorConfig(input_height=16, input_width=16, widths=(4, 4), hidden=8,
+                                         force_mean=(0.0, 0.0, 4.0), force_std=(0.3, 0.3, 2.0)))
+    est.save(tmp / "est")
+    return tmp, presses
+
+
+def test_bundle_loads_by_name_everywhere_and_moved_from_its_bases(bases, tmp_path, capsys):
+    tmp, presses = bases
+    out = tmp_path / "my_sensor"
+    args = ["--presses", str(presses), "--out", str(out), "--base-generator", str(tmp / "gen" / "final"),
+            "--base-estimator", str(tmp / "est"), "--estimator-steps", "6", "--ae-steps", "2", "--dit-steps", "2",
+            "--batch", "4", "--threads", "1"]
+    assert main(args) == 0 and "wrote" in capsys.readouterr().out
+    record = json.loads((out / "calibration.json").read_text())
+    assert record["images"] == 30 and record["estimator"]["val_images"] > 0 and not (out.parent / "my_sensor.partial").exists()
+    est, base = ForceEstimator.from_pretrained(out), ForceEstimator.from_pretrained(tmp / "est")
+    assert est.checkpoint_hash == record["estimator"]["hash"] != base.checkpoint_hash
+    assert est.config.force_mean == base.config.force_mean  # fine-tuned in the base's normalisation
+    gen = ForceGenerator.from_pretrained(out)
+    assert gen.checkpoint_hash == record["generator"]["hash"] != record["generator"]["base_hash"]
+    x = np.full((1, 60, 80, 3), 127, np.uint8)
+    assert gen.generate(x, np.zeros((1, 3), np.float32)).shape == x.shape
+    assert "MAE on" in (out / "README.md").read_text()
+    assert main(args) == 2 and "exists" in capsys.readouterr().err  # never written over
+    from test_aug_lerobot import GEL, LeRobotLike, episodes
+
+    from controltac_il.augment import ForceAugment
+    from controltac_il.augment.cli import _models, parser
+
+    aug = ForceAugment(LeRobotLike(episodes(labels=False)), generator=str(out), tactile_keys=[GEL], copies=1,
+                       mode="online", progress=False)
+    assert (aug.generator.checkpoint_hash, aug.estimator.checkpoint_hash) == (gen.checkpoint_hash, est.checkpoint_hash)
+    cli = parser().parse_args(["--dataset", str(tmp_path), "--out", str(tmp_path / "c"), "--generator", str(out)])
+    g, e = _models(cli, pose=False)
+    assert (g.checkpoint_hash, e.checkpoint_hash) == (gen.checkpoint_hash, est.checkpoint_hash)
+
+
+def test_bad_presses_and_stopped_runs_are_one_line(bases, tmp_path, capsys):
+    tmp, presses = bases
+    (tmp_path / "photos").mkdir()
+    (tmp_path / "photos" / "a.png").write_bytes(b"x")
+    cases = [(["--presses", str(tmp_path / "photos"), "--out", str(tmp_path / "o")], "--presses: not a presses folder"),
+             (["--presses", str(tmp_path / "none"), "--out", str(tmp_path / "o")], "--presses: "),
+             (["--presses", str(presses), "--out", str(tmp_path / "o"), "--dit-steps", "0"], "--dit-steps: "),
+             (["--presses", str(presses), "--out", str(tmp_path / "o"), "--val-fraction", "1"], "--val-fraction: ")]
+    (tmp_path / "s.partial").mkdir()
+    cases.append((["--presses", str(presses), "--out", str(tmp_path / "s")], "--resume"))
+    for argv, expected in cases:
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and expected in err, (argv, err)
