@@ -1,23 +1,26 @@
-"""Fine-tuning the generator on your own sensor: error on a sensor it never saw against the number of presses.
+"""Calibrating to your own sensor: the estimator's and the generator's error on a sensor they never saw against
+the number of presses (``python -m controltac_il.calibrate``).
 
     python -m benchmarks.finetune --out finetune.json [--images 0 100 500 2000] [--steps 600] [--ae-steps 600]
-    python -m benchmarks.finetune --out finetune.json --resume      # keeps the fine-tunes already done
+    python -m benchmarks.finetune --out finetune.json --resume      # keeps the budgets already done
 
 A lab's sensor is played by one instance of the held-out family (``--instance``, default ``unseen_00``:
 polynomial optics over the DIGIT background, brighter lighting than any training instance). For each budget N
 its presses are rendered as a dataset folder of that one sensor (the training objects, 8 forces per pose, about
-N images; what ``python -m controltac_il.tactile.dataset`` writes for a lab), the base generator's autoencoder is
-fine-tuned on them for ``--ae-steps`` steps and then its DiT, on the moved latents, for ``--steps`` steps
-(``python -m controltac_il.generator.train --stage denoiser --autoencoder-from BASE --ae-finetune-steps A
---denoiser-from BASE``, the base's DiT flags), and the result is scored on held-out
-poses of the same sensor: MSE and SSIM against the true frame, as a ratio to copying the reference. N = 0 is
-the base model itself (zero-shot). Each budget's result is saved as it finishes; runs live under ``--runs``.
+N images; what ``python -m controltac_il.tactile.dataset`` writes for a lab) and ``python -m
+controltac_il.calibrate`` makes its bundle: the base estimator fine-tuned for ``--estimator-steps`` steps, the
+base generator's autoencoder for ``--ae-steps`` steps and then its DiT, on the moved latents, for ``--steps``
+steps. Both are scored on held-out poses of the same sensor: the estimator's MAE per axis (N), the generator's
+MSE and SSIM against the true frame, as a ratio to copying the reference. N = 0 is the bases themselves
+(zero-shot). Each budget's result is saved as it finishes; runs live under ``--runs``.
 """
 
 from __future__ import annotations
 
 import time
 from pathlib import Path
+
+import numpy as np
 
 
 from benchmarks.common import base_parser, print_table, write_results
@@ -45,12 +48,31 @@ def render(root: Path, instance: str, images: int, seed: int) -> Path:
     return root
 
 
-def fine_tune(base: Path, data: Path, out: Path, steps: int, lr: float, ae_steps: int = 0) -> Path:
-    """``controltac_il.generator.finetune.fine_tune`` with this benchmark's settings (batch 64, checkpoints at
-    the end: runs of this benchmark are resumed by budget, not within one)."""
-    from controltac_il.generator.finetune import fine_tune as tune
+def calibrate(base: Path, data: Path, bundle: Path, args) -> Path:
+    """The bundle of ``python -m controltac_il.calibrate`` on ``data`` (kept when already made, resumed when
+    stopped)."""
+    from controltac_il.calibrate import main as run
 
-    return tune(base, data, out, steps, lr, ae_steps)
+    if not bundle.is_dir():
+        argv = ["--presses", str(data), "--out", str(bundle), "--base-generator", str(base), "--dit-steps",
+                str(args.steps), "--ae-steps", str(args.ae_steps), "--estimator-steps", str(args.estimator_steps),
+                "--lr", str(args.lr)]
+        partial = bundle.with_name(bundle.name + ".partial").is_dir()
+        if run(argv + (["--resume"] if partial else [])) != 0:
+            raise RuntimeError(f"calibrating on {data} failed")
+    return bundle
+
+
+def estimator_mae(path, eval_root: Path) -> dict:
+    """MAE per axis (N) of an estimator (a checkpoint, a bundle, or None: the shipped one) on a dataset folder."""
+    from controltac_il.estimators import ForceEstimator
+    from controltac_il.estimators.data import load_arrays
+    from controltac_il.tactile.dataset import load_dataset
+
+    est = ForceEstimator.from_pretrained(path)
+    x, f = load_arrays(load_dataset(eval_root))
+    mae = np.abs(est.predict(x) - f).mean(0)
+    return {"estimator_mae": [round(float(v), 4) for v in mae], "estimator_mae_fz": float(mae[2])}
 
 
 def score(checkpoint, pairs) -> dict:
@@ -68,15 +90,20 @@ def save_plot(path: Path, rows: list[dict], instance: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(5, 3.5))
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(9, 3.5))
     xs = [max(r["images"], 10) for r in rows]
     ax.plot(xs, [r["mse_ratio_to_copy"] for r in rows], marker="o")
     for x, r in zip(xs, rows):
         ax.annotate(f"{r['images']}", (x, r["mse_ratio_to_copy"]), textcoords="offset points", xytext=(4, 4), fontsize=7)
     ax.axhline(0.35, color="grey", lw=0.8, ls="--", label="target 0.35× copy")
-    ax.set(xscale="log", xlabel="fine-tuning images (0 plotted at 10)", ylabel="MSE / reference-copy MSE",
-           title=f"unseen sensor {instance}")
+    ax.set(xscale="log", xlabel="presses (0 plotted at 10)", ylabel="generator MSE / reference-copy MSE",
+           title=f"generator, unseen sensor {instance}")
     ax.legend(fontsize=7)
+    for k, axis in enumerate("xyz"):
+        ax2.plot(xs, [r["estimator_mae"][k] for r in rows], marker="o", label=f"F{axis}")
+    ax2.set(xscale="log", yscale="log", xlabel="presses (0 plotted at 10)", ylabel="estimator MAE (N)",
+            title=f"estimator, unseen sensor {instance}")
+    ax2.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
@@ -89,6 +116,7 @@ def main(argv=None) -> dict:
     p.add_argument("--ae-steps", type=int, default=600,
                    help="autoencoder fine-tuning steps per budget (batch 32 crops; 0 = the DiT only; default 600)")
     p.add_argument("--lr", type=float, default=2e-4, help="peak learning rate of both fine-tunes (default 2e-4)")
+    p.add_argument("--estimator-steps", type=int, default=1000, help="estimator fine-tuning steps (default 1000)")
     p.add_argument("--base", default="default", help="the generator to fine-tune: default, fast or a folder")
     p.add_argument("--instance", default="unseen_00", help="the held-out sensor instance playing the lab's sensor")
     p.add_argument("--pairs", type=int, default=96, help="held-out evaluation pairs (default 96)")
@@ -96,7 +124,7 @@ def main(argv=None) -> dict:
     p.add_argument("--resume", action="store_true", help="keep the budgets already in --out")
     args = p.parse_args(argv)
     if args.quick:
-        args.images, args.steps, args.ae_steps, args.pairs = [0, 48], 4, 2, 12
+        args.images, args.steps, args.ae_steps, args.pairs, args.estimator_steps = [0, 48], 4, 2, 12, 4
     if any(n < 0 for n in args.images) or args.steps < 1 or args.pairs < 1 or args.ae_steps < 0:
         p.error("--images and --ae-steps must be >= 0, --steps and --pairs >= 1")
     instance_by_name(args.instance)  # a clear error before anything renders
@@ -104,11 +132,14 @@ def main(argv=None) -> dict:
     done = {}
     if args.resume and args.out is not None and args.out.is_file():
         done = {r["images"]: r for r in read_json(args.out).get("rows", [])
-                if r["images"] == 0 or (r.get("steps"), r.get("ae_steps", 0)) == (args.steps, args.ae_steps)}
-    pairs = dataset_pairs(render(args.runs / f"{args.instance}_eval", args.instance, 288, EVAL_SEED), args.pairs)
+                if "estimator_mae" in r and (r["images"] == 0 or (r.get("steps"), r.get("ae_steps", 0), r.get(
+                    "estimator_steps")) == (args.steps, args.ae_steps, args.estimator_steps))}
+    eval_root = render(args.runs / f"{args.instance}_eval", args.instance, 288, EVAL_SEED)
+    pairs = dataset_pairs(eval_root, args.pairs)
     rows = []
     results = {"benchmark": "finetune", "instance": args.instance, "base": str(base), "steps": args.steps,
-               "ae_steps": args.ae_steps, "lr": args.lr, "validated_range": VALIDATED_RANGE.card(), "rows": rows}
+               "ae_steps": args.ae_steps, "estimator_steps": args.estimator_steps, "lr": args.lr,
+               "validated_range": VALIDATED_RANGE.card(), "rows": rows}
     for n in sorted(set(args.images)):
         if n in done:
             rows.append(done[n])
@@ -116,17 +147,18 @@ def main(argv=None) -> dict:
         t0 = time.perf_counter()
         rendered = 0
         if n == 0:
-            ckpt = base
+            ckpt, est = base, None
         else:
             data = render(args.runs / f"{args.instance}_n{n}", args.instance, n, seed=3000 + n)
             rendered = int(read_json(data / "meta.json")["count"])
-            run = args.runs / (f"{args.instance}_n{n}_s{args.steps}" + (f"_a{args.ae_steps}" if args.ae_steps else ""))
-            ckpt = fine_tune(base, data, run, args.steps, args.lr, args.ae_steps)
+            name = f"{args.instance}_n{n}_s{args.steps}_a{args.ae_steps}_e{args.estimator_steps}"
+            ckpt = est = calibrate(base, data, args.runs / name, args)
         rows.append({"images": n, "images_rendered": rendered, "steps": 0 if n == 0 else args.steps,
-                     "ae_steps": 0 if n == 0 else args.ae_steps, **score(ckpt, pairs),
-                     "wall_s": round(time.perf_counter() - t0, 1)})
+                     "ae_steps": 0 if n == 0 else args.ae_steps, "estimator_steps": 0 if n == 0 else args.estimator_steps,
+                     **score(ckpt, pairs), **estimator_mae(est, eval_root), "wall_s": round(time.perf_counter() - t0, 1)})
         write_results(args.out, results)  # each budget saved as it finishes
-    print_table(rows, ["images", "steps", "ae_steps", "mse", "copy_mse", "mse_ratio_to_copy", "ssim", "copy_ssim", "wall_s"],
+    print_table(rows, ["images", "steps", "ae_steps", "mse", "copy_mse", "mse_ratio_to_copy", "ssim", "estimator_mae_fz",
+                       "wall_s"],
                 title=f"fine-tuning on {args.instance} (base {args.base})")
     if args.out is not None:
         save_plot(args.out.with_suffix(".png"), rows, args.instance)

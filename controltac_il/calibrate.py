@@ -28,6 +28,8 @@ import shutil
 import sys
 from pathlib import Path
 
+import numpy as np
+
 PROG = "python -m controltac_il.calibrate"
 
 
@@ -71,17 +73,30 @@ def check(args: argparse.Namespace):
         raise ValueError(f"--presses: not a presses folder in the FeelAnyForce layout ({' '.join(str(exc).split())})") from None
 
 
+def held_out_poses(groups: dict, fraction: float) -> tuple[list[int], list[int]]:
+    """(train, validation) rows, whole contact poses apart: ``fraction`` of each object's poses, else (an object
+    with too few) that share of all poses, at least one; ValueError for a single pose."""
+    from controltac_il.estimators.data import split_by_pose
+
+    train, val = split_by_pose(groups, fraction, seed=0)
+    if val:
+        return train, val
+    if len(groups) < 2:
+        raise ValueError("--presses: one contact pose only; at least two are needed (one is held out for validation)")
+    keys = sorted(groups)
+    picked = {keys[i] for i in np.random.default_rng(0).permutation(len(keys))[:max(1, round(fraction * len(keys)))]}
+    return ([r for k in keys if k not in picked for r in groups[k]], [r for k in keys if k in picked for r in groups[k]])
+
+
 def estimator_part(args, ds, staging: Path) -> dict:
     """Fine-tune the base estimator into ``staging / "estimator"``; its MAE before and after on held-out poses."""
     from controltac_il.estimators import ForceEstimator
-    from controltac_il.estimators.data import load_arrays, split_by_pose
+    from controltac_il.estimators.data import load_arrays
     from controltac_il.estimators.fit import EstimatorTrainConfig, fit, mae_per_axis
 
     base = ForceEstimator.from_pretrained(args.base_estimator)
     size = (base.config.input_height, base.config.input_width)
-    train_idx, val_idx = split_by_pose(ds.pose_groups(), args.val_fraction, seed=0)
-    if not val_idx:
-        raise ValueError("--presses: too few contact poses to hold any out for validation")
+    train_idx, val_idx = held_out_poses(ds.pose_groups(), args.val_fraction)
     x, f = load_arrays(ds, train_idx, size=size, progress=True)
     val = load_arrays(ds, val_idx, size=size)
     before = mae_per_axis(base, *val)

@@ -78,3 +78,14 @@ def test_bad_presses_and_stopped_runs_are_one_line(bases, tmp_path, capsys):
         assert main(argv) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and expected in err, (argv, err)
+
+
+def test_held_out_poses_never_split_a_pose_and_need_two():
+    from controltac_il.calibrate import held_out_poses
+
+    groups = {("cross", 0): [0, 1, 2], ("sphere", 0): [3, 4], ("slim", 0): [5]}  # one pose per object
+    train, val = held_out_poses(groups, 0.1)
+    assert sorted(train + val) == list(range(6)) and val and train
+    assert all(set(g) <= set(val) or set(g) <= set(train) for g in groups.values())
+    with pytest.raises(ValueError, match="one contact pose only"):
+        held_out_poses({("cross", 0): [0, 1]}, 0.1)

@@ -85,9 +85,10 @@ def test_finetune_quick_run_scores_zero_shot_and_a_fine_tune_and_resumes(tmp_pat
     assert rows[0]["copy_mse"] == rows[48]["copy_mse"] > 0  # one held-out evaluation set for every budget
     for r in rows.values():
         assert r["mse_ratio_to_copy"] == pytest.approx(r["mse"] / r["copy_mse"]) and r["n"] == 12
-    card = json.loads((runs / "unseen_00_n48_s4_a2" / "final" / "model_card.json").read_text())
+    card = json.loads((runs / "unseen_00_n48_s4_a2_e4" / "generator" / "model_card.json").read_text())
     assert "--denoiser-from" in card["command"] and card["denoiser"]["steps"] == 4
     assert card["autoencoder"]["finetune"]["step"] == 2 and rows[48]["ae_steps"] == 2
+    assert len(rows[0]["estimator_mae"]) == 3 and rows[48]["estimator_mae"] != rows[0]["estimator_mae"]
     again = finetune.main(["--quick", "--out", str(out), "--runs", str(runs), "--resume"])
     assert again["rows"] == doc["rows"]  # nothing retrained or rescored
     assert out.with_suffix(".png").stat().st_size > 0
