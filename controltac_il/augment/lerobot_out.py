@@ -87,6 +87,8 @@ class LeRobotExport:
         self.names = provenance_names(self.tactile)
         self.sources = sorted(source.episodes)
         self.copies = int(aug.config.copies)
+        if self.copies < 1:
+            raise ValueError("copies: an augmented LeRobot folder needs copies >= 1 (copy 0 is the source itself)")
         lengths = [int(source.episodes[e]["length"]) for e in self.sources] * (self.copies + 1)
         self.starts = np.concatenate([[0], np.cumsum(lengths)]).astype(int)
         self.chunks_size = int(source.meta.get("chunks_size", 1000))
