@@ -257,6 +257,42 @@ def act() -> str:
     return table(header, rows) + "\n\n" + provenance("act.json", doc, *ACT_GENERATOR)
 
 
+def touch_il_verdict() -> str:
+    doc = load("touch_il_verdict.json")
+    settings = list(dict.fromkeys(r["setting"] for r in doc["table"]))
+    variants = list(dict.fromkeys(r["variant"] for r in doc["table"]))
+    by = {(r["variant"], r["setting"]): r for r in doc["table"]}
+
+    def cell(r: dict) -> str:
+        return f"{pct(r['mean'])} % [{pct(r['ci95'][0])}, {pct(r['ci95'][1])}] ({' '.join(str(pct(x)) for x in r['per_seed'])})"
+
+    rows = [[v, *(cell(by[(v, st)]) if (v, st) in by else "–" for st in settings)] for v in variants]
+    policies = [u for u in doc["units"] if u["kind"] == "policy"]
+    grip = {st: policies[0]["settings"].get(st) for st in settings}
+    header = ["variant", *(f"{st} ({'–'.join(f'{g:g}' for g in grip[st])} N)" if grip[st] else st for st in settings)]
+    comps = [[c["variant"], c["setting"], f"{c['diff'] * 100:+.1f} [{c['ci95'][0] * 100:+.1f}, {c['ci95'][1] * 100:+.1f}]",
+              f"{c['p_holm']:.3g}", f"{c['p_sign_flip']:.3g}", f"**{c['verdict']}**"] for c in doc["comparisons"]]
+    chead = ["variant", "setting", "vs real, points [95 % CI]", "p (CMH, Holm)", "p (sign-flip, seeds)", "verdict"]
+    return (table(header, rows) + "\n\n" + table(chead, comps) + "\n\n"
+            + provenance("touch_il_verdict.json", doc, None, note=f", {len(policies)} policies"))
+
+
+def estimator() -> str:
+    doc = load("estimator.json")
+    rows = doc["estimators"]
+    cells = [c for c in next(iter(rows.values())) if "/" in c]
+
+    def mae(r: dict) -> str:
+        return f"{r['mae_fz']:.2f} ({' / '.join(f'{v:.2f}' for v in r['mae'][:2])})"
+
+    body = [[name, *(mae(r[c]) for c in cells), f"{r['unseen_vs_seen_sensor']:.2f}",
+             "; ".join(f"{k} {v['force_n'][2]:.1f} N" + ("" if v["plausible"] else " ✗") for k, v in r["real_presses"].items())
+             if "real_presses" in r else "–"] for name, r in rows.items()]
+    header = ["estimator", *(c.replace("_", " ").replace("/", ", ") for c in cells), "unseen ÷ seen sensor",
+              "real presses, Fz (✗: implausible)"]
+    return table(header, body) + "\n\n" + provenance("estimator.json", doc, None)
+
+
 def augment_lerobot_write() -> str:
     doc = load("augment_lerobot_write.json")
     r, gen = doc["lerobot_write"], load("generator.json")
@@ -343,7 +379,8 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "pose": pose, "pose-robustness": pose_robustness, "pose-speed": pose_speed, "pose-moved": pose_moved,
     "pose-estimation": pose_estimation, "act-speed": act_speed, "act": act, "touch-il": touch_il,
     "touch-il-reruns": touch_il_reruns, "results-provenance": results_provenance,
-    "augment-lerobot-write": augment_lerobot_write,
+    "augment-lerobot-write": augment_lerobot_write, "touch-il-verdict": touch_il_verdict,
+    "estimator": estimator,
 }
 
 # model cards whose ``benchmark`` copies the figures of one JSON: card -> (JSON, the card's view of it)
