@@ -2,13 +2,15 @@
 
 import json
 
+import pytest
+
 from benchmarks import augment as bench
 from controltac_il.generator import ForceGenerator
 
 
 def test_quick_run_counts_add_up_and_name_the_shipped_generator(tmp_path):
     out = tmp_path / "augment.json"
-    bench.main(["--quick", "--out", str(out)])
+    bench.main(["--quick", "--out", str(out), "--rows", "hdf5", "lerobot"])  # the writer row: test_lerobot_v3_write
     res = json.loads(out.read_text())
     counts = res["counts_clamp_mode"]
     assert counts["tactile_frames"] == (counts["regenerated"] + counts["clamped"] + counts["skipped"]
@@ -25,3 +27,11 @@ def test_quick_run_counts_add_up_and_name_the_shipped_generator(tmp_path):
     lerobot = res["lerobot"]
     assert set(lerobot["items_per_s"]) == {"bare", "cached", "online"} and all(v > 0 for v in lerobot["items_per_s"].values())
     assert lerobot["counts"] == counts and lerobot["cache_build"]["frames_generated"] == res["cache_build"]["frames_generated"]
+
+
+@pytest.mark.slow  # 10 s: the LeRobot writer itself is tested in test_lerobot_v3_write
+def test_quick_lerobot_write_row_times_the_generator_inside_the_write(tmp_path):
+    res = bench.main(["--quick", "--rows", "lerobot_write", "--out", str(tmp_path / "w.json")])["lerobot_write"]
+    assert 0 < res["generator_seconds"] < res["write_seconds"]
+    assert res["writer_vs_generator"] == pytest.approx(res["generator_seconds"] / res["write_seconds"])
+    assert res["episodes_written"] == 9 and res["regenerated_frames"] > 0 and res["video_round_trip_mse"] > 0
