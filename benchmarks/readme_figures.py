@@ -137,6 +137,9 @@ def finetune() -> str:
     body = [[f"MSE (copy: {rows[0]['copy_mse']:.1f})", *(f"{r['mse']:.1f}" for r in rows)],
             ["× a reference copy", *(f"{r['mse_ratio_to_copy']:.3f}" for r in rows)],
             [f"SSIM (copy: {rows[0]['copy_ssim']:.3f})", *(f"{r['ssim']:.3f}" for r in rows)]]
+    if all("estimator_mae" in r for r in rows):  # the calibrate command's runs (#33) score the estimator too
+        body.append(["estimator MAE Fz (Fx / Fy), N", *(f"{r['estimator_mae'][2]:.2f} ({r['estimator_mae'][0]:.2f} / "
+                                                         f"{r['estimator_mae'][1]:.2f})" for r in rows)])
     return table(header, body) + "\n\n" + provenance(
         "finetune.json", doc, None, f", base `{Path(doc['base']).name}` (its hash not recorded)")
 
