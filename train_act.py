@@ -29,6 +29,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="folder of episode_<i>.hdf5 files, or a LeRobot v3.0 folder (observation.state, action; "
                         "tactile cameras are those named gelsight / tactile / digit, their force labels "
                         "observation.<camera>.force) (default: collect/reuse the embedded MuJoCo demos)")
+    p.add_argument("--tactile-keys", nargs="+", default=None, metavar="KEY",
+                   help="LeRobot folder: its tactile cameras (default: cameras named gelsight / tactile / digit)")
+    p.add_argument("--force-keys", nargs="+", default=None, metavar="TACTILE_KEY=FORCE_KEY",
+                   help="LeRobot folder: the force label of each tactile camera (default: observation.<camera>.force)")
     p.add_argument("--out", type=Path, default=Path("runs/act"), help="output folder (default: runs/act)")
     p.add_argument("--preset", choices=("cpu", "gpu"), default="cpu",
                    help="cpu: small CNN, dim 128 (minutes on 2 cores); gpu: ResNet-18, dim 512 (the paper's ACT)")
@@ -75,6 +79,10 @@ def check_args(args: argparse.Namespace):
         raise ValueError(f"--copies must be in 1..9 (ForceAugment copies per episode), got {args.copies}")
     if args.dataset is not None and not args.dataset.is_dir():
         raise ValueError(f"--dataset {args.dataset}: episode folder not found")
+    if args.force_keys is not None and not all("=" in x and all(x.split("=", 1)) for x in args.force_keys):
+        raise ValueError(f"--force-keys: expected TACTILE_KEY=FORCE_KEY pairs, got {' '.join(args.force_keys)}")
+    if (args.tactile_keys or args.force_keys) and not (args.dataset and (args.dataset / "meta" / "info.json").is_file()):
+        raise ValueError("--tactile-keys / --force-keys: only with a LeRobot v3.0 --dataset (a folder with meta/info.json)")
     try:
         return ACTTrainConfig(steps=args.steps, batch_size=args.batch_size, val_every=args.val_every,
                            save_every=args.checkpoint_every, num_workers=args.workers, seed=args.seed)
@@ -112,7 +120,17 @@ def run(args: argparse.Namespace, train_config=None) -> dict:
     return train_act(args.out, args.dataset, demos=args.demos, preset=args.preset, train_config=train_config,
                      copies=args.copies if args.augment == "force" else 0, generator=args.generator,
                      val_fraction=args.val_fraction, chunk_size=args.chunk_size, resume=args.resume,
-                     overwrite=args.overwrite)
+                     overwrite=args.overwrite, lerobot=lerobot_keys(args))
+
+
+def lerobot_keys(args: argparse.Namespace) -> dict | None:
+    """--tactile-keys / --force-keys as LeRobotEpisodes' arguments (None: its defaults)."""
+    keys = {}
+    if args.tactile_keys:
+        keys["tactile_keys"] = list(args.tactile_keys)
+    if args.force_keys:
+        keys["force_keys"] = dict(x.split("=", 1) for x in args.force_keys)
+    return keys or None
 
 
 if __name__ == "__main__":

@@ -312,3 +312,25 @@ def test_train_act_takes_a_lerobot_folder_and_its_augmented_copy(written, tmp_pa
     assert log["augment"]["summary"]["regenerated"] > 0 and log["episodes"] == 2 and log["step"] == 2
     config = json.loads((tmp_path / "run" / "last" / "config.json").read_text())["act"]
     assert config["tactile_names"] == ["gelsight_left", "gelsight_right"] and config["camera_names"] == ["wrist"]
+
+
+def test_train_act_names_a_lerobot_folders_tactile_cameras(written, tmp_path, monkeypatch, capsys):
+    import sys
+    from pathlib import Path
+
+    root = written[0]
+    monkeypatch.setenv("CONTROLTAC_CACHE", str(tmp_path / "cache"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    import train_act
+
+    flags = ["--steps", "1", "--batch-size", "2", "--chunk-size", "4", "--val-every", "1", "--threads", "1"]
+    assert train_act.main(["--dataset", str(root), "--out", str(tmp_path / "run"), *flags, "--tactile-keys", LEFT,
+                           "--force-keys", f"{LEFT}={FORCES[LEFT]}"]) == 0
+    config = json.loads((tmp_path / "run" / "last" / "config.json").read_text())["act"]
+    assert config["tactile_names"] == ["gelsight_left"] and config["camera_names"] == ["gelsight_right", "wrist"]
+    capsys.readouterr()
+    for args, named in ((["--force-keys", LEFT], "--force-keys: expected TACTILE_KEY=FORCE_KEY"),
+                        (["--tactile-keys", "observation.images.x"], "tactile_keys: ['observation.images.x']")):
+        assert train_act.main(["--dataset", str(root), "--out", str(tmp_path / "bad"), *flags, *args]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and named in err, err
