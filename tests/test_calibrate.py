@@ -89,3 +89,17 @@ def test_held_out_poses_never_split_a_pose_and_need_two():
     assert all(set(g) <= set(val) or set(g) <= set(train) for g in groups.values())
     with pytest.raises(ValueError, match="one contact pose only"):
         held_out_poses({("cross", 0): [0, 1]}, 0.1)
+
+
+def test_a_stopped_calibration_resumes_to_the_same_estimator(bases, tmp_path, capsys):
+    tmp, presses = bases
+    out = tmp_path / "lab"
+    args = ["--presses", str(presses), "--out", str(out), "--base-estimator", str(tmp / "est"), "--estimator-steps",
+            "6", "--ae-steps", "1", "--dit-steps", "1", "--batch", "4", "--threads", "1"]
+    assert main([*args, "--base-generator", str(tmp_path / "missing")]) == 2  # stops after the estimator part
+    staging = tmp_path / "lab.partial"
+    first = ForceEstimator.from_pretrained(staging / "estimator").checkpoint_hash
+    assert "missing" in capsys.readouterr().err and not out.exists()
+    assert main([*args, "--base-generator", str(tmp / "gen" / "final")]) == 2  # a stopped run needs --resume
+    assert main([*args, "--base-generator", str(tmp / "gen" / "final"), "--resume"]) == 0
+    assert ForceEstimator.from_pretrained(out).checkpoint_hash == first and not staging.exists()
