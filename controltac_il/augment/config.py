@@ -13,6 +13,7 @@ import numpy as np
 from pydantic import field_validator
 from pydantic.dataclasses import dataclass
 
+from controltac_il.augment.reference import NOMINAL_FZ
 from controltac_il.config import STRICT, one_line_errors
 
 MODES = ("cache", "online")
@@ -95,7 +96,8 @@ class ForceAugmentConfig:
                                           "are counted", choices=OUT_OF_RANGE)
     estimated_reference: str = _setting(
         "nominal", "an estimated reference force (no label) outside the generator's validated range: 'nominal' "
-                   "uses (0, 0, NOMINAL_FZ) N in its place, 'clip' its Fz clipped into the range and no shear, "
+                   f"uses (0, 0, {NOMINAL_FZ:g}) N (the range's middle) in its place, 'clip' its Fz clipped into the "
+                   "range and no shear, "
                    "'skip' keeps the frame real; only ΔF conditions the generator, so the image's own force need "
                    "not be known (benchmarks.unlabelled_real)", choices=ESTIMATED_REFERENCE)
     seed: int = _setting(0, "root of every random draw (int >= 0)", type=int)

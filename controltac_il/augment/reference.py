@@ -12,7 +12,7 @@ from controltac_il.augment.keys import KeyMap
 from controltac_il.datasets.background import estimate_background
 from controltac_il.generator.forces import VALIDATED_RANGE
 
-NOMINAL_FZ = 5.5  # N: the validated range's middle, the working reference of an untrusted estimate ("nominal")
+NOMINAL_FZ = sum(VALIDATED_RANGE.fz) / 2  # N, 5.5: the range's middle, the working reference of an untrusted estimate
 
 
 def working_reference(estimates: np.ndarray, policy: str) -> np.ndarray:
