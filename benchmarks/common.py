@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import datetime as _dt
 import functools
-import json
 import os
 import platform
 import statistics

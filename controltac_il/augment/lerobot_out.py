@@ -33,8 +33,7 @@ import numpy as np
 import pyarrow as pa
 from tqdm import tqdm
 
-from controltac_il.augment.records import STATUS
-from controltac_il.datasets.lerobot_v3 import decode_png
+from controltac_il.datasets.lerobot_v3 import decode_png, numbers
 from controltac_il.datasets.lerobot_v3_write import (decode_video, encode_video, image_stats, png_bytes,
                                                      sample_indices, vector_stats, video_codec, write_parquet)
 from controltac_il.io import atomic_path, write_json
@@ -168,7 +167,7 @@ class LeRobotExport:
                 column = table.column(key).combine_chunks().field("bytes")
                 out[key] = image_stats(np.stack(_parallel(lambda i: decode_png(column[int(i)].as_py(), key), picks)))
             elif ft["dtype"] != "string":
-                out[key] = vector_stats(_numbers(table.column(key)), key)
+                out[key] = vector_stats(numbers(table.column(key)), key)
         return out
 
     def _copy_frames(self, e: int, k: int, frames, real: dict, table: pa.Table, first) -> tuple[dict, dict]:
@@ -182,7 +181,7 @@ class LeRobotExport:
         for j, key in enumerate(self.tactile):
             label = self.aug.keys.labels[key]
             if label is not None:
-                force[j] = _numbers(table.column(label)).reshape(L, 3)
+                force[j] = numbers(table.column(label)).reshape(L, 3)
             for i, t in enumerate(frames):
                 ref = first.frames[int(t)].keys[j].reference
                 if ref is not None and label is None:
@@ -233,7 +232,7 @@ class LeRobotExport:
         for name, value in writer.items():
             counts[name] += value
         for key in ("episode_index", "index", *prov):
-            stats[key] = vector_stats(_numbers(out.column(key)), key)
+            stats[key] = vector_stats(numbers(out.column(key)), key)
         row["stats"] = {key: stats[key] for key in self.features() if key in stats}
         return {**row, "writer": writer}
 
@@ -280,16 +279,6 @@ def _parallel(fn, items) -> list:
     idle while the folder is written)."""
     with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
         return list(pool.map(fn, items))
-
-
-def _numbers(column: pa.ChunkedArray) -> np.ndarray:
-    """A numeric column as NumPy (N,) or (N, D)."""
-    arr = column.combine_chunks()
-    n = len(arr)
-    while pa.types.is_list(arr.type) or pa.types.is_large_list(arr.type) or pa.types.is_fixed_size_list(arr.type):
-        arr = arr.flatten()
-    values = arr.to_numpy(zero_copy_only=False)
-    return values if len(values) == n else values.reshape(n, -1)
 
 
 def _arrow(values: np.ndarray) -> pa.Array:

@@ -24,7 +24,6 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-import pyarrow as pa
 import pyarrow.parquet as pq
 import torch
 from torch.utils.data import Dataset
@@ -32,7 +31,7 @@ from tqdm import tqdm
 
 from controltac_il.datasets.act_dataset import STD_FLOOR
 from controltac_il.datasets.background import estimate_background
-from controltac_il.datasets.lerobot_v3 import LeRobotFolder, read_info
+from controltac_il.datasets.lerobot_v3 import LeRobotFolder, decode_png, numbers, read_info
 
 TACTILE_WORDS = ("gelsight", "tactile", "digit")
 
@@ -41,18 +40,9 @@ def _name(key: str) -> str:
     return key.rsplit(".", 1)[-1]
 
 
-def _flat(column, dtype=np.float64) -> np.ndarray:
-    """A numeric column (scalars or lists) as (N, D)."""
-    arr = column.combine_chunks()
-    n = len(arr)
-    while pa.types.is_list(arr.type) or pa.types.is_large_list(arr.type) or pa.types.is_fixed_size_list(arr.type):
-        arr = arr.flatten()
-    return arr.to_numpy(zero_copy_only=False).astype(dtype).reshape(n, -1)
-
-
 def _numeric(root: Path, key: str) -> np.ndarray:
     """Column ``key`` of every data file, in row order, as float64 (N, D)."""
-    return np.concatenate([_flat(pq.read_table(p, columns=[key]).column(key))
+    return np.concatenate([numbers(pq.read_table(p, columns=[key]).column(key)).astype(np.float64)
                            for p in sorted((root / "data").glob("*/*.parquet"))])
 
 
@@ -119,7 +109,7 @@ class LeRobotEpisodes(Dataset):
             for s, key in self.tactile_keys.items():
                 frames = (self.folder.video_frames(key, e) if self.folder.features[key]["dtype"] == "video"
                           else _pngs(table.column(key)))
-                force = _flat(table.column(self.force_keys[s]), np.float32) if s in self.force_keys else None
+                force = numbers(table.column(self.force_keys[s])).astype(np.float32) if s in self.force_keys else None
                 out[(n, s)] = estimate_background(frames, force)[0]
         return out
 
@@ -156,6 +146,4 @@ def _uint8(image: torch.Tensor) -> torch.Tensor:
 
 
 def _pngs(column) -> np.ndarray:
-    from controltac_il.datasets.lerobot_v3 import decode_png
-
     return np.stack([decode_png(b, "tactile") for b in column.combine_chunks().field("bytes").to_pylist()])

@@ -118,6 +118,18 @@ def delta_indices(delta_timestamps, features: dict, fps: int, tolerance_s: float
     return out
 
 
+def numbers(column) -> np.ndarray:
+    """A numeric column (scalars or (fixed-size) lists, chunked or not, extension types unwrapped) as NumPy (N, D),
+    D = 1 for scalars, in the column's own dtype."""
+    arr = column.combine_chunks() if isinstance(column, pa.ChunkedArray) else column
+    if isinstance(arr.type, pa.ExtensionType):
+        arr = arr.storage
+    n = len(arr)
+    while pa.types.is_list(arr.type) or pa.types.is_large_list(arr.type) or pa.types.is_fixed_size_list(arr.type):
+        arr = arr.flatten()
+    return arr.to_numpy(zero_copy_only=False).reshape(n, -1)
+
+
 def _column(array: pa.ChunkedArray, feature: dict):
     """A row group's column: PNG bytes (pa.BinaryArray) of an image, strings as a list, else NumPy (N, *shape)
     ((N,) for shape (1,))."""
@@ -128,11 +140,8 @@ def _column(array: pa.ChunkedArray, feature: dict):
         return pc.struct_field(arr, "bytes")
     if feature["dtype"] == "string":
         return arr.to_pylist()
-    n = len(arr)
-    while pa.types.is_list(arr.type) or pa.types.is_large_list(arr.type) or pa.types.is_fixed_size_list(arr.type):
-        arr = arr.flatten()
-    values = arr.to_numpy(zero_copy_only=False)
-    shape = tuple(feature["shape"])
+    n, shape = len(arr), tuple(feature["shape"])
+    values = numbers(arr)
     return values.reshape(n) if shape == (1,) else values.reshape(n, *shape)
 
 
