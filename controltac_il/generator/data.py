@@ -8,7 +8,7 @@ contact whatever force is asked for.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -27,12 +27,15 @@ NO_CONTACT_DELTA = np.array([2 * SHEAR_MAX, 2 * SHEAR_MAX, FZ_RANGE[1] - FZ_RANG
 @dataclass
 class PairData:
     """residuals: uint8 (N, H, W, 3) at the model size; forces: float32 (N, 3) N;
-    groups: index arrays of images sharing a contact pose; no_contact: indices of no-contact frames."""
+    groups: index arrays of images sharing a contact pose; no_contact: indices of no-contact frames;
+    group_objects: the object each group presses ("" where unknown). ``images``: the indices training
+    draws from (the groups' and the no-contact frames; a held-out group's frames are not among them)."""
 
     residuals: np.ndarray
     forces: np.ndarray
     groups: list[np.ndarray]
     no_contact: np.ndarray
+    group_objects: list[str] = field(default_factory=list)
 
     def __post_init__(self):
         if self.residuals.dtype != np.uint8 or self.residuals.ndim != 4 or self.residuals.shape[-1] != 3:
@@ -41,6 +44,11 @@ class PairData:
             raise ValueError(f"forces must be ({len(self.residuals)}, 3), got {self.forces.shape}")
         if not self.groups:
             raise ValueError("at least one pose group is needed to form pairs")
+        if not self.group_objects:
+            self.group_objects = [""] * len(self.groups)
+        if len(self.group_objects) != len(self.groups):
+            raise ValueError(f"group_objects must name {len(self.groups)} groups, got {len(self.group_objects)}")
+        self.images = np.concatenate([*self.groups, self.no_contact]).astype(np.int64)
 
 
 def resize_residual(residual: np.ndarray, size: tuple[int, int]) -> np.ndarray:
@@ -81,14 +89,15 @@ def load_pair_data(root: str | Path, image_size: tuple[int, int], no_contact_fra
     res = [resize_residual(ds.residual(i), image_size)
            for i in tqdm(range(len(ds)), desc="loading residuals", unit="img", disable=not progress)]
     forces = ds.forces()
-    groups = [np.asarray(g, dtype=np.int64) for g in ds.pose_groups().values() if len(g) >= 1]
+    pose_groups = ds.pose_groups()
+    groups = [np.asarray(g, dtype=np.int64) for g in pose_groups.values()]
     nc = np.zeros((0,), np.int64)
     if no_contact_frames > 0:
         extra = [resize_residual(r, image_size) for r in no_contact_residuals(ds.meta, no_contact_frames, seed)]
         nc = np.arange(len(res), len(res) + len(extra))
         res.extend(extra)
         forces = np.concatenate([forces, np.zeros((len(extra), 3), np.float32)])
-    return PairData(np.stack(res), forces.astype(np.float32), groups, nc)
+    return PairData(np.stack(res), forces.astype(np.float32), groups, nc, [obj for obj, _ in pose_groups])
 
 
 def sample_pairs(data: PairData, batch: int, rng: np.random.Generator, no_contact_prob: float = 0.05,
@@ -117,9 +126,9 @@ def sample_pairs(data: PairData, batch: int, rng: np.random.Generator, no_contac
 
 
 def crop_batch(data: PairData, rng: np.random.Generator, batch: int, crop: tuple[int, int]) -> torch.Tensor:
-    """Random crops (with random flips) of random residuals, float (B, 3, ch, cw) in [-1, 1]; half of
-    them centred on a contact pixel."""
-    idx = rng.integers(0, len(data.residuals), size=batch)
+    """Random crops (with random flips) of random training residuals (``data.images``), float (B, 3, ch, cw)
+    in [-1, 1]; half of them centred on a contact pixel."""
+    idx = data.images[rng.integers(0, len(data.images), size=batch)]
     H, W = data.residuals.shape[1:3]
     ch, cw = crop
     out = np.empty((batch, ch, cw, 3), np.uint8)

@@ -5,7 +5,9 @@ them; each resumable from its run state in the run folder, under torchrun ranks 
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import torch
@@ -23,6 +25,7 @@ from controltac_il.generator.objectives import ema_weights, noised_batch, predic
 from controltac_il.generator.pipeline import residual_to_unit
 from controltac_il.generator.sampler import make_scheduler
 from controltac_il.generator.train_config import (GeneratorTrainConfig, legacy_provenance, provenance)
+from controltac_il.generator.validation import ValidationSplit
 from controltac_il.io import atomic_path
 from controltac_il.run_state import load_run_state, save_run_state
 from controltac_il.training import barrier, lr_schedule, optimise, wrap
@@ -175,9 +178,48 @@ def denoiser_loss(cfg: GeneratorTrainConfig, gcfg: GeneratorConfig, sched, z: to
     return prediction_loss(model(x_t, zr, t, torch.from_numpy(df)), target)
 
 
+@dataclass
+class Validation:
+    """A run's validation split and ``error(dit)``: the dict of ``validation.validation_error`` for those weights."""
+
+    split: ValidationSplit
+    error: Callable[[ForceDiT], dict]
+
+
+class BestOnValidation:
+    """Measures the EMA weights at each periodic save and keeps the best (lowest ``ratio_to_copy``) in
+    ``<out>/denoiser_best.safetensors``; ``record`` is the state's ``validation`` metadata (resumable)."""
+
+    def __init__(self, validation: Validation, path: Path, record: dict | None):
+        self.validation, self.path = validation, path
+        self.record = record or {"objects": list(validation.split.objects), "pairs": len(validation.split.ref),
+                                 "history": [], "best_step": None, "best": None}
+
+    def measure(self, step: int, dit: ForceDiT, ema: EMAModel) -> None:
+        ema.store(dit.parameters())
+        ema.copy_to(dit.parameters())
+        try:
+            result = {"step": step, **self.validation.error(dit)}
+            if self.record["best"] is None or result["ratio_to_copy"] < self.record["best"]["ratio_to_copy"]:
+                with atomic_path(self.path) as tmp:
+                    save_file({"best." + k: v.detach().clone().contiguous() for k, v in dit.state_dict().items()}, str(tmp))
+                self.record.update(best_step=step, best=result)
+        finally:
+            ema.restore(dit.parameters())
+            dit.train()
+        self.record["history"].append(result)
+        tqdm.write(f"step {step}: validation error {result['ratio_to_copy']:.3f}x a copy "
+                   f"(best {self.record['best']['ratio_to_copy']:.3f}x at step {self.record['best_step']})")
+
+    def load_best(self, dit: ForceDiT) -> None:
+        dit.load_state_dict({k[len("best."):]: v for k, v in load_file(str(self.path)).items()})
+
+
 def train_denoiser(cfg: GeneratorTrainConfig, gcfg: GeneratorConfig, z: torch.Tensor, data: PairData, out: Path,
-                   rank: int, world: int, init: dict[str, torch.Tensor] | None = None) -> tuple[ForceDiT, dict]:
-    """Train (or resume) the DiT; ``init``: starting weights when there is no state to resume."""
+                   rank: int, world: int, init: dict[str, torch.Tensor] | None = None,
+                   validation: Validation | None = None) -> tuple[ForceDiT, dict]:
+    """Train (or resume) the DiT; ``init``: starting weights when there is no state to resume. Returns the EMA
+    weights of the last step, or with ``validation`` those of the best periodic save (``meta["validation"]``)."""
     torch.manual_seed(cfg.seed + 1)
     dit = ForceDiT(gcfg.dit)
     if init is not None:
@@ -192,14 +234,17 @@ def train_denoiser(cfg: GeneratorTrainConfig, gcfg: GeneratorConfig, z: torch.Te
     history = meta.get("history", []) + [{"from_step": meta["step"], "dit_steps": cfg.dit_steps, "lr": cfg.dit_lr,
                                           "prediction_type": gcfg.diffusion.prediction_type, "batch": cfg.dit_batch,
                                           "one_step_fraction": cfg.one_step_fraction, "denoiser_from": cfg.denoiser_from}]
+    best = None if validation is None else BestOnValidation(validation, out / "denoiser_best.safetensors", meta.get("validation"))
     model, per_rank, t0 = wrap(dit, world), max(1, cfg.dit_batch // world), time.perf_counter()
     noise_sched = make_scheduler(gcfg.diffusion)
 
     def save(step: int, loss: float) -> None:
+        if best is not None:
+            best.measure(step, dit, ema)
         save_run_state(stem, {"denoiser": dit, "ema": ema_weights(ema, dit)},
                        {"step": step, "wall_s": meta["wall_s"] + time.perf_counter() - t0, "loss": loss,
-                        "config": gcfg.to_dict(), "history": history, "ema": {"optimization_step": ema.optimization_step}},
-                       opt, sched)
+                        "config": gcfg.to_dict(), "history": history, "ema": {"optimization_step": ema.optimization_step},
+                        **({} if best is None else {"validation": best.record})}, opt, sched)
 
     optimise(meta["step"], cfg.dit_steps, lambda step: denoiser_loss(cfg, gcfg, noise_sched, z, data, model, rank, step, per_rank),
              opt, sched, list(dit.parameters()), save, cfg.checkpoint_every, f"denoiser ({cfg.dit_preset})", rank=rank,
@@ -208,6 +253,8 @@ def train_denoiser(cfg: GeneratorTrainConfig, gcfg: GeneratorConfig, z: torch.Te
     if stem.with_suffix(".json").is_file():
         meta = restore_denoiser(stem, dit, ema)
     ema.copy_to(dit.parameters())
+    if best is not None and meta.get("validation", {}).get("best_step") is not None:
+        best.load_best(dit)
     return dit.eval(), meta
 
 

@@ -17,13 +17,16 @@ Run folder (never the dataset folder)::
     autoencoder_finetune_state.{...}       the same for a reused autoencoder's fine-tune (--ae-finetune-steps)
     latents.safetensors                    the dataset encoded once (the DiT trains on these)
     denoiser_state.{safetensors,json}      DiT + EMA + AdamW + LR-schedule state, step (periodic, atomic)
+    denoiser_best.safetensors              with --val-objects: the EMA weights of the best validation step so far
     final/                                 the inference checkpoint (fp16) + model_card.json
 
 Stage 1 (autoencoder): L1 + MSE + image-gradient L1 on random crops of residuals in [-1, 1].
 Stage 2 (DiT): pairs of the same contact pose; x0 = (z_target - z_ref) / delta_scale, noised by the
 DDPM schedule; loss 0.5 L1 + 0.5 MSE on the noise (or on x0 for ``--prediction-type sample``);
 AdamW, linear warm-up then cosine decay to ``min_lr_ratio`` of the peak (torch schedulers,
-``controltac_il.training.lr_schedule``); EMA weights (diffusers' ``EMAModel``) are shipped.
+``controltac_il.training.lr_schedule``); EMA weights (diffusers' ``EMAModel``) are shipped: with
+``--val-objects N``, those of the periodic save with the lowest error on N held-out objects (the run's own
+validation split; the benchmark's unseen objects and sensor are never looked at), else the last step's.
 
 The run folder is only written where it is new or holds this tool's own run: a previous run needs --resume
 (continue) or --overwrite (replace: removes only the files listed above); files of the user's are never
@@ -47,10 +50,11 @@ from controltac_il.config import one_line
 from controltac_il.generator.checkpoint import save_checkpoint
 from controltac_il.generator.config import DiffusionConfig, GeneratorConfig
 from controltac_il.generator.data import load_pair_data
-from controltac_il.generator.pipeline import CHECKPOINT_ROOT, SHIPPED
-from controltac_il.generator.stages import (autoencoder_for, cached_latents, check_same_models, latent_scales,
-                                           source_denoiser, train_denoiser)
+from controltac_il.generator.pipeline import CHECKPOINT_ROOT, SHIPPED, ForceGenerator
+from controltac_il.generator.stages import (Validation, autoencoder_for, cached_latents, check_same_models,
+                                           latent_scales, source_denoiser, train_denoiser)
 from controltac_il.generator.train_config import (DIT_PRESETS, STAGES, GeneratorTrainConfig, model_card)
+from controltac_il.generator.validation import hold_out_objects, validation_error
 from controltac_il.io import write_json
 from controltac_il.outputs import OutputInUse, claim_output, own_checkpoint, own_json, own_safetensors
 from controltac_il.training import barrier, run_cli, setup_distributed
@@ -70,13 +74,14 @@ def run(cfg: GeneratorTrainConfig) -> Path:
     barrier(world)
     t_start = time.perf_counter()
     data = load_pair_data(cfg.data, cfg.image_size, cfg.no_contact_frames, cfg.seed, progress=rank == 0)
-    ae, ae_meta = autoencoder_for(cfg, data, out, rank, world)
+    train_data, split = hold_out_objects(data, cfg.val_objects, cfg.seed)
+    ae, ae_meta = autoencoder_for(cfg, train_data, out, rank, world)
     if cfg.stage == "autoencoder":
         return out
 
     z = cached_latents(cfg, ae, data, out, rank, world)
     source, init = (None, None) if cfg.denoiser_from is None else source_denoiser(Path(cfg.denoiser_from))
-    lat, dsc = latent_scales(z, data, cfg.seed) if source is None else (source.latent_scale, source.delta_scale)
+    lat, dsc = latent_scales(z, train_data, cfg.seed) if source is None else (source.latent_scale, source.delta_scale)
     gcfg = GeneratorConfig(
         autoencoder=ae.config,
         dit=DIT_PRESETS[cfg.dit_preset](in_channels=ae.config.latent_channels, patch_size=cfg.dit_patch,
@@ -86,10 +91,11 @@ def run(cfg: GeneratorTrainConfig) -> Path:
     )
     if source is not None:
         check_same_models(Path(cfg.denoiser_from), source, gcfg)
-    dit, dit_meta = train_denoiser(cfg, gcfg, z, data, out, rank, world, init)
+    validate = None if split is None else Validation(split, lambda d: validation_error(ForceGenerator(gcfg, ae, d), data, split))
+    dit, dit_meta = train_denoiser(cfg, gcfg, z, train_data, out, rank, world, init, validate)
     final = out / "final"
     if rank == 0:
-        card = model_card(cfg, data, ae, ae_meta, dit, dit_meta, world, time.perf_counter() - t_start)
+        card = model_card(cfg, train_data, ae, ae_meta, dit, dit_meta, world, time.perf_counter() - t_start)
         save_checkpoint(final, gcfg, ae, dit, dtype=torch.float16, model_card=card)
         print(f"wrote {final}")
     barrier(world)
@@ -127,6 +133,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ae-finetune-steps", type=int, default=0, metavar="N",
                    help="with --autoencoder-from: fine-tune that autoencoder N steps on --data (your sensor's look), "
                         "then the DiT on its moved latents (--denoiser-from with --dit-steps >= 1; default 0)")
+    p.add_argument("--val-objects", type=int, default=0, metavar="N",
+                   help="hold out N whole objects of --data as this run's validation split: their error is measured at "
+                        "every --checkpoint-every and the best step is shipped (default 0 = the last step)")
     for name in ("dit_patch", "ae_steps", "ae_batch", "dit_steps", "dit_batch", "warmup_steps", "checkpoint_every", "seed",
                  "no_contact_frames", "threads"):
         p.add_argument("--" + name.replace("_", "-"), type=int, default=d[name].default)
@@ -194,6 +203,7 @@ RUN_OUTPUTS = {
     "autoencoder_finetune_state.safetensors": own_safetensors("autoencoder.", "optimizer."),
     "denoiser_state.json": own_json("step", "config"),
     "denoiser_state.safetensors": own_safetensors("denoiser.", "ema.", "optimizer."),
+    "denoiser_best.safetensors": own_safetensors("best."),
     "final": own_checkpoint(("config.json", "autoencoder.safetensors", "denoiser.safetensors", "model_card.json"),
                             lambda c: "dit" in c and "autoencoder" in c),
 }

@@ -62,7 +62,10 @@ class GeneratorTrainConfig:
     distinct_pairs: never pair a frame with itself (ΔF = 0 exactly); by default 1 / forces-per-pose of the pairs
         are self-pairs, which teach the identity at ΔF = 0 apart from the response next to it.
     anchor_to_reference, detail_gate: inference settings stored in the config (see GeneratorConfig).
-    checkpoint_every: steps between periodic state saves. seed: data order, noise, init.
+    val_objects: whole objects of ``data`` held out as this run's validation split (drawn by ``seed``): the DiT's
+        error on their pairs is measured at every periodic save and the step with the lowest one is shipped
+        (0 = no split: the last step is shipped).
+    checkpoint_every: steps between periodic state saves. seed: data order, noise, init, the split.
     threads: torch intra-op threads per process (None = torch's default).
     """
 
@@ -97,6 +100,7 @@ class GeneratorTrainConfig:
     distinct_pairs: bool = False
     anchor_to_reference: bool = False
     detail_gate: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
+    val_objects: Count = 0
     checkpoint_every: PosInt = 250
     seed: int = 0
     threads: PosInt | None = None
@@ -194,7 +198,8 @@ def model_card(cfg: GeneratorTrainConfig, data: PairData, ae: TactileAutoencoder
         "denoiser": {"preset": cfg.dit_preset, "steps": dit_meta["step"], "wall_s": dit_meta["wall_s"],
                      "final_loss": dit_meta.get("loss"), "from": cfg.denoiser_from, "batch": cfg.dit_batch, "lr": cfg.dit_lr,
                      "lineage": [] if cfg.denoiser_from is None else denoiser_lineage(Path(cfg.denoiser_from)),
-                     "parameters": sum(p.numel() for p in dit.parameters()), "history": dit_meta.get("history")},
+                     "parameters": sum(p.numel() for p in dit.parameters()), "history": dit_meta.get("history"),
+                     "validation": dit_meta.get("validation")},
         "autoencoder_parameters": sum(p.numel() for p in ae.parameters()),
         "world_size": world,
         "total_wall_s": wall_s,

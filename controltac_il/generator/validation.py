@@ -1,0 +1,63 @@
+"""The generator's validation split: whole objects of a run's own training data held out, and the error the
+run chooses its shipped weights by (error of the generated target over the error of copying the reference).
+
+The benchmark's unseen objects and unseen sensor are for reporting only: nothing here reads them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+import torch
+
+from controltac_il.generator.data import PairData
+from controltac_il.generator.forces import VALIDATED_RANGE
+
+# Validation pairs per run: enough that the ratio's standard error is a few per cent of it.
+VAL_PAIRS = 256
+
+
+@dataclass(frozen=True)
+class ValidationSplit:
+    """objects: the held-out object names; ref, tgt: int64 (P,) image indices of the pairs (same contact pose,
+    two different frames, both forces in the validated range); delta: float32 (P, 3) ΔF N = F_tgt - F_ref."""
+
+    objects: tuple[str, ...]
+    ref: np.ndarray
+    tgt: np.ndarray
+    delta: np.ndarray
+
+
+def hold_out_objects(data: PairData, count: int, seed: int, pairs: int = VAL_PAIRS) -> tuple[PairData, ValidationSplit | None]:
+    """(training data without ``count`` objects, their validation pairs); the objects are drawn by ``seed``
+    from those with a pose group of at least two frames in the validated force range. ``count`` = 0: (data, None)."""
+    if count == 0:
+        return data, None
+    usable = [g[~VALIDATED_RANGE.outside(data.forces[g]).any(-1)] for g in data.groups]
+    names = sorted({o for o, g in zip(data.group_objects, usable) if len(g) >= 2})
+    if count >= len(names):
+        raise ValueError(f"val_objects={count} would hold out every object with pairs ({len(names)}): leave some to train on")
+    rng = np.random.default_rng([seed, 17])
+    held = tuple(sorted(rng.choice(names, size=count, replace=False).tolist()))
+    is_val = [o in held for o in data.group_objects]
+    train = replace(data, groups=[g for g, v in zip(data.groups, is_val) if not v],
+                    group_objects=[o for o, v in zip(data.group_objects, is_val) if not v])
+    val_groups = [g for g, v in zip(usable, is_val) if v and len(g) >= 2]
+    pick = rng.integers(0, len(val_groups), size=pairs)
+    ref, tgt = np.empty(pairs, np.int64), np.empty(pairs, np.int64)
+    for k, gi in enumerate(pick):
+        i, j = rng.choice(val_groups[gi], size=2, replace=False)
+        ref[k], tgt[k] = i, j
+    return train, ValidationSplit(held, ref, tgt, (data.forces[tgt] - data.forces[ref]).astype(np.float32))
+
+
+@torch.no_grad()
+def validation_error(generator, data: PairData, split: ValidationSplit) -> dict:
+    """The generator (a ``ForceGenerator``, its default DDIM steps, seed 0) on the split's pairs:
+    ``{"mse", "copy_mse", "ratio_to_copy"}``, MSE in grey levels² at the model size."""
+    ref = data.residuals[split.ref]
+    tgt = data.residuals[split.tgt].astype(np.float64)
+    pred = generator.generate(ref, split.delta, seed=0).astype(np.float64)
+    mse, copy = float(((pred - tgt) ** 2).mean()), float(((ref.astype(np.float64) - tgt) ** 2).mean())
+    return {"mse": mse, "copy_mse": copy, "ratio_to_copy": mse / max(copy, 1e-12)}
