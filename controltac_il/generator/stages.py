@@ -5,9 +5,7 @@ them; each resumable from its run state in the run folder, under torchrun ranks 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import torch
@@ -25,7 +23,7 @@ from controltac_il.generator.objectives import ema_weights, noised_batch, predic
 from controltac_il.generator.pipeline import residual_to_unit
 from controltac_il.generator.sampler import make_scheduler
 from controltac_il.generator.train_config import (GeneratorTrainConfig, legacy_provenance, provenance)
-from controltac_il.generator.validation import ValidationSplit
+from controltac_il.generator.validation import BestOnValidation, Validation
 from controltac_il.io import atomic_path
 from controltac_il.run_state import load_run_state, save_run_state
 from controltac_il.training import barrier, lr_schedule, optimise, wrap
@@ -176,43 +174,6 @@ def denoiser_loss(cfg: GeneratorTrainConfig, gcfg: GeneratorConfig, sched, z: to
     zr = z[ref] / torch.tensor(gcfg.latent_scale).view(1, c, 1, 1)
     x_t, t, target = noised_batch(gcfg, sched, x0, cfg.one_step_fraction, int(rng.integers(0, 2**62)))
     return prediction_loss(model(x_t, zr, t, torch.from_numpy(df)), target)
-
-
-@dataclass
-class Validation:
-    """A run's validation split and ``error(dit)``: the dict of ``validation.validation_error`` for those weights."""
-
-    split: ValidationSplit
-    error: Callable[[ForceDiT], dict]
-
-
-class BestOnValidation:
-    """Measures the EMA weights at each periodic save and keeps the best (lowest ``ratio_to_copy``) in
-    ``<out>/denoiser_best.safetensors``; ``record`` is the state's ``validation`` metadata (resumable)."""
-
-    def __init__(self, validation: Validation, path: Path, record: dict | None):
-        self.validation, self.path = validation, path
-        self.record = record or {"objects": list(validation.split.objects), "pairs": len(validation.split.ref),
-                                 "history": [], "best_step": None, "best": None}
-
-    def measure(self, step: int, dit: ForceDiT, ema: EMAModel) -> None:
-        ema.store(dit.parameters())
-        ema.copy_to(dit.parameters())
-        try:
-            result = {"step": step, **self.validation.error(dit)}
-            if self.record["best"] is None or result["ratio_to_copy"] < self.record["best"]["ratio_to_copy"]:
-                with atomic_path(self.path) as tmp:
-                    save_file({"best." + k: v.detach().clone().contiguous() for k, v in dit.state_dict().items()}, str(tmp))
-                self.record.update(best_step=step, best=result)
-        finally:
-            ema.restore(dit.parameters())
-            dit.train()
-        self.record["history"].append(result)
-        tqdm.write(f"step {step}: validation error {result['ratio_to_copy']:.3f}x a copy "
-                   f"(best {self.record['best']['ratio_to_copy']:.3f}x at step {self.record['best_step']})")
-
-    def load_best(self, dit: ForceDiT) -> None:
-        dit.load_state_dict({k[len("best."):]: v for k, v in load_file(str(self.path)).items()})
 
 
 def train_denoiser(cfg: GeneratorTrainConfig, gcfg: GeneratorConfig, z: torch.Tensor, data: PairData, out: Path,

@@ -7,12 +7,18 @@ The benchmark's unseen objects and unseen sensor are for reporting only: nothing
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import torch
+from diffusers.training_utils import EMAModel
+from safetensors.torch import load_file, save_file
+from tqdm.auto import tqdm
 
 from controltac_il.generator.data import PairData
 from controltac_il.generator.forces import VALIDATED_RANGE
+from controltac_il.io import atomic_path
 
 # Validation pairs per run: enough that the ratio's standard error is a few per cent of it.
 VAL_PAIRS = 256
@@ -61,3 +67,42 @@ def validation_error(generator, data: PairData, split: ValidationSplit) -> dict:
     pred = generator.generate(ref, split.delta, seed=0).astype(np.float64)
     mse, copy = float(((pred - tgt) ** 2).mean()), float(((ref.astype(np.float64) - tgt) ** 2).mean())
     return {"mse": mse, "copy_mse": copy, "ratio_to_copy": mse / max(copy, 1e-12)}
+
+
+@dataclass
+class Validation:
+    """A run's validation split: its held-out ``objects``, its number of ``pairs``, and ``error(module)``, a dict
+    with ``ratio_to_copy`` (lower is better) for the weights now in the trained module."""
+
+    objects: tuple[str, ...]
+    pairs: int
+    error: Callable[[torch.nn.Module], dict]
+
+
+class BestOnValidation:
+    """Measures a module's EMA weights at each periodic save and keeps the best (lowest ``ratio_to_copy``) in
+    ``path`` (tensors prefixed ``best.``); ``record`` is the run state's ``validation`` metadata (resumable)."""
+
+    def __init__(self, validation: Validation, path: Path, record: dict | None):
+        self.validation, self.path = validation, path
+        self.record = record or {"objects": list(validation.objects), "pairs": validation.pairs,
+                                 "history": [], "best_step": None, "best": None}
+
+    def measure(self, step: int, module: torch.nn.Module, ema: EMAModel) -> None:
+        ema.store(module.parameters())
+        ema.copy_to(module.parameters())
+        try:
+            result = {"step": step, **self.validation.error(module)}
+            if self.record["best"] is None or result["ratio_to_copy"] < self.record["best"]["ratio_to_copy"]:
+                with atomic_path(self.path) as tmp:
+                    save_file({"best." + k: v.detach().clone().contiguous() for k, v in module.state_dict().items()}, str(tmp))
+                self.record.update(best_step=step, best=result)
+        finally:
+            ema.restore(module.parameters())
+            module.train()
+        self.record["history"].append(result)
+        tqdm.write(f"step {step}: validation error {result['ratio_to_copy']:.3f}x a copy "
+                   f"(best {self.record['best']['ratio_to_copy']:.3f}x at step {self.record['best_step']})")
+
+    def load_best(self, module: torch.nn.Module) -> None:
+        module.load_state_dict({k[len("best."):]: v for k, v in load_file(str(self.path)).items()})
