@@ -6,6 +6,7 @@ import shutil
 import numpy as np
 import pytest
 import torch
+from safetensors.torch import load_file
 
 from controltac_il.checkpoint import CheckpointError
 from controltac_il.generator import ForceGenerator
@@ -222,11 +223,20 @@ def test_train_pose_cli_trains_resumes_and_guards_its_folder(tmp_path, capsys):
 
     out = tmp_path / "run"
     args = ["--out", str(out), "--procedural", "0", "--scenes", "1", "--poses", "2", "--forces", "1", "--batch", "4",
-            "--mask-channels", "8", "--head-width", "8", "--checkpoint-every", "2"]
+            "--mask-channels", "8", "--head-width", "8", "--checkpoint-every", "2", "--val-objects", "1"]
     assert main([*args, "--steps", "2"]) == 0
     assert json.loads((out / "adapter_state.json").read_text())["step"] == 2
     assert main([*args, "--steps", "3", "--resume"]) == 0
     assert json.loads((out / "adapter_state.json").read_text())["step"] == 3
+    # its own validation split (procedural_0000, never trained on with --procedural 0), measured at each save and
+    # across the resume; the best step's EMA weights are what ships
+    val = json.loads((out / "final" / CARD_FILE).read_text())["validation"]
+    assert val["objects"] == ["procedural_0000"] and [h["step"] for h in val["history"]] == [2, 3]
+    ratios = [h["ratio_to_copy"] for h in val["history"]]
+    assert np.isfinite(ratios).all() and val["best_step"] == [2, 3][int(np.argmin(ratios))]
+    best = load_file(str(out / "adapter_best.safetensors"))
+    shipped = load_file(str(out / "final" / "adapter.safetensors"))
+    assert all(torch.equal(shipped[k], best["best." + k].to(torch.float16)) for k in shipped)
     cfg, _ = load_adapter(out / "final")
     assert cfg.base_hash == ForceGenerator.from_pretrained().checkpoint_hash
     # a longer run from a trained adapter: same widths only (the shipped one is 32 / 48 wide, these runs 8 / 8)

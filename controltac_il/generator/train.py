@@ -54,7 +54,7 @@ from controltac_il.generator.pipeline import CHECKPOINT_ROOT, SHIPPED, ForceGene
 from controltac_il.generator.stages import (autoencoder_for, cached_latents, check_same_models, latent_scales,
                                            source_denoiser, train_denoiser)
 from controltac_il.generator.train_config import (DIT_PRESETS, STAGES, GeneratorTrainConfig, model_card)
-from controltac_il.generator.validation import Validation, hold_out_objects, validation_error
+from controltac_il.generator.validation import Validation, generation_error, hold_out_objects
 from controltac_il.io import write_json
 from controltac_il.outputs import OutputInUse, claim_output, own_checkpoint, own_json, own_safetensors
 from controltac_il.training import barrier, run_cli, setup_distributed
@@ -91,8 +91,8 @@ def run(cfg: GeneratorTrainConfig) -> Path:
     )
     if source is not None:
         check_same_models(Path(cfg.denoiser_from), source, gcfg)
-    validate = None if split is None else Validation(split.objects, len(split.ref), lambda d: validation_error(
-        ForceGenerator(gcfg, ae, d), data, split))
+    validate = None if split is None else Validation(split.objects, len(split.ref), lambda d: generation_error(
+        ForceGenerator(gcfg, ae, d), data.residuals[split.ref], data.residuals[split.tgt], split.delta))
     dit, dit_meta = train_denoiser(cfg, gcfg, z, train_data, out, rank, world, init, validate)
     final = out / "final"
     if rank == 0:

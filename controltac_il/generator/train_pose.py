@@ -8,10 +8,12 @@ Data: ``pose_data.render_scenes`` (the six training objects plus ``--procedural`
 in memory and encoded once by the frozen autoencoder. Pairs within a scene; the condition is the reference's
 contact mask carried to the target pose with the paper's alignment noise (±3 px, ±1°). Loss as stage 1's
 (0.5 L1 + 0.5 MSE on the normalised latent change, ``--one-step-fraction`` at the last timestep); AdamW with
-warm-up and cosine decay; the EMA of the adapter is shipped (fp16, ``OUT/final``), the stage-1 weights are
-never changed.
+warm-up and cosine decay; the EMA of the adapter is shipped (fp16, ``OUT/final``): that of the state save with
+the lowest error on ``--val-objects`` procedural shapes it never trains on (its own validation split; the
+benchmark's held-out objects are never looked at). The stage-1 weights are never changed.
 
-Run folder: ``train_config.json``, ``adapter_state.{safetensors,json}`` (periodic, atomic), ``final/``. ``--resume``
+Run folder: ``train_config.json``, ``adapter_state.{safetensors,json}`` (periodic, atomic), ``adapter_best.safetensors``
+(the best validation step's EMA weights), ``final/``. ``--resume``
 continues with the saved run's data and model (only ``--steps``, ``--checkpoint-every``, ``--threads``, ``--device``
 may change; anything else, or another ``--base``, is refused).
 Only this tool's own files there are ever replaced (``--overwrite``); bad options: one line, exit 2; a NaN / inf
@@ -40,10 +42,11 @@ from controltac_il.config import one_line
 from controltac_il.generator.adapter import PoseAdapter, masks_to_model
 from controltac_il.generator.checkpoint import checkpoint_hash, load_adapter, load_checkpoint, save_adapter
 from controltac_il.generator.config import STRICT, PoseAdapterConfig, PosInt, Positive
-from controltac_il.generator.pipeline import SHIPPED_ADAPTERS, locate_checkpoint, residual_to_unit
-from controltac_il.generator.pose_data import render_scenes, sample_pose_pairs
+from controltac_il.generator.pipeline import SHIPPED_ADAPTERS, ForceGenerator, locate_checkpoint, residual_to_unit
+from controltac_il.generator.pose_data import render_scenes, sample_pose_pairs, target_mask
 from controltac_il.generator.sampler import make_scheduler
 from controltac_il.generator.objectives import ema_weights, noised_batch, prediction_loss, restore_ema
+from controltac_il.generator.validation import VAL_PAIRS, BestOnValidation, Validation, generation_error
 from controltac_il.io import write_json
 from controltac_il.outputs import OutputInUse, claim_output, own_checkpoint, own_json, own_safetensors
 from controltac_il.run_state import load_run_state, save_run_state
@@ -64,6 +67,9 @@ class PoseTrainConfig:
     contact poses per scene, forces per pose (render size ``size`` (H, W)); instances: training sensor instances
     drawn from. steps, batch, lr, warmup_steps, min_lr_ratio, ema_decay: optimisation. one_step_fraction: share of
     each batch at the last timestep. mask_channels, head_width, alignment_px, alignment_deg: PoseAdapterConfig.
+    val_objects: procedural shapes after the training ones (``procedural_<procedural>`` on), never trained on, in
+    two scenes each: the run's own validation split. The adapter's error on their cross-pose pairs is measured at
+    every state save and the best step's EMA weights ship (0 = no split: the last step ships).
     checkpoint_every: steps between state saves. seed: scenes, pairs, noise, init. threads: torch threads (None =
     torch's default). device: where the networks train ("cpu", "cuda"); the data stays on the CPU.
     """
@@ -88,6 +94,7 @@ class PoseTrainConfig:
     head_width: PosInt = 48
     alignment_px: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 3.0
     alignment_deg: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 1.0
+    val_objects: Annotated[int, Field(ge=0)] = 8
     checkpoint_every: PosInt = 500
     seed: Annotated[int, Field(ge=0)] = 0
     threads: PosInt | None = None
@@ -100,6 +107,7 @@ RUN_OUTPUTS = {
     "train_config.json": own_json("out", "base", "procedural"),
     "adapter_state.json": own_json("step", "config"),
     "adapter_state.safetensors": own_safetensors("adapter.", "ema.", "optimizer."),
+    "adapter_best.safetensors": own_safetensors("best."),
     "final": own_checkpoint(("config.json", "adapter.safetensors", "model_card.json"), lambda c: "base" in c),
 }
 
@@ -156,16 +164,33 @@ def _card(cfg: PoseTrainConfig, acfg: PoseAdapterConfig, adapter, source_card, m
                          "total_s": round(time.perf_counter() - t0, 1), "machine": platform.processor() or platform.machine(),
                          "threads": torch.get_num_threads(), "torch": torch.__version__,
                          "device": torch.cuda.get_device_name(dev) if dev.type == "cuda" else "cpu"},
-            "parameters": sum(p.numel() for p in adapter.parameters())}
+            "parameters": sum(p.numel() for p in adapter.parameters()), "validation": meta.get("validation")}
+
+
+def _validation(cfg: PoseTrainConfig, gcfg, ae, dit, dev: torch.device) -> Validation | None:
+    """The run's validation split: ``cfg.val_objects`` procedural shapes it never trains on, two scenes each,
+    ``VAL_PAIRS`` cross-pose pairs with exact target masks; its error is that of the adapter over the frozen base."""
+    if cfg.val_objects == 0:
+        return None
+    names = procedural_objects(cfg.procedural + cfg.val_objects)[cfg.procedural:]
+    scenes = render_scenes(names, 2, cfg.poses, cfg.forces, cfg.seed + 1, cfg.size, "train", cfg.instances)
+    rng = np.random.default_rng([cfg.seed, 23])
+    members = [m for m in scenes.members() if len(m) >= 2]
+    pairs = np.stack([rng.choice(members[s], size=2, replace=False) for s in rng.integers(0, len(members), size=VAL_PAIRS)])
+    ref, tgt = scenes.residuals[pairs[:, 0]], scenes.residuals[pairs[:, 1]]
+    delta = scenes.forces[pairs[:, 1]] - scenes.forces[pairs[:, 0]]
+    masks = np.stack([target_mask(scenes, r, t) for r, t in pairs])
+    return Validation(tuple(names), len(pairs), lambda adapter: generation_error(
+        ForceGenerator(gcfg, ae, dit, device=dev, pose_adapter=adapter), ref, tgt, delta, mask=masks))
 
 
 def _fit(cfg: PoseTrainConfig, gcfg, acfg: PoseAdapterConfig, adapter, dit, scenes, z: torch.Tensor, stem: Path,
-         dev: torch.device) -> dict:
-    """AdamW (+ EMA) on the adapter, resumable from ``stem``; leaves the EMA weights in ``adapter``. Returns the
-    final state's metadata."""
+         dev: torch.device, validation: Validation | None = None) -> dict:
+    """AdamW (+ EMA) on the adapter, resumable from ``stem``; leaves the EMA weights in ``adapter``: the last
+    step's, or with ``validation`` the best state save's. Returns the final state's metadata."""
     ema = EMAModel(adapter.parameters(), decay=cfg.ema_decay, update_after_step=-1)
     opt = torch.optim.AdamW(adapter.parameters(), lr=cfg.lr, weight_decay=0.0)
-    meta = {"step": 0, "wall_s": 0.0}
+    meta: dict = {"step": 0, "wall_s": 0.0}
     if stem.with_suffix(".json").is_file():
         if read_json(stem.with_suffix(".json")).get("config") != acfg.to_dict():
             raise ValueError(f"--resume: {stem}.json was trained over another stage-1 checkpoint than --base {cfg.base}")
@@ -177,6 +202,8 @@ def _fit(cfg: PoseTrainConfig, gcfg, acfg: PoseAdapterConfig, adapter, dit, scen
     c = gcfg.autoencoder.latent_channels
     lat_s, dlt_s = (torch.tensor(v, device=dev).view(1, c, 1, 1) for v in (gcfg.latent_scale, gcfg.delta_scale))
     t_run = time.perf_counter()
+    best = None if validation is None else BestOnValidation(validation, stem.parent / "adapter_best.safetensors",
+                                                            meta.get("validation"))
 
     def batch_loss(step: int) -> torch.Tensor:
         rng = np.random.default_rng([cfg.seed, 5, step])
@@ -188,14 +215,19 @@ def _fit(cfg: PoseTrainConfig, gcfg, acfg: PoseAdapterConfig, adapter, dit, scen
         return prediction_loss(adapter(dit, x_t, z[ref] / lat_s, t, torch.from_numpy(df).to(dev), m), target)
 
     def save(step: int, loss: float) -> None:
+        if best is not None:
+            best.measure(step, adapter, ema)
         save_run_state(stem, {"adapter": adapter, "ema": ema_weights(ema, adapter)},
                        {"step": step, "loss": loss, "wall_s": meta["wall_s"] + time.perf_counter() - t_run,
-                        "config": acfg.to_dict(), "ema_step": ema.optimization_step}, opt, sched)
+                        "config": acfg.to_dict(), "ema_step": ema.optimization_step,
+                        **({} if best is None else {"validation": best.record})}, opt, sched)
 
     optimise(meta["step"], cfg.steps, batch_loss, opt, sched, list(adapter.parameters()), save, cfg.checkpoint_every,
              "pose adapter", after_step=lambda step, out: ema.step(adapter.parameters()), state=str(stem))
     meta, tensors = load_run_state(stem, {"adapter": adapter})
     adapter.load_state_dict({k[len("ema."):]: v for k, v in tensors.items() if k.startswith("ema.")})
+    if best is not None and meta.get("validation", {}).get("best_step") is not None:
+        best.load_best(adapter)
     return meta
 
 
@@ -220,7 +252,7 @@ def run(cfg: PoseTrainConfig) -> Path:
                              head_width=cfg.head_width, alignment_px=cfg.alignment_px, alignment_deg=cfg.alignment_deg)
     adapter, source_card = _adapter(cfg, acfg, dit)
     adapter = adapter.to(dev)
-    meta = _fit(cfg, gcfg, acfg, adapter, dit, scenes, z, out / "adapter_state", dev)
+    meta = _fit(cfg, gcfg, acfg, adapter, dit, scenes, z, out / "adapter_state", dev, _validation(cfg, gcfg, ae, dit, dev))
     adapter.cpu()
     data = {"objects": len(objects), "scenes": len(scenes.objects), "frames": len(scenes.residuals),
             "size": list(cfg.size), "sensor_family": "train", "instances": cfg.instances}

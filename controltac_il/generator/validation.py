@@ -59,13 +59,13 @@ def hold_out_objects(data: PairData, count: int, seed: int, pairs: int = VAL_PAI
 
 
 @torch.no_grad()
-def validation_error(generator, data: PairData, split: ValidationSplit) -> dict:
-    """The generator (a ``ForceGenerator``, its default DDIM steps, seed 0) on the split's pairs:
-    ``{"mse", "copy_mse", "ratio_to_copy"}``, MSE in grey levels² at the model size."""
-    ref = data.residuals[split.ref]
-    tgt = data.residuals[split.tgt].astype(np.float64)
-    pred = generator.generate(ref, split.delta, seed=0).astype(np.float64)
-    mse, copy = float(((pred - tgt) ** 2).mean()), float(((ref.astype(np.float64) - tgt) ** 2).mean())
+def generation_error(generator, reference: np.ndarray, target: np.ndarray, delta: np.ndarray, **masks) -> dict:
+    """The generator (a ``ForceGenerator``, its default DDIM steps, seed 0) from ``reference`` to ``target``
+    (uint8 (P, H, W, 3) residuals) at ΔF ``delta`` (P, 3) N (``masks``: stage 2's ``mask=`` target-pose masks):
+    ``{"mse", "copy_mse", "ratio_to_copy"}``, MSE in grey levels²."""
+    pred = generator.generate(reference, delta, seed=0, **masks).astype(np.float64)
+    tgt = target.astype(np.float64)
+    mse, copy = float(((pred - tgt) ** 2).mean()), float(((reference.astype(np.float64) - tgt) ** 2).mean())
     return {"mse": mse, "copy_mse": copy, "ratio_to_copy": mse / max(copy, 1e-12)}
 
 
