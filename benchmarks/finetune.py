@@ -27,6 +27,7 @@ from benchmarks.common import base_parser, print_table, write_results
 from benchmarks.generator import dataset_pairs, quality
 from controltac_il.checkpoint import read_json
 from controltac_il.generator import ForceGenerator
+from controltac_il.generator.checkpoint import checkpoint_hash
 from controltac_il.generator.forces import VALIDATED_RANGE
 from controltac_il.generator.pipeline import locate_checkpoint
 from controltac_il.tactile import TRAIN_OBJECTS
@@ -137,7 +138,8 @@ def main(argv=None) -> dict:
     eval_root = render(args.runs / f"{args.instance}_eval", args.instance, 288, EVAL_SEED)
     pairs = dataset_pairs(eval_root, args.pairs)
     rows = []
-    results = {"benchmark": "finetune", "instance": args.instance, "base": str(base), "steps": args.steps,
+    results = {"benchmark": "finetune", "instance": args.instance, "base": str(base),
+               "base_hash": checkpoint_hash(base), "steps": args.steps,
                "ae_steps": args.ae_steps, "estimator_steps": args.estimator_steps, "lr": args.lr,
                "validated_range": VALIDATED_RANGE.card(), "rows": rows}
     for n in sorted(set(args.images)):

@@ -140,8 +140,9 @@ def finetune() -> str:
     if all("estimator_mae" in r for r in rows):  # the calibrate command's runs (#33) score the estimator too
         body.append(["estimator MAE Fz (Fx / Fy), N", *(f"{r['estimator_mae'][2]:.2f} ({r['estimator_mae'][0]:.2f} / "
                                                          f"{r['estimator_mae'][1]:.2f})" for r in rows)])
+    known = doc.get("base_hash")  # recorded since #33
     return table(header, body) + "\n\n" + provenance(
-        "finetune.json", doc, None, f", base `{Path(doc['base']).name}` (its hash not recorded)")
+        "finetune.json", doc, known, f", base `{Path(doc['base']).name}`" + ("" if known else " (its hash not recorded)"))
 
 
 # -- stage 2 (benchmarks.pose) ----------------------------------------------------------------------
