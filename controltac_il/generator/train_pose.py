@@ -46,7 +46,8 @@ from controltac_il.generator.pipeline import SHIPPED_ADAPTERS, ForceGenerator, l
 from controltac_il.generator.pose_data import render_scenes, sample_pose_pairs, target_mask
 from controltac_il.generator.sampler import make_scheduler
 from controltac_il.generator.objectives import ema_weights, noised_batch, prediction_loss, restore_ema
-from controltac_il.generator.validation import VAL_PAIRS, BestOnValidation, Validation, generation_error
+from controltac_il.generator.validation import (VAL_PAIRS, BestOnValidation, Validation, distinct_pairs,
+                                                generation_error)
 from controltac_il.io import write_json
 from controltac_il.outputs import OutputInUse, claim_output, own_checkpoint, own_json, own_safetensors
 from controltac_il.run_state import load_run_state, save_run_state
@@ -169,14 +170,15 @@ def _card(cfg: PoseTrainConfig, acfg: PoseAdapterConfig, adapter, source_card, m
 
 def _validation(cfg: PoseTrainConfig, gcfg, ae, dit, dev: torch.device) -> Validation | None:
     """The run's validation split: ``cfg.val_objects`` procedural shapes it never trains on, two scenes each,
-    ``VAL_PAIRS`` cross-pose pairs with exact target masks; its error is that of the adapter over the frozen base."""
+    ``VAL_PAIRS`` cross-pose pairs (at most as many as there are) with exact target masks; its error is that of the adapter over the frozen base."""
     if cfg.val_objects == 0:
         return None
     names = procedural_objects(cfg.procedural + cfg.val_objects)[cfg.procedural:]
     scenes = render_scenes(names, 2, cfg.poses, cfg.forces, cfg.seed + 1, cfg.size, "train", cfg.instances)
     rng = np.random.default_rng([cfg.seed, 23])
     members = [m for m in scenes.members() if len(m) >= 2]
-    pairs = np.stack([rng.choice(members[s], size=2, replace=False) for s in rng.integers(0, len(members), size=VAL_PAIRS)])
+    count = min(VAL_PAIRS, distinct_pairs(members))
+    pairs = np.stack([rng.choice(members[s], size=2, replace=False) for s in rng.integers(0, len(members), size=count)])
     ref, tgt = scenes.residuals[pairs[:, 0]], scenes.residuals[pairs[:, 1]]
     delta = scenes.forces[pairs[:, 1]] - scenes.forces[pairs[:, 0]]
     masks = np.stack([target_mask(scenes, r, t) for r, t in pairs])

@@ -36,8 +36,9 @@ class ValidationSplit:
 
 
 def hold_out_objects(data: PairData, count: int, seed: int, pairs: int = VAL_PAIRS) -> tuple[PairData, ValidationSplit | None]:
-    """(training data without ``count`` objects, their validation pairs); the objects are drawn by ``seed``
-    from those with a pose group of at least two frames in the validated force range. ``count`` = 0: (data, None)."""
+    """(training data without ``count`` objects, their validation pairs: ``pairs``, or as many as there are
+    distinct ordered pairs); the objects are drawn by ``seed`` from those with a pose group of at least two frames
+    in the validated force range. ``count`` = 0: (data, None)."""
     if count == 0:
         return data, None
     usable = [g[~VALIDATED_RANGE.outside(data.forces[g]).any(-1)] for g in data.groups]
@@ -50,12 +51,18 @@ def hold_out_objects(data: PairData, count: int, seed: int, pairs: int = VAL_PAI
     train = replace(data, groups=[g for g, v in zip(data.groups, is_val) if not v],
                     group_objects=[o for o, v in zip(data.group_objects, is_val) if not v])
     val_groups = [g for g, v in zip(usable, is_val) if v and len(g) >= 2]
+    pairs = min(pairs, distinct_pairs(val_groups))
     pick = rng.integers(0, len(val_groups), size=pairs)
     ref, tgt = np.empty(pairs, np.int64), np.empty(pairs, np.int64)
     for k, gi in enumerate(pick):
         i, j = rng.choice(val_groups[gi], size=2, replace=False)
         ref[k], tgt[k] = i, j
     return train, ValidationSplit(held, ref, tgt, (data.forces[tgt] - data.forces[ref]).astype(np.float32))
+
+
+def distinct_pairs(groups: list[np.ndarray]) -> int:
+    """Ordered pairs of two different frames within the groups."""
+    return int(sum(len(g) * (len(g) - 1) for g in groups))
 
 
 @torch.no_grad()
