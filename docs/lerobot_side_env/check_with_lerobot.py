@@ -1,5 +1,5 @@
 """Side env: load the augmented folder with LeRobot 0.4.4 and compare every item with the source / our reader's dump."""
-import os, sys, json
+import os, sys
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 import numpy as np, torch
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
