@@ -95,14 +95,9 @@ def main(argv=None) -> int:
     from controltac_il.training import run_cli
 
     args = parse_args(argv)
-    try:
-        train_config = check_args(args)
-    except ValueError as exc:
-        print(f"train_act.py: error: {exc}", file=sys.stderr)
-        return 2
 
-    def job() -> None:
-        summary = run(args, train_config)
+    def job() -> None:  # run_cli turns check_args' ValueError into one line and exit 2
+        summary = run(args, check_args(args))
         if os.environ.get("RANK", "0") == "0":
             print(json.dumps(summary, indent=2))
 

@@ -25,7 +25,6 @@ import argparse
 import json
 import os
 import shutil
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -166,14 +165,9 @@ def main(argv=None) -> int:
     from controltac_il.training import run_cli
 
     args = parser().parse_args(argv)
-    try:
-        ds = check(args)
-    except ValueError as exc:
-        print(f"{PROG}: error: {' '.join(str(exc).split())}", file=sys.stderr)
-        return 2
 
-    def job() -> None:
-        record = run(args, ds)
+    def job() -> None:  # run_cli turns check's ValueError into one line and exit 2
+        record = run(args, check(args))
         print(json.dumps({k: record[k] for k in ("images", "estimator", "generator")}, indent=2))
         print(f"wrote {args.out}")
 
