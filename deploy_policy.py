@@ -10,7 +10,8 @@ The checkpoint is checked against the set-up (cameras, tactile sensors, action s
 moves; a corrupted or mismatched checkpoint is refused with a clear error. In simulation the success
 rate is printed with its Wilson 95 % interval.
 
-Exit status: 0 done; 1 the robot side stopped the run: a device did not answer or failed (one line naming the
+Exit status: 0 done; 1 an evaluation episode raised (its seed and error on one line; never counted as a failed
+episode, the whole result with every error in --out), or the robot side stopped the run: a device did not answer or failed (one line naming the
 setup file and the device), a safety limit or a late policy (the arm was stopped); 2 bad options, setup file
 or checkpoint (one line naming the flag, the field or the file); 130 Ctrl-C (the arm was stopped).
 """
@@ -75,11 +76,18 @@ def main(argv=None) -> int:
     except ValueError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
-    from controltac_il.app.deploy import HardwareError
+    from controltac_il.app.deploy import EvaluationError, HardwareError
     from controltac_il.config import one_line
 
     try:
         run(args)
+    except EvaluationError as exc:  # a crash inside an episode is not a failed episode: no success rate
+        if args.out is not None:
+            from controltac_il.io import write_json
+
+            write_json(args.out, exc.result)
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 1
     except (ValueError, OSError) as exc:  # bad checkpoint (CheckpointError), set-up, option or output: one line
         print(f"{PROG}: error: {one_line(exc)}", file=sys.stderr)
         return 2

@@ -270,11 +270,11 @@ def parse_args(argv=None):
 
 
 # --- the grid ----------------------------------------------------------------------------------------------------------
-def _protocol_commit() -> str | None:
-    """The commit that added this module: where its protocol was fixed (None outside a git checkout)."""
+def _protocol_commit(module: str = __file__) -> str | None:
+    """The commit that added ``module`` (a path): where its protocol was fixed (None outside a git checkout)."""
     import subprocess
 
-    here = Path(__file__).resolve()
+    here = Path(module).resolve()
     try:
         out = subprocess.run(["git", "log", "--diff-filter=A", "--format=%h", "--", here.name], cwd=here.parent,
                              capture_output=True, text=True, check=False)
@@ -303,8 +303,10 @@ def _load_done(args, p, signature: str) -> dict[str, dict]:
     return done
 
 
-def _run(units: list[dict], ctx: dict, jobs: int, done: dict, save) -> None:
-    """Run the units not yet done, ``jobs`` at a time, saving after each."""
+def _run(units: list[dict], ctx: dict, jobs: int, done: dict, save, unit_fn=None) -> None:
+    """Run the units not yet done (``unit_fn(unit, ctx)``, a module-level function; default this module's
+    ``run_unit``), ``jobs`` at a time, saving after each."""
+    unit_fn = unit_fn or run_unit
     from tqdm import tqdm
 
     todo = [u for u in units if u["id"] not in done]
@@ -314,14 +316,14 @@ def _run(units: list[dict], ctx: dict, jobs: int, done: dict, save) -> None:
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
         with ProcessPoolExecutor(min(jobs, len(todo)), mp_context=multiprocessing.get_context("spawn")) as pool:
-            for fut in as_completed([pool.submit(run_unit, u, ctx) for u in todo]):
+            for fut in as_completed([pool.submit(unit_fn, u, ctx) for u in todo]):
                 res = fut.result()
                 done[res["id"]] = res
                 save()
                 bar.update(1)
     else:
         for u in todo:
-            done[u["id"]] = run_unit(u, ctx)
+            done[u["id"]] = unit_fn(u, ctx)
             save()
             bar.update(1)
     bar.close()

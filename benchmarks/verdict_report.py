@@ -90,6 +90,37 @@ def sign_flip_p(diffs) -> float:
     return float(res.pvalue)
 
 
+def paired_t_p(diffs) -> float:
+    """Two-sided paired t-test p of the per-seed differences (scipy's one-sample t-test against 0); 1.0 when they
+    are all equal to 0, 0.0 when they are all one non-zero value."""
+    from scipy.stats import ttest_1samp
+
+    d = np.asarray(diffs, dtype=np.float64)
+    if np.all(d == d[0]):
+        return 1.0 if d[0] == 0 else 0.0
+    return float(ttest_1samp(d, 0.0).pvalue)
+
+
+def _exact_sign_flip_p(d: np.ndarray) -> np.ndarray:
+    """Exact two-sided sign-flip p of each row of ``d`` (reps, n): every one of the 2**n sign patterns."""
+    n = d.shape[1]
+    signs = 1 - 2 * ((np.arange(2 ** n)[:, None] >> np.arange(n)) & 1)
+    null = np.abs(signs @ d.T) / n  # (2**n, reps)
+    observed = np.abs(d.mean(axis=1))
+    return (null >= observed[None, :] - 1e-12).mean(axis=0)
+
+
+def sign_flip_mde(sd: float, n: int, alpha: float, power: float = 0.8, reps: int = 2000, seed: int = 0) -> float:
+    """The smallest mean paired difference (0-1) that the exact sign-flip test over ``n`` seeds detects at
+    two-sided ``alpha`` with probability >= ``power``, when per-seed differences are Normal(effect, ``sd``):
+    simulated on a 0.01 grid, the same draws for every effect."""
+    z = np.random.default_rng(seed).normal(0.0, sd, (reps, n))
+    for effect in np.arange(0.0, 1.0001, 0.01):
+        if (_exact_sign_flip_p(z + effect) < alpha).mean() >= power:
+            return round(float(effect), 2)
+    return 1.0
+
+
 def holm(pvalues: list[float]) -> list[float]:
     """Holm-adjusted p-values, in the order given."""
     p = np.asarray(pvalues, dtype=np.float64)
@@ -145,6 +176,60 @@ def summarise(policies: list[dict], variants, seeds, settings, demos: int) -> tu
         c["sentence"] = (f"{c['variant']} vs real, {c['setting']}: {c['verdict']} "
                          f"({c['diff'] * 100:+.1f} points, 95 % CI {c['ci95'][0] * 100:+.1f} to {c['ci95'][1] * 100:+.1f}, "
                          f"p_holm {p:.3g})")
+    return table, comparisons
+
+
+def seed_level_verdict(diff: float, p_holm: float, alpha: float = 0.05) -> str:
+    """v2's rule: "helps" / "hurts" (the sign of the mean paired difference) when Holm's sign-flip p < alpha."""
+    if p_holm < alpha and diff != 0:
+        return "helps" if diff > 0 else "hurts"
+    return "no detectable effect"
+
+
+def summarise_seed_level(tests: list[dict], variants, seeds, settings, primary, demos: int
+                         ) -> tuple[list[dict], list[dict]]:
+    """v2's report from its test units (``variant``, ``seed``, ``test`` {setting: 0/1 list}). Table: per variant and
+    setting the mean over seeds, its two-level interval, the SD of per-seed success and the fraction of seeds
+    below real's worst. Comparisons with real: paired mean difference and interval, exact sign-flip p (primary),
+    paired t p, CMH p (secondary); Holm over the ``primary`` variants' comparisons once all are complete."""
+    by = {(u["variant"], u["seed"]): u for u in tests}
+
+    def outcomes(v, setting):
+        rows = [by.get((v, s)) for s in seeds]
+        return None if any(r is None for r in rows) else [r["test"][setting] for r in rows]
+
+    table, comparisons = [], []
+    for setting in settings:
+        real = outcomes("real", setting)
+        real_worst = None if real is None else min(float(np.mean(x)) for x in real)
+        for v in variants:
+            o = outcomes(v, setting)
+            if o is None:
+                continue
+            mean, ci = seed_episode_ci(o)
+            rates = [float(np.mean(x)) for x in o]
+            table.append({"variant": v, "setting": setting, "mean": round(mean, 4), "ci95": [round(c, 4) for c in ci],
+                          "per_seed": [round(r, 4) for r in rates], "sd_over_seeds": round(float(np.std(rates, ddof=1)), 4),
+                          "below_real_worst": None if v == "real" or real_worst is None
+                          else round(float(np.mean([r < real_worst for r in rates])), 4)})
+            if v == "real" or real is None:
+                continue
+            diff, ci, per_seed = paired_diff(o, real)
+            comparisons.append({"variant": v, "vs": "real", "demos": demos, "setting": setting, "primary": v in primary,
+                                "diff": round(diff, 4), "ci95": [round(c, 4) for c in ci],
+                                "per_seed_diff": [round(d, 4) for d in per_seed], "p_sign_flip": sign_flip_p(per_seed),
+                                "p_t": paired_t_p(per_seed), "p_cmh_secondary": cmh_p(o, real), "p_holm": None})
+    prim = [c for c in comparisons if c["primary"]]
+    if len(prim) == len(primary) * len(settings):
+        for c, p in zip(prim, holm([c["p_sign_flip"] for c in prim])):
+            c["p_holm"] = p
+    for c in comparisons:
+        c["verdict"] = seed_level_verdict(c["diff"], c["p_holm"]) if c["p_holm"] is not None else None
+        what = c["verdict"] or ("secondary" if not c["primary"] else "pending")
+        c["sentence"] = (f"{c['variant']} vs real, {c['setting']}: {what} ({c['diff'] * 100:+.1f} points over "
+                         f"{len(c['per_seed_diff'])} paired seeds, 95 % CI {c['ci95'][0] * 100:+.1f} to "
+                         f"{c['ci95'][1] * 100:+.1f}, sign-flip p {c['p_sign_flip']:.3g}"
+                         + (f", Holm {c['p_holm']:.3g})" if c["p_holm"] is not None else ")"))
     return table, comparisons
 
 

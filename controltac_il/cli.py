@@ -1,5 +1,6 @@
 """What every command line of the project does with a fault it meets at run time: one line on stderr and an exit
-code, never a traceback (2 bad input, data, file or folder; 130 Ctrl-C)."""
+code, never a traceback (1 a fault of the run itself, :class:`RunFault`; 2 bad input, data, file or folder; 130
+Ctrl-C)."""
 
 from __future__ import annotations
 
@@ -9,11 +10,19 @@ from typing import Callable
 from controltac_il.config import one_line
 
 
+class RunFault(RuntimeError):
+    """A fault of the run itself, not of its input (e.g. evaluation episodes that raised): one line, exit 1."""
+
+
 def guard(prog: str, job: Callable[[], int | None], interrupted: str = "interrupted (Ctrl-C)") -> int:
     """Run ``job()`` and return its exit code (None = 0). A ValueError or OSError becomes ``PROG: error: <one
-    line>`` and 2; Ctrl-C its own message (e.g. where a run can be continued) or ``interrupted`` and 130."""
+    line>`` and 2; a :class:`RunFault` the same and 1; Ctrl-C its own message (e.g. where a run can be continued)
+    or ``interrupted`` and 130."""
     try:
         return job() or 0
+    except RunFault as exc:
+        print(f"{prog}: error: {one_line(exc)}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt as exc:
         print(f"{prog}: {str(exc) or interrupted}", file=sys.stderr)
         return 130

@@ -42,6 +42,53 @@ class TrainingInterrupted(KeyboardInterrupt):
         return self.message
 
 
+def _stream_seed(seed: int, *key: int) -> int:
+    """A 63-bit seed that is a pure function of (seed, key...)."""
+    import numpy as np
+
+    return int(np.random.SeedSequence(seed, spawn_key=key).generate_state(1, np.uint64)[0] >> 1)
+
+
+class StepBatches(torch.utils.data.Sampler):
+    """Index batches (a DataLoader ``batch_sampler``) for the updates ``start``, ``start + 1``, ...: epoch e's order
+    is a permutation of the ``n`` items drawn from (seed, e), sharded ``rank::world`` under torch.distributed
+    (padded to equal shards, as DistributedSampler does), and update u is batch u mod per_epoch of epoch
+    u // per_epoch. So a run resumed at any step draws exactly the batches the uninterrupted run draws.
+
+    drop_last: drop each epoch's incomplete last batch (as long as one full batch fits in a shard)."""
+
+    def __init__(self, n: int, batch_size: int, seed: int, start: int = 0, rank: int = 0, world: int = 1,
+                 drop_last: bool = True):
+        if n < 1 or batch_size < 1 or start < 0:
+            raise ValueError(f"StepBatches: need n >= 1, batch_size >= 1 and start >= 0, got {n}, {batch_size}, {start}")
+        self.n, self.batch, self.seed, self.start, self.rank, self.world = n, batch_size, seed, start, rank, world
+        shard = -(-n // world)
+        self.shard = shard
+        full = shard // batch_size
+        self.per_epoch = full if drop_last and full else -(-shard // batch_size)
+
+    def epoch_order(self, epoch: int) -> list[int]:
+        """This rank's item order in ``epoch``."""
+        g = torch.Generator().manual_seed(_stream_seed(self.seed, epoch))
+        order = torch.randperm(self.n, generator=g).tolist()
+        order += order[: self.shard * self.world - self.n]
+        return order[self.rank::self.world]
+
+    def __iter__(self):
+        epoch, b = divmod(self.start, self.per_epoch)
+        while True:
+            order = self.epoch_order(epoch)
+            for i in range(b, self.per_epoch):
+                yield order[i * self.batch:(i + 1) * self.batch]
+            epoch, b = epoch + 1, 0
+
+
+def seed_update(seed: int, step: int, rank: int = 0) -> None:
+    """Seed torch's global RNG (dropout, sampled noise) for update ``step`` from (seed, step, rank), so that a run
+    resumed at any step makes the same draws as the uninterrupted run, with no RNG state to save."""
+    torch.manual_seed(_stream_seed(seed, step, rank))
+
+
 def lr_schedule(optimizer: torch.optim.Optimizer, peaks: list[float], total: int, warmup: int,
                 min_lr: float | None = None, resume: dict | None = None, step: int = 0) -> LRScheduler:
     """Linear warm-up over ``warmup`` steps (update i gets peak * (i + 1) / warmup), then a cosine decay to

@@ -312,3 +312,42 @@ def test_train_cli_data_errors_are_one_line_exit_2(tmp_path, capsys, monkeypatch
     assert train_act.main(["--dataset", str(root), "--out", str(out), "--overwrite"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "notes.txt" in err and (out / "best" / "notes.txt").read_text() == "mine"
+
+
+def test_a_resumed_run_is_bit_identical_to_the_uninterrupted_one_with_an_augmentation_stage(tmp_path):
+    """Batches (StepBatches) and dropout / CVAE noise (seed_update) are functions of the step: stopping at step 3
+    and resuming to 7 (crossing an epoch) gives the very weights of a run trained to 7 at once."""
+    from controltac_il.augment import ForceAugmentStage
+    from policies.act.checkpoint import WEIGHTS_FILE
+
+    root = write_tiny_episodes(tmp_path / "demos", n=3)
+    stage = ForceAugmentStage(1, cache_dir=tmp_path / "cache")
+    opts = dict(preset="cpu", augment=stage, split_seed=0, progress=False, **{**TINY, "dropout": 0.2})
+
+    def cfg(steps):
+        return ACTTrainConfig(steps=steps, batch_size=4, save_every=3, val_every=100, seed=5)
+
+    train_on_folder(root, tmp_path / "once", train_config=cfg(7), **opts)
+    train_on_folder(root, tmp_path / "twice", train_config=cfg(3), **opts)
+    train_on_folder(root, tmp_path / "twice", train_config=cfg(7), resume=True, **opts)
+    once, twice = ((tmp_path / r / "last" / WEIGHTS_FILE).read_bytes() for r in ("once", "twice"))
+    assert once == twice
+    other = ACTTrainConfig(steps=7, batch_size=4, save_every=3, val_every=100, seed=6)
+    train_on_folder(root, tmp_path / "seed6", train_config=other, **opts)
+    assert (tmp_path / "seed6" / "last" / WEIGHTS_FILE).read_bytes() != once  # the seed does matter
+
+
+def test_step_batches_resume_mid_epoch_and_shard_without_overlap():
+    from controltac_il.training import StepBatches
+
+    full = StepBatches(10, 3, seed=1)
+    it = iter(full)
+    first = [next(it) for _ in range(7)]  # 3 batches an epoch (the last, incomplete one dropped)
+    assert [len(b) for b in first] == [3] * 7 and sorted(sum(first[:3], [])) != list(range(10))
+    assert len(set(sum(first[:3], []))) == 9 and first[:3] != first[3:6]  # a new order each epoch
+    resumed = iter(StepBatches(10, 3, seed=1, start=4))
+    assert [next(resumed) for _ in range(3)] == first[4:7]
+    shards = [next(iter(StepBatches(10, 5, seed=1, rank=r, world=2, drop_last=True))) for r in (0, 1)]
+    assert not set(shards[0]) & set(shards[1]) and len(shards[0]) == 5
+    with pytest.raises(ValueError, match="StepBatches"):
+        StepBatches(0, 3, seed=1)

@@ -140,3 +140,55 @@ def test_deploy_cli_validation_errors_are_one_line_naming_the_flag(checkpoint, c
     assert deploy_policy.main(["--robot", "sim", "--checkpoint", str(checkpoint), *flags]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and named in err[0], err
+
+
+def _raising(monkeypatch, bad: set[int]):
+    """Every ACTPolicy loaded from now on raises in the episodes ``bad`` (counted by SimRobot openings)."""
+    import envs.sim_robot as sim_robot
+
+    state = {"episode": -1}
+    enter = sim_robot.SimRobot.__enter__
+
+    def counting_enter(self):
+        state["episode"] += 1
+        return enter(self)
+
+    def call(self, observation, _orig=ACTPolicy.__call__):
+        if state["episode"] in bad:
+            raise RuntimeError(f"boom in episode {state['episode']}\nsecond line")
+        return _orig(self, observation)
+
+    monkeypatch.setattr(sim_robot.SimRobot, "__enter__", counting_enter)
+    monkeypatch.setattr(ACTPolicy, "__call__", call)
+
+
+def test_an_episode_that_raises_is_reported_never_counted_as_a_failure(checkpoint, monkeypatch):
+    from controltac_il.app import EvaluationError, evaluate_in_sim
+
+    _raising(monkeypatch, {1})
+    res = evaluate_in_sim(checkpoint, episodes=3, seed=100, progress=False, on_error="report")
+    assert res["errors"] == [{"seed": 101, "error": "PolicyError: policy raised RuntimeError: boom in episode 1 second line"}]
+    assert [o["success"] for o in res["outcomes"]][1] is None and res["episodes"] == 3
+    assert res["successes"] == sum(o["success"] is True for o in res["outcomes"])
+    _raising(monkeypatch, {0, 2})
+    with pytest.raises(EvaluationError, match=r"^cell x: 2 of 3 episodes raised and were not counted \(first: seed 100: "
+                                              r"PolicyError: policy raised RuntimeError: boom in episode 0 second line\)$") as err:
+        evaluate_in_sim(checkpoint, episodes=3, seed=100, progress=False, label="cell x")
+    assert [e["seed"] for e in err.value.result["errors"]] == [100, 102]
+    import pickle
+
+    again = pickle.loads(pickle.dumps(err.value))  # crosses the verdict's process pool intact
+    assert str(again) == str(err.value) and again.result == err.value.result
+
+
+def test_deploy_cli_exits_1_on_an_episode_that_raised_and_writes_every_error(checkpoint, tmp_path, monkeypatch, capsys):
+    import json
+
+    import deploy_policy
+
+    _raising(monkeypatch, {0})
+    out = tmp_path / "result.json"
+    assert deploy_policy.main(["--robot", "sim", "--checkpoint", str(checkpoint), "--episodes", "2", "--out", str(out)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()[-1]  # after the progress bar: one line
+    assert err.startswith("deploy_policy.py: error: evaluation: 1 of 2 episodes raised") and "seed 100000" in err
+    assert json.loads(out.read_text())["errors"][0]["error"].startswith("PolicyError: policy raised RuntimeError: boom")

@@ -613,3 +613,31 @@ def test_reference_outside_the_validated_range_is_kept_real(tmp_path, gen):
             elif i % len(ds) > 4:
                 assert status in (STATUS["regenerated"], STATUS["clamped"])
     assert aug(ds, gen, tmp_path, copies=2, seed=3).summary()["skipped"] == 6
+
+
+def test_target_range_spreads_each_copy_around_its_draw_and_online_matches_cache(data, gen, tmp_path):
+    """target_range: offset = U[low, high] - the episode's median contact Fz, so each copy's median requested
+    target is its draw (jitter is symmetric); online mode (episode tables) asks the generator the same."""
+    from controltac_il.augment.draws import _stream
+
+    a = aug(data, gen, tmp_path, copies=4, steps=1, target_range=(1.0, 10.0), out_of_range="skip")
+    assert list(a.settings()["target_range"]) == [1.0, 10.0]  # a setting of the cache
+    recs = [r for r in a.provenance() if r["reference_force"] is not None]
+    for e in (0, 1):
+        contact = [1.5 + 0.5 * (t % 10) for t in (range(4, 10) if e == 0 else range(2, 8))]
+        median = float(np.median(contact))
+        for k in range(1, 5):
+            mine = [r for r in recs if (r["episode"], r["copy"]) == (e, k)]
+            draw = float(_stream(0, e, k, 0).uniform(1.0, 10.0))
+            offsets = {r["offset"] for r in mine}
+            assert len(offsets) == 1 and offsets.pop() == pytest.approx(draw - median)
+            asked = [r["reference_force"][2] + r["offset"] + r["jitter"] for r in mine]
+            assert abs(np.median(asked) - draw) <= 1.5  # the references' own spread (1.5 N) plus jitter
+    assert len({round(r["offset"], 6) for r in recs}) == 8  # one offset per (episode, copy)
+    online = ForceAugment(data, gen, copies=4, steps=1, target_range=(1.0, 10.0), out_of_range="skip", mode="online")
+    for i in (len(data) + 5, 3 * len(data) + 14, 4 * len(data) + 7):
+        x, c = online[i], a[i]
+        assert torch.equal(x["observation.tactile.left"], c["observation.tactile.left"])
+        assert torch.equal(x["augment"], c["augment"])
+    with pytest.raises(ValueError, match="target_range"):
+        ForceAugment(data, gen, copies=1, target_range=(5.0, 2.0), mode="online")

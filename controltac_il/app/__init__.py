@@ -14,11 +14,12 @@ the scripts' flags' targets.
 """
 
 from controltac_il.app.demos import default_demos, scene_fingerprint
-from controltac_il.app.deploy import check_setup, deploy, deploy_on_robot, evaluate_in_sim, load_policy
+from controltac_il.app.deploy import (EvaluationError, check_setup, deploy, deploy_on_robot, evaluate_in_sim,
+                                     load_policy)
 from controltac_il.app.job import PipelineConfig, run_pipeline
 from controltac_il.app.train import train_act
 from envs.config import EVAL_SEED, SCENES
 from policies.act.training import ACTTrainConfig
 
 __all__ = ["ACTTrainConfig", "EVAL_SEED", "SCENES", "default_demos", "scene_fingerprint", "check_setup", "deploy", "deploy_on_robot",
-           "evaluate_in_sim", "load_policy", "PipelineConfig", "run_pipeline", "train_act"]
+           "EvaluationError", "evaluate_in_sim", "load_policy", "PipelineConfig", "run_pipeline", "train_act"]

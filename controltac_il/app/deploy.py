@@ -20,6 +20,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from controltac_il.cli import RunFault
+from controltac_il.config import one_line
 from controltac_il.metrics import wilson_interval
 from envs.config import EVAL_SEED, SENSORS, scene_config
 from envs.peg_in_hole import PegInHoleEnv
@@ -98,17 +100,49 @@ def run_sim_episode(policy: ACTPolicy, env: PegInHoleEnv, seed: int) -> dict:
                 "insertion_mm": float(robot.last_info.get("insertion_mm", 0.0))}
 
 
+class EvaluationError(RunFault):
+    """Episodes raised during an evaluation: a crash is not a failed episode, so no success rate is given.
+
+    ``result``: the evaluation as far as it went (``errors`` lists each raising episode's seed and one line)."""
+
+    def __init__(self, result: dict, where: str = "evaluation"):
+        errors = result["errors"]
+        first = errors[0]
+        super().__init__(f"{where}: {len(errors)} of {result['episodes']} episodes raised and were not counted "
+                         f"(first: seed {first['seed']}: {first['error']})")
+        self.result, self.where = result, where
+
+    def __reduce__(self):  # across a process pool: rebuilt from what it was made of
+        return type(self), (self.result, self.where)
+
+
+def _episode(policy: ACTPolicy, env: PegInHoleEnv, seed: int) -> dict:
+    """``run_sim_episode``, with an exception turned into ``error`` (one line) and ``success`` None: not a failure."""
+    try:
+        return {**run_sim_episode(policy, env, seed), "error": None}
+    except Exception as exc:  # noqa: BLE001 - reported, never counted; the loop has stopped the devices
+        return {"seed": seed, "success": None, "steps": None, "inference_ms": [], "safety": {},
+                "error": f"{type(exc).__name__}: {one_line(exc)}"}
+
+
 def evaluate_in_sim(checkpoint, episodes: int = 50, seed: int = EVAL_SEED,
                     grip_force_range: tuple[float, float] | None = None, env_overrides: dict | None = None,
-                    progress: bool = True, scene: str = "default") -> dict:
+                    progress: bool = True, scene: str = "default", on_error: str = "raise",
+                    label: str = "evaluation") -> dict:
     """Success rate of the policy over ``episodes`` seeded scene episodes (seeds seed .. seed+episodes-1).
 
     grip_force_range: per-finger grip force range (N) of the test episodes; None = the scene's (the
         range the demos were collected with). env_overrides: other PegInHoleConfig fields.
     scene: "default" or "touch_critical" (``envs.config.scene_config``).
+    on_error: an episode that raises (policy, scene) is never a failed episode: its outcome has success None and
+        its one-line ``error``; "raise" (default) raises :class:`EvaluationError` after the last episode,
+        "report" returns the result with them (``success_rate`` then counts only the episodes that ran).
+    label: what the error names (e.g. the benchmark cell).
     Returns successes, episodes, success_rate, wilson95, inference_ms_p50 (the model's wall-clock latency per
-    call, median over every call of every episode) and per-episode outcomes.
+    call, median over every call of every episode), errors ([{"seed", "error"}]) and per-episode outcomes.
     """
+    if on_error not in ("raise", "report"):
+        raise ValueError(f"on_error must be 'raise' or 'report', got {on_error!r}")
     policy = load_policy(checkpoint)
     overrides = dict(env_overrides or {})
     if grip_force_range is not None:
@@ -119,22 +153,22 @@ def evaluate_in_sim(checkpoint, episodes: int = 50, seed: int = EVAL_SEED,
     with PegInHoleEnv(env_config) as env:
         bar = tqdm(range(episodes), desc="evaluate", disable=not progress, dynamic_ncols=True)
         for i in bar:
-            try:
-                r = run_sim_episode(policy, env, seed + i)
-                r["error"] = None
-            except Exception as exc:  # a fault ends the episode as a failure; the loop has stopped the devices
-                r = {"seed": seed + i, "success": False, "steps": None, "inference_ms": [], "safety": {},
-                     "error": f"{type(exc).__name__}: {exc}"}
+            r = _episode(policy, env, seed + i)
             inference_ms.extend(r.pop("inference_ms"))
             for k, v in r.pop("safety").items():
                 clamps[k] = clamps.get(k, 0) + v
             outcomes.append(r)
-            bar.set_postfix(success=f"{sum(o['success'] for o in outcomes)}/{len(outcomes)}")
-    k = sum(o["success"] for o in outcomes)
-    return {"successes": k, "episodes": episodes, "success_rate": k / episodes if episodes else 0.0,
-            "wilson95": list(wilson_interval(k, episodes)), "grip_force_range_n": list(env_config.grip_force_range_n),
-            "inference_ms_p50": float(np.median(inference_ms)) if inference_ms else None,
-            "safety_clamps": clamps, "errors": sum(o["error"] is not None for o in outcomes), "outcomes": outcomes}
+            bar.set_postfix(success=f"{sum(o['success'] is True for o in outcomes)}/{len(outcomes)}")
+    k = sum(o["success"] is True for o in outcomes)
+    errors = [{"seed": o["seed"], "error": o["error"]} for o in outcomes if o["error"] is not None]
+    ran = episodes - len(errors)
+    result = {"successes": k, "episodes": episodes, "success_rate": k / ran if ran else 0.0,
+              "wilson95": list(wilson_interval(k, ran)), "grip_force_range_n": list(env_config.grip_force_range_n),
+              "inference_ms_p50": float(np.median(inference_ms)) if inference_ms else None,
+              "safety_clamps": clamps, "errors": errors, "outcomes": outcomes}
+    if errors and on_error == "raise":
+        raise EvaluationError(result, label)
+    return result
 
 
 def deploy_on_robot(kind: str, checkpoint, setup_yaml: str | Path, max_steps: int | None = None) -> dict:

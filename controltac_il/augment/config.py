@@ -81,6 +81,11 @@ class ForceAugmentConfig:
     offset_range: tuple[float, float] = _setting(
         (-3.0, 10.0), "(low, high) N: the per-copy normal-force offset is drawn from U[low, high]",
         type=float, nargs=2, metavar=("LOW", "HIGH"))
+    target_range: tuple[float, float] | None = _setting(
+        None, "(low, high) N, or None: when set, each copy's offset is drawn so that the copy's targets spread over "
+              "this range instead of offset_range: offset = U[low, high] - the episode's median contact Fz (its "
+              "reference forces over every tactile key), so the targets sit around U[low, high] N plus the jitter",
+        type=float, nargs=2, metavar=("LOW", "HIGH"))
     jitter: tuple[float, ...] = _setting((-1.0, -0.5, 0.0, 0.5, 1.0),
                                          "per-frame normal-force jitter values (N), one drawn uniformly per frame",
                                          type=float, nargs="+")
@@ -149,6 +154,16 @@ class ForceAugmentConfig:
         rng = _finite(v, "two finite numbers (low, high) in N", count=2)
         if rng[0] > rng[1]:
             raise ValueError(f"inverted: low {rng[0]:g} N is above high {rng[1]:g} N")
+        return rng
+
+    @field_validator("target_range", mode="before")
+    @classmethod
+    def _target_range(cls, v):
+        if v is None:
+            return None
+        rng = _finite(v, "None or two finite numbers (low, high) in N", count=2)
+        if not 0 <= rng[0] <= rng[1]:
+            raise ValueError(f"expected 0 <= low <= high N, got {rng[0]:g} {rng[1]:g}")
         return rng
 
     @field_validator("jitter", mode="before")

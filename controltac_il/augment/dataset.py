@@ -86,7 +86,8 @@ class ForceAugment(Dataset):
         self.cache_dir, self._reader, self._online = None, None, None
         if self.config.mode == "online":
             self._online = OnlineGenerator(generator, self.config, self.steps, self.keys, self.references)
-            per_item = adapters.episode_source(dataset)[0] is not None and all(self.labelled.values()) and all(
+            per_item = self.config.target_range is None and adapters.episode_source(dataset)[0] is not None and all(
+                self.labelled.values()) and all(
                 self.keys.backgrounds[k] is not None and self.keys.offsets[k] is None for k in self.tactile_keys)
             if not per_item:  # as the cache writer sees each episode (one background per episode, its estimates)
                 self._online.tables = self._episode_tables()
@@ -121,9 +122,10 @@ class ForceAugment(Dataset):
         cfg["steps"] = self.steps
         cfg["tactile_keys"] = list(self.tactile_keys)
         cfg["generator_hash"] = str(self.generator.checkpoint_hash)
-        if cfg["pose_offset"] is None:
-            cfg.pop("pose_offset")  # off: caches built before stage 2 existed stay valid
-        else:
+        for k in ("pose_offset", "target_range"):
+            if cfg[k] is None:
+                cfg.pop(k)  # off: caches built before the setting existed stay valid
+        if "pose_offset" in cfg:
             cfg["pose_adapter_hash"] = str(self.generator.pose_adapter_hash)
         cfg["reference_force"] = {k: ("labels" if v else "estimator") for k, v in self.labelled.items()}
         cfg.update(self.keys.settings(self.config.force_keys is not None, self.config.background_keys is not None))

@@ -17,9 +17,23 @@ def _stream(seed: int, *key: int) -> np.random.Generator:
     return np.random.Generator(np.random.Philox(np.random.SeedSequence(seed, spawn_key=key)))
 
 
-def copy_offset(seed: int, episode: int, copy: int, offset_range: tuple[float, float]) -> float:
-    """Normal-force offset (N) of copy ``copy`` of episode ``episode``: U[offset_range]."""
-    return float(_stream(seed, episode, copy, 0).uniform(*offset_range))
+def copy_offset(seed: int, episode: int, copy: int, offset_range: tuple[float, float],
+                target_range: tuple[float, float] | None = None, episode_fz: float | None = None) -> float:
+    """Normal-force offset (N) of copy ``copy`` of episode ``episode``: U[offset_range]; with ``target_range``,
+    U[target_range] - ``episode_fz`` (the episode's median contact Fz, N; 0 offset when it has no contact)."""
+    if target_range is None:
+        return float(_stream(seed, episode, copy, 0).uniform(*offset_range))
+    if episode_fz is None:
+        return 0.0
+    return float(_stream(seed, episode, copy, 0).uniform(*target_range)) - float(episode_fz)
+
+
+def episode_contact_fz(contact: dict, reference: dict) -> float | None:
+    """Median Fz (N) of an episode's contact frames over every tactile key: ``contact`` {key: bool (T,)},
+    ``reference`` {key: (T, 3) N}; None without a contact frame with a known force."""
+    fz = np.concatenate([np.asarray(reference[k], np.float64)[np.asarray(contact[k], bool), 2] for k in contact])
+    fz = fz[np.isfinite(fz)]
+    return float(np.median(fz)) if fz.size else None
 
 
 def copy_pose_offset(seed: int, episode: int, copy: int, pose_offset) -> tuple[float, float, float] | None:
@@ -78,10 +92,12 @@ class FramePlan:
     move: tuple[float, float, float] | None
 
 
-def plan_frame(config, episode: int, copy: int, frame: int, key_index: int, reference=None) -> FramePlan:
+def plan_frame(config, episode: int, copy: int, frame: int, key_index: int, reference=None,
+               episode_fz: float | None = None) -> FramePlan:
     """The :class:`FramePlan` of one tactile frame under ``config`` (a ForceAugmentConfig); ``reference``: the
-    frame's reference force (3,) N, None when it is not in contact."""
-    offset = copy_offset(config.seed, episode, copy, config.offset_range)
+    frame's reference force (3,) N, None when it is not in contact; ``episode_fz``: the episode's median contact
+    Fz (``episode_contact_fz``), used only with ``config.target_range``."""
+    offset = copy_offset(config.seed, episode, copy, config.offset_range, config.target_range, episode_fz)
     jitter = frame_jitter(config.seed, episode, copy, frame, config.jitter)
     target = None if reference is None else requested_target(reference, offset + jitter)
     return FramePlan(offset, jitter, target, noise_seed(config.seed, episode, copy, frame, key_index),

@@ -13,7 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from controltac_il.augment.config import ForceAugmentConfig
-from controltac_il.augment.draws import REFERENCE_OUT_OF_RANGE, moved_contact, plan_frame, status_of
+from controltac_il.augment.draws import (REFERENCE_OUT_OF_RANGE, episode_contact_fz, moved_contact, plan_frame,
+                                        status_of)
 from controltac_il.augment.items import put_force, put_image, to_hwc_uint8
 from controltac_il.augment.keys import KeyMap
 from controltac_il.augment.records import STATUS, FrameOutcome, KeyOutcome
@@ -40,6 +41,12 @@ class EpisodeTables:
         for k in ep.backgrounds:
             self.backgrounds[episode, k] = ep.backgrounds[k]
             self.contact[episode, k], self.reference[episode, k] = ep.contact[k], ep.reference[k]
+
+    def contact_fz(self, episode: int) -> float | None:
+        """The episode's median contact Fz (N) over every key (``draws.episode_contact_fz``)."""
+        keys = [k for e, k in self.contact if e == episode]
+        return episode_contact_fz({k: self.contact[episode, k] for k in keys},
+                                  {k: self.reference[episode, k] for k in keys})
 
     def of(self, episode: int, key: str, frame: int) -> tuple[np.ndarray, bool, np.ndarray]:
         """(background, in contact, reference force) of one frame; ValueError for a frame not in the dataset."""
@@ -77,8 +84,12 @@ class OnlineGenerator:
                 if f == frame:
                     mine = outcome
             own.append(mine)
-        plan = plan_frame(self.config, episode, copy, frame, 0)
+        plan = plan_frame(self.config, episode, copy, frame, 0, episode_fz=self._fz(episode))
         return item, FrameOutcome(plan.offset, plan.jitter, tuple(own))
+
+    def _fz(self, episode: int) -> float | None:
+        """The episode's median contact Fz when the offset depends on it (``target_range``; tables are built)."""
+        return self.tables.contact_fz(episode) if self.config.target_range is not None else None
 
     def frame(self, item: dict, image: np.ndarray, episode: int, copy: int, frame: int, j: int
               ) -> tuple[KeyOutcome, np.ndarray | None]:
@@ -94,7 +105,7 @@ class OnlineGenerator:
             ref = self.references.of_frame(residual, self.references.label(item, k))
         if ref is None:
             return KeyOutcome(STATUS["no_contact"]), None
-        plan = plan_frame(cfg, episode, copy, frame, j, ref)
+        plan = plan_frame(cfg, episode, copy, frame, j, ref, self._fz(episode))
         mask = moved_contact(residual, plan.move)
         res = self.generator.generate_at(residual[None], ref[None], plan.target[None],
                                          steps=self.steps, seed=[plan.noise_seed],

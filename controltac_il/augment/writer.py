@@ -17,7 +17,8 @@ import numpy as np
 from tqdm import tqdm
 
 from controltac_il.augment.config import ForceAugmentConfig
-from controltac_il.augment.draws import REFERENCE_OUT_OF_RANGE, moved_contact, plan_frame, status_of
+from controltac_il.augment.draws import (REFERENCE_OUT_OF_RANGE, episode_contact_fz, moved_contact, plan_frame,
+                                        status_of)
 from controltac_il.augment.provenance import ChunkSpec, FrameRecord, chunk_dir, chunk_done, provenance_text
 from controltac_il.augment.records import STATUS_NAME
 from controltac_il.augment.reference import EpisodeFrames
@@ -40,10 +41,11 @@ class CacheWriter:
         """Records of one chunk (every tactile key x frame) with the requested target of each frame in
         contact, and the positions of those records (what the generator is asked for)."""
         records, asked = [], []
+        fz = episode_contact_fz(ep.contact, ep.reference)
         for j, k in enumerate(self.tactile_keys):
             for i, (t, _) in enumerate(self.episodes[episode]):
                 ref = ep.reference[k][i] if ep.contact[k][i] else None
-                plan = plan_frame(self.config, episode, copy, t, j, ref)
+                plan = plan_frame(self.config, episode, copy, t, j, ref, fz)
                 rec = FrameRecord(episode, copy, t, k, plan.offset, plan.jitter, None, None, "no_contact", -1, None,
                                   str(self.generator.checkpoint_hash), self.steps, ep.background_source[k])
                 if ref is not None:

@@ -2,7 +2,7 @@
 
 Works on any map-style dataset whose items follow the EpisodeDataset contract (LeRobot-style keys,
 see ``ACTConfig.input_keys`` plus ``action`` / ``action_is_pad``). Under ``torchrun`` each process
-trains on its shard (DistributedSampler) and gradients are averaged (DDP; gloo on CPU, nccl on CUDA);
+trains on its shard (``StepBatches``) and gradients are averaged (DDP; gloo on CPU, nccl on CUDA);
 rank 0 validates, logs and writes checkpoints.
 
 Output folder::
@@ -31,13 +31,13 @@ import torch.distributed as dist
 from pydantic import Field
 from pydantic.dataclasses import dataclass
 from torch.utils.data import DataLoader, Dataset
-from torch.utils.data.distributed import DistributedSampler
 from tqdm import tqdm
 
 from controltac_il.config import STRICT
 from controltac_il.io import write_json
 from controltac_il.outputs import claim_output, own_checkpoint, own_json
-from controltac_il.training import barrier, lr_schedule, optimise, setup_distributed, wrap
+from controltac_il.training import (StepBatches, barrier, lr_schedule, optimise, seed_update, setup_distributed,
+                                    wrap)
 from policies.act.checkpoint import (BACKGROUND_FILE, FORMAT, WEIGHTS_FILE, CheckpointError, load_checkpoint,
                                      load_optimizer_state, save_checkpoint)
 from policies.act.configuration_act import ACTConfig
@@ -60,7 +60,8 @@ class ACTTrainConfig:
     max_val_batches: cap on validation batches per evaluation (keeps validation cheap on CPU).
     snapshot_every: also keep the weights of every this many steps in ``snapshots/step_<k>/`` (0 = none), for
         choosing the number of steps afterwards by closed-loop success (``benchmarks.touch_il_verdict``).
-    seed: seeds the model initialisation, the sampling order and the CVAE noise.
+    seed: seeds the model initialisation, the sampling order (per epoch) and, per update, dropout and the CVAE
+        noise: a resumed run continues bit-identically.
     """
 
     steps: PosInt = 2000
@@ -82,15 +83,6 @@ def _optimizer(model: ACT) -> torch.optim.AdamW:
         (backbone if name.split(".")[0] in ("camera_backbone", "tactile_backbone") else rest).append(p)
     return torch.optim.AdamW([{"params": rest, "lr": cfg.lr}, {"params": backbone, "lr": cfg.lr_backbone}],
                              lr=cfg.lr, weight_decay=cfg.weight_decay)
-
-
-def _batches(loader: DataLoader, sampler, start_epoch: int):
-    epoch = start_epoch
-    while True:
-        if sampler is not None:
-            sampler.set_epoch(epoch)
-        yield from loader
-        epoch += 1
 
 
 @torch.no_grad()
@@ -189,16 +181,12 @@ def _resume(out_dir: Path, model: ACT, optimizer: torch.optim.Optimizer, act_con
             last_meta.get("log", {"train": [], "val": []}), schedule_state)
 
 
-def _train_loader(train_set: Dataset, train_config: ACTTrainConfig, step: int, rank: int, world: int
-                  ) -> tuple[DataLoader, DistributedSampler | None]:
-    """The shuffled training loader (a DistributedSampler under torch.distributed), seeded by the run's seed and
-    the step it starts at, so a resumed run does not replay the first batches."""
-    sampler = DistributedSampler(train_set, world, rank, shuffle=True, seed=train_config.seed) if world > 1 else None
-    gen = torch.Generator().manual_seed(train_config.seed + step)
-    loader = DataLoader(train_set, batch_size=train_config.batch_size, shuffle=sampler is None, sampler=sampler,
-                        drop_last=len(train_set) >= train_config.batch_size * world,
-                        num_workers=train_config.num_workers, generator=gen)
-    return loader, sampler
+def _train_loader(train_set: Dataset, train_config: ACTTrainConfig, step: int, rank: int, world: int) -> DataLoader:
+    """The shuffled training batches from update ``step`` on (``StepBatches``: epoch orders drawn from the run's
+    seed, sharded per rank), the same batches at every step whether the run was resumed or not."""
+    sampler = StepBatches(len(train_set), train_config.batch_size, train_config.seed, start=step, rank=rank,
+                          world=world, drop_last=len(train_set) >= train_config.batch_size * world)
+    return DataLoader(train_set, batch_sampler=sampler, num_workers=train_config.num_workers)
 
 
 def _val_loader(val_set: Dataset | None, train_config: ACTTrainConfig) -> DataLoader | None:
@@ -248,13 +236,13 @@ def train(act_config: ACTConfig, train_config: ACTTrainConfig, train_set: Datase
         barrier(world)  # rank 0 removed the replaced run
     model, optimizer, scheduler, step, best, log = _start(act_config, train_config, out_dir, stats, meta or {}, resume)
     ddp = wrap(model.train(), world)
-    loader, sampler = _train_loader(train_set, train_config, step, rank, world)
+    batches = iter(_train_loader(train_set, train_config, step, rank, world))
     val_loader = _val_loader(val_set, train_config) if rank == 0 else None
     run_meta = {**(meta or {}), "train_config": asdict(train_config), "world_size": world}
-    batches = _batches(loader, sampler, start_epoch=step // max(len(loader), 1))
     best_l1, samples, t0 = [best], [0], time.perf_counter()
 
     def batch_loss(at: int) -> dict:
+        seed_update(train_config.seed, at, rank)  # dropout and the CVAE's noise: a function of the step
         batch = next(batches)
         samples[0] += batch["observation.qpos"].shape[0] * world
         return ddp(batch)
