@@ -25,7 +25,10 @@ One tensor rather than ten keeps the DataLoader fast (every tensor of a batch cr
 processes on its own). ``ForceAugment.info(item_or_batch)`` names the columns for logging.
 
 ``mode="cache"`` generates every augmented frame once (batched) into ``cache_dir`` and reads it back;
-``mode="online"`` generates on access. ``python -m controltac_il.augment --help`` builds a cache.
+``mode="online"`` generates on access. Both give the same bytes whatever the batch size and the shuffling,
+when torch runs the same number of intra-op threads (the generator's ``numerics()``, which the cache records:
+a cache built with another thread count is another cache). ``python -m controltac_il.augment --help`` builds a
+cache.
 
 Any map-style dataset of dict items works (LeRobot convention, without importing LeRobot): a tactile stream
 recorded as a camera is named in ``tactile_keys``; force labels and backgrounds are optional and read only

@@ -92,7 +92,9 @@ class ForceAugmentConfig:
     tactile_keys: tuple[str, ...] | None = _setting(
         None, "item keys of the tactile images; None = every key containing 'tactile' (but not "
               "'tactile_background'); a plain sensor name s means observation.tactile.s", nargs="+")
-    mode: str = _setting("cache", "'cache' (generate once, store, read back) or 'online' (generate on access)",
+    mode: str = _setting("cache", "'cache' (generate once, store, read back) or 'online' (generate on access; the "
+                                  "same bytes as a cache built with the same torch thread count, which a cache "
+                                  "records: DataLoader workers run one thread)",
                          flag=False)
     cache_dir: str | None = _setting(None, "cache folder (mode 'cache'); None = a folder named after the settings "
                                            "under controltac_il.io.cache_root()/augment", flag=False)
@@ -111,8 +113,8 @@ class ForceAugmentConfig:
     min_contact_area: float = _setting(
         0.002, "without force labels, a frame is in contact when at least this fraction of its pixels are "
                "contact pixels of contact_mask on the residual", type=float)
-    batch_size: int = _setting(32, "frames per generator call while building the cache (1: bit-identical to "
-                                   "mode 'online', which generates frame by frame)", type=int)
+    batch_size: int = _setting(32, "frames per generator call while building the cache (memory only: the frames "
+                                   "do not depend on it)", type=int)
     force_keys: dict | None = _setting(
         None, "{tactile key: item key of its force label [Fx, Fy, Fz] N, or None}; keys left out follow the rule "
               "observation.tactile.<s> -> observation.force.<s> (keys containing 'tactile' only); no label: the "

@@ -81,6 +81,7 @@ class ForceAugment(Dataset):
             raise ValueError("pose_offset: needs a generator with the stage-2 pose adapter "
                              "(ForceGenerator.from_pretrained(pose_adapter='pose'))")
         self.steps = int(self.config.steps if self.config.steps is not None else generator.config.default_steps)
+        self.numerics = generator.numerics()  # as constructed: the thread count the frames are generated with
         self._frames = None  # (episode, frame) per index, when known without reading items
         self._source, self._source_index = None, None  # EpisodeDataset read directly (cache mode)
         self.cache_dir, self._reader, self._online = None, None, None
@@ -122,6 +123,7 @@ class ForceAugment(Dataset):
         cfg["steps"] = self.steps
         cfg["tactile_keys"] = list(self.tactile_keys)
         cfg["generator_hash"] = str(self.generator.checkpoint_hash)
+        cfg["numerics"] = self.numerics  # a cache built with another thread count is another cache
         for k in ("pose_offset", "target_range"):
             if cfg[k] is None:
                 cfg.pop(k)  # off: caches built before the setting existed stay valid

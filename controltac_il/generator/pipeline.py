@@ -45,6 +45,11 @@ SHIPPED_ADAPTERS = ("pose",)  # stage-2 pose adapters, each trained on the shipp
 RESIDUAL_OFFSET = float(OFFSET)
 # Largest change of aspect ratio (either way) the resize to the model's image size may make.
 MAX_ASPECT_CHANGE = 1.5
+# Every forward pass runs whole chunks of this many rows, the last padded by repeating its last row: CPU kernels
+# round a 1-3-row product or convolution differently (the shipped DiT's conditioning, a small autoencoder's
+# convolutions), so without it a sample's bytes depended on how many batch-mates it had. Costs online mode (one
+# frame a call) the chunk's compute (tests/test_gen_api.py, tests/test_aug_lerobot.py pin the equality).
+GENERATION_CHUNK = 4
 
 
 def residual_to_unit(residual: torch.Tensor) -> torch.Tensor:
@@ -235,6 +240,13 @@ class ForceGenerator:
             raise ValueError(f"{what}: stage 2 needs a stage-1 generator with detail_gate > 0 or without anchoring "
                              "(plain anchoring would keep the reference's contact at its old pose)")
 
+    def numerics(self) -> dict:
+        """What decides the output bytes besides the inputs, the weights and the seeds: device, dtype and (CPU)
+        torch's intra-op thread count, which changes a few values in a billion by one grey level. The batch does
+        not (forward passes of whole ``GENERATION_CHUNK`` rows). A ForceAugment cache records it."""
+        threads = torch.get_num_threads() if self.device.type == "cpu" else None
+        return {"device": self.device.type, "dtype": str(self.dtype).removeprefix("torch."), "intra_op_threads": threads}
+
     # -- force range -------------------------------------------------------------------------
     def resolve_targets(self, target_force, out_of_range: str = "clamp", reference_force=None,
                         reference_out_of_range: str | None = None) -> TargetDecision:
@@ -308,7 +320,9 @@ class ForceGenerator:
             the model's size and back). delta_force: (B, 3) [ΔFx, ΔFy, ΔFz] N = F_target - F_reference.
         steps: DDIM steps (>= 1), default ``config.default_steps``. seed: one int (every sample uses the
             same noise, so a sample's output never depends on its batch-mates) or B ints (one per sample).
-        batch_size: samples per forward pass (memory only; results do not depend on it).
+        batch_size: samples per forward pass, rounded up to whole ``GENERATION_CHUNK`` rows (memory only: a
+            sample's bytes depend neither on it nor on its batch-mates; they do, rarely, on torch's thread count:
+            ``numerics``).
         reference_force: optional (B, 3) N; then targets outside the validated range
             (``forces.VALIDATED_RANGE``) are handled by ``out_of_range`` ("clamp" moves the target into
             range, "error" raises, "skip" returns the reference unchanged); without it the same applies
@@ -398,35 +412,47 @@ class ForceGenerator:
     def _sample(self, ref: np.ndarray, delta: np.ndarray, seeds: list[int], steps: int, batch_size: int,
                 masks: np.ndarray | None = None) -> np.ndarray:
         """The model: residuals uint8 (B, H, W, 3) conditioned on ΔF (B, 3) N (and, with stage 2, target-pose
-        masks bool (B, H, W)) -> residuals, same size."""
+        masks bool (B, H, W)) -> residuals, same size. Forward passes of whole ``GENERATION_CHUNK`` rows (the
+        last padded), so a row's bytes never depend on its batch-mates."""
         n = ref.shape[0]
-        h_in, w_in = ref.shape[1:3]
+        pad = -n % GENERATION_CHUNK
+        if pad:
+            ref, delta = (np.concatenate([x, x[-1:].repeat(pad, 0)]) for x in (ref, delta))
+            seeds = list(seeds) + [seeds[-1]] * pad
+            masks = None if masks is None else np.concatenate([masks, masks[-1:].repeat(pad, 0)])
+        batch_size = -(-batch_size // GENERATION_CHUNK) * GENERATION_CHUNK
         H, W = self.config.image_size
-        resized = (h_in, w_in) != (H, W)
+        resized = ref.shape[1:3] != (H, W)
         model_in = np.stack([cv2.resize(r, (W, H), interpolation=cv2.INTER_AREA) for r in ref]) if resized else ref
         lh, lw = self.config.autoencoder.latent_size
         noise = seeded_noise(seeds, (self.config.autoencoder.latent_channels, lh, lw))
-        scheduler = make_scheduler(self.config.diffusion)
         out = np.empty_like(ref)
-        for s in range(0, n, batch_size):
-            e = min(n, s + batch_size)
-            z_ref = self.encode(torch.from_numpy(model_in[s:e]))
-            df = torch.from_numpy(delta[s:e]).float().to(self.device)
-            denoiser = self.denoiser if masks is None else PoseControlledDenoiser(
-                self.denoiser, self.pose_adapter,
-                torch.from_numpy(masks_to_model(masks[s:e], (H, W))).to(self.device, self.dtype))
-            d = ddim_sample(denoiser, scheduler, z_ref, df, noise[s:e].to(self.device), int(steps))
-            target, recon = self._decode(z_ref, d)
-            keep = None if recon is None else self._detail_weight(target, recon)
-            if resized:
-                target = _resize_each(target, (w_in, h_in))
-                if recon is not None:
-                    recon, keep = _resize_each(recon, (w_in, h_in)), _resize_each(keep[..., 0], (w_in, h_in))[..., None]
-            y = target + RESIDUAL_OFFSET
-            if recon is not None:  # the reference's detail (reference - its reconstruction), gated
-                y = y + keep * (ref[s:e].astype(np.float32) - RESIDUAL_OFFSET - recon)
-            out[s:e] = np.clip(np.round(y), 0, 255).astype(np.uint8)
-        return out
+        for s in range(0, len(ref), batch_size):
+            e = min(len(ref), s + batch_size)
+            out[s:e] = self._forward(ref[s:e], model_in[s:e], delta[s:e], noise[s:e], steps,
+                                     None if masks is None else masks[s:e])
+        return out[:n]
+
+    def _forward(self, ref: np.ndarray, model_in: np.ndarray, delta: np.ndarray, noise: torch.Tensor, steps: int,
+                 masks: np.ndarray | None) -> np.ndarray:
+        """One forward pass: residuals uint8 (b, H_in, W_in, 3) and their model-size copies -> residuals."""
+        H, W = self.config.image_size
+        h_in, w_in = ref.shape[1:3]
+        z_ref = self.encode(torch.from_numpy(model_in))
+        df = torch.from_numpy(delta).float().to(self.device)
+        denoiser = self.denoiser if masks is None else PoseControlledDenoiser(
+            self.denoiser, self.pose_adapter, torch.from_numpy(masks_to_model(masks, (H, W))).to(self.device, self.dtype))
+        d = ddim_sample(denoiser, make_scheduler(self.config.diffusion), z_ref, df, noise.to(self.device), int(steps))
+        target, recon = self._decode(z_ref, d)
+        keep = None if recon is None else self._detail_weight(target, recon)
+        if (h_in, w_in) != (H, W):
+            target = _resize_each(target, (w_in, h_in))
+            if recon is not None:
+                recon, keep = _resize_each(recon, (w_in, h_in)), _resize_each(keep[..., 0], (w_in, h_in))[..., None]
+        y = target + RESIDUAL_OFFSET
+        if recon is not None:  # the reference's detail (reference - its reconstruction), gated
+            y = y + keep * (ref.astype(np.float32) - RESIDUAL_OFFSET - recon)
+        return np.clip(np.round(y), 0, 255).astype(np.uint8)
 
     def generate_images(self, images, background, delta_force, **kwargs) -> np.ndarray:
         """Raw tactile images in, raw images out: uint8 (B, H, W, 3) with a (H, W, 3) no-contact background.
