@@ -92,9 +92,9 @@ def check_args(args: argparse.Namespace):
 
 def main(argv=None) -> int:
     """0 done, 1 stopped on a NaN / inf loss, 2 bad options or data (one line), 130 Ctrl-C (state saved)."""
+    args = parse_args(argv)  # before the job's imports (torch): --help answers at once
     from controltac_il.training import run_cli
 
-    args = parse_args(argv)
 
     def job() -> None:  # run_cli turns check_args' ValueError into one line and exit 2
         summary = run(args, check_args(args))

@@ -99,7 +99,7 @@ def expert_success(seeds: list[int], hole_diameter_mm: float) -> dict:
     failures, lengths = [], []
     with PegInHoleEnv(config) as env:
         expert = ScriptedExpert(env)
-        for seed in tqdm(seeds, desc=f"expert Ø{hole_diameter_mm:g} mm", unit="ep"):
+        for seed in tqdm(seeds, desc=f"expert Ø{hole_diameter_mm:g} mm", unit="ep", disable=None):
             env.reset(seed=seed)
             expert.reset(seed)
             for t in range(config.max_steps):
@@ -126,7 +126,7 @@ def main(argv=None) -> dict:
     repeats = 5 if args.quick else 15
 
     rows = []
-    for name, kwargs in tqdm(SETTINGS.items(), desc="step timing", unit="setting"):
+    for name, kwargs in tqdm(SETTINGS.items(), desc="step timing", unit="setting", disable=None):
         rows.append({"setting": name, **time_steps(PegInHoleConfig(**kwargs), timed)})
     parts = time_parts(repeats)
     success = [expert_success(list(range(n_seeds)), 30.0)]

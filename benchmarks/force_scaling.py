@@ -162,11 +162,12 @@ def generate_frames(work: Path, x: np.ndarray, f: np.ndarray, refs: np.ndarray, 
             info["seconds"] = float(z["seconds"])
             return z["images"], labels, info | {"cached": True}
     from tqdm.auto import tqdm
+    from controltac_il.cli import tty_only
 
     out = np.empty((len(refs), *x.shape[1:]), np.uint8)
     chunk = 64
     t0 = time.perf_counter()
-    for s in tqdm(range(0, len(refs), chunk), desc="generating", disable=not progress, unit="batch"):
+    for s in tqdm(range(0, len(refs), chunk), desc="generating", disable=tty_only(progress), unit="batch"):
         r = refs[s : s + chunk]
         out[s : s + chunk] = gen.generate_at(x[r], f[r], labels[s : s + chunk], steps=steps,
                                              seed=[int(v) for v in targets[s : s + chunk]], batch_size=chunk,

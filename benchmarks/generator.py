@@ -265,7 +265,7 @@ def main(argv=None) -> dict:
         return lambda refs, rf, tf: g.generate(refs, tf - rf, steps=steps, seed=0, batch_size=32)
 
     rows, per_method = [], {}
-    for name, kind, steps in tqdm(methods, desc="methods", unit="method"):
+    for name, kind, steps in tqdm(methods, desc="methods", unit="method", disable=None):
         fn = None if kind == "roundtrip" else predictor(kind, steps)
         entry = {"method": name, "kind": kind, "steps": steps}
         preds = {}

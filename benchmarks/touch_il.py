@@ -362,7 +362,7 @@ def main(argv=None) -> dict:
                force_settings=args.force_settings, train_seed=args.train_seed)
     from tqdm import tqdm
 
-    bar = tqdm(total=len(units), desc="policies", unit="policy", dynamic_ncols=True)
+    bar = tqdm(total=len(units), desc="policies", unit="policy", dynamic_ncols=True, disable=None)
     if args.jobs > 1 and len(units) > 1:
         import multiprocessing
         from concurrent.futures import ProcessPoolExecutor, as_completed

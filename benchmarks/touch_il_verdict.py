@@ -310,7 +310,7 @@ def _run(units: list[dict], ctx: dict, jobs: int, done: dict, save, unit_fn=None
     from tqdm import tqdm
 
     todo = [u for u in units if u["id"] not in done]
-    bar = tqdm(total=len(todo), desc=f"{units[0]['kind'] if units else ''} units", unit="unit", dynamic_ncols=True)
+    bar = tqdm(total=len(todo), desc=f"{units[0]['kind'] if units else ''} units", unit="unit", dynamic_ncols=True, disable=None)
     if jobs > 1 and len(todo) > 1:
         import multiprocessing
         from concurrent.futures import ProcessPoolExecutor, as_completed

@@ -20,7 +20,7 @@ FLAGS = {"demos": "--demos", "copies": "--copies", "steps": "--steps", "eval_epi
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    from controltac_il.app.job import PipelineConfig
+    from controltac_il.app.job_config import PipelineConfig
 
     d = PipelineConfig()
     p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[1],
@@ -36,11 +36,11 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 def main(argv=None) -> int:
     """Run the job; returns the exit status (every failure one line on stderr)."""
+    args = parse_args(argv)  # before the job's imports (torch, MuJoCo): --help answers at once
     from controltac_il.app.job import PipelineConfig, render_contact_sheet, run_pipeline
     from controltac_il.config import one_line
     from controltac_il.training import run_cli
 
-    args = parse_args(argv)
     try:
         config = PipelineConfig(demos=args.demos, copies=args.copies, steps=args.steps,
                                 eval_episodes=args.eval_episodes)

@@ -162,9 +162,9 @@ def _card(r: dict) -> str:
 
 def main(argv=None) -> int:
     """0 done, 1 stopped on a NaN / inf loss, 2 bad options or data, 130 Ctrl-C (state kept for --resume)."""
+    args = parser().parse_args(argv)  # before the job's imports (torch): --help answers at once
     from controltac_il.training import run_cli
 
-    args = parser().parse_args(argv)
 
     def job() -> None:  # run_cli turns check's ValueError into one line and exit 2
         record = run(args, check(args))

@@ -10,6 +10,12 @@ from typing import Callable
 from controltac_il.config import one_line
 
 
+def tty_only(progress: bool = True) -> bool | None:
+    """tqdm's ``disable`` for a bar shown only on a terminal: None (tqdm turns it off when stderr is not a TTY, so
+    ``./run.sh > log`` holds no carriage-return updates), or True when ``progress`` is off."""
+    return None if progress else True
+
+
 class RunFault(RuntimeError):
     """A fault of the run itself, not of its input (e.g. evaluation episodes that raised): one line, exit 1."""
 

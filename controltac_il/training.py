@@ -23,6 +23,7 @@ import torch
 import torch.distributed as dist
 from torch.optim.lr_scheduler import CosineAnnealingLR, LinearLR, LRScheduler, SequentialLR
 from tqdm.auto import tqdm
+from controltac_il.cli import tty_only
 
 from controltac_il.cli import guard
 
@@ -195,7 +196,7 @@ def optimise(step: int, total: int, batch_loss: Callable[[int], torch.Tensor | d
     optimizer and ``scheduler`` step, then ``after_step(step, outputs)`` (EMA, logging, validation).
     save(step, smoothed loss): on rank 0 every ``every`` steps (0 = only at the end), at the end, and at a Ctrl-C;
     None = nothing saved. state: the saved state's name for messages (None = nothing has been saved)."""
-    bar = tqdm(total=total, initial=step, desc=desc, unit="step", disable=rank != 0 or not progress, dynamic_ncols=True)
+    bar = tqdm(total=total, initial=step, desc=desc, unit="step", disable=True if rank != 0 else tty_only(progress), dynamic_ncols=True)
     loss_ema, saved = None, step if state is not None and step > 0 else None
     with StopOnInterrupt() as stop:
         try:

@@ -164,7 +164,7 @@ def main(argv=None) -> int:
     written, attempts, failures = 0, 0, []
     with PegInHoleEnv(config) as env:
         expert = ScriptedExpert(env, ExpertConfig())
-        with tqdm(total=args.episodes, desc="episodes", unit="ep") as bar:
+        with tqdm(total=args.episodes, desc="episodes", unit="ep", disable=None) as bar:
             while written < args.episodes and attempts < max_attempts:
                 seed = args.seed + attempts
                 attempts += 1

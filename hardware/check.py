@@ -68,7 +68,7 @@ def _connect_and_report(cfg, seconds: float) -> None:
                    **{f"tactile/{k}": v for k, v in setup.tactile.items()}}
         first = {k: s.latest() for k, s in sources.items()}
         end = time.monotonic() + seconds
-        with tqdm(total=seconds, desc="watching sensors", unit="s") as bar:
+        with tqdm(total=seconds, desc="watching sensors", unit="s", disable=None) as bar:
             while (left := end - time.monotonic()) > 0:
                 time.sleep(min(0.1, left))
                 bar.n = round(seconds - max(left, 0), 1)

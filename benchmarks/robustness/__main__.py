@@ -39,7 +39,7 @@ def main(argv=None) -> dict:
     args = p.parse_args(argv)
     probes = [pr for pr in PROBES if (args.only is None or args.only in pr.surface)
               and (not args.faults or pr.fault)]
-    rows = [run_probe(pr) for pr in tqdm(probes, desc="probes", dynamic_ncols=True)]
+    rows = [run_probe(pr) for pr in tqdm(probes, desc="probes", dynamic_ncols=True, disable=None)]
     counts = Counter(r["verdict"] for r in rows)
     results = {"benchmark": "robustness", "probes": len(rows), "counts": {v: counts.get(v, 0) for v in VERDICTS},
                "rows": rows}

@@ -4,6 +4,7 @@
     deploy.py         deploy(setup, policy): one control loop for the simulated robot and a real one
     train.py          train(...): train_act.py's job (dataset or embedded demos, optional ForceAugment)
     job.py            run_pipeline: the main job, collect -> augment -> train -> deploy
+    job_config.py     PipelineConfig: the main job's settings (light: the CLI's --help reads them)
     experiment.py     what the imitation-learning benchmarks need of the scene and the policy
     touch_probes.py   what the cameras and the generator see of the touch-critical scene
 
@@ -13,13 +14,13 @@ pyproject.toml; ``tests/test_architecture.py`` for the scripts). ``ACTTrainConfi
 the scripts' flags' targets.
 """
 
-from controltac_il.app.demos import default_demos, scene_fingerprint
-from controltac_il.app.deploy import (EvaluationError, check_setup, deploy, deploy_on_robot, evaluate_in_sim,
-                                     load_policy)
-from controltac_il.app.job import PipelineConfig, run_pipeline
-from controltac_il.app.train import train_act
-from envs.config import EVAL_SEED, SCENES
-from policies.act.training import ACTTrainConfig
+from controltac_il.lazy import exports
 
-__all__ = ["ACTTrainConfig", "EVAL_SEED", "SCENES", "default_demos", "scene_fingerprint", "check_setup", "deploy", "deploy_on_robot",
-           "EvaluationError", "evaluate_in_sim", "load_policy", "PipelineConfig", "run_pipeline", "train_act"]
+_EXPORTS = {**dict.fromkeys(("default_demos", "scene_fingerprint"), "controltac_il.app.demos"),
+            **dict.fromkeys(("EvaluationError", "check_setup", "deploy", "deploy_on_robot", "evaluate_in_sim",
+                             "load_policy"), "controltac_il.app.deploy"),
+            "PipelineConfig": "controltac_il.app.job_config", "run_pipeline": "controltac_il.app.job",
+            "train_act": "controltac_il.app.train", **dict.fromkeys(("EVAL_SEED", "SCENES"), "envs.config"),
+            "ACTTrainConfig": "policies.act.training"}
+__getattr__, __dir__ = exports(__name__, _EXPORTS)
+__all__ = list(_EXPORTS)

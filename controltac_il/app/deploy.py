@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
+from controltac_il.cli import tty_only
 
 from controltac_il.cli import RunFault
 from controltac_il.config import one_line
@@ -151,7 +152,7 @@ def evaluate_in_sim(checkpoint, episodes: int = 50, seed: int = EVAL_SEED,
     check_setup(policy, env_config.cameras, SENSORS if env_config.tactile else ())
     outcomes, inference_ms, clamps = [], [], {}
     with PegInHoleEnv(env_config) as env:
-        bar = tqdm(range(episodes), desc="evaluate", disable=not progress, dynamic_ncols=True)
+        bar = tqdm(range(episodes), desc="evaluate", disable=tty_only(progress), dynamic_ncols=True)
         for i in bar:
             r = _episode(policy, env, seed + i)
             inference_ms.extend(r.pop("inference_ms"))

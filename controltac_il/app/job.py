@@ -12,15 +12,11 @@ from __future__ import annotations
 import time
 from dataclasses import asdict
 from pathlib import Path
-from typing import Annotated
-
-from pydantic import Field
-from pydantic.dataclasses import dataclass
 
 from controltac_il.app.deploy import evaluate_in_sim
 from controltac_il.app.demos import default_demos
+from controltac_il.app.job_config import PipelineConfig
 from controltac_il.app.train import train_act
-from controltac_il.config import STRICT
 from controltac_il.io import write_json
 from controltac_il.tactile import HELDOUT_OBJECTS, TRAIN_OBJECTS, TactileSensor
 from controltac_il.tactile.sheet import contact_sheet, save_png
@@ -28,26 +24,6 @@ from envs.config import EVAL_SEED
 from policies.act.training import ACTTrainConfig
 
 SHEET_FORCES = (1.0, 3.0, 6.0, 10.0)  # N, the contact sheet's columns
-
-
-@dataclass(config=STRICT)
-class PipelineConfig:
-    """The main job's sizes (defaults: the embedded default, < 15 min on 2 cores); validated at construction
-    (pydantic, ValueError naming the field; :func:`controltac_il.config.one_line` spells it as its flag).
-
-    demos: scripted demos collected in the scene (>= 1). copies: ForceAugment copies (0..9; 0 = real only).
-    steps / batch_size: ACT training (cpu preset; >= 1). eval_episodes: seeded deployment episodes
-    (>= 1; scene seeds from ``envs.config.EVAL_SEED``, disjoint from the demos').
-    generator: generator checkpoint (None = shipped). seed: training / augmentation seed.
-    """
-
-    demos: Annotated[int, Field(ge=1)] = 20
-    copies: Annotated[int, Field(ge=0, le=9)] = 1
-    steps: Annotated[int, Field(ge=1)] = 1500
-    batch_size: Annotated[int, Field(ge=1)] = 16
-    eval_episodes: Annotated[int, Field(ge=1)] = 10
-    generator: str | None = None
-    seed: int = 0
 
 
 def render_contact_sheet(out: Path) -> Path:

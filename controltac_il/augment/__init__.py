@@ -42,16 +42,14 @@ Modules: ``config`` (ForceAugmentConfig), ``keys`` (which item keys are read), `
 happens to a target outside its validated range (``controltac_il.generator.forces``).
 """
 
-from controltac_il.augment.cli import main
-from controltac_il.augment.config import BUILD, MODES, OUT_OF_RANGE, ForceAugmentConfig
-from controltac_il.augment.dataset import ForceAugment
-from controltac_il.augment.draws import copy_offset, frame_jitter, noise_seed
-from controltac_il.augment.provenance import CACHE_FORMAT, FrameRecord, StaleCacheError
-from controltac_il.augment.records import AUGMENT_FIELDS, STATUS
-from controltac_il.augment.stage import ForceAugmentStage
+from controltac_il.lazy import exports
 
-__all__ = [
-    "AUGMENT_FIELDS", "BUILD", "CACHE_FORMAT", "MODES", "OUT_OF_RANGE", "STATUS", "ForceAugment",
-    "ForceAugmentConfig", "ForceAugmentStage", "FrameRecord", "StaleCacheError", "copy_offset", "frame_jitter", "main",
-    "noise_seed",
-]
+_EXPORTS = {"main": "controltac_il.augment.cli",
+            **dict.fromkeys(("BUILD", "MODES", "OUT_OF_RANGE", "ForceAugmentConfig"), "controltac_il.augment.config"),
+            "ForceAugment": "controltac_il.augment.dataset",
+            **dict.fromkeys(("copy_offset", "frame_jitter", "noise_seed"), "controltac_il.augment.draws"),
+            **dict.fromkeys(("CACHE_FORMAT", "FrameRecord", "StaleCacheError"), "controltac_il.augment.provenance"),
+            **dict.fromkeys(("AUGMENT_FIELDS", "STATUS"), "controltac_il.augment.records"),
+            "ForceAugmentStage": "controltac_il.augment.stage"}
+__getattr__, __dir__ = exports(__name__, _EXPORTS)
+__all__ = list(_EXPORTS)

@@ -13,11 +13,13 @@ import re
 import sys
 from pathlib import Path
 
+from typing import TYPE_CHECKING
+
 from controltac_il.augment.config import ForceAugmentConfig
-from controltac_il.augment.dataset import ForceAugment
-from controltac_il.augment.provenance import StaleCacheError
 from controltac_il.config import one_line
-from controltac_il.datasets.act_dataset import EpisodeDataset
+
+if TYPE_CHECKING:  # the job's modules (torch, h5py) are imported inside it: --help stays light
+    from controltac_il.augment.dataset import ForceAugment
 
 PROG = "python -m controltac_il.augment"
 
@@ -106,6 +108,7 @@ def _report(aug: ForceAugment, counts: dict) -> None:
 
 
 def _write(aug: ForceAugment, out: Path, root: Path) -> dict:
+    from controltac_il.augment.provenance import StaleCacheError
     from controltac_il.augment.to_lerobot import write_lerobot
     from controltac_il.datasets.lerobot_v3 import LeRobotFolder
 
@@ -153,6 +156,9 @@ def _field_error(exc: Exception, default_flag: str) -> UsageError:
 
 def _setup(args) -> ForceAugment:
     """The ForceAugment of the parsed flags; UsageError naming the flag for anything invalid."""
+    from controltac_il.augment.dataset import ForceAugment
+    from controltac_il.augment.provenance import StaleCacheError
+
     kwargs = config_kwargs(args)
     if kwargs["copies"] < 1:
         raise UsageError("--copies", f"expected an int >= 1 (copy 0 is the real data: a cache of 0 copies holds "
@@ -251,6 +257,8 @@ def _open_dataset(root: Path, keys: list[str] | None = None):
             known = read_info(root)["features"]  # an unknown key is the wrapper's to name (its flag)
             return LeRobotFolder(root, keys=None if keys is None else [k for k in keys if k in known],
                                  video_threads=0)  # the CLI never forks workers
+        from controltac_il.datasets.act_dataset import EpisodeDataset
+
         return EpisodeDataset(root, chunk_size=1, cameras=[])
     except (ValueError, OSError) as exc:
         raise _field_error(exc, "--dataset") from exc
@@ -261,6 +269,8 @@ def main(argv=None) -> int:
     try:
         args = parser().parse_args(argv)
         aug = _setup(args)
+        from controltac_il.augment.provenance import StaleCacheError
+
         try:
             if args.lerobot:
                 _report_lerobot(args.out, _write(aug, args.out, args.dataset))

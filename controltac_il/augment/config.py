@@ -13,7 +13,7 @@ import numpy as np
 from pydantic import field_validator
 from pydantic.dataclasses import dataclass
 
-from controltac_il.augment.reference import NOMINAL_FZ
+from controltac_il.generator.forces import NOMINAL_FZ
 from controltac_il.config import STRICT, one_line_errors
 
 MODES = ("cache", "online")

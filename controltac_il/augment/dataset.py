@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 from torch.utils.data import Dataset
 from tqdm import tqdm
+from controltac_il.cli import tty_only
 
 from controltac_il.augment import items as adapters
 from controltac_il.augment.config import BUILD, ForceAugmentConfig
@@ -214,7 +215,7 @@ class ForceAugment(Dataset):
             eps, frames = columns
         else:
             eps, frames = np.empty(self.n_base, np.int64), np.empty(self.n_base, np.int64)
-            for i in tqdm(range(self.n_base), desc="scanning", disable=not self.progress, file=sys.stderr):
+            for i in tqdm(range(self.n_base), desc="scanning", disable=tty_only(self.progress), file=sys.stderr):
                 eps[i], frames[i] = adapters.episode_frame(self.dataset[i])
         out: OrderedDict = OrderedDict()
         for i in np.lexsort((frames, eps)):
@@ -244,7 +245,7 @@ class ForceAugment(Dataset):
     def _episode_tables(self) -> EpisodeTables:
         """Online mode: every episode's backgrounds, contact and reference forces, as the cache writer has them."""
         tables = EpisodeTables.empty()
-        for e, rows in tqdm(self._episodes().items(), desc="reading episodes", disable=not self.progress,
+        for e, rows in tqdm(self._episodes().items(), desc="reading episodes", disable=tty_only(self.progress),
                             file=sys.stderr):
             tables.add(e, [t for t, _ in rows], self._load_episode(e))
         return tables
@@ -294,7 +295,7 @@ class ForceAugment(Dataset):
         Lets a user count contact / clamped / skipped frames before building, or in online mode.
         """
         writer, out = self._writer(), []
-        for e in tqdm(list(self._episodes()), desc="planning", disable=not progress, file=sys.stderr):
+        for e in tqdm(list(self._episodes()), desc="planning", disable=tty_only(progress), file=sys.stderr):
             ep = self._load_episode(e)
             for k in range(1, self.config.copies + 1):
                 out.extend(r.to_json() for r in writer.plan_chunk(e, k, ep))

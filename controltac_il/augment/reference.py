@@ -10,9 +10,8 @@ import numpy as np
 
 from controltac_il.augment.keys import KeyMap
 from controltac_il.datasets.background import estimate_background
-from controltac_il.generator.forces import VALIDATED_RANGE
+from controltac_il.generator.forces import NOMINAL_FZ, VALIDATED_RANGE
 
-NOMINAL_FZ = sum(VALIDATED_RANGE.fz) / 2  # N, 5.5: the range's middle, the working reference of an untrusted estimate
 
 
 def working_reference(estimates: np.ndarray, policy: str) -> np.ndarray:

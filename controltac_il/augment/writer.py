@@ -15,6 +15,7 @@ from typing import Callable
 
 import numpy as np
 from tqdm import tqdm
+from controltac_il.cli import tty_only
 
 from controltac_il.augment.config import ForceAugmentConfig
 from controltac_il.augment.draws import (REFERENCE_OUT_OF_RANGE, episode_contact_fz, moved_contact, plan_frame,
@@ -141,7 +142,7 @@ class CacheWriter:
         counts = {"chunks": 0, "frames": 0, "generated": 0, "seconds": 0.0}
         t0 = time.perf_counter()
         bar = tqdm(total=sum(lengths[e] for e, _ in todo), unit="frame", desc=f"ForceAugment cache (rank {rank})",
-                   disable=not progress, file=sys.stderr)
+                   disable=tty_only(progress), file=sys.stderr)
         current, frames = None, None
         for e, k in todo:
             if e != current:

@@ -104,7 +104,7 @@ class LeRobotEpisodes(Dataset):
             warnings.warn(f"{self.root.name}: LeRobot folders record no tactile background; estimated per episode "
                           "from its no-contact frames", stacklevel=3)
         for n, e in enumerate(tqdm(self.episode_ids, desc="tactile backgrounds", file=sys.stderr,
-                                   disable=not self.tactile_sensors)):
+                                   disable=True if not self.tactile_sensors else None)):
             table = self.folder.episode_table(e) if self.tactile_sensors else None
             for s, key in self.tactile_keys.items():
                 frames = (self.folder.video_frames(key, e) if self.folder.features[key]["dtype"] == "video"

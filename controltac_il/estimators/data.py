@@ -76,13 +76,14 @@ def load_arrays(ds, indices=None, size: tuple[int, int] | None = None, chunk: in
     """
     import cv2
     from tqdm.auto import tqdm
+    from controltac_il.cli import tty_only
 
     indices = list(range(len(ds))) if indices is None else list(indices)
     if not indices:
         raise ValueError("load_arrays: no rows selected")
     forces = np.asarray([ds.records[i].force for i in indices], dtype=np.float32)
     out = []
-    for i in tqdm(indices, desc="loading residuals", disable=not progress, unit="img"):
+    for i in tqdm(indices, desc="loading residuals", disable=tty_only(progress), unit="img"):
         r = ds.residual(i)
         if size is not None and r.shape[:2] != tuple(size):
             r = cv2.resize(r, (size[1], size[0]), interpolation=cv2.INTER_AREA)

@@ -8,19 +8,10 @@ denoiser's training objective and EMA, stage 1 and 2 alike), ``stages`` (autoenc
 and ``train_pose`` (its training CLI); ``ForceGenerator.generate(..., mask=...)`` uses it.
 """
 
-from controltac_il.generator.config import (
-    AutoencoderConfig,
-    DiffusionConfig,
-    DiTConfig,
-    GeneratorConfig,
-)
-from controltac_il.generator.pipeline import ForceGenerator, RangeReport
+from controltac_il.lazy import exports
 
-__all__ = [
-    "AutoencoderConfig",
-    "DiTConfig",
-    "DiffusionConfig",
-    "GeneratorConfig",
-    "ForceGenerator",
-    "RangeReport",
-]
+_EXPORTS = {**dict.fromkeys(("AutoencoderConfig", "DiffusionConfig", "DiTConfig", "GeneratorConfig"),
+                            "controltac_il.generator.config"),
+            **dict.fromkeys(("ForceGenerator", "RangeReport"), "controltac_il.generator.pipeline")}
+__getattr__, __dir__ = exports(__name__, _EXPORTS)
+__all__ = list(_EXPORTS)

@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 import torch
 from tqdm.auto import tqdm
+from controltac_il.cli import tty_only
 
 from controltac_il.generator.config import FZ_RANGE, SHEAR_MAX
 from controltac_il.generator.pipeline import residual_to_unit
@@ -87,7 +88,7 @@ def load_pair_data(root: str | Path, image_size: tuple[int, int], no_contact_fra
 
     ds = load_dataset(root)
     res = [resize_residual(ds.residual(i), image_size)
-           for i in tqdm(range(len(ds)), desc="loading residuals", unit="img", disable=not progress)]
+           for i in tqdm(range(len(ds)), desc="loading residuals", unit="img", disable=tty_only(progress))]
     forces = ds.forces()
     pose_groups = ds.pose_groups()
     groups = [np.asarray(g, dtype=np.int64) for g in pose_groups.values()]

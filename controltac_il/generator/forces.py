@@ -64,6 +64,7 @@ class ForceRange:
 
 
 VALIDATED_RANGE = ForceRange()
+NOMINAL_FZ = sum(VALIDATED_RANGE.fz) / 2  # N, 5.5: the range's middle, the working reference of an untrusted estimate
 
 
 @dataclass(frozen=True)

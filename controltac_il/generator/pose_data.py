@@ -14,6 +14,7 @@ from typing import Sequence
 
 import numpy as np
 from tqdm.auto import tqdm
+from controltac_il.cli import tty_only
 
 from controltac_il.generator.config import FZ_RANGE, SHEAR_MAX
 from controltac_il.tactile import SensorSpec, TactileSensor
@@ -59,7 +60,7 @@ def render_scenes(objects: Sequence[str], scenes_per_object: int, poses: int, fo
     sensors: dict[int, TactileSensor] = {}
     res, masks, pose_rows, force_rows, scene_rows, scene_objects, bgs = [], [], [], [], [], [], []
     total = len(objects) * scenes_per_object * poses * forces
-    with tqdm(total=total, desc="rendering pose scenes", unit="img", disable=not progress) as bar:
+    with tqdm(total=total, desc="rendering pose scenes", unit="img", disable=tty_only(progress)) as bar:
         for oi, name in enumerate(objects):
             for si in range(scenes_per_object):
                 rng = np.random.default_rng([seed, oi, si])

@@ -103,7 +103,7 @@ def reuse_autoencoder(src: Path) -> tuple[TactileAutoencoder, dict]:
 @torch.no_grad()
 def encode_all(ae: TactileAutoencoder, data: PairData, batch: int = 64) -> torch.Tensor:
     zs = [ae.encode(residual_to_unit(torch.from_numpy(data.residuals[s:s + batch])))
-          for s in tqdm(range(0, len(data.residuals), batch), desc="encoding dataset", unit="batch")]
+          for s in tqdm(range(0, len(data.residuals), batch), desc="encoding dataset", unit="batch", disable=None)]
     return torch.cat(zs)
 
 

@@ -15,27 +15,12 @@ sensor frame: x along image columns (right), y along image rows upwards, z norma
 pointing into the sensor, so Fz > 0 when an object presses.
 """
 
-from controltac_il.tactile.spec import SensorSpec
-from controltac_il.tactile.indenters import (
-    HELDOUT_OBJECTS,
-    INDENTERS,
-    TRAIN_OBJECTS,
-    Indenter,
-    get_indenter,
-)
-from controltac_il.tactile.residual import contact_mask, from_residual, to_residual
-from controltac_il.tactile.sensor import Contact, TactileSensor
+from controltac_il.lazy import exports
 
-__all__ = [
-    "SensorSpec",
-    "TactileSensor",
-    "Contact",
-    "Indenter",
-    "INDENTERS",
-    "TRAIN_OBJECTS",
-    "HELDOUT_OBJECTS",
-    "get_indenter",
-    "to_residual",
-    "from_residual",
-    "contact_mask",
-]
+_EXPORTS = {"SensorSpec": "controltac_il.tactile.spec",
+            **dict.fromkeys(("HELDOUT_OBJECTS", "INDENTERS", "TRAIN_OBJECTS", "Indenter", "get_indenter"),
+                            "controltac_il.tactile.indenters"),
+            **dict.fromkeys(("contact_mask", "from_residual", "to_residual"), "controltac_il.tactile.residual"),
+            **dict.fromkeys(("Contact", "TactileSensor"), "controltac_il.tactile.sensor")}
+__getattr__, __dir__ = exports(__name__, _EXPORTS)
+__all__ = list(_EXPORTS)

@@ -148,7 +148,7 @@ def _render(tmp: Path, sensor: TactileSensor, objects: tuple, poses_per_object: 
     sensor instances used (their backgrounds written under ``tmp/backgrounds``)."""
     rows, used = [], {}
     total = len(objects) * poses_per_object * forces_per_pose
-    with tqdm(total=total, desc=desc, unit="img", disable=desc is None) as bar:
+    with tqdm(total=total, desc=desc, unit="img", disable=True if desc is None else None) as bar:
         for name, pid, pose, forces, noise in sample_contacts(objects, poses_per_object, forces_per_pose, seed, spec, fz_range, shear_max):
             (tmp / "images" / name).mkdir(parents=True, exist_ok=True)
             if sensors is not None:

@@ -1,8 +1,10 @@
 """ACT (Action Chunking with Transformers) for controltac-il: config, network, checkpoints, policy."""
 
-from policies.act.checkpoint import CheckpointError, load_checkpoint, read_config, save_checkpoint
-from policies.act.configuration_act import ACTConfig
-from policies.act.modeling_act import ACT
-from policies.act.policy import ACTPolicy
+from controltac_il.lazy import exports
 
-__all__ = ["ACTConfig", "ACT", "ACTPolicy", "CheckpointError", "save_checkpoint", "load_checkpoint", "read_config"]
+_EXPORTS = {**dict.fromkeys(("CheckpointError", "load_checkpoint", "read_config", "save_checkpoint"),
+                            "policies.act.checkpoint"),
+            "ACTConfig": "policies.act.configuration_act", "ACT": "policies.act.modeling_act",
+            "ACTPolicy": "policies.act.policy"}
+__getattr__, __dir__ = exports(__name__, _EXPORTS)
+__all__ = list(_EXPORTS)

@@ -1,0 +1,48 @@
+"""Every CLI answers ``--help`` without importing torch, diffusers or MuJoCo (issue 42): behaviour, checked in a
+fresh interpreter's ``sys.modules``, not a time. The heavy modules are imported inside the jobs."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+HEAVY = ("torch", "diffusers", "mujoco", "cv2", "h5py", "pyarrow", "matplotlib")
+PROBE = """
+import json, runpy, sys
+sys.argv = [{prog!r}, "--help"]
+try:
+    runpy.{run}({target!r}, run_name="__main__"{alter})
+except SystemExit as exc:
+    code = exc.code
+else:
+    code = None
+print(json.dumps({{"code": code, "heavy": sorted(m for m in {heavy!r} if m in sys.modules)}}))
+"""
+CLIS = [("deploy_policy.py", "run_path"), ("train_act.py", "run_path"), ("controltac_il", "run_module"),
+        ("controltac_il.augment", "run_module"), ("controltac_il.calibrate", "run_module")]
+
+
+@pytest.mark.parametrize("target, run", CLIS, ids=[c[0] for c in CLIS])
+def test_help_imports_no_heavy_module(target, run):
+    code = PROBE.format(prog=target, run=run, target=str(REPO / target) if run == "run_path" else target,
+                        alter=", alter_sys=True" if run == "run_module" else "", heavy=HEAVY)
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
+    lines = out.stdout.strip().splitlines()
+    assert out.returncode == 0 and lines, out.stderr[-2000:]
+    got = json.loads(lines[-1])
+    assert got["code"] in (0, None) and "usage" in out.stdout, out.stdout[-500:]
+    assert got["heavy"] == [], f"{target} --help imported {got['heavy']}"
+
+
+def test_progress_bars_stay_off_a_log_file(tmp_path):
+    """A CLI whose output goes to a file (not a terminal) writes no carriage-return progress updates."""
+    log = tmp_path / "log"
+    with log.open("w") as f:
+        out = subprocess.run([sys.executable, "-m", "envs.collect", "--episodes", "2", "--out", str(tmp_path / "demos"),
+                              "--cameras", "--no-tactile"], cwd=REPO, stdout=f, stderr=subprocess.STDOUT, timeout=300)
+    text = log.read_text()
+    assert out.returncode == 0, text[-2000:]
+    assert "\r" not in text and "wrote 2 episodes" in text
