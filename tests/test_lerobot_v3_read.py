@@ -10,6 +10,7 @@ import gc
 import json
 import os
 import pickle
+import shutil
 import time
 from fractions import Fraction
 
@@ -296,6 +297,49 @@ def test_bad_inputs_are_refused_in_one_line_naming_the_argument(folder, tmp_path
         shifted[0]
     assert "\n" not in str(err.value) and isinstance(err.value, ValueError)
     LeRobotFolder(folder, delta_timestamps={LEFT: [-0.1 + 1e-5]})  # within LeRobot's tolerance_s (1e-4 s)
+
+
+def _one_line_naming(path, call) -> str:
+    """The ValueError ``call()`` raises: one line naming ``path``."""
+    with pytest.raises(ValueError) as err:
+        call()
+    message = str(err.value)
+    assert "\n" not in message and str(path) in message, message
+    return message
+
+
+def test_unreadable_files_are_refused_in_one_line_naming_them(folder, tmp_path):
+    def truncated(name: str, rel: str):
+        root = tmp_path / name
+        shutil.copytree(folder, root)
+        path = root / rel
+        path.write_bytes(path.read_bytes()[:path.stat().st_size // 2])
+        return root, path
+
+    parquets = {"data": "data/chunk-000/file-001.parquet", "episodes": "meta/episodes/chunk-000/file-000.parquet",
+                "tasks": "meta/tasks.parquet"}
+    for name, rel in parquets.items():
+        root, path = truncated(name, rel)
+        message = _one_line_naming(path, lambda: LeRobotFolder(root))
+        assert message.startswith(f"root: {path} is not a readable parquet file (") and "magic bytes" in message
+    root, path = truncated("mp4", f"videos/{VIDEO}/chunk-000/file-001.mp4")
+    ds = LeRobotFolder(root)
+    assert video_frame_of(ds[0][VIDEO]) == 0  # file-000 is whole
+    message = _one_line_naming(path, lambda: ds[len(ds) - 1])
+    assert message.startswith(f"{path} is not a readable video file ("), message
+    root = tmp_path / "png"
+    shutil.copytree(folder, root)
+    path = root / "data" / "chunk-000" / "file-000.parquet"
+    table = pq.read_table(path)
+    cells = table.column(LEFT).to_pylist()
+    cells[2]["bytes"], cells[3]["bytes"] = cells[2]["bytes"][:-20], b"not a PNG"  # truncated; not a PNG at all
+    i = table.schema.get_field_index(LEFT)
+    pq.write_table(table.set_column(i, table.schema.field(i), pa.array(cells, table.schema.field(i).type)), path)
+    ds = LeRobotFolder(root)
+    assert torch.equal(ds[1][LEFT], as_float(tactile(LEFT, 1)))
+    for index in (2, 3):
+        message = _one_line_naming(path, lambda: ds[index])
+        assert message == f"{LEFT}: an image of {path} (index {index}) is not a readable PNG", message
 
 
 def test_force_augment_wraps_a_folder_with_windows_and_labels(folder, tmp_path):

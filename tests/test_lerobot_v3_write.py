@@ -1,13 +1,17 @@
 """Writing an augmented LeRobot v3.0 folder: originals then copies, renumbered and otherwise copied; regenerated
 tactile frames equal to ForceAugment's (PNG exactly, video within the measured codec error); provenance
-features; stats over the written frames; resume and rank shares identical to one clean write; refusals.
+features; stats over the written frames; resume and rank shares identical to one clean write; refusals; the
+rules of LeRobot main that lerobot 0.4.4 also reads (row groups, info.json keys, feature dicts, the record).
 
 The source folder is written here with pyarrow + PyAV (independently of the writer under test): 2 episodes
 of 6 and 5 frames at 10 fps in one data file and one video file (episode 1 from 0.6 s); tactile cameras
 ``gelsight_left`` (image, PNG) and ``gelsight_right`` (video, H.264), each with a force feature; a wrist
-video; a tiny randomly initialised generator (as in test_aug_force_augment)."""
+video; a tiny randomly initialised generator (as in test_aug_force_augment). Its info.json carries a key
+LeRobot main's DatasetInfo does not know (``total_videos``, a v2.x leftover), lacks the file size settings, and
+its video features have ``info`` dicts (0.4.4's spelling for the wrist, main's for the tactile one)."""
 
 import json
+import shutil
 from fractions import Fraction
 
 import av
@@ -21,8 +25,9 @@ import torch
 from test_aug_force_augment import tiny_generator
 
 from controltac_il.augment import STATUS, ForceAugment, main
-from controltac_il.augment.to_lerobot import MARKER, staging_dir, write_lerobot
+from controltac_il.augment.to_lerobot import read_record, staging_dir, write_lerobot
 from controltac_il.datasets.lerobot_v3 import LeRobotFolder
+from controltac_il.datasets.lerobot_v3_write import INFO_KEYS, write_data_parquet
 
 FPS, LENGTHS, CONTACT = 10, (6, 5), ((1, 2, 3, 4), (2, 3))
 LEFT, RIGHT, WRIST = "observation.images.gelsight_left", "observation.images.gelsight_right", "observation.images.wrist"
@@ -95,15 +100,20 @@ def write_source(root, version="v3.0"):
     pq.write_table(pa.table({"task_index": [0, 1], "task": ["task 0", "task 1"]}), root / "meta" / "tasks.parquet")
     camera = {"shape": [H, W, 3], "names": ["height", "width", "channels"]}
     scalar = {"shape": [1], "names": None}
-    features = {"observation.state": {"dtype": "float32", "shape": [3], "names": None},
+    video = {"video.codec": "h264", "video.pix_fmt": "yuv420p", "video.fps": FPS, "video.channels": 3,
+             "has_audio": False}
+    features = {"observation.state": {"dtype": "float32", "shape": [3], "names": ["x", "y", "z"]},
                 "action": {"dtype": "float32", "shape": [2], "names": None},
-                LEFT: {"dtype": "image", **camera}, RIGHT: {"dtype": "video", **camera},
-                WRIST: {"dtype": "video", "shape": [16, 24, 3], "names": ["height", "width", "channels"]},
+                LEFT: {"dtype": "image", **camera},
+                RIGHT: {"dtype": "video", **camera, "info": {"video.height": H, "video.width": W, **video,
+                                                             "video.g": 2, "video.crf": 0, "is_depth_map": False}},
+                WRIST: {"dtype": "video", "shape": [16, 24, 3], "names": ["height", "width", "channels"],
+                        "info": {"video.height": 16, "video.width": 24, **video, "video.is_depth_map": False}},
                 **{f: {"dtype": "float32", "shape": [3], "names": None} for f in FORCES.values()},
                 "timestamp": {"dtype": "float32", **scalar},
                 **{k: {"dtype": "int64", **scalar} for k in ("frame_index", "episode_index", "index", "task_index")}}
     info = {"codebase_version": version, "robot_type": None, "total_episodes": 2, "total_frames": n, "total_tasks": 2,
-            "chunks_size": 1000, "fps": FPS, "splits": {"train": "0:2"},
+            "total_videos": 4, "chunks_size": 1000, "fps": FPS, "splits": {"train": "0:2"},
             "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
             "video_path": "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4", "features": features}
     (root / "meta" / "info.json").write_text(json.dumps(info))
@@ -170,7 +180,7 @@ def test_copies_hold_force_augments_frames_and_provenance(written):
                 assert torch.allclose(got[f"augment.{name}.target_force"], info[f"target_force.{key}"])
             else:
                 assert torch.equal(got[f"augment.{name}.target_force"], got[FORCES[key]])
-    assert regenerated == json.loads((out / MARKER).read_text())["regenerated_frames"] > 0
+    assert regenerated == read_record(out)["regenerated_frames"] > 0
     windows = LeRobotFolder(out, delta_timestamps={LEFT: [-0.1, 0.0]})
     item = windows[n + 3]  # copy 1 of episode 0, frame 3: the previous frame is regenerated too
     assert torch.equal(item[LEFT][0], reference[n + 2][LEFT]) and torch.equal(item[LEFT][1], reference[n + 3][LEFT])
@@ -196,13 +206,56 @@ def test_stats_cover_every_written_frame_with_float_std(written):
 
 def test_video_round_trip_error_is_that_of_the_frames_written(written):
     root, out, _, reference = written
-    marker, dst, n = json.loads((out / MARKER).read_text()), LeRobotFolder(out), sum(LENGTHS)
+    marker, dst, n = read_record(out), LeRobotFolder(out), sum(LENGTHS)
     errors = [((dst[i][RIGHT] - reference[i][RIGHT]) * 255).numpy() ** 2 for i in range(n, len(dst))
               if int(reference.info(reference[i])[f"status.{RIGHT}"]) in (2, 3)]
     assert marker["video_round_trip_mse"] == pytest.approx(np.mean(errors), rel=1e-3)
     # the tiny generator's frames are noise, which yuv420p's halved chroma cannot hold (the shipped generator's
     # round trip is measured by benchmarks.augment); here: the figure is the frames' own
     assert marker["video_round_trip_psnr_db"] == pytest.approx(10 * np.log10(255 ** 2 / np.mean(errors)), rel=1e-3)
+
+
+def test_data_files_hold_one_row_group_per_episode(written, tmp_path):
+    _, out, _, _ = written
+    for path in sorted((out / "data").glob("*/*.parquet")):
+        pf = pq.ParquetFile(path)
+        groups = [pf.read_row_group(g, columns=["episode_index"]).column(0).to_pylist()
+                  for g in range(pf.num_row_groups)]
+        assert all(len(set(g)) == 1 for g in groups) and len({g[0] for g in groups}) == len(groups), path
+    table = pa.table({"episode_index": [4, 4, 5, 5, 5, 7], "x": [0.5, 1.5, 2.5, 3.5, 4.5, 5.5]})
+    write_data_parquet(tmp_path / "three.parquet", table)
+    pf = pq.ParquetFile(tmp_path / "three.parquet")
+    assert [pf.metadata.row_group(g).num_rows for g in range(pf.num_row_groups)] == [2, 3, 1]
+    assert pf.read().equals(table)
+    with pytest.raises(ValueError, match=r"^dataset: the rows of an episode are not contiguous"):
+        write_data_parquet(tmp_path / "split.parquet", pa.table({"episode_index": [0, 1, 0]}))
+    assert not (tmp_path / "split.parquet").exists()
+
+
+def test_info_json_holds_datasetinfos_keys_and_the_sources_feature_dicts_verbatim(written):
+    root, out, _, _ = written
+    source = json.loads((root / "meta" / "info.json").read_text())
+    info = json.loads((out / "meta" / "info.json").read_text())
+    assert list(info) == list(INFO_KEYS) and "total_videos" in source  # an unknown key: dropped, as main drops it
+    assert (info["data_files_size_in_mb"], info["video_files_size_in_mb"]) == (100, 200)  # LeRobot's defaults
+    assert (info["chunks_size"], info["fps"], info["robot_type"], info["codebase_version"]) == (1000, FPS, None, "v3.0")
+    provenance = [k for k in info["features"] if k.startswith("augment.")]
+    defaults = ["timestamp", "frame_index", "episode_index", "index", "task_index"]
+    assert list(info["features"]) == [*(k for k in source["features"] if k not in defaults), *provenance, *defaults]
+    assert {k: info["features"][k] for k in source["features"]} == source["features"]  # merging needs them equal
+    assert [k for k, ft in info["features"].items() if "info" in ft] == [RIGHT, WRIST, "augment.copy"]
+
+
+def test_the_record_of_the_write_lives_in_a_feature_dict_and_nowhere_else(written):
+    root, out, _, _ = written
+    info = json.loads((out / "meta" / "info.json").read_text())
+    record = read_record(out)
+    assert info["features"]["augment.copy"]["info"] == {"controltac_il_augment": record}
+    assert record["tool"] == "controltac_il.augment" and record["writer_format"] == 2 and len(record["digest"]) == 16
+    assert record["source"] == str(root.resolve()) and record["settings"]["copies"] == 2
+    assert record["episodes"] == {"source": 2, "copies": 2, "written": 6} and record["frames"] == 3 * sum(LENGTHS)
+    assert sorted(p.name for p in (out / "meta").iterdir()) == ["episodes", "info.json", "stats.json", "tasks.parquet"]
+    assert read_record(root) is None
 
 
 def test_interrupted_and_shared_writes_equal_one_clean_write(written, tmp_path):
@@ -242,6 +295,19 @@ def test_cli_writes_and_refuses_in_one_line_naming_the_flag(written, tmp_path, c
     (tmp_path / "foreign" / "notes.txt").write_text("mine")
     (tmp_path / "v2").mkdir()
     write_source(tmp_path / "v2", version="v2.1")
+    broken = {}
+    unreadable = {"parquet": "data/chunk-000/file-000.parquet", "mp4": f"videos/{RIGHT}/chunk-000/file-000.mp4"}
+    for name, rel in unreadable.items():
+        shutil.copytree(root, tmp_path / name)
+        broken[name] = tmp_path / name / rel
+        broken[name].write_bytes(broken[name].read_bytes()[:broken[name].stat().st_size // 2])
+    shutil.copytree(root, tmp_path / "png")
+    broken["png"] = tmp_path / "png" / "data" / "chunk-000" / "file-000.parquet"
+    table = pq.read_table(broken["png"])
+    cells, i = table.column(LEFT).to_pylist(), table.schema.get_field_index(LEFT)
+    cells[2]["bytes"] = cells[2]["bytes"][:-20]  # a truncated PNG
+    pq.write_table(table.set_column(i, table.schema.field(i), pa.array(cells, table.schema.field(i).type)),
+                   broken["png"])
     cases = [
         (["--dataset", str(root), "--out", str(root)], "--out: "),
         (["--dataset", str(root), "--out", str(root / "inside")], "--out: "),
@@ -253,6 +319,12 @@ def test_cli_writes_and_refuses_in_one_line_naming_the_flag(written, tmp_path, c
          "--tactile-keys: "),
         (["--dataset", str(root), "--out", str(tmp_path / "o5"), *base, "--tactile-keys", "observation.state"],
          "--tactile-keys: "),
+        (["--dataset", str(tmp_path / "parquet"), "--out", str(tmp_path / "o6"), *base],
+         f"--dataset: {broken['parquet']} is not a readable parquet file (Parquet magic bytes not found"),
+        (["--dataset", str(tmp_path / "mp4"), "--out", str(tmp_path / "o7"), *base],
+         f"--dataset: {broken['mp4']} is not a readable video file ("),
+        (["--dataset", str(tmp_path / "png"), "--out", str(tmp_path / "o8"), *base],
+         f"--dataset: {LEFT}: an image of {broken['png']} ("),
     ]
     for args, expected in cases:
         assert main(args if "--generator" in args else [*args, *base[:4]]) == 2, args

@@ -35,7 +35,7 @@ from tqdm import tqdm
 
 from controltac_il.datasets.lerobot_v3 import decode_png, numbers
 from controltac_il.datasets.lerobot_v3_write import (decode_video, encode_video, image_stats, png_bytes,
-                                                     sample_indices, vector_stats, video_codec, write_parquet)
+                                                     sample_indices, vector_stats, video_codec, write_data_parquet)
 from controltac_il.io import atomic_path, write_json
 
 PREFIX = "augment"
@@ -150,8 +150,9 @@ class LeRobotExport:
         """RGB uint8 (L, H, W, 3) of tactile ``key`` in source episode ``e``."""
         if self.source.features[key]["dtype"] == "video":
             return self.source.video_frames(key, e)
-        return np.stack(_parallel(lambda b: decode_png(b, key),
-                                  table.column(key).combine_chunks().field("bytes").to_pylist()))
+        column, path = table.column(key).combine_chunks().field("bytes"), self.source.data_file(e)
+        return np.stack(_parallel(lambda i: decode_png(column[i].as_py(), key, f"{path} (episode {e}, frame {i})"),
+                                  range(len(column))))
 
     def _shared_stats(self, table: pa.Table, e: int) -> dict:
         """Stats of the features every copy of episode ``e`` shares (all but the tactile keys, provenance,
@@ -164,8 +165,9 @@ class LeRobotExport:
             if ft["dtype"] == "video":
                 out[key] = image_stats(self.source.video_frames(key, e)[picks])
             elif ft["dtype"] == "image":
-                column = table.column(key).combine_chunks().field("bytes")
-                out[key] = image_stats(np.stack(_parallel(lambda i: decode_png(column[int(i)].as_py(), key), picks)))
+                column, path = table.column(key).combine_chunks().field("bytes"), self.source.data_file(e)
+                out[key] = image_stats(np.stack(_parallel(
+                    lambda i: decode_png(column[int(i)].as_py(), key, f"{path} (episode {e}, frame {i})"), picks)))
             elif ft["dtype"] != "string":
                 out[key] = vector_stats(numbers(table.column(key)), key)
         return out
@@ -217,7 +219,7 @@ class LeRobotExport:
         out = _set(out, "index", np.arange(start, start + L, dtype=np.int64))
         for name, values in prov.items():
             out = out.append_column(name, _arrow(values))
-        write_parquet(self.folder / self.source.meta["data_path"].format(
+        write_data_parquet(self.folder / self.source.meta["data_path"].format(
             chunk_index=j // self.chunks_size, file_index=j % self.chunks_size), out)
         writer = {"regenerated": 0, "video_sse": 0.0, "video_values": 0}
         row = {"episode_index": j, "tasks": list(src["tasks"]), "length": L,
@@ -263,7 +265,8 @@ class LeRobotExport:
                 f"videos/{key}/from_timestamp": 0.0, f"videos/{key}/to_timestamp": len(rgb) / self.source.fps}
 
     def features(self) -> dict:
-        """info.json features of the output: the source's user features, the provenance, the defaults."""
+        """info.json features of the output: the source's user features, the provenance, the defaults; the source's
+        dicts verbatim (LeRobot merges only folders whose shared features are identical)."""
         src = {k: {**ft, "shape": list(ft["shape"])} for k, ft in self.source.features.items()}
         user = {k: ft for k, ft in src.items() if k not in DEFAULTS}
         return {**user, **provenance_features(self.names), **{k: src[k] for k in DEFAULTS if k in src}}

@@ -6,6 +6,10 @@ folder being written) and ``done/`` (one meta row per finished episode). Re-runn
 under torchrun every rank builds its share of the cache, then writes its share of the episodes, and rank 0
 writes ``meta/`` and publishes: ``dataset/`` is renamed to OUT, and ``OUT.partial`` removed. OUT is never the
 source (nor inside it, nor around it) and never a folder this tool did not write (``check_destination``).
+
+The record of a write (``finish``: settings, source, counts, codec round trip) lives in ``meta/info.json`` as
+``features["augment.copy"]["info"]["controltac_il_augment"]``: LeRobot's edit tools (0.4.4 and main) rebuild
+info.json from the feature dicts, dropping unknown top-level keys (main) and any other file under ``meta/``.
 """
 
 from __future__ import annotations
@@ -19,12 +23,12 @@ from pathlib import Path
 
 import numpy as np
 
-from controltac_il.augment.lerobot_out import LeRobotExport
+from controltac_il.augment.lerobot_out import PREFIX, LeRobotExport
 from controltac_il.datasets.lerobot_v3_write import aggregate_stats, write_meta
 from controltac_il.io import write_json
 
-WRITER_FORMAT = 1  # bump when what is written changes
-MARKER = Path("meta") / "controltac_il_augment.json"  # in a published folder: what wrote it
+WRITER_FORMAT = 2  # bump when what is written changes
+RECORD_FEATURE, RECORD_KEY = f"{PREFIX}.copy", "controltac_il_augment"  # where a published folder says what wrote it
 
 
 def staging_dir(out: Path) -> Path:
@@ -42,16 +46,26 @@ def _digest(sig: dict) -> str:
     return hashlib.sha256(json.dumps(sig, sort_keys=True).encode()).hexdigest()[:16]
 
 
+def read_record(folder: Path) -> dict | None:
+    """The record of the write that made ``folder`` (module docstring), or None where it has none."""
+    try:
+        features = json.loads((Path(folder) / "meta" / "info.json").read_text())["features"]
+        record = features[RECORD_FEATURE]["info"][RECORD_KEY]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return record if isinstance(record, dict) else None
+
+
 def check_destination(root: Path, out: Path) -> bool:
-    """True when ``out`` already holds this tool's finished write (read its marker to compare); False when it
-    can be written. ValueError naming ``out`` otherwise."""
+    """True when ``out`` already holds this tool's finished write (``read_record`` to compare); False when it can
+    be written. ValueError naming ``out`` otherwise."""
     root, out = Path(root).resolve(), Path(out).resolve()
     if out == root or root in out.parents or out in root.parents:
         raise ValueError(f"out: {out} must be a folder of its own, not the source {root}, inside it or around it")
     if out.exists() and not out.is_dir():
         raise ValueError(f"out: {out} is a file")
     if out.is_dir() and any(out.iterdir()):
-        if (out / MARKER).is_file():
+        if read_record(out) is not None:
             return True
         raise ValueError(f"out: {out} is a non-empty folder this tool did not write; choose a new or empty folder")
     staging = staging_dir(out)
@@ -74,10 +88,9 @@ def claim(staging: Path, sig: dict) -> None:
 
 
 def published(out: Path, aug, source) -> bool:
-    """Whether ``out`` holds this very write (its marker names the same digest); ValueError naming ``out`` for
+    """Whether ``out`` holds this very write (its record names the same digest); ValueError naming ``out`` for
     another write of this tool."""
-    marker = json.loads((Path(out) / MARKER).read_text())
-    if marker.get("digest") != _digest(signature(aug, source)):
+    if read_record(out).get("digest") != _digest(signature(aug, source)):
         raise ValueError(f"out: {out} holds an augmented dataset of other settings or another source; choose "
                          "another folder")
     return True
@@ -87,11 +100,10 @@ def write_lerobot(aug, source, out: Path, *, rank: int | None = None, world_size
                   progress: bool = True, stop_after: int | None = None, poll_s: float = 2.0) -> dict:
     """Write the augmented folder ``out`` of ``source`` (a LeRobotFolder) through ``aug`` (a ForceAugment of it
     in cache mode whose ``cache_dir`` is ``staging_dir(out) / "cache"``). Returns the counts of this run and,
-    once published, the marker (``published``: True)."""
+    once published, the record of the write (``marker``; ``published``: True)."""
     out = Path(out)
     if check_destination(source.root, out):
-        return {"published": published(out, aug, source), "already": True,
-                "marker": json.loads((out / MARKER).read_text())}
+        return {"published": published(out, aug, source), "already": True, "marker": read_record(out)}
     rank = int(os.environ.get("RANK", 0)) if rank is None else int(rank)
     world_size = int(os.environ.get("WORLD_SIZE", 1)) if world_size is None else int(world_size)
     staging, sig = staging_dir(out), signature(aug, source)
@@ -113,23 +125,25 @@ def write_lerobot(aug, source, out: Path, *, rank: int | None = None, world_size
 
 
 def finish(export: LeRobotExport, sig: dict) -> dict:
-    """meta/ of the written folder (info, episodes, stats, tasks) and the marker; returns the marker."""
+    """meta/ of the written folder (info.json with the record of the write, module docstring; episodes, stats,
+    tasks); returns the record."""
     source, folder = export.source, export.folder
     rows = export.rows()
     writer = [row.pop("writer") for row in rows]
     total_frames = int(sum(row["length"] for row in rows))
+    sse, values = sum(w["video_sse"] for w in writer), sum(w["video_values"] for w in writer)
+    record = {"tool": "controltac_il.augment", "digest": _digest(sig), **sig,
+              "episodes": {"source": len(export.sources), "copies": export.copies, "written": len(rows)},
+              "frames": total_frames, "regenerated_frames": int(sum(w["regenerated"] for w in writer)),
+              "video_round_trip_mse": float(sse / values) if values else None,
+              "video_round_trip_psnr_db": float(10 * np.log10(255 ** 2 * values / sse)) if sse else None}
+    features = export.features()
+    features[RECORD_FEATURE] = {**features[RECORD_FEATURE], "info": {RECORD_KEY: record}}
     info = {**source.meta, "total_episodes": len(rows), "total_frames": total_frames,
-            "splits": {"train": f"0:{len(rows)}"}, "features": export.features()}
+            "splits": {"train": f"0:{len(rows)}"}, "features": features}
     write_meta(folder, info, rows, aggregate_stats([row["stats"] for row in rows]))
     for name in ("tasks", "subtasks"):
         path = source.root / "meta" / f"{name}.parquet"
         if path.is_file():
             shutil.copyfile(path, folder / "meta" / f"{name}.parquet")
-    sse, values = sum(w["video_sse"] for w in writer), sum(w["video_values"] for w in writer)
-    marker = {"tool": "controltac_il.augment", "digest": _digest(sig), **sig,
-              "episodes": {"source": len(export.sources), "copies": export.copies, "written": len(rows)},
-              "frames": total_frames, "regenerated_frames": int(sum(w["regenerated"] for w in writer)),
-              "video_round_trip_mse": float(sse / values) if values else None,
-              "video_round_trip_psnr_db": float(10 * np.log10(255 ** 2 * values / sse)) if sse else None}
-    write_json(folder / MARKER, marker)
-    return marker
+    return record

@@ -20,7 +20,8 @@ Memory: at open, the episode, frame and timestamp of every frame (20 bytes a fra
 without its stats; the other columns are read per parquet row group (LeRobot writes one per
 episode) into a per-process LRU bounded by ``cache_mb``, images kept as PNG bytes and decoded per item.
 Videos: ``lerobot_v3_video`` (one open file per video key and file per process, forward decoding without
-seeking). Nothing stays open across pickling or a fork: DataLoader workers open their own files.
+seeking). Nothing stays open across pickling or a fork: DataLoader workers open their own files. A file that
+cannot be read (parquet, mp4, the PNG bytes of an image) is refused in one ValueError line naming it.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ import json
 import os
 import re
 from collections import OrderedDict
+from contextlib import contextmanager
 from pathlib import Path
 
 import cv2
@@ -46,6 +48,16 @@ INDEX_COLUMNS = ("episode_index", "frame_index", "index", "timestamp")  # held i
 CACHE_MB = 256  # default bound on the decoded row groups kept per process, MB
 VERSION = re.compile(r"v3(\.\d+)*")
 UNIT = (torch.arange(256, dtype=torch.float32) / 255).numpy()  # uint8 -> [0, 1] exactly as torch divides
+PNG_START, PNG_END = b"\x89PNG\r\n\x1a\n", b"IEND\xaeB`\x82"  # signature; IEND chunk type and CRC
+
+
+@contextmanager
+def readable(path: Path):
+    """pyarrow's errors reading the parquet ``path`` as one ValueError line naming it."""
+    try:
+        yield
+    except (OSError, pa.ArrowException) as exc:
+        raise ValueError(f"root: {path} is not a readable parquet file ({' '.join(str(exc).split())})") from None
 
 
 def read_info(root: Path) -> dict:
@@ -75,7 +87,8 @@ def read_tasks(root: Path, name: str = "tasks") -> list[str]:
     path = root / "meta" / f"{name}.parquet"
     if not path.is_file():
         raise ValueError(f"root: {root} has no meta/{name}.parquet")
-    table = pq.read_table(path)
+    with readable(path):
+        table = pq.read_table(path)
     pandas = json.loads((table.schema.metadata or {}).get(b"pandas", b"{}"))
     named = [c for c in pandas.get("index_columns", []) if isinstance(c, str)]
     column = name[:-1] if name[:-1] in table.column_names else (named[0] if named else None)
@@ -91,8 +104,10 @@ def read_episodes(root: Path) -> dict[int, dict]:
         raise ValueError(f"root: {root} has no meta/episodes/*/*.parquet")
     episodes = {}
     for p in paths:
-        names = [n for n in pq.read_schema(p).names if not n.startswith("stats/")]
-        for row in pq.read_table(p, columns=names).to_pylist():
+        with readable(p):
+            names = [n for n in pq.read_schema(p).names if not n.startswith("stats/")]
+            rows = pq.read_table(p, columns=names).to_pylist()
+        for row in rows:
             episodes[int(row["episode_index"])] = row
     return episodes
 
@@ -166,9 +181,10 @@ class _RowGroups:
             self._reset()
         entry = self._cache.pop((file, group), None)
         if entry is None:
-            if file not in self._files:
-                self._files[file] = pq.ParquetFile(self.paths[file])
-            table = self._files[file].read_row_group(group)
+            with readable(self.paths[file]):
+                if file not in self._files:
+                    self._files[file] = pq.ParquetFile(self.paths[file])
+                table = self._files[file].read_row_group(group)
             columns = {k: _column(table.column(k), self.features[k]) for k in table.column_names if k in self.features}
             entry = (columns, sum(_nbytes(c) for c in columns.values()))
             self._bytes += entry[1]
@@ -184,10 +200,13 @@ class _RowGroups:
         self.__init__(**state)
 
 
-def decode_png(data: bytes, key: str) -> np.ndarray:
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+def decode_png(data: bytes, key: str, where: str = "the parquet") -> np.ndarray:
+    """RGB uint8 (H, W, 3) of PNG bytes; ValueError naming ``key`` and ``where`` (a file) for bytes that are no
+    whole PNG (checked before decoding: OpenCV would print a warning of its own for a truncated one)."""
+    whole = data.startswith(PNG_START) and data.rfind(PNG_END) > 0
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR) if whole else None
     if image is None:
-        raise ValueError(f"{key}: an image of the parquet is not a readable PNG")
+        raise ValueError(f"{key}: an image of {where} is not a readable PNG")
     return image[..., ::-1]
 
 
@@ -212,14 +231,15 @@ def _index_data(root: Path, features: dict):
     wanted = [k for k, ft in features.items() if ft["dtype"] != "video"]
     groups, starts, parts = [], [0], {k: [] for k in INDEX_COLUMNS}
     for f, path in enumerate(paths):
-        pf = pq.ParquetFile(path)
-        missing = [k for k in (*INDEX_COLUMNS, *wanted) if k not in pf.schema_arrow.names]
-        if missing:
-            raise ValueError(f"root: {path} lacks the columns {missing} of meta/info.json's features")
+        with readable(path):
+            pf = pq.ParquetFile(path)
+            missing = [k for k in (*INDEX_COLUMNS, *wanted) if k not in pf.schema_arrow.names]
+            if missing:
+                raise ValueError(f"root: {path} lacks the columns {missing} of meta/info.json's features")
+            table = pf.read(columns=list(INDEX_COLUMNS))
         for g in range(pf.num_row_groups):
             groups.append((f, g))
             starts.append(starts[-1] + pf.metadata.row_group(g).num_rows)
-        table = pf.read(columns=list(INDEX_COLUMNS))
         for k in INDEX_COLUMNS:
             parts[k].append(table.column(k).to_numpy())
     cols = {k: np.concatenate(v).astype(np.int64) for k, v in parts.items() if k != "timestamp"}
@@ -318,6 +338,12 @@ class LeRobotFolder(Dataset):
             digest.update(f"{path.relative_to(self.root)}:{path.stat().st_size};".encode())
         return {"lerobot_sha256": digest.hexdigest()[:16]}
 
+    def data_file(self, episode: int) -> Path:
+        """The data parquet holding (the first row of) ``episode``."""
+        first = int(self.episodes[int(episode)]["dataset_from_index"])
+        g = int(np.searchsorted(self._starts, first, side="right") - 1)
+        return self._rows.paths[int(self._groups[g][0])]
+
     def episode_table(self, episode: int) -> pa.Table:
         """The data rows of ``episode`` as stored (every column, arrow types kept), in row order."""
         ep = self.episodes[int(episode)]
@@ -327,7 +353,8 @@ class LeRobotFolder(Dataset):
         parts = []
         for g in range(first, last + 1):
             file, group = (int(x) for x in self._groups[g])
-            table = pq.ParquetFile(self._rows.paths[file]).read_row_group(group)
+            with readable(self._rows.paths[file]):
+                table = pq.ParquetFile(self._rows.paths[file]).read_row_group(group)
             lo, hi = max(a - int(self._starts[g]), 0), min(b, int(self._starts[g + 1])) - int(self._starts[g])
             parts.append(table.slice(lo, hi - lo))
         return pa.concat_tables(parts).combine_chunks()
@@ -358,15 +385,15 @@ class LeRobotFolder(Dataset):
 
     def _data(self, key: str, rows: list[int], window: bool):
         """Column ``key`` at ``rows``: (T, ...) for a window, else its one value."""
-        values = []
-        for r in rows:
-            g = int(np.searchsorted(self._starts, r, side="right") - 1)
+        values, groups = [], [int(np.searchsorted(self._starts, r, side="right") - 1) for r in rows]
+        for r, g in zip(rows, groups):
             values.append(self._rows.get(*self._groups[g])[key][r - int(self._starts[g])])
         dtype = self.features[key]["dtype"]
         if dtype == "string":
             return values[0]
         if dtype == "image":
-            out = _chw_float(np.stack([decode_png(v.as_py(), key) for v in values]))
+            where = [f"{self._rows.paths[self._groups[g][0]]} (index {r})" for g, r in zip(groups, rows)]
+            out = _chw_float(np.stack([decode_png(v.as_py(), key, w) for v, w in zip(values, where)]))
         else:
             out = _tensor(np.stack(values))
         return out if window else out[0]

@@ -10,13 +10,15 @@ consecutive items decode each frame once. Containers are closed on pickling (Dat
 never used across a fork (reopened when the process id changes). Decoders and the RGB conversion run
 single-threaded (DataLoader workers are the parallelism): a threaded FFmpeg decoder or swscale context
 inherited by a forked worker deadlocks when that worker frees it (``avpriv_slicethread_free``; seen with h264,
-libdav1d and PyAV 18's reformatter).
+libdav1d and PyAV 18's reformatter). A file FFmpeg cannot open or decode is refused in one line naming it
+(``readable``).
 """
 
 from __future__ import annotations
 
 import os
 from collections import OrderedDict, deque
+from contextlib import contextmanager
 from pathlib import Path
 
 import av
@@ -33,12 +35,25 @@ class FrameTimestampError(ValueError):
     """No frame of the video lies within the tolerance of a query time (LeRobot raises the same)."""
 
 
+@contextmanager
+def readable(path: Path):
+    """FFmpeg's errors opening or decoding the video ``path`` as one ValueError line naming it."""
+    try:
+        yield
+    except (av.error.FFmpegError, OSError) as exc:
+        raise ValueError(f"{path} is not a readable video file ({' '.join(str(exc).split())})") from None
+
+
 class _Stream:
     """One open video file: its decoder position and the last frames converted to RGB."""
 
     def __init__(self, path: Path, keep: int, threads: int = 1):
         self.path = path
-        self.container = av.open(str(path), metadata_errors="ignore")
+        with readable(path):
+            self.container = av.open(str(path), metadata_errors="ignore")
+        if not self.container.streams.video:
+            self.container.close()
+            raise ValueError(f"{path} is not a readable video file (no video stream)")
         self.stream = self.container.streams.video[0]
         self.stream.codec_context.thread_count = threads  # 1: freeing the decoder after a fork cannot hang
         rate = self.stream.average_rate or self.stream.base_rate
@@ -74,18 +89,23 @@ class _Stream:
         hit = self._cached(t, tol)
         if hit is not None:
             return hit
-        if self._ahead(t, tol):
-            nearest = self._advance(t, tol)
-        else:
-            self._seek(t)
-            nearest = self._advance(t, tol)
-            if self.landed is not None and self.landed > t + tol and t > 0:
-                self._seek(0.0)  # the seek landed past t (an odd index): decode from the start
-                nearest = self._advance(t, tol)
+        with readable(self.path):
+            nearest = self._find(t, tol)
         if nearest is None or abs(nearest[0] - t) >= tol:
             got = "the end of the video" if nearest is None else f"the nearest frame at {nearest[0]:.6f} s"
             raise FrameTimestampError(f"{self.path}: no frame within {tol} s of {t:.6f} s ({got})")
         return nearest[1]
+
+    def _find(self, t: float, tol: float):
+        """The first frame at or after ``t - tol`` (``_advance``), seeking where decoding forward cannot reach it."""
+        if self._ahead(t, tol):
+            return self._advance(t, tol)
+        self._seek(t)
+        nearest = self._advance(t, tol)
+        if self.landed is not None and self.landed > t + tol and t > 0:
+            self._seek(0.0)  # the seek landed past t (an odd index): decode from the start
+            nearest = self._advance(t, tol)
+        return nearest
 
     def _advance(self, t: float, tol: float):
         """Decode up to the first frame at or after ``t - tol``: (its time s, uint8 (H, W, 3) RGB); None at the

@@ -1,6 +1,7 @@
 """Writing the pieces of a LeRobot v3.0 folder (facts: ``docs/lerobot_v3_format.md``), each file atomically:
-data parquet files (one row group), mp4 videos in a source's codec, per-episode and dataset stats as LeRobot
-computes them, ``meta/episodes`` and ``meta/stats.json``.
+data parquet files (one row group per episode), mp4 videos in a source's codec, per-episode and dataset stats as
+LeRobot computes them, ``meta/episodes``, ``meta/stats.json`` and ``meta/info.json`` (exactly the keys of
+LeRobot main's typed ``DatasetInfo``, which drops any other on a rewrite; lerobot 0.4.4 reads the same keys).
 
 Stats follow LeRobot 0.4.4 (``compute_stats.py``): per episode min, max, mean, std, count and the quantiles
 ``QUANTILES`` of every feature; cameras per channel as (3, 1, 1) lists in [0, 1] over the frames
@@ -23,6 +24,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from controltac_il.datasets.lerobot_v3_video import readable
 from controltac_il.io import atomic_path, write_json
 
 QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)
@@ -35,6 +37,14 @@ ENCODERS = {"av1": ("libsvtav1", {"crf": "10", "g": "2", "preset": "12"}),
             "hevc": ("libx265", {"crf": "10", "g": "2"})}
 FALLBACK = "h264"  # a source codec without an encoder here (or none known) is written as this
 EPISODES_META = Path("meta/episodes/chunk-000/file-000.parquet")
+# meta/info.json: the fields of LeRobot main's DatasetInfo (datasets/utils.py) in lerobot 0.4.4's order, the
+# defaults of both where one is missing (0.4.4 reads robot_type and the storage settings with no default of its own)
+INFO_KEYS = ("codebase_version", "robot_type", "total_episodes", "total_frames", "total_tasks", "chunks_size",
+             "data_files_size_in_mb", "video_files_size_in_mb", "fps", "splits", "data_path", "video_path", "features")
+INFO_DEFAULTS = {"robot_type": None, "chunks_size": 1000, "data_files_size_in_mb": 100, "video_files_size_in_mb": 200,
+                 "splits": {}, "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
+                 "video_path": None}
+OPTIONAL_INFO = ("tools",)  # main only: written where set (main's DatasetInfo.to_dict drops a null one)
 
 
 def png_bytes(rgb: np.ndarray) -> bytes:
@@ -46,14 +56,28 @@ def png_bytes(rgb: np.ndarray) -> bytes:
 
 
 def write_parquet(path: Path, table: pa.Table) -> None:
-    """``table`` as one row group, snappy (as LeRobot writes an episode), atomically."""
+    """``table`` as one row group, snappy (meta/episodes, one row per episode, as LeRobot writes it), atomically."""
     with atomic_path(path, ".parquet") as tmp:
         pq.write_table(table, tmp, row_group_size=max(len(table), 1), compression="snappy")
 
 
+def write_data_parquet(path: Path, table: pa.Table) -> None:
+    """Data rows as one row group per episode, snappy, atomically: lerobot 0.4.4's recorder writes one per episode
+    and main (#3807, ``io_utils.write_table_one_row_group_per_episode``) requires it. ValueError when an
+    episode's rows are not contiguous."""
+    episodes = table.column("episode_index").to_numpy()
+    starts = np.flatnonzero(np.diff(episodes, prepend=-1))
+    if len(set(episodes[starts].tolist())) < len(starts):
+        raise ValueError(f"dataset: the rows of an episode are not contiguous in the data of {path}")
+    stops = np.append(starts[1:], len(table))
+    with atomic_path(path, ".parquet") as tmp, pq.ParquetWriter(tmp, table.schema, compression="snappy") as writer:
+        for a, b in zip(starts.tolist(), stops.tolist()):
+            writer.write_table(table.slice(a, b - a), row_group_size=b - a)
+
+
 def video_codec(path: Path) -> tuple[str, str]:
     """(codec name as the stream reports it, pix_fmt) of an mp4's first video stream."""
-    with av.open(str(path), metadata_errors="ignore") as container:
+    with readable(path), av.open(str(path), metadata_errors="ignore") as container:
         ctx = container.streams.video[0].codec_context
         return ctx.name, ctx.pix_fmt or "yuv420p"
 
@@ -83,7 +107,7 @@ def encode_video(path: Path, frames: np.ndarray, fps: int, codec: str, pix_fmt: 
 
 def decode_video(path: Path) -> np.ndarray:
     """Every frame of an mp4's first video stream, RGB uint8 (T, H, W, 3), in presentation order."""
-    with av.open(str(path), metadata_errors="ignore") as container:
+    with readable(path), av.open(str(path), metadata_errors="ignore") as container:
         container.streams.video[0].thread_type = "AUTO"  # no fork follows: FFmpeg's threads are safe here
         frames = [(f.pts, f.to_ndarray(format="rgb24")) for f in container.decode(video=0)]
     return np.stack([img for _, img in sorted(frames, key=lambda x: x[0])])
@@ -178,9 +202,18 @@ def episodes_table(rows: list[dict]) -> pa.Table:
     return pa.Table.from_pylist(flat)
 
 
+def info_json(info: dict) -> dict:
+    """``info`` as meta/info.json holds it: exactly the fields of LeRobot main's ``DatasetInfo`` (any other is
+    dropped, as main drops it on load and rewrite), a missing optional one at its default; KeyError for a missing
+    codebase_version, total, fps or features."""
+    out = {k: info[k] if k in info else INFO_DEFAULTS[k] for k in INFO_KEYS}
+    return {**out, **{k: info[k] for k in OPTIONAL_INFO if info.get(k) is not None}}
+
+
 def write_meta(root: Path, info: dict, rows: list[dict], stats: dict) -> None:
-    """meta/info.json, meta/episodes (one file) and meta/stats.json of a folder whose data is written."""
+    """meta/episodes (one file), meta/stats.json and, last, meta/info.json (``info_json(info)``) of a folder whose
+    data is written."""
     write_parquet(root / EPISODES_META, episodes_table(rows))
     write_json(root / "meta" / "stats.json", stats)
     with atomic_path(root / "meta" / "info.json", ".json") as tmp:
-        tmp.write_text(json.dumps(info, indent=4))
+        tmp.write_text(json.dumps(info_json(info), indent=4))
