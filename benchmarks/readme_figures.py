@@ -1,9 +1,11 @@
-"""The README's result tables, rendered from the committed JSONs in ``benchmarks/results/``.
+"""The README's and the docs pages' result tables, rendered from the committed JSONs in ``benchmarks/results/``.
 
 ``python -m benchmarks.readme_figures`` rewrites every block between ``<!-- figures:NAME -->`` and
-``<!-- /figures:NAME -->`` in README.md and benchmarks/results/README.md with what ``BLOCKS[NAME]`` renders
-from the JSON(s) behind it; ``--check`` changes nothing and exits 1 naming each block that differs, and each
-model card whose ``benchmark`` figures differ from the JSON of the same run (``tests/test_readme_figures.py``).
+``<!-- /figures:NAME -->`` in README.md, every page docs/*.md and benchmarks/results/README.md (``DOCS``) with
+what ``BLOCKS[NAME]`` renders from the JSON(s) behind it; ``--check`` changes nothing and exits 1 naming each
+block that differs, and each model card whose ``benchmark`` figures differ from the JSON of the same run
+(``tests/test_readme_figures.py``). Each block appears once, in one of those files; the render functions of the
+blocks the docs pages gained with issue 42, and of the README's headline table, are in ``benchmarks.docs_figures``.
 
 Each block ends with a line naming its file, commit, date and generator; it reads *History (not reproducible
 from committed files)* when the file was measured on a dirty tree (``-dirty`` commit) or with a generator
@@ -21,9 +23,11 @@ from collections.abc import Callable
 from pathlib import Path
 from statistics import mean
 
+from benchmarks import docs_figures
+
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
-DOCS = (ROOT / "README.md", RESULTS / "README.md")
+DOCS = (ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), RESULTS / "README.md")  # every page with blocks
 SHIPPED_GENERATOR = "ded63c1c8e7216ae"  # checkpoint_hash of controltac_il/generator/checkpoints/default
 HISTORY_KEYS = ("source", "history", "history_note")  # added to a card's figures, not measured
 MARKER = re.compile(r"<!-- (/?)figures:([A-Za-z0-9_-]+) -->")
@@ -35,7 +39,7 @@ def load(name: str) -> dict:
 
 def table(header: list[str], rows: list[list]) -> str:
     lines = [header, ["---"] * len(header), *rows]
-    return "\n".join("| " + " | ".join(str(c) for c in line) + " |" for line in lines)
+    return "\n".join("| " + " | ".join(str(c).replace("|", "\\|") for c in line) + " |" for line in lines)
 
 
 def provenance(name: str, doc: dict, generator: str | None, note: str = "") -> str:
@@ -384,7 +388,7 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "pose-estimation": pose_estimation, "act-speed": act_speed, "act": act, "touch-il": touch_il,
     "touch-il-reruns": touch_il_reruns, "results-provenance": results_provenance,
     "augment-lerobot-write": augment_lerobot_write, "touch-il-verdict": touch_il_verdict,
-    "estimator": estimator,
+    "estimator": estimator, **docs_figures.BLOCKS,
 }
 
 # model cards whose ``benchmark`` copies the figures of one JSON: card -> (JSON, the card's view of it)
@@ -449,7 +453,7 @@ def card_mismatches() -> list[str]:
 
 def check() -> list[str]:
     """What disagrees with the JSONs: 'FILE: figures:NAME' per stale block, then the model cards."""
-    return [f"{doc.relative_to(ROOT)}: figures:{name}" for doc in DOCS
+    return [f"{doc.relative_to(ROOT) if doc.is_relative_to(ROOT) else doc}: figures:{name}" for doc in DOCS
             for name in rendered(doc.read_text())[1]] + card_mismatches()
 
 

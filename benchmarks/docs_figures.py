@@ -1,0 +1,153 @@
+"""The tables the docs pages gained when the README became a front door (issue 42), and the README's one table of
+headline figures: render functions for ``benchmarks.readme_figures``, which owns the markers, ``--check``, the
+provenance line and ``BLOCKS`` (these join it). Each reads committed JSONs in ``benchmarks/results/`` only.
+"""
+
+from __future__ import annotations
+
+from controltac_il.metrics import wilson_interval
+
+
+def _rf():
+    """``benchmarks.readme_figures``, imported when a block renders (it imports this module to fill BLOCKS)."""
+    from benchmarks import readme_figures
+
+    return readme_figures
+
+
+def _source(rf, name: str, doc: dict) -> str:
+    """The provenance line of a block whose JSON records no generator, or records it where rf looks for it."""
+    return rf.provenance(name, doc, rf._recorded_generator(doc))
+
+
+# -- the sensor model, the scene, the robot side, the cache ---------------------------------------------------
+
+def sensor() -> str:
+    rf = _rf()
+    doc = rf.load("sensor.json")
+    speed = [[r["optics"], r["resolution"], f"{r['frames_per_s']:.0f}", f"{r['ms_per_frame']:.1f}",
+              f"{r['solver_iters_median']:.0f} (max {r['solver_iters_max']})"] for r in doc["speed"]]
+    labels = {"ours_three_light": "sensor model, three-light optics", "ours_polynomial": "sensor model, polynomial optics",
+              "real_gelsight_mini": "real GelSight Mini (`../shared`, GPL: measured, not shipped)"}
+    real = [[labels[k], f"{r['max_abs']:.0f}", f"{r['p99_abs']:.0f}", f"{r['contact_fraction']:.2f}",
+             f"{r['background_noise_std']:.1f}", " / ".join(f"{v:.0f}" for v in r["contact_std_rgb"])]
+            for k, r in doc["realism"].items()]
+    return (rf.table(["optics", "size", "frames/s", "ms per frame", "solver iterations, median"], speed) + "\n\n"
+            + rf.table(["residuals of", "max |residual|", "p99 |residual|", "contact fraction", "bare-gel noise SD",
+                        "contact SD R / G / B"], real) + "\n\n" + _source(rf, "sensor.json", doc))
+
+
+def env_speed() -> str:
+    rf = _rf()
+    doc = rf.load("env.json")
+    rows = [[r["setting"], f"{r['ms_per_step']:.1f}", f"{r['steps_per_s']:.0f}", f"{r['realtime_factor']:.1f}×"]
+            for r in doc["step_timing"]]
+    experts = "; ".join(f"Ø{e['hole_diameter_mm']:g} mm hole {e['successes']}/{e['episodes']}, median "
+                        f"{e['median_steps_to_success']:.0f} steps" for e in doc["expert"])
+    return (rf.table(["rendered per 100 ms control step", "ms per step", "steps/s", "real time ×"], rows)
+            + f"\n\nTarget: ≥ {doc['targets']['realtime_factor_full']:g}× real time with everything rendered. "
+            f"Scripted expert: {experts}.\n\n" + _source(rf, "env.json", doc))
+
+
+def hardware() -> str:
+    rf = _rf()
+    doc = rf.load("hardware.json")
+    rows = [[r["measure"], f"{r['p50_ms']:.2f}", f"{r['p99_ms']:.2f}", f"{r['max_ms']:.2f}", r["n"]] for r in doc["table"]]
+    loop = doc["control_loop"]
+    return (rf.table(["measure", "p50 ms", "p99 ms", "max ms", "n"], rows)
+            + f"\n\nDeadline misses of the {loop['rate_hz']:g} Hz loop: {loop['deadline_misses']}; load average "
+            f"{doc['load_avg_1m']:.1f} while it ran.\n\n" + _source(rf, "hardware.json", doc))
+
+
+def generation_chunk() -> str:
+    rf = _rf()
+    doc = rf.load("generation_chunk.json")
+    rows = [[r["pattern"], r["chunk"], r["frames"], f"{r['cpu_s']:.2f}", f"{r['frames_per_cpu_s']:.1f}",
+             r["bytes_differ_from_cache_chunk"]] for r in doc["rows"]]
+    header = ["pattern", "rows per forward pass", "frames", "CPU s", "frames per CPU s",
+              f"bytes differing from a cache built in chunks of {doc['shipped_chunk']}"]
+    return (rf.table(header, rows) + "\n\n"
+            + rf.provenance("generation_chunk.json", doc, None, f", {doc['threads']} torch thread"))
+
+
+def force_scaling() -> str:
+    rf = _rf()
+    doc = rf.load("force_scaling.json")
+    rows = [[r["row"], r["train_images"], f"{r['mae_n']:.2f} ± {r['sd_n']:.2f}",
+             f"{r['mae_fx']:.2f} / {r['mae_fy']:.2f} / {r['mae_fz']:.2f}"] for r in doc["rows"]]
+    v, pc, g = doc["verdict"], doc["physical_check"], doc["generation"]
+    text = (f"One third of the real set alone: {v['third_real_vs_full']:.2f}× the full set's MAE; that third plus "
+            f"generated frames: {v['third_plus_generated_vs_full']:.2f}× (target: within 1.10×, "
+            f"{'met' if v['target_c_within_10pct_of_full'] else 'missed'}). Physical check (the full-real estimator "
+            f"reads the generated frames against their target force): MAE {pc['generated_mae_n']:.2f} ± "
+            f"{pc['generated_sd_n']:.2f} N, against {pc['real_same_targets_mae_n']:.2f} ± "
+            f"{pc['real_same_targets_sd_n']:.2f} N on the real frames they stand in for; "
+            f"{g['targets_clamped_to_validated_range']} of {g['frames']} generated targets were clamped to the "
+            f"validated range.")
+    return (rf.table(["training set", "images", "test MAE, N (± SD over test frames)", "Fx / Fy / Fz MAE, N"], rows)
+            + "\n\n" + text + "\n\n" + _source(rf, "force_scaling.json", doc))
+
+
+# -- the README's one table of headline figures ----------------------------------------------------------------
+
+def _ci(c: dict) -> str:
+    return f"[{c['ci95'][0] * 100:+.1f}, {c['ci95'][1] * 100:+.1f}]"
+
+
+def _verdict_row(ver: dict) -> list[str]:
+    """ForceAugment with 2 copies against `real`, every setting of the verdict JSON."""
+    comps = {(c["variant"], c["setting"]): c for c in ver["comparisons"]}
+    settings = list(dict.fromkeys(c["setting"] for c in ver["comparisons"]))
+    grip = next(u for u in ver["units"] if u["kind"] == "policy")["settings"]
+    fa2 = [comps["fa2", st] for st in settings]
+    where = [("as in the demos, " if st == "nominal" else "") + "–".join(f"{g:g}" for g in grip[st]) + " N"
+             if grip.get(st) else st for st in settings]
+    seeds = len(next(r for r in ver["table"] if r["variant"] == "real")["per_seed"])
+    return [f"the verdict (v1): ACT with ForceAugment (2 copies) vs ACT on the real demos, {seeds} paired training seeds",
+            " / ".join(f"{c['diff'] * 100:+.1f}" for c in fa2) + f" points ({' / '.join(where)}): **"
+            + " / ".join(dict.fromkeys(c["verdict"] for c in fa2)) + "**",
+            " / ".join(_ci(c) for c in fa2) + " (95 % CI)"]
+
+
+def headline() -> str:
+    """One row per headline figure: what, the figure, its spread or interval, its docs section, its JSON."""
+    rf = _rf()
+    names = ("generator.json", "finetune.json", "touch_il_verdict.json", "env.json", "act.json")
+    gen, fin, ver, env, act = docs = [rf.load(n) for n in names]
+    src = {n: f"`{n}` ({doc['machine']['git_commit']}, {doc['machine']['date_utc'][:10]})"
+           + (" *History*" if _source(rf, n, doc).startswith("*History") else "") for n, doc in zip(names, docs)}
+    d = next(m for m in gen["methods"] if m["method"] == "default DDIM-1")
+    ratio = gen["targets"]["unseen_240_mse_ratio_to_copy"]
+    first, last = fin["rows"][0], fin["rows"][-1]
+    vis = next(c for c in ver["comparisons"] if (c["variant"], c["setting"]) == ("vision_only", "nominal"))
+    full, expert = env["step_timing"][-1], env["expert"][0]
+    lo, hi = (rf.pct(x) for x in wilson_interval(expert["successes"], expert["episodes"]))
+    cpu = next(r for r in act["latency"] if r["preset"] == "cpu")
+    gen_link, verdict_link = "[generator](docs/generator.md#the-benchmark)", "[experiments](docs/experiments.md#the-verdict-v1)"
+    rows = [
+        ["generator speed (shipped default, DDIM-1, batch 32)", f"{d['img_per_s_b32']:.1f} img/s on 120×160 frames, "
+         f"{d['img_per_s_b32_240']:.1f} on 240×320", "one timing each (median of repeats), no interval", gen_link,
+         src["generator.json"]],
+        ["generator error (6 held-out objects, 240×320)", f"MSE {d['unseen_240']['mse']:.1f}: {ratio:.3f}× a reference "
+         f"copy's (target ≤ 0.25×: {'met' if ratio <= 0.25 else 'missed'})",
+         f"± {d['unseen_240']['mse_sd']:.1f} SD over {d['unseen_240']['n']} pairs", gen_link, src["generator.json"]],
+        [f"calibration to a held-out sensor ({last['images']:,} presses)".replace(",", " "), f"generator {last['mse_ratio_to_copy']:.3f}× a "
+         f"copy's MSE (zero-shot {first['mse_ratio_to_copy']:.3f}×); estimator Fz MAE {first['estimator_mae'][2]:.2f} "
+         f"→ {last['estimator_mae'][2]:.2f} N", f"MSE {last['mse']:.1f} ± {last['mse_sd']:.1f} SD over {last['n']} pairs",
+         "[calibration](docs/calibration.md#what-calibration-buys-the-fine-tuning-curve)", src["finetune.json"]],
+        [*_verdict_row(ver), verdict_link, src["touch_il_verdict.json"]],
+        ["touch matters: ACT without its tactile streams vs with them, grip as in the demos",
+         f"{vis['diff'] * 100:+.1f} points: **{vis['verdict']}**", _ci(vis) + " (95 % CI)", verdict_link,
+         src["touch_il_verdict.json"]],
+        [f"MuJoCo scene speed ({full['setting']} rendered)", f"{full['realtime_factor']:.1f}× real time "
+         f"({full['ms_per_step']:.1f} ms per 100 ms step); scripted expert {expert['successes']}/{expert['episodes']}",
+         f"one timing, no interval; expert [{lo}, {hi}] % (Wilson 95 %)",
+         "[scene](docs/act_and_deployment.md#scene-speed)", src["env.json"]],
+        [f"ACT latency ({cpu['preset']} preset, {cpu['threads']} torch thread, CPU)",
+         f"{cpu['ms_per_chunk']:.1f} ms per chunk of {cpu['chunk']} (target {cpu['target_ms']:.0f})",
+         "one timing, no interval", "[ACT](docs/act_and_deployment.md#speed)", src["act.json"]]]
+    return rf.table(["what", "measured", "error or interval", "details", "source (`benchmarks/results/`)"], rows)
+
+
+BLOCKS = {"sensor": sensor, "env-speed": env_speed, "hardware": hardware, "generation-chunk": generation_chunk,
+          "force-scaling": force_scaling, "headline": headline}
