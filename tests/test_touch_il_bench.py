@@ -114,3 +114,27 @@ def test_bad_offset_range_names_the_flag(capsys):
     with pytest.raises(SystemExit):
         bench.parse_args(["--offset-range", "5", "-5"])
     assert "--offset-range: low 5 N is above high -5 N" in capsys.readouterr().err
+
+
+def test_a_cell_whose_episode_raised_stops_the_grid_naming_it_and_writes_nothing(tmp_path, monkeypatch):
+    """Issue 43: an episode that raises is never a failed episode: the unit stops with one line naming the cell."""
+    import torch
+    from act_fixtures import tiny_config
+
+    from controltac_il.app import EvaluationError
+    from policies.act import ACT, ACTPolicy, save_checkpoint
+
+    torch.manual_seed(0)
+    run = tmp_path / "policies" / "real-n3"
+    for sub in ("last", "best"):  # trained to the asked steps already: run_unit goes straight to evaluation
+        save_checkpoint(run / sub, ACT(tiny_config()), meta={"step": 5, "best_val_l1": 1.0})
+
+    def call(self, observation):
+        raise RuntimeError("the policy crashed")
+
+    monkeypatch.setattr(ACTPolicy, "__call__", call)
+    with pytest.raises(EvaluationError, match=r"^cell real-n3-nominal: 2 of 2 episodes raised and were not counted"):
+        bench.run_unit("real", 3, demos_dir=str(tmp_path), runs=str(tmp_path), steps=5, batch_size=2, copies=0,
+                       generator=None, max_force_copies=0, bands={"nominal": (4.0, 7.0)}, eval_episodes=2,
+                       signature="x", todo_settings=["nominal"], eval_seed=900_000)
+    assert not (tmp_path / "cells").exists()
