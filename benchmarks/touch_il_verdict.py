@@ -47,6 +47,8 @@ import json
 import time
 from pathlib import Path
 
+from controltac_il.io import write_json
+
 DEMO_SEEDS = (0, 50)
 VALIDATION_SEEDS = (700_000, 700_030)
 TEST_SEEDS = (800_000, 800_050)
@@ -113,7 +115,6 @@ def run_unit(unit: dict, ctx: dict) -> dict:
     import torch
 
     torch.set_num_threads(1)
-    from controltac_il.io import write_json
     from controltac_il.app.experiment import snapshot_path
 
     runs = Path(ctx["runs"])
@@ -303,6 +304,33 @@ def _load_done(args, p, signature: str) -> dict[str, dict]:
     return done
 
 
+class WallTime:
+    """A resumable grid's wall seconds across invocations: the finished ones in ``RUNS/wall_s.json``, the running
+    one in ``RUNS/wall_s_running.json`` at every save (a stopped invocation counts up to its last save)."""
+
+    def __init__(self, runs: Path, resume: bool, clock=time.perf_counter):
+        self.clock = clock
+        self.history_path, self.running_path = runs / "wall_s.json", runs / "wall_s_running.json"
+        self.history = json.loads(self.history_path.read_text()) if resume and self.history_path.is_file() else []
+        if resume and self.running_path.is_file():
+            self.history.append(json.loads(self.running_path.read_text()))
+            write_json(self.history_path, self.history)
+            self.running_path.unlink()
+        self.t0 = clock()
+
+    def now(self) -> dict:
+        """This invocation's seconds so far (also kept in the running file), the earlier ones and the total."""
+        elapsed = round(self.clock() - self.t0, 1)
+        write_json(self.running_path, elapsed)
+        return {"this_invocation": elapsed, "earlier_invocations": self.history,
+                "total": round(sum(self.history) + elapsed, 1)}
+
+    def finish(self) -> None:
+        self.history.append(round(self.clock() - self.t0, 1))
+        write_json(self.history_path, self.history)
+        self.running_path.unlink(missing_ok=True)
+
+
 def _run(units: list[dict], ctx: dict, jobs: int, done: dict, save, unit_fn=None) -> None:
     """Run the units not yet done (``unit_fn(unit, ctx)``, a module-level function; default this module's
     ``run_unit``), ``jobs`` at a time, saving after each."""
@@ -351,11 +379,9 @@ def main(argv=None) -> dict:
     from benchmarks.common import print_table, write_results
     from benchmarks.touch_il import budget_demos
     from controltac_il.app import default_demos
-    from controltac_il.io import write_json
     from controltac_il.app.experiment import touch_scene
 
     torch.set_num_threads(2 if args.jobs == 1 else 1)
-    t_start = time.perf_counter()
     all_demos = default_demos(args.collect, seed=0, scene="touch_critical")
     attempts = json.loads((all_demos / "collect_info.json").read_text()).get("attempts", args.collect)
     args.demo_seeds = (0, attempts)
@@ -373,28 +399,18 @@ def main(argv=None) -> dict:
            "validation_seeds": args.validation_seeds, "test_seeds": args.test_seeds, "nominal": nominal,
            "shift_candidates": args.shift_candidates, "signature": signature, "max_force_copies": 0}
     results: dict = {"benchmark": "touch_il_verdict", "protocol": protocol}
-    history_path, running_path = args.runs / "wall_s.json", args.runs / "wall_s_running.json"
-    history = json.loads(history_path.read_text()) if args.resume and history_path.is_file() else []
-    if args.resume and running_path.is_file():  # an invocation that was stopped: its time up to its last save
-        history.append(json.loads(running_path.read_text()))
-        write_json(history_path, history)
-        running_path.unlink()
+    wall = WallTime(args.runs, args.resume)
 
     def save(picture: bool = False) -> None:
         results["units"] = sorted(done.values(), key=lambda u: u["id"])
         _report(results, args, picture)
-        elapsed = round(time.perf_counter() - t_start, 1)
-        write_json(running_path, elapsed)
-        results["wall_s"] = {"this_invocation": elapsed, "earlier_invocations": history,
-                             "total": round(sum(history) + elapsed, 1)}
+        results["wall_s"] = wall.now()
         if args.out:
             write_results(args.out, results)
 
     _phases(args, ctx, results, done, save, Path(demos_dir))
     save(picture=True)
-    history.append(round(time.perf_counter() - t_start, 1))
-    write_json(history_path, history)
-    running_path.unlink(missing_ok=True)
+    wall.finish()
     print_table(results["table"], ["variant", "setting", "mean", "ci95", "per_seed"], "Test success over seeds")
     print_table(results["comparisons"], ["variant", "setting", "diff", "ci95", "p", "p_holm", "verdict"], "Against real")
     return results

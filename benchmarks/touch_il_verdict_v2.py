@@ -51,10 +51,10 @@ ACT run is bit-identical to an uninterrupted one (``controltac_il.training.StepB
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 
-from benchmarks.touch_il_verdict import _int_list, _load_done, _protocol_commit, _range, _run, signature_of
+from benchmarks.touch_il_verdict import (WallTime, _int_list, _load_done, _protocol_commit, _range, _run,
+                                         signature_of)
 
 DEMO_SEEDS = (0, 50)
 VALIDATION_SEEDS = (700_000, 700_030)
@@ -257,7 +257,6 @@ def main(argv=None) -> dict:
     from controltac_il.io import write_json
 
     torch.set_num_threads(2 if args.jobs == 1 else 1)
-    t_start = time.perf_counter()
     protocol = protocol_of(args)
     signature = signature_of(protocol)
     done = _load_done(args, p, signature)
@@ -269,20 +268,12 @@ def main(argv=None) -> dict:
            "batch_size": args.batch_size, "validation_seeds": args.validation_seeds, "test_seeds": args.test_seeds,
            "nominal": SETTINGS["nominal"], "settings": SETTINGS, "signature": signature}
     results: dict = {"benchmark": "touch_il_verdict_v2", "protocol": protocol}
-    history_path, running_path = args.runs / "wall_s.json", args.runs / "wall_s_running.json"
-    history = json.loads(history_path.read_text()) if args.resume and history_path.is_file() else []
-    if args.resume and running_path.is_file():
-        history.append(json.loads(running_path.read_text()))
-        write_json(history_path, history)
-        running_path.unlink()
+    wall = WallTime(args.runs, args.resume)
 
     def save(picture: bool = False) -> None:
         results["units"] = sorted(done.values(), key=lambda u: u["id"])
         _report(results, args, picture)
-        elapsed = round(time.perf_counter() - t_start, 1)
-        write_json(running_path, elapsed)
-        results["wall_s"] = {"this_invocation": elapsed, "earlier_invocations": history,
-                             "total": round(sum(history) + elapsed, 1)}
+        results["wall_s"] = wall.now()
         if args.out:
             write_results(args.out, results)
 
@@ -294,9 +285,7 @@ def main(argv=None) -> dict:
     _run([{"id": f"test-{v}-s{s}-step{results['steps'][v]['step']}", "kind": "test", "variant": v, "seed": s,
            "step": results["steps"][v]["step"]} for s in args.seeds for v in args.variants], ctx, args.jobs, done, save, run_unit)
     save(picture=True)
-    history.append(round(time.perf_counter() - t_start, 1))
-    write_json(history_path, history)
-    running_path.unlink(missing_ok=True)
+    wall.finish()
     print(results["power_statement"])
     print_table(results["table"], ["variant", "setting", "mean", "ci95", "sd_over_seeds", "below_real_worst"],
                 "Test success over seeds")

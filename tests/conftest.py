@@ -5,6 +5,19 @@ import os
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 
+import pytest  # noqa: E402
 import torch  # noqa: E402
 
 torch.set_num_threads(2)
+
+
+@pytest.fixture
+def clock():
+    """A virtual clock (``hardware.interfaces.VirtualClock``) attached to this test's thread: time moves only when
+    every attached thread (this one, a streaming or control thread it starts) sleeps on it."""
+    from hardware.interfaces import VirtualClock
+
+    c = VirtualClock()
+    c.attach()
+    yield c
+    c.detach()

@@ -56,14 +56,6 @@ class StubXArmAPI:
         return 0, 0
 
 
-@pytest.fixture
-def clock():
-    """A virtual clock moved only when this test's thread sleeps on it (the streaming thread is attached too)."""
-    c = VirtualClock()
-    c.attach()
-    yield c
-    c.detach()
-
 
 def names(calls):
     return [c[0] for c in calls]

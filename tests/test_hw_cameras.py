@@ -13,7 +13,7 @@ from controltac_il.tactile import SensorSpec, TactileSensor, to_residual
 from hardware.cameras import GelSightMini, OpenCVFrameSource, crop_and_resize, find_video_device
 from hardware.control_loop import ControlLoop, ControlLoopConfig
 from hardware.fakes import FakeArm
-from hardware.interfaces import SensorError, VirtualClock
+from hardware.interfaces import SensorError
 
 MAGENTA_BGR = (255, 0, 255)
 RAW_H, RAW_W = 600, 800  # 15 % of each side removed leaves 420 x 560 = 1.75 x (240 x 320)
@@ -53,14 +53,6 @@ def gelsight_video(tmp_path_factory, sensor_frames):
 def mae(a, b):
     return float(np.abs(a.astype(np.int16) - b.astype(np.int16)).mean())
 
-
-@pytest.fixture
-def clock():
-    """Virtual time that moves only while this test's thread (or the loop it runs) sleeps on it."""
-    c = VirtualClock()
-    c.attach()
-    yield c
-    c.detach()
 
 
 def test_crop_and_resize_removes_exactly_the_border():

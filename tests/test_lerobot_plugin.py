@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 import pytest
 
-from hardware.interfaces import SensorError, VirtualClock
+from hardware.interfaces import SensorError
 
 PLUGIN = Path(__file__).resolve().parents[1] / "plugins" / "lerobot_camera_gelsight"
 DIST = "lerobot_camera_gelsight"
@@ -55,14 +55,6 @@ def write_gel_video(path: Path, n_pressed: int = CONTACT, fps: float = 25.0) -> 
     writer.release()
     return str(path)
 
-
-@pytest.fixture
-def clock():
-    """Virtual time that moves only while this test's thread sleeps on it."""
-    c = VirtualClock()
-    c.attach()
-    yield c
-    c.detach()
 
 
 def expected(pressed: bool) -> np.ndarray:

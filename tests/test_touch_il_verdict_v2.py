@@ -94,3 +94,18 @@ def test_a_unit_whose_episode_raised_is_written_to_failed_and_stops_the_grid_nam
     failed = json.loads((tmp_path / "failed" / "test-fa2-s3-step2.json").read_text())
     assert [e["seed"] for e in failed["errors"]] == [900_000, 900_001] and "crashed" in failed["errors"][0]["error"]
     assert not (tmp_path / "units").exists()  # nothing counted
+
+
+def test_wall_time_adds_up_across_a_stopped_and_a_resumed_invocation(tmp_path):
+    from benchmarks.touch_il_verdict import WallTime
+
+    t = [1000.0]
+    first = WallTime(tmp_path, resume=False, clock=lambda: t[0])
+    t[0] += 100.0
+    assert first.now()["this_invocation"] == 100.0  # saved; then the invocation is stopped
+    second = WallTime(tmp_path, resume=True, clock=lambda: t[0])  # picks the stopped one up from its running file
+    t[0] += 50.0
+    assert second.now() == {"this_invocation": 50.0, "earlier_invocations": [100.0], "total": 150.0}
+    second.finish()
+    assert WallTime(tmp_path, resume=True, clock=lambda: t[0]).history == [100.0, 50.0]
+    assert WallTime(tmp_path, resume=False).history == []  # a new grid starts from zero
