@@ -12,7 +12,8 @@ import numpy as np
 import pyarrow as pa
 
 from controltac_il.datasets.episodes import episode_paths, read_episode
-from controltac_il.datasets.lerobot_v3_write import encode_video, png_bytes, vector_stats, write_meta, write_parquet
+from controltac_il.datasets.lerobot_v3_write import (encode_video, png_bytes, vector_stats, write_data_parquet,
+                                                     write_meta, write_parquet)
 
 FPS = 10
 IMAGE, VIDEO = "observation.images.gelsight_left", "observation.images.gelsight_right"
@@ -60,7 +61,7 @@ def write_source(demos: Path, root: Path) -> Path:
                         f"videos/{key}/from_timestamp": start / FPS, f"videos/{key}/to_timestamp": (start + L) / FPS})
         rows.append(row)
         start += L
-    write_parquet(root / "data" / "chunk-000" / "file-000.parquet", pa.concat_tables(tables))
+    write_data_parquet(root / "data" / "chunk-000" / "file-000.parquet", pa.concat_tables(tables))
     for key, parts in videos.items():
         encode_video(root / "videos" / key / "chunk-000" / "file-000.mp4", np.concatenate(parts), FPS, "av1")
     _write_meta(root, rows, episodes[0], start)

@@ -12,6 +12,7 @@ import os
 import pickle
 import shutil
 import time
+import warnings
 from fractions import Fraction
 
 import av
@@ -340,6 +341,23 @@ def test_unreadable_files_are_refused_in_one_line_naming_them(folder, tmp_path):
     for index in (2, 3):
         message = _one_line_naming(path, lambda: ds[index])
         assert message == f"{LEFT}: an image of {path} (index {index}) is not a readable PNG", message
+
+
+def test_a_corrupt_tactile_png_read_through_lerobot_episodes_is_refused_naming_its_file(folder, tmp_path):
+    from controltac_il.datasets.lerobot_episodes import LeRobotEpisodes
+
+    root = (tmp_path / "episodes_png").resolve()  # LeRobotEpisodes names the resolved path
+    shutil.copytree(folder, root)
+    path = root / "data" / "chunk-000" / "file-000.parquet"  # episodes 0 (frames 0-4) and 1
+    table = pq.read_table(path)
+    cells = table.column(LEFT).to_pylist()
+    cells[7]["bytes"] = cells[7]["bytes"][:-20]  # episode 1, frame 2: truncated
+    i = table.schema.get_field_index(LEFT)
+    pq.write_table(table.set_column(i, table.schema.field(i), pa.array(cells, table.schema.field(i).type)), path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # backgrounds estimated per episode
+        message = _one_line_naming(path, lambda: LeRobotEpisodes(root, chunk_size=2, tactile_keys=[LEFT]))
+    assert message == f"{LEFT}: an image of {path} (episode 1, frame 2) is not a readable PNG", message
 
 
 def test_force_augment_wraps_a_folder_with_windows_and_labels(folder, tmp_path):

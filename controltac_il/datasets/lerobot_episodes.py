@@ -108,7 +108,7 @@ class LeRobotEpisodes(Dataset):
             table = self.folder.episode_table(e) if self.tactile_sensors else None
             for s, key in self.tactile_keys.items():
                 frames = (self.folder.video_frames(key, e) if self.folder.features[key]["dtype"] == "video"
-                          else _pngs(table.column(key)))
+                          else _pngs(table.column(key), key, self.folder.data_file(e), e))
                 force = numbers(table.column(self.force_keys[s])).astype(np.float32) if s in self.force_keys else None
                 out[(n, s)] = estimate_background(frames, force)[0]
         return out
@@ -145,5 +145,8 @@ def _uint8(image: torch.Tensor) -> torch.Tensor:
     return (image * 255).round().to(torch.uint8)
 
 
-def _pngs(column) -> np.ndarray:
-    return np.stack([decode_png(b, "tactile") for b in column.combine_chunks().field("bytes").to_pylist()])
+def _pngs(column, key: str, path: Path, episode: int) -> np.ndarray:
+    """RGB uint8 (L, H, W, 3) of an episode's PNG column ``key``; a frame that is no readable PNG is refused in
+    one ValueError line naming the data parquet ``path``, the episode and the frame."""
+    return np.stack([decode_png(b, key, f"{path} (episode {episode}, frame {i})")
+                     for i, b in enumerate(column.combine_chunks().field("bytes").to_pylist())])
