@@ -1,7 +1,9 @@
 """Writing an augmented LeRobot v3.0 folder: originals then copies, renumbered and otherwise copied; regenerated
 tactile frames equal to ForceAugment's (PNG exactly, video within the measured codec error); provenance
-features; stats over the written frames; resume and rank shares identical to one clean write; refusals; the
-rules of LeRobot main that lerobot 0.4.4 also reads (row groups, info.json keys, feature dicts, the record).
+features; stats over the written frames (per episode and aggregated, equal to recomputing them from the frames
+although the writer reuses what copies share); the codec round trip an option that changes only the record;
+resume and rank shares identical to one clean write; refusals; the rules of LeRobot main that lerobot 0.4.4
+also reads (row groups, info.json keys, feature dicts, the record).
 
 The source folder is written here with pyarrow + PyAV (independently of the writer under test): 2 episodes
 of 6 and 5 frames at 10 fps in one data file and one video file (episode 1 from 0.6 s); tactile cameras
@@ -13,6 +15,7 @@ its video features have ``info`` dicts (0.4.4's spelling for the wrist, main's f
 import json
 import shutil
 from fractions import Fraction
+from pathlib import Path
 
 import av
 import cv2
@@ -27,7 +30,8 @@ from test_aug_force_augment import tiny_generator
 from controltac_il.augment import STATUS, ForceAugment, main
 from controltac_il.augment.to_lerobot import read_record, staging_dir, write_lerobot
 from controltac_il.datasets.lerobot_v3 import LeRobotFolder
-from controltac_il.datasets.lerobot_v3_write import INFO_KEYS, write_data_parquet
+from controltac_il.datasets.lerobot_v3_write import (INFO_KEYS, QUANTILES, STAT_NAMES, frame_histograms, image_stats,
+                                                     sample_indices, write_data_parquet)
 
 FPS, LENGTHS, CONTACT = 10, (6, 5), ((1, 2, 3, 4), (2, 3))
 LEFT, RIGHT, WRIST = "observation.images.gelsight_left", "observation.images.gelsight_right", "observation.images.wrist"
@@ -204,8 +208,80 @@ def test_stats_cover_every_written_frame_with_float_std(written):
     assert set(stats) == set(dst.features) and "augment.gelsight_left.target_force" in stats
 
 
-def test_video_round_trip_error_is_that_of_the_frames_written(written):
+def _expected_stats(values: np.ndarray, camera: bool) -> dict:
+    """Stats recomputed with NumPy from the values of one episode: (N, D) numbers, or uint8 (N, H, W, 3) frames
+    (every frame: the fixture's episodes are shorter than 100 frames and narrower than 300 px)."""
+    x = values.reshape(-1, 3).astype(np.float64) / 255 if camera else values.reshape(len(values), -1).astype(np.float64)
+    out = {"min": x.min(0), "max": x.max(0), "mean": x.mean(0), "std": x.std(0), "count": np.array([len(values)])}
+    out.update({f"q{round(q * 100):02d}": v for q, v in zip(QUANTILES, np.quantile(x, QUANTILES, axis=0))})
+    return {k: v.reshape(3, 1, 1) if camera and k != "count" else v for k, v in out.items()}
+
+
+def test_per_episode_and_dataset_stats_equal_recomputing_them_from_the_frames_written(written):
     root, out, _, reference = written
+    dst = LeRobotFolder(out)
+    rows = pq.read_table(out / "meta" / "episodes" / "chunk-000" / "file-000.parquet").to_pylist()
+    cameras = [LEFT, RIGHT, WRIST]
+    numeric = [k for k, ft in dst.features.items() if ft["dtype"] not in ("image", "video", "string")]
+    expected, pooled = [], {k: [] for k in [*cameras, *numeric]}
+    for row in rows:
+        items = range(row["dataset_from_index"], row["dataset_to_index"])
+        # the frames written: before encoding for a video (reference: the source's frames, the cache's where
+        # regenerated), as LeRobot's stats; the copied wrist video is the source's
+        ref, got = [reference[i] for i in items], [dst[i] for i in items]
+        values = {k: np.stack([(r[k].numpy() * 255).round().astype(np.uint8).transpose(1, 2, 0) for r in ref])
+                  for k in cameras}
+        values.update({k: np.stack([np.atleast_1d(g[k].numpy()) for g in got]) for k in numeric})
+        expected.append({k: _expected_stats(v, k in cameras) for k, v in values.items()})
+        for k, v in values.items():
+            pooled[k].append(v)
+        for k, stats in expected[-1].items():
+            for name, value in stats.items():
+                np.testing.assert_allclose(np.asarray(row[f"stats/{k}/{name}"], np.float64), value, rtol=1e-9,
+                                           atol=1e-12, err_msg=f"episode {row['episode_index']} {k} {name}")
+    E = len(LENGTHS)
+    for j, row in enumerate(rows[E:], E):  # a copy's wrist stats are its source episode's, its tactile ones not
+        assert all(row[f"stats/{WRIST}/{n}"] == rows[j % E][f"stats/{WRIST}/{n}"] for n in STAT_NAMES)
+        assert row[f"stats/{LEFT}/mean"] != rows[j % E][f"stats/{LEFT}/mean"]
+    stats = json.loads((out / "meta" / "stats.json").read_text())
+    counts = np.array([row["length"] for row in rows], np.float64)
+    for k, parts in pooled.items():  # LeRobot's aggregate: pooled min, max, mean, std; count-weighted quantiles
+        whole = _expected_stats(np.concatenate(parts), k in cameras)
+        for name in ("min", "max", "mean", "std", "count"):
+            np.testing.assert_allclose(np.asarray(stats[k][name], np.float64), whole[name], rtol=1e-9, atol=1e-12,
+                                       err_msg=f"{k} {name}")
+        for name in STAT_NAMES[5:]:
+            weighted = sum(c * ep[k][name] for c, ep in zip(counts, expected)) / counts.sum()
+            np.testing.assert_allclose(np.asarray(stats[k][name], np.float64), weighted, rtol=1e-9, atol=1e-12)
+
+
+def test_a_copys_tactile_stats_from_reused_histograms_equal_recomputing_them():
+    from controltac_il.augment.lerobot_out import _tactile_stats
+
+    rng = np.random.default_rng(1)
+    L = 130  # >= 100 frames: the stats read 100 of them; 300 px wide: every 2nd pixel of every 2nd row
+    real = rng.integers(0, 200, (L, 12, 300, 3), dtype=np.uint8)
+    picks = sample_indices(L)
+    rows = np.array([0, 1, 2, 64, 65, 128, 129])
+    assert 0 < np.isin(rows, picks).sum() < len(rows)  # regenerated frames both read and not read by the stats
+    images = [rng.integers(150, 256, (12, 300, 3), dtype=np.uint8) for _ in rows]
+    written = real.copy()
+    written[rows] = np.stack(images)
+    got = _tactile_stats(frame_histograms(real[picks]), picks, rows, images)
+    assert got == image_stats(written[picks]) and got != image_stats(real[picks])
+    pixels = written[picks][:, ::2, ::2].reshape(-1, 3).astype(np.float64) / 255
+    np.testing.assert_allclose(np.ravel(got["mean"]), pixels.mean(0), rtol=1e-12)
+    np.testing.assert_allclose(np.ravel(got["std"]), pixels.std(0), rtol=1e-12)
+    np.testing.assert_allclose(np.ravel(got["q90"]), np.quantile(pixels, 0.9, axis=0), rtol=1e-12)
+    assert got["count"] == [len(picks)] and np.ravel(got["max"]).tolist() == [1.0, 1.0, 1.0]
+
+
+def test_the_round_trip_is_an_option_that_changes_only_the_record(written, tmp_path):
+    root, clean, _, reference = written
+    assert read_record(clean)["video_round_trip_mse"] is None and read_record(clean)["video_round_trip_psnr_db"] is None
+    out = tmp_path / "checked"
+    write_lerobot(augment(root, out, generator=reference.generator), LeRobotFolder(root), out, progress=False,
+                  round_trip=True)
     marker, dst, n = read_record(out), LeRobotFolder(out), sum(LENGTHS)
     errors = [((dst[i][RIGHT] - reference[i][RIGHT]) * 255).numpy() ** 2 for i in range(n, len(dst))
               if int(reference.info(reference[i])[f"status.{RIGHT}"]) in (2, 3)]
@@ -213,6 +289,15 @@ def test_video_round_trip_error_is_that_of_the_frames_written(written):
     # the tiny generator's frames are noise, which yuv420p's halved chroma cannot hold (the shipped generator's
     # round trip is measured by benchmarks.augment); here: the figure is the frames' own
     assert marker["video_round_trip_psnr_db"] == pytest.approx(10 * np.log10(255 ** 2 / np.mean(errors)), rel=1e-3)
+    files = {p.relative_to(out): p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()}
+    info = Path("meta") / "info.json"
+    assert files.pop(info) != (clean / info).read_bytes()
+    assert files == {p.relative_to(clean): p.read_bytes() for p in sorted(clean.rglob("*")) if p.is_file()
+                     and p.relative_to(clean) != info}
+    unchecked = json.loads((clean / info).read_text())
+    record = unchecked["features"]["augment.copy"]["info"]["controltac_il_augment"]
+    record.update({k: marker[k] for k in ("video_round_trip_mse", "video_round_trip_psnr_db")})
+    assert json.loads((out / info).read_text()) == unchecked
 
 
 def test_data_files_hold_one_row_group_per_episode(written, tmp_path):
@@ -288,7 +373,12 @@ def test_cli_writes_and_refuses_in_one_line_naming_the_flag(written, tmp_path, c
             "--force-keys", *(f"{k}={v}" for k, v in FORCES.items())]
     out = tmp_path / "out"
     assert main(["--dataset", str(root), "--out", str(out), *base]) == 0
-    assert "6 episodes (2 original + 2 copies of each)" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "6 episodes (2 original + 2 copies of each)" in printed and "round trip" not in printed
+    assert main(["--dataset", str(root), "--out", str(tmp_path / "checked"), *base, "--video-round-trip"]) == 0
+    assert "images regenerated; video round trip MSE " in capsys.readouterr().out
+    assert read_record(tmp_path / "checked")["video_round_trip_mse"] > 0
+    assert read_record(out)["video_round_trip_mse"] is None
     assert main(["--dataset", str(root), "--out", str(out), *base]) == 0
     assert "already holds this augmented dataset" in capsys.readouterr().out
     (tmp_path / "foreign").mkdir()
@@ -335,10 +425,10 @@ def test_cli_writes_and_refuses_in_one_line_naming_the_flag(written, tmp_path, c
 
 @pytest.mark.parametrize("values", [[7], [0, 255], [3] * 5, list(range(256)) * 3 + [9], "random"])
 def test_camera_stats_from_the_histogram_equal_numpys(values):
-    from controltac_il.datasets.lerobot_v3_write import QUANTILES, _uint8_stats
+    from controltac_il.datasets.lerobot_v3_write import _channel_stats
 
     v = np.random.default_rng(0).integers(0, 256, 4099) if values == "random" else np.asarray(values)
-    st = _uint8_stats(v.astype(np.uint8))
+    st = _channel_stats(np.bincount(v, minlength=256))
     np.testing.assert_allclose([st[f"q{round(q * 100):02d}"] for q in QUANTILES], np.quantile(v, QUANTILES))
     np.testing.assert_allclose([st["min"], st["max"], st["mean"], st["std"]], [v.min(), v.max(), v.mean(), v.std()])
 

@@ -91,6 +91,10 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--pose-adapter", default="pose",
                    help="with --pose-offset: the stage-2 pose adapter folder (default: pose, shipped for the default)")
     p.add_argument("--device", default="cpu", help="torch device for the generator (default cpu)")
+    p.add_argument("--video-round-trip", action="store_true",
+                   help="LeRobot: decode every re-encoded tactile video back and report the codec's round trip error "
+                        "(MSE, PSNR of the regenerated frames) in the output's record; costs one decode per re-encoded "
+                        "video (default off; data and videos written are the same)")
     return p
 
 
@@ -107,14 +111,14 @@ def _report(aug: ForceAugment, counts: dict) -> None:
           f"{s['clamped']} clamped, {s['skipped']} skipped (kept real), {s['no_contact']} without contact")
 
 
-def _write(aug: ForceAugment, out: Path, root: Path) -> dict:
+def _write(aug: ForceAugment, out: Path, root: Path, round_trip: bool) -> dict:
     from controltac_il.augment.provenance import StaleCacheError
     from controltac_il.augment.to_lerobot import write_lerobot
     from controltac_il.datasets.lerobot_v3 import LeRobotFolder
 
     try:
         # every feature (aug reads the tactile ones alone); decoder threads: nothing forks while writing
-        return write_lerobot(aug, LeRobotFolder(root, video_threads=0), out)
+        return write_lerobot(aug, LeRobotFolder(root, video_threads=0), out, round_trip=round_trip)
     except ValueError as exc:
         if isinstance(exc, StaleCacheError):
             raise
@@ -273,7 +277,7 @@ def main(argv=None) -> int:
 
         try:
             if args.lerobot:
-                _report_lerobot(args.out, _write(aug, args.out, args.dataset))
+                _report_lerobot(args.out, _write(aug, args.out, args.dataset, args.video_round_trip))
             else:
                 _report(aug, aug.build_cache())
         except StaleCacheError as exc:  # a chunk that does not provably belong to the cache

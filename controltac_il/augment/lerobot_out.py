@@ -4,8 +4,9 @@ Episodes: the source's, unchanged, first (output episode i is the source's i-th)
 episode ``k * E + i`` (E source episodes), with ``episode_index`` and ``index`` renumbered and every other
 column (``frame_index``, ``timestamp``, ``task_index``, actions, states, other cameras) copied. Copies'
 tactile frames in contact are the cache's regenerated images: PNG bytes for image features; for video
-features the episode is re-encoded with PyAV in the source's codec (``lerobot_v3_write.ENCODERS``) and the
-round trip (squared error of the decoded regenerated frames, uint8 units) is measured per write.
+features the episode is re-encoded with PyAV in the source's codec (``lerobot_v3_write.ENCODERS``); with
+``round_trip`` each re-encoded file is decoded back and the codec's round trip (squared error of the decoded
+regenerated frames, uint8 units) measured (a decode of every re-encoded stream; off by default).
 
 Files: one data parquet per output episode (``chunk-{e // chunks_size}/file-{e % chunks_size}``); the source's
 mp4 files copied under their own paths, referenced by the originals and by copies for every stream not
@@ -15,6 +16,12 @@ and per tactile camera ``augment.<camera>.status`` (STATUS code) and ``augment.<
 (3,) N (the force the image shows: the target where regenerated, else the frame's label or reference force,
 else 0). Names carry the camera's last name part, never "image" (LeRobot gives any feature named
 "image..." camera-shaped stats).
+
+Stats (``lerobot_v3_write``) are those of the frames written, and what output episodes share is computed once:
+the features every copy holds unchanged (cameras, actions, states) once per source episode; a tactile camera's
+from per-frame channel histograms, the source's at the sampled frames with the regenerated frames' in their place
+(equal to recomputing them from the copy's frames: a frame's histogram depends on that frame alone). A tactile
+image feature's PNGs are decoded only at the frames its stats sample (all of an episode shorter than 100 frames).
 
 Each output episode is written (data, videos) and then recorded by its meta row in ``done/`` (atomic): that
 row marks it complete, so an interrupted write resumes where it stopped; ``finish`` writes ``meta/``.
@@ -27,6 +34,7 @@ import os
 import shutil
 import sys
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -34,8 +42,9 @@ import pyarrow as pa
 from tqdm import tqdm
 
 from controltac_il.datasets.lerobot_v3 import decode_png, numbers
-from controltac_il.datasets.lerobot_v3_write import (decode_video, encode_video, image_stats, png_bytes,
-                                                     sample_indices, vector_stats, video_codec, write_data_parquet)
+from controltac_il.datasets.lerobot_v3_write import (decode_video, encode_video, frame_histograms, histogram_stats,
+                                                     image_stats, png_bytes, sample_indices, vector_stats, video_codec,
+                                                     write_data_parquet)
 from controltac_il.io import atomic_path, write_json
 
 PREFIX = "augment"
@@ -75,12 +84,28 @@ def check_tactile_features(features: dict, tactile_keys) -> None:
                              "tactile stream must be an RGB image or video feature (H, W, 3)")
 
 
+@dataclass
+class _Source:
+    """What every output episode of source episode ``index`` reads: its data rows, the frames its stats sample
+    (``picks``), every frame of its tactile videos (RGB (L, H, W, 3)), its tactile frames' channel histograms at
+    ``picks`` (int64 (len(picks), 3, 256)) and the stats of the features its copies share."""
+
+    index: int
+    table: pa.Table
+    picks: np.ndarray
+    videos: dict
+    histograms: dict
+    shared: dict
+
+
 class LeRobotExport:
     """Writes the augmented folder ``folder`` (module docstring) from ``aug`` (a ForceAugment in cache mode,
-    its cache built) over ``source`` (the LeRobotFolder it wraps); ``done``: the per-episode meta rows."""
+    its cache built) over ``source`` (the LeRobotFolder it wraps); ``done``: the per-episode meta rows;
+    ``round_trip``: decode each re-encoded video back and count its squared error (module docstring)."""
 
-    def __init__(self, aug, source, folder: Path, done: Path):
+    def __init__(self, aug, source, folder: Path, done: Path, round_trip: bool = False):
         self.aug, self.source, self.folder, self.done = aug, source, Path(folder), Path(done)
+        self.round_trip = bool(round_trip)
         self.tactile = tuple(aug.tactile_keys)
         check_tactile_features(source.features, self.tactile)
         self.names = provenance_names(self.tactile)
@@ -130,91 +155,96 @@ class LeRobotExport:
 
     def _write_source(self, p: int, counts: dict):
         """Write every missing output episode of source position ``p``; yields after each."""
-        e = self.sources[p]
-        table = self.source.episode_table(e)
-        frames = table.column("frame_index").to_numpy().astype(int)
-        real = {k: self._real_frames(table, e, k) for k in self.tactile}
-        shared = self._shared_stats(table, e)
-        first = self.aug.chunk(e, 1)
+        src = self._read_source(self.sources[p])
+        frames = src.table.column("frame_index").to_numpy().astype(int)
+        first = self.aug.chunk(src.index, 1)
         for k in range(self.copies + 1):
             j = k * len(self.sources) + p
             if self._row_path(j).is_file():
                 continue
-            images, prov = self._copy_frames(e, k, frames, real, table, first)
-            row = self._write_episode(j, e, table, images, prov, shared, counts)
+            regenerated, prov = self._copy_frames(src, k, frames, first)
+            row = self._write_episode(j, src, regenerated, prov, counts)
             write_json(self._row_path(j), row)
             counts["episodes"] += 1
             yield j
 
-    def _real_frames(self, table: pa.Table, e: int, key: str) -> np.ndarray:
-        """RGB uint8 (L, H, W, 3) of tactile ``key`` in source episode ``e``."""
-        if self.source.features[key]["dtype"] == "video":
-            return self.source.video_frames(key, e)
-        column, path = table.column(key).combine_chunks().field("bytes"), self.source.data_file(e)
-        return np.stack(_parallel(lambda i: decode_png(column[i].as_py(), key, f"{path} (episode {e}, frame {i})"),
-                                  range(len(column))))
+    def _read_source(self, e: int) -> _Source:
+        """Source episode ``e`` as its output episodes read it (``_Source``)."""
+        table = self.source.episode_table(e)
+        picks = sample_indices(len(table))
+        videos, histograms = {}, {}
+        for key in self.tactile:
+            if self.source.features[key]["dtype"] == "video":
+                videos[key] = self.source.video_frames(key, e)
+                sampled = videos[key][picks]
+            else:
+                sampled = self._decode_images(table, e, key, picks)
+            histograms[key] = frame_histograms(sampled)
+        return _Source(e, table, picks, videos, histograms, self._shared_stats(table, e, picks))
 
-    def _shared_stats(self, table: pa.Table, e: int) -> dict:
+    def _decode_images(self, table: pa.Table, e: int, key: str, rows) -> np.ndarray:
+        """RGB uint8 (len(rows), H, W, 3): the PNGs of image feature ``key`` at ``rows`` of episode ``e``."""
+        column, path = table.column(key).combine_chunks().field("bytes"), self.source.data_file(e)
+        return np.stack(_parallel(
+            lambda i: decode_png(column[int(i)].as_py(), key, f"{path} (episode {e}, frame {i})"), rows))
+
+    def _shared_stats(self, table: pa.Table, e: int, picks: np.ndarray) -> dict:
         """Stats of the features every copy of episode ``e`` shares (all but the tactile keys, provenance,
         episode_index and index)."""
         out = {}
-        picks = sample_indices(len(table))
         for key, ft in self.source.features.items():
             if key in self.tactile or key in ("episode_index", "index"):
                 continue
             if ft["dtype"] == "video":
                 out[key] = image_stats(self.source.video_frames(key, e)[picks])
             elif ft["dtype"] == "image":
-                column, path = table.column(key).combine_chunks().field("bytes"), self.source.data_file(e)
-                out[key] = image_stats(np.stack(_parallel(
-                    lambda i: decode_png(column[int(i)].as_py(), key, f"{path} (episode {e}, frame {i})"), picks)))
+                out[key] = image_stats(self._decode_images(table, e, key, picks))
             elif ft["dtype"] != "string":
                 out[key] = vector_stats(numbers(table.column(key)), key)
         return out
 
-    def _copy_frames(self, e: int, k: int, frames, real: dict, table: pa.Table, first) -> tuple[dict, dict]:
-        """Tactile frames of copy ``k`` of episode ``e`` ({key: (RGB (L, H, W, 3), regenerated (L,) bool)})
-        and its provenance columns."""
+    def _copy_frames(self, src: _Source, k: int, frames, first) -> tuple[dict, dict]:
+        """Regenerated tactile frames of copy ``k`` of ``src`` ({key: (frame positions int (n,), RGB (n, H, W,
+        3))}, none in the original, k = 0) and its provenance columns."""
         L, K = len(frames), len(self.tactile)
         status = np.zeros((K, L), np.int64)
         force = np.zeros((K, L, 3), np.float32)
         offset, jitter = np.zeros(L, np.float32), np.zeros(L, np.float32)
-        images = {key: (real[key], np.zeros(L, bool)) for key in self.tactile}
+        regenerated = {key: ([], []) for key in self.tactile}
         for j, key in enumerate(self.tactile):
             label = self.aug.keys.labels[key]
             if label is not None:
-                force[j] = numbers(table.column(label)).reshape(L, 3)
+                force[j] = numbers(src.table.column(label)).reshape(L, 3)
             for i, t in enumerate(frames):
                 ref = first.frames[int(t)].keys[j].reference
                 if ref is not None and label is None:
                     force[j, i] = ref
         if k:
-            chunk = self.aug.chunk(e, k)
+            chunk = self.aug.chunk(src.index, k)
             for j, key in enumerate(self.tactile):
-                rgb, regen = real[key].copy(), np.zeros(L, bool)
+                rows, images = regenerated[key]
                 for i, t in enumerate(frames):
                     outcome = chunk.frames[int(t)]
                     offset[i], jitter[i] = outcome.offset, outcome.jitter
                     o = outcome.keys[j]
                     status[j, i] = o.status
                     if o.row >= 0:
-                        rgb[i], regen[i], force[j, i] = chunk.files[j].read(o.row), True, o.target
-                images[key] = (rgb, regen)
+                        rows.append(i)
+                        images.append(chunk.files[j].read(o.row))
+                        force[j, i] = o.target
         prov = {f"{PREFIX}.copy": np.full(L, k, np.int64), f"{PREFIX}.offset": offset, f"{PREFIX}.jitter": jitter}
         for j, key in enumerate(self.tactile):
             prov[f"{PREFIX}.{self.names[key]}.status"] = status[j]
             prov[f"{PREFIX}.{self.names[key]}.target_force"] = force[j]
-        return images, prov
+        return {key: (np.asarray(rows, int), images) for key, (rows, images) in regenerated.items()}, prov
 
-    def _write_episode(self, j: int, e: int, table: pa.Table, images: dict, prov: dict, shared: dict,
-                       counts: dict) -> dict:
-        """Data file and videos of output episode ``j`` (copy of source episode ``e``); returns its meta row."""
-        L, start = len(table), int(self.starts[j])
-        src = self.source.episodes[e]
-        out = table
-        for key, (rgb, regen) in images.items():
-            if self.source.features[key]["dtype"] == "image" and regen.any():
-                out = _replace_images(out, key, rgb, regen)
+    def _write_episode(self, j: int, src: _Source, regenerated: dict, prov: dict, counts: dict) -> dict:
+        """Data file and videos of output episode ``j`` (a copy of ``src``); returns its meta row."""
+        L, start, e = len(src.table), int(self.starts[j]), src.index
+        out = src.table
+        for key, (rows, images) in regenerated.items():
+            if self.source.features[key]["dtype"] == "image" and len(rows):
+                out = _replace_images(out, key, rows, images)
         out = _set(out, "episode_index", np.full(L, j, np.int64))
         out = _set(out, "index", np.arange(start, start + L, dtype=np.int64))
         for name, values in prov.items():
@@ -222,15 +252,15 @@ class LeRobotExport:
         write_data_parquet(self.folder / self.source.meta["data_path"].format(
             chunk_index=j // self.chunks_size, file_index=j % self.chunks_size), out)
         writer = {"regenerated": 0, "video_sse": 0.0, "video_values": 0}
-        row = {"episode_index": j, "tasks": list(src["tasks"]), "length": L,
+        row = {"episode_index": j, "tasks": list(self.source.episodes[e]["tasks"]), "length": L,
                "data/chunk_index": j // self.chunks_size, "data/file_index": j % self.chunks_size,
                "dataset_from_index": start, "dataset_to_index": start + L}
         for key in self.source.video_keys:
-            row.update(self._video(j, e, key, images.get(key), writer))
-        stats = dict(shared)
-        for key, (rgb, regen) in images.items():
-            stats[key] = image_stats(rgb[sample_indices(L)])
-            writer["regenerated"] += int(regen.sum())
+            row.update(self._video(j, src, key, regenerated.get(key), writer))
+        stats = dict(src.shared)
+        for key, (rows, images) in regenerated.items():
+            stats[key] = _tactile_stats(src.histograms[key], src.picks, rows, images)
+            writer["regenerated"] += len(rows)
         for name, value in writer.items():
             counts[name] += value
         for key in ("episode_index", "index", *prov):
@@ -238,29 +268,32 @@ class LeRobotExport:
         row["stats"] = {key: stats[key] for key in self.features() if key in stats}
         return {**row, "writer": writer}
 
-    def _video(self, j: int, e: int, key: str, tactile, counts: dict) -> dict:
+    def _video(self, j: int, src: _Source, key: str, regenerated, counts: dict) -> dict:
         """meta/episodes video columns of output episode ``j``: the source's segment (copied into the folder),
-        or a re-encoded file of regenerated tactile frames."""
-        src = self.source.episodes[e]
-        cols = {f"videos/{key}/{c}": src[f"videos/{key}/{c}"]
+        or a re-encoded file of the source's frames with the regenerated ones in place (``round_trip``: decoded
+        back, its squared error over the regenerated frames counted)."""
+        e = src.index
+        cols = {f"videos/{key}/{c}": self.source.episodes[e][f"videos/{key}/{c}"]
                 for c in ("chunk_index", "file_index", "from_timestamp", "to_timestamp")}
-        if tactile is None or not tactile[1].any():
+        if regenerated is None or not len(regenerated[0]):
             path = self.source.video_path(key, e)
             dest = self.folder / path.relative_to(self.source.root)
             if not dest.is_file():
                 with atomic_path(dest, ".mp4") as tmp:
                     shutil.copyfile(path, tmp)
             return cols
-        rgb, regen = tactile
+        rows, images = regenerated
+        rgb = src.videos[key].copy()
+        rgb[rows] = np.stack(images)
         number = self.first_video[key] + j - len(self.sources)
         chunk, file = number // self.chunks_size, number % self.chunks_size
         dest = self.folder / self.source.meta["video_path"].format(video_key=key, chunk_index=chunk, file_index=file)
         codec, pix_fmt = video_codec(self.source.video_path(key, e))
         encode_video(dest, rgb, self.source.fps, codec, pix_fmt)
-        decoded = decode_video(dest)
-        diff = decoded[regen].astype(np.int32) - rgb[regen]
-        counts["video_sse"] += float(np.einsum("i,i->", diff.ravel(), diff.ravel(), dtype=np.int64))
-        counts["video_values"] += diff.size
+        if self.round_trip:
+            diff = decode_video(dest)[rows].astype(np.int32) - rgb[rows]
+            counts["video_sse"] += float(np.einsum("i,i->", diff.ravel(), diff.ravel(), dtype=np.int64))
+            counts["video_values"] += diff.size
         return {f"videos/{key}/chunk_index": chunk, f"videos/{key}/file_index": file,
                 f"videos/{key}/from_timestamp": 0.0, f"videos/{key}/to_timestamp": len(rgb) / self.source.fps}
 
@@ -296,11 +329,22 @@ def _set(table: pa.Table, name: str, values: np.ndarray) -> pa.Table:
     return table.set_column(i, table.schema.field(i), pa.array(values, type=table.schema.field(i).type))
 
 
-def _replace_images(table: pa.Table, key: str, rgb: np.ndarray, regen: np.ndarray) -> pa.Table:
-    """Image column ``key`` with the PNG of every regenerated frame replaced (others' bytes kept)."""
+def _replace_images(table: pa.Table, key: str, rows: np.ndarray, images: list) -> pa.Table:
+    """Image column ``key`` with the PNG of each regenerated frame (``images`` at ``rows``) in place (others'
+    bytes kept)."""
     i = table.schema.get_field_index(key)
     cells = table.column(i).to_pylist()
-    rows = np.flatnonzero(regen)
-    for r, data in zip(rows, _parallel(png_bytes, [rgb[r] for r in rows])):
+    for r, data in zip(rows, _parallel(png_bytes, images)):
         cells[r] = {**cells[r], "bytes": data}
     return table.set_column(i, table.schema.field(i), pa.array(cells, type=table.schema.field(i).type))
+
+
+def _tactile_stats(histograms: np.ndarray, picks: np.ndarray, rows: np.ndarray, images: list) -> dict:
+    """Stats of a tactile camera in a copy: the source's frame histograms at ``picks`` (int64 (len(picks), 3,
+    256)), those of the regenerated frames (``images`` at ``rows``) in their place."""
+    where = {int(r): n for n, r in enumerate(rows)}
+    histograms = histograms.copy()
+    for s, i in enumerate(picks):
+        if int(i) in where:
+            histograms[s] = frame_histograms(images[where[int(i)]][None])[0]
+    return histogram_stats(histograms.sum(0), len(picks))

@@ -7,7 +7,8 @@ under torchrun every rank builds its share of the cache, then writes its share o
 writes ``meta/`` and publishes: ``dataset/`` is renamed to OUT, and ``OUT.partial`` removed. OUT is never the
 source (nor inside it, nor around it) and never a folder this tool did not write (``check_destination``).
 
-The record of a write (``finish``: settings, source, counts, codec round trip) lives in ``meta/info.json`` as
+The record of a write (``finish``: settings, source, counts, and with ``round_trip`` the codec's round trip over
+the re-encoded videos' regenerated frames, else None) lives in ``meta/info.json`` as
 ``features["augment.copy"]["info"]["controltac_il_augment"]``: LeRobot's edit tools (0.4.4 and main) rebuild
 info.json from the feature dicts, dropping unknown top-level keys (main) and any other file under ``meta/``.
 """
@@ -97,10 +98,13 @@ def published(out: Path, aug, source) -> bool:
 
 
 def write_lerobot(aug, source, out: Path, *, rank: int | None = None, world_size: int | None = None,
-                  progress: bool = True, stop_after: int | None = None, poll_s: float = 2.0) -> dict:
+                  progress: bool = True, stop_after: int | None = None, poll_s: float = 2.0,
+                  round_trip: bool = False) -> dict:
     """Write the augmented folder ``out`` of ``source`` (a LeRobotFolder) through ``aug`` (a ForceAugment of it
-    in cache mode whose ``cache_dir`` is ``staging_dir(out) / "cache"``). Returns the counts of this run and,
-    once published, the record of the write (``marker``; ``published``: True)."""
+    in cache mode whose ``cache_dir`` is ``staging_dir(out) / "cache"``). round_trip: decode every re-encoded
+    video back and record the codec's round trip error over the episodes written with it on (data and videos
+    are the same either way). Returns the counts of this run and, once published, the
+    record of the write (``marker``; ``published``: True)."""
     out = Path(out)
     if check_destination(source.root, out):
         return {"published": published(out, aug, source), "already": True, "marker": read_record(out)}
@@ -110,7 +114,7 @@ def write_lerobot(aug, source, out: Path, *, rank: int | None = None, world_size
     claim(staging, sig)
     built = aug.build_cache(rank=rank, world_size=world_size, progress=progress)
     aug.wait_complete(poll_s)
-    export = LeRobotExport(aug, source, staging / "dataset", staging / "done")
+    export = LeRobotExport(aug, source, staging / "dataset", staging / "done", round_trip)
     counts = {"cache": built, **export.write(rank, world_size, progress, stop_after), "published": False}
     if rank != 0 or (stop_after is not None and export.missing()):
         return counts

@@ -123,18 +123,33 @@ def sample_indices(length: int) -> np.ndarray:
 
 def image_stats(frames: np.ndarray) -> dict:
     """Stats of RGB uint8 (n, H, W, 3) sampled frames: per channel, (3, 1, 1) lists in [0, 1]."""
+    return histogram_stats(frame_histograms(frames).sum(0), len(frames))
+
+
+def frame_histograms(frames: np.ndarray) -> np.ndarray:
+    """int64 (n, 3, 256): each channel's histogram of each of RGB uint8 (n, H, W, 3) frames, over the pixels
+    their stats read (strided when the long side is >= 300 px). Summed over frames they give ``image_stats``
+    exactly, so the histogram of a frame several episodes hold (a copy's unchanged frames) is computed once."""
     long_side = max(frames.shape[1:3])
     stride = int(long_side / 150) if long_side >= 300 else 1
-    pixels = frames[:, ::stride, ::stride].reshape(-1, 3)
-    stats = [_uint8_stats(pixels[:, c]) for c in range(3)]
+    out = np.zeros((len(frames), 3, 256), np.int64)
+    for i, frame in enumerate(frames[:, ::stride, ::stride]):
+        for c in range(3):
+            out[i, c] = np.bincount(frame[..., c].ravel(), minlength=256)
+    return out
+
+
+def histogram_stats(counts: np.ndarray, frames: int) -> dict:
+    """Stats of ``frames`` sampled frames from their summed channel histograms int (3, 256) (``image_stats``)."""
+    stats = [_channel_stats(counts[c]) for c in range(3)]
     out = {k: [[[st[k] / 255.0]] for st in stats] for k in STAT_NAMES if k != "count"}
-    return {**out, "count": [len(frames)]}
+    return {**out, "count": [int(frames)]}
 
 
-def _uint8_stats(values: np.ndarray) -> dict:
-    """min, max, mean, std and quantiles (as ``np.quantile``'s linear rule) of uint8 values (N,), from their
-    256-bin histogram: exact, and without sorting."""
-    counts = np.bincount(values, minlength=256).astype(np.float64)
+def _channel_stats(counts: np.ndarray) -> dict:
+    """min, max, mean, std and quantiles (as ``np.quantile``'s linear rule) of uint8 values given by their
+    256-bin histogram (256,): exact, and without sorting."""
+    counts = counts.astype(np.float64)
     levels = np.arange(256, dtype=np.float64)
     n = counts.sum()
     mean = float((counts * levels).sum() / n)
