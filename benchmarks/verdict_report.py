@@ -186,12 +186,13 @@ def seed_level_verdict(diff: float, p_holm: float, alpha: float = 0.05) -> str:
     return "no detectable effect"
 
 
-def summarise_seed_level(tests: list[dict], variants, seeds, settings, primary, demos: int
+def summarise_seed_level(tests: list[dict], variants, seeds, settings, primary, demos: int, reps: int = 4000
                          ) -> tuple[list[dict], list[dict]]:
     """v2's report from its test units (``variant``, ``seed``, ``test`` {setting: 0/1 list}). Table: per variant and
     setting the mean over seeds, its two-level interval, the SD of per-seed success and the fraction of seeds
     below real's worst. Comparisons with real: paired mean difference and interval, exact sign-flip p (primary),
-    paired t p, CMH p (secondary); Holm over the ``primary`` variants' comparisons once all are complete."""
+    paired t p, CMH p (secondary); Holm over the ``primary`` variants' comparisons once all are complete.
+    reps: bootstrap draws per interval."""
     by = {(u["variant"], u["seed"]): u for u in tests}
 
     def outcomes(v, setting):
@@ -206,7 +207,7 @@ def summarise_seed_level(tests: list[dict], variants, seeds, settings, primary, 
             o = outcomes(v, setting)
             if o is None:
                 continue
-            mean, ci = seed_episode_ci(o)
+            mean, ci = seed_episode_ci(o, reps)
             rates = [float(np.mean(x)) for x in o]
             table.append({"variant": v, "setting": setting, "mean": round(mean, 4), "ci95": [round(c, 4) for c in ci],
                           "per_seed": [round(r, 4) for r in rates], "sd_over_seeds": round(float(np.std(rates, ddof=1)), 4),
@@ -214,7 +215,7 @@ def summarise_seed_level(tests: list[dict], variants, seeds, settings, primary, 
                           else round(float(np.mean([r < real_worst for r in rates])), 4)})
             if v == "real" or real is None:
                 continue
-            diff, ci, per_seed = paired_diff(o, real)
+            diff, ci, per_seed = paired_diff(o, real, reps)
             comparisons.append({"variant": v, "vs": "real", "demos": demos, "setting": setting, "primary": v in primary,
                                 "diff": round(diff, 4), "ci95": [round(c, 4) for c in ci],
                                 "per_seed_diff": [round(d, 4) for d in per_seed], "p_sign_flip": sign_flip_p(per_seed),

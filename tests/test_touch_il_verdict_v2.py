@@ -40,7 +40,7 @@ def test_seed_level_report_holms_only_the_primary_comparisons_and_counts_seeds_b
     fa2 = [_unit("fa2", s, {"nominal": 0.9, "low": 0.5 + (0.1 if s % 2 else -0.1)}) for s in seeds]
     img = [_unit("image_aug", s, {"nominal": 0.3, "low": 0.5}) for s in seeds]
     table, comps = vr.summarise_seed_level(real + fa2 + img, ["real", "fa2", "image_aug"], seeds, ["nominal", "low"],
-                                           ("fa2",), 50)
+                                           ("fa2",), 50, reps=200)
     by = {(c["variant"], c["setting"]): c for c in comps}
     helps = by["fa2", "nominal"]
     assert helps["p_sign_flip"] == pytest.approx(2 / 1024) and helps["p_holm"] == pytest.approx(4 / 1024)

@@ -5,10 +5,8 @@ weights cannot be downloaded here). ``ForceEstimator.from_pretrained()`` loads t
 checkpoint; ``python -m controltac_il.estimators.train`` trains one.
 """
 
-from controltac_il.lazy import exports
+from controltac_il.estimators.config import EstimatorConfig
+from controltac_il.estimators.estimator import ForceEstimator, validate_residuals
+from controltac_il.estimators.fit import EstimatorTrainConfig, fit
 
-_EXPORTS = {"EstimatorConfig": "controltac_il.estimators.config",
-            **dict.fromkeys(("ForceEstimator", "validate_residuals"), "controltac_il.estimators.estimator"),
-            **dict.fromkeys(("EstimatorTrainConfig", "fit"), "controltac_il.estimators.fit")}
-__getattr__, __dir__ = exports(__name__, _EXPORTS)
-__all__ = list(_EXPORTS)
+__all__ = ["EstimatorConfig", "ForceEstimator", "EstimatorTrainConfig", "fit", "validate_residuals"]
