@@ -46,6 +46,7 @@ def test_eval_pairs_join_images_of_one_pose_with_their_forces(tmp_path):
     assert len(again[0]) == 5 and np.array_equal(again[0], bench.eval_pairs(tmp_path, "unseen", 1, 3, 5)[0])
 
 
+@pytest.mark.slow  # the whole --quick benchmark (~30 s): its metrics and pairs are tested above, the run itself with -m slow
 def test_quick_run_writes_the_table_json_targets_and_sheet(tmp_path, capsys):
     out = tmp_path / "gen.json"
     doc = bench.main(["--quick", "--pairs", "6", "--threads", "1", "--out", str(out), "--cache", str(tmp_path / "data")])

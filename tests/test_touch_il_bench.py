@@ -59,6 +59,7 @@ def test_p_values_are_one_sided_fisher_against_real_in_the_same_budget_and_setti
     assert p[("fa2", 20, "nominal")] > 0.9  # worse than real: no evidence of a gain
 
 
+@pytest.mark.slow  # the history grid's end-to-end run (~30 s); the v2 verdict's units and statistics are tested in the default suite
 def test_quick_grid_writes_cells_picture_and_resumes_without_retraining(tmp_path, monkeypatch):
     monkeypatch.setenv("CONTROLTAC_CACHE", str(tmp_path / "cache"))
     out, runs = tmp_path / "touch.json", tmp_path / "runs"
