@@ -200,6 +200,16 @@ def _int_list(p, flag: str, text: str) -> list[int]:
     return out
 
 
+def _variants(p, text: str, known) -> list[str]:
+    """--variants: a comma list of ``known`` names holding real (every comparison is against it)."""
+    out = [v.strip() for v in text.split(",") if v.strip()]
+    unknown = [v for v in out if v not in known]
+    if unknown or "real" not in out:
+        p.error(f"--variants: unknown {unknown} (choose from {', '.join(known)})" if unknown
+                else "--variants: real is required (every comparison is against it)")
+    return out
+
+
 def _bands(p, text: str) -> dict:
     out = {}
     for part in [x for x in text.split(",") if x.strip()]:
@@ -238,11 +248,7 @@ def parse_args(argv=None):
         args.validation_seeds, args.test_seeds = (700_000, 700_001), (800_000, 800_002)
         if args.runs == p.get_default("runs"):
             args.runs = Path("runs/touch_il_verdict_quick")
-    args.variants = [v.strip() for v in args.variants.split(",") if v.strip()]
-    unknown = [v for v in args.variants if v not in VARIANTS]
-    if unknown or "real" not in args.variants:
-        p.error(f"--variants: unknown {unknown} (choose from {', '.join(VARIANTS)})" if unknown
-                else "--variants: real is required (every comparison is against it)")
+    args.variants = _variants(p, args.variants, VARIANTS)
     args.seeds = _int_list(p, "--seeds", args.seeds)
     if len(args.seeds) < (2 if args.quick else 5):
         p.error(f"--seeds: the protocol needs >= 5 training seeds per variant, got {len(args.seeds)}")
@@ -331,6 +337,21 @@ class WallTime:
         self.running_path.unlink(missing_ok=True)
 
 
+def saver(results: dict, done: dict, args, wall: WallTime, report):
+    """``save(picture=False)``: the finished units into ``results``, ``report(results, args, picture)``, the wall
+    time, and ``--out`` written (atomically), after every unit."""
+    from benchmarks.common import write_results
+
+    def save(picture: bool = False) -> None:
+        results["units"] = sorted(done.values(), key=lambda u: u["id"])
+        report(results, args, picture)
+        results["wall_s"] = wall.now()
+        if args.out:
+            write_results(args.out, results)
+
+    return save
+
+
 def _run(units: list[dict], ctx: dict, jobs: int, done: dict, save, unit_fn=None) -> None:
     """Run the units not yet done (``unit_fn(unit, ctx)``, a module-level function; default this module's
     ``run_unit``), ``jobs`` at a time, saving after each."""
@@ -376,7 +397,7 @@ def main(argv=None) -> dict:
     p, args = parse_args(argv)
     import torch
 
-    from benchmarks.common import print_table, write_results
+    from benchmarks.common import print_table
     from benchmarks.touch_il import budget_demos
     from controltac_il.app import default_demos
     from controltac_il.app.experiment import touch_scene
@@ -400,13 +421,7 @@ def main(argv=None) -> dict:
            "shift_candidates": args.shift_candidates, "signature": signature, "max_force_copies": 0}
     results: dict = {"benchmark": "touch_il_verdict", "protocol": protocol}
     wall = WallTime(args.runs, args.resume)
-
-    def save(picture: bool = False) -> None:
-        results["units"] = sorted(done.values(), key=lambda u: u["id"])
-        _report(results, args, picture)
-        results["wall_s"] = wall.now()
-        if args.out:
-            write_results(args.out, results)
+    save = saver(results, done, args, wall, _report)
 
     _phases(args, ctx, results, done, save, Path(demos_dir))
     save(picture=True)

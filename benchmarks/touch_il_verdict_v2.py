@@ -53,8 +53,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from benchmarks.touch_il_verdict import (WallTime, _int_list, _load_done, _protocol_commit, _range, _run,
-                                         signature_of)
+from benchmarks.touch_il_verdict import (WallTime, _int_list, _load_done, _protocol_commit, _range, _run, _variants,
+                                         saver, signature_of)
 
 DEMO_SEEDS = (0, 50)
 VALIDATION_SEEDS = (700_000, 700_030)
@@ -216,11 +216,7 @@ def parse_args(argv=None):
         args.validation_seeds, args.test_seeds = (700_000, 700_001), (900_000, 900_002)
         if args.runs == p.get_default("runs"):
             args.runs = Path("runs/touch_il_verdict_v2_quick")
-    args.variants = [v.strip() for v in args.variants.split(",") if v.strip()]
-    unknown = [v for v in args.variants if v not in VARIANTS]
-    if unknown or "real" not in args.variants:
-        p.error(f"--variants: unknown {unknown} (choose from {', '.join(VARIANTS)})" if unknown
-                else "--variants: real is required (every comparison is against it)")
+    args.variants = _variants(p, args.variants, VARIANTS)
     args.seeds = _int_list(p, "--seeds", args.seeds)
     if len(args.seeds) < MIN_SEEDS and not args.allow_underpowered:
         p.error(f"--seeds: {len(args.seeds)} seeds cannot decide at the seed level (the protocol needs >= {MIN_SEEDS}); "
@@ -251,7 +247,7 @@ def main(argv=None) -> dict:
     p, args = parse_args(argv)
     import torch
 
-    from benchmarks.common import print_table, write_results
+    from benchmarks.common import print_table
     from benchmarks.touch_il import budget_demos
     from controltac_il.app import default_demos
     from controltac_il.io import write_json
@@ -269,13 +265,7 @@ def main(argv=None) -> dict:
            "nominal": SETTINGS["nominal"], "settings": SETTINGS, "signature": signature}
     results: dict = {"benchmark": "touch_il_verdict_v2", "protocol": protocol}
     wall = WallTime(args.runs, args.resume)
-
-    def save(picture: bool = False) -> None:
-        results["units"] = sorted(done.values(), key=lambda u: u["id"])
-        _report(results, args, picture)
-        results["wall_s"] = wall.now()
-        if args.out:
-            write_results(args.out, results)
+    save = saver(results, done, args, wall, _report)
 
     results["force_augment_counts"] = augment_counts(Path(demos_dir), args.variants)
     _run([{"id": f"train-{v}-s{s}", "kind": "train", "variant": v, "seed": s} for s in args.seeds for v in args.variants],
