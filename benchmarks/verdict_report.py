@@ -143,15 +143,23 @@ def verdict(diff: float, ci95: tuple[float, float], p_holm: float, alpha: float 
     return "no detectable effect"
 
 
-# --- the report: summaries over seeds and the picture ------------------------------------------------------------------------------------------------------
-def summarise(policies: list[dict], variants, seeds, settings, demos: int) -> tuple[list[dict], list[dict]]:
-    """(per variant and setting: mean over seeds with its interval; per comparison with real: the paired
-    difference, its interval, CMH and sign-flip p, Holm, verdict). Only complete (variant, setting) cells."""
-    by = {(p["variant"], p["seed"]): p for p in policies}
+def seed_outcomes(units: list[dict], seeds):
+    """``outcomes(variant, setting)``: the per-seed 0/1 test lists of ``units`` in ``seeds``' order, None until every
+    seed of that variant is there."""
+    by = {(u["variant"], u["seed"]): u for u in units}
 
     def outcomes(v, setting):
         rows = [by.get((v, s)) for s in seeds]
         return None if any(r is None for r in rows) else [r["test"][setting] for r in rows]
+
+    return outcomes
+
+
+# --- the report: summaries over seeds and the picture ------------------------------------------------------------------------------------------------------
+def summarise(policies: list[dict], variants, seeds, settings, demos: int) -> tuple[list[dict], list[dict]]:
+    """(per variant and setting: mean over seeds with its interval; per comparison with real: the paired
+    difference, its interval, CMH and sign-flip p, Holm, verdict). Only complete (variant, setting) cells."""
+    outcomes = seed_outcomes(policies, seeds)
 
     table, comparisons = [], []
     for setting in settings:
@@ -193,11 +201,7 @@ def summarise_seed_level(tests: list[dict], variants, seeds, settings, primary, 
     below real's worst. Comparisons with real: paired mean difference and interval, exact sign-flip p (primary),
     paired t p, CMH p (secondary); Holm over the ``primary`` variants' comparisons once all are complete.
     reps: bootstrap draws per interval."""
-    by = {(u["variant"], u["seed"]): u for u in tests}
-
-    def outcomes(v, setting):
-        rows = [by.get((v, s)) for s in seeds]
-        return None if any(r is None for r in rows) else [r["test"][setting] for r in rows]
+    outcomes = seed_outcomes(tests, seeds)
 
     table, comparisons = [], []
     for setting in settings:
