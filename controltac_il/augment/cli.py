@@ -217,10 +217,11 @@ def _models(args, pose: bool):
     estimator = None
     bundle = args.generator is not None and (Path(args.generator) / "estimator").is_dir()
     if args.estimator or bundle:  # a calibration bundle (--generator) brings its estimator
+        from controltac_il.augment.reference import bundle_estimator
         from controltac_il.estimators import ForceEstimator
 
         try:
-            estimator = ForceEstimator.from_pretrained(args.estimator or args.generator)
+            estimator = ForceEstimator.from_pretrained(args.estimator) if args.estimator else bundle_estimator(args.generator)
         except (ValueError, OSError) as exc:
             raise UsageError("--estimator", f"expected a force estimator checkpoint folder: "
                                             f"{' '.join(str(exc).split())}") from exc

@@ -43,6 +43,32 @@ class EpisodeFrames:
     background_source: dict
 
 
+class NominalEstimator:
+    """Reads every frame as the nominal reference (0, 0, NOMINAL_FZ) N: a calibration bundle's stand-in for an
+    estimator that does not beat the constant baseline on held-out grasps (``calibration.json``)."""
+
+    checkpoint_hash = "nominal"
+
+    def predict(self, residuals, batch_size: int = 256, gate: bool = True) -> np.ndarray:
+        return np.tile(np.array([0.0, 0.0, NOMINAL_FZ], np.float32), (len(residuals), 1))
+
+
+def bundle_estimator(path):
+    """The estimator of the calibration bundle at ``path`` (``python -m controltac_il.calibrate``): its calibrated
+    one, or NominalEstimator (with a one-line warning) where the bundle says it does not beat the constant."""
+    import json
+    from pathlib import Path
+
+    from controltac_il.estimators import ForceEstimator
+
+    record = Path(path) / "calibration.json"
+    if record.is_file() and not json.loads(record.read_text())["estimator"].get("use_estimator", True):
+        warnings.warn(f"{path}: its calibrated estimator does not beat the constant baseline on held-out grasps; "
+                      f"unlabelled frames take the nominal reference (0, 0, {NOMINAL_FZ:g}) N", stacklevel=3)
+        return NominalEstimator()
+    return ForceEstimator.from_pretrained(path)
+
+
 class ReferenceForces:
     """Contact and reference force of tactile frames, per tactile key (``keys``: where labels and
     backgrounds are found in an item)."""

@@ -34,6 +34,9 @@ class EstimatorConfig(JsonConfig):
             ``min_contact_fraction`` of its pixels deviating by more than ``contact_threshold`` grey
             levels (0-128) from 127 (any channel) shows no contact and reads exactly [0, 0, 0] N.
             ``contact_threshold=None`` turns the gate off. Sensor noise is ~1-2 grey levels.
+        input_mix, input_shift: a sensor's colour calibration (``estimators.few_shot``): the normalised input's
+            colour channels c (3,) enter the network as input_mix @ c + input_shift; None = identity (the
+            sensor the network was trained on).
         input_kind: "residual" (background-subtracted with the 127 offset); recorded so a
             checkpoint says what it reads.
         extra: free-form notes kept with the config.
@@ -49,6 +52,8 @@ class EstimatorConfig(JsonConfig):
     force_std: tuple[Std, Std, Std] = (1.0, 1.0, 1.0)
     contact_threshold: Annotated[float, Field(gt=0, lt=128)] | None = 8.0
     min_contact_fraction: Annotated[float, Field(ge=0, lt=1)] = 2e-4
+    input_mix: tuple[tuple[Finite, Finite, Finite], tuple[Finite, Finite, Finite], tuple[Finite, Finite, Finite]] | None = None
+    input_shift: tuple[Finite, Finite, Finite] = (0.0, 0.0, 0.0)
     input_kind: Literal["residual"] = "residual"
     extra: dict = field(default_factory=dict)
 

@@ -60,6 +60,27 @@ def preprocess(residuals: np.ndarray | torch.Tensor, config: EstimatorConfig) ->
     return (x - config.residual_offset) / config.residual_scale
 
 
+def identity(weights_hash: str, config: EstimatorConfig) -> str:
+    """What an estimator reads forces with, 16 hex: its weights' hash, or with a colour calibration the hash of
+    both (one network under two sensors' calibrations gives two readings, so two caches)."""
+    if config.input_mix is None:
+        return weights_hash
+    import hashlib
+    import json
+
+    text = json.dumps([weights_hash, config.input_mix, config.input_shift])
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def mix_colours(x: torch.Tensor, config: EstimatorConfig) -> torch.Tensor:
+    """Network input (N, 3, h, w) with the config's colour calibration applied (identity when it has none)."""
+    if config.input_mix is None:
+        return x
+    mix = torch.tensor(config.input_mix, dtype=x.dtype, device=x.device)
+    shift = torch.tensor(config.input_shift, dtype=x.dtype, device=x.device)
+    return torch.einsum("ij,njhw->nihw", mix, x) + shift[None, :, None, None]
+
+
 class ForceEstimator:
     """A trained :class:`ForceCNN` with its config; ``predict`` maps residuals to forces in N."""
 
@@ -100,7 +121,7 @@ class ForceEstimator:
         self.model.eval()
         out = []
         for i in range(0, len(residuals), batch_size):
-            x = preprocess(residuals[i : i + batch_size], self.config).to(self.device)
+            x = mix_colours(preprocess(residuals[i : i + batch_size], self.config).to(self.device), self.config)
             out.append(self.denormalise_forces(self.model(x)).cpu())
         forces = torch.cat(out).numpy().astype(np.float32)
         if gate:
@@ -129,7 +150,7 @@ class ForceEstimator:
         est = cls(config, device=device)
         load_into(est.model, weights[WEIGHTS_FILE], path / WEIGHTS_FILE)
         est.model.eval()
-        est.checkpoint_hash = read_json(path / CARD_FILE)[HASH_KEY][WEIGHTS_FILE][:16]  # verified by load_folder
+        est.checkpoint_hash = identity(read_json(path / CARD_FILE)[HASH_KEY][WEIGHTS_FILE][:16], config)  # verified
         return est
 
     checkpoint_hash: str | None = None

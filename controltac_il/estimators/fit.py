@@ -112,6 +112,9 @@ def _prepared(residuals: np.ndarray, forces: np.ndarray, model_config: Estimator
 def _start(residuals, forces, model_config, init, seed: int):
     """(the estimator to train: fresh with ``model_config``, or ``init``'s config (its force normalisation: its
     weights were trained with it) and weights; checked residuals; forces)."""
+    if init is not None and init.config.input_mix is not None:
+        raise ValueError("init: a colour-calibrated estimator (input_mix set) is calibrated further by "
+                         "estimators.few_shot, not fine-tuned by fit")
     cfg, residuals, forces = _prepared(residuals, forces, model_config if init is None else init.config)
     torch.manual_seed(seed)
     est = ForceEstimator(init.config if init is not None else cfg)

@@ -1,0 +1,169 @@
+"""``calibrate`` end to end on a sensor it never saw, under a lab's conditions (issue 40).
+
+    python -m benchmarks.calibration --out calibration.json [--quick]
+
+Each sensor is one of ``benchmarks.calibration_methods``'s: an ``unseen``-family instance with its own optics,
+``three_light`` or ``three_light_rot`` (an optical design no training instance has), square frames (another aspect
+ratio), lighting drift per grasp. A grasp is a loading ramp Fz 0 -> 10-14 N; its recording (frames written as
+PNGs, resized by ``calibrate`` to 240x320) starts with ``FREE_FRAMES`` no-contact frames, and its force log (Fz
+only) lags the video by -1, 0 or +1 frame. ``K`` grasps are recorded and calibrated with
+``python -m controltac_il.calibrate --recordings DIR --lag auto --stride 2`` (about 50 frames at K = 10); other
+grasps of the same sensor are the test: the estimator's Fz MAE on all their contact frames against the
+constant (the calibration labels' mean) and the zero-shot estimator; the generator's MSE against a reference
+copy's on pairs within a grasp with |ΔFz| >= 1.5 N, before and after. Targets: estimator <= 0.5x the constant,
+generator <= 0.35x a copy, <= 15 min a calibration on two cores.
+"""
+
+from __future__ import annotations
+
+import csv
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from benchmarks.calibration_methods import lag_labels, make_sensor, render_grasp
+from benchmarks.common import base_parser, print_table, write_results
+
+FREE_FRAMES = 3  # no-contact frames at the start of each recording
+TARGETS = {"estimator_ratio": 0.5, "generator_ratio": 0.35, "minutes": 15.0}
+
+
+def record_grasps(sensor, rng, n: int, folder: Path | None) -> list[tuple]:
+    """Render ``n`` grasps: (residuals (T, H, W, 3), true Fz (T,), lag); with ``folder``, each written as a recording
+    (``<g>/`` PNG frames and ``<g>.csv`` lagged Fz, preceded by FREE_FRAMES no-contact frames)."""
+    from controltac_il.tactile import HELDOUT_OBJECTS, TRAIN_OBJECTS
+    from controltac_il.tactile.residual import from_residual
+
+    objects = TRAIN_OBJECTS + HELDOUT_OBJECTS
+    out = []
+    for g in range(n):
+        res, fz = render_grasp(sensor, objects[int(rng.integers(len(objects)))], rng)
+        lag = int(rng.integers(-1, 2))
+        out.append((res, fz, lag))
+        if folder is None:
+            continue
+        x0 = (sensor.background.shape[1] - res.shape[2]) // 2
+        bg = sensor.background[:, x0:x0 + res.shape[2]]
+        frames = [bg] * FREE_FRAMES + [from_residual(r, bg) for r in res]
+        labels = np.r_[np.zeros(FREE_FRAMES), lag_labels(fz, lag)]
+        (folder / f"g{g:02d}").mkdir(parents=True)
+        for k, img in enumerate(frames):
+            cv2.imwrite(str(folder / f"g{g:02d}" / f"{k:04d}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+        with open(folder / f"g{g:02d}.csv", "w", newline="") as f:
+            csv.writer(f).writerows([["fz"], *[[f"{v:.4f}"] for v in labels]])
+    return out
+
+
+def test_figures(bundle: Path, base_generator: str, test: list[tuple], const: float, size) -> dict:
+    """The calibrated bundle and the shipped models on the test grasps (module docstring)."""
+    from controltac_il.estimators import ForceEstimator
+    from controltac_il.generator import ForceGenerator
+    from controltac_il.generator.validation import generation_error
+
+    def resized(r):
+        return np.stack([cv2.resize(x, (size[1], size[0]), interpolation=cv2.INTER_AREA) for x in r])
+
+    res = np.concatenate([resized(r) for r, _, _ in test])
+    fz = np.concatenate([f for _, f, _ in test])
+    touch = fz >= 0.5
+    out = {"test_frames": int(touch.sum()), "constant_mae_n": float(np.abs(const - fz[touch]).mean())}
+    for name, path in (("zero_shot", None), ("calibrated", bundle)):
+        pred = ForceEstimator.from_pretrained(path).predict(res[touch], gate=False)[:, 2]
+        out[f"{name}_mae_n"] = float(np.abs(pred - fz[touch]).mean())
+        out[f"{name}_ratio"] = out[f"{name}_mae_n"] / out["constant_mae_n"]
+    rng, refs, tgts, delta = np.random.default_rng(0), [], [], []
+    for r, f, _ in test:
+        ok = [(a, b) for a in range(len(f)) for b in range(len(f))
+              if abs(f[b] - f[a]) >= 1.5 and 1 <= f[a] <= 10 and 1 <= f[b] <= 10]
+        for k in rng.choice(len(ok), size=min(8, len(ok)), replace=False):
+            a, b = ok[k]
+            refs.append(r[a]), tgts.append(r[b]), delta.append([0.0, 0.0, f[b] - f[a]])
+    args = (resized(np.stack(refs)), resized(np.stack(tgts)), np.asarray(delta, np.float32))
+    for name, path in (("zero_shot", base_generator), ("calibrated", bundle)):
+        out[f"generator_{name}_ratio"] = generation_error(ForceGenerator.from_pretrained(path), *args)["ratio_to_copy"]
+    out["generator_pairs"] = len(refs)
+    return out
+
+
+def calibrate_one(sensor_name: str, index: int, optics: str, args, work: Path) -> dict:
+    """Record, calibrate and test one sensor; the row of the results."""
+    from controltac_il.calibrate import main as calibrate
+
+    _, sensor = make_sensor(index, optics)
+    rng = np.random.default_rng([args.seed, index, len(optics)])
+    rec = work / sensor_name.replace("/", "_")
+    cal = record_grasps(sensor, rng, args.k, rec / "recordings")
+    test = record_grasps(sensor, rng, args.test_grasps, None)
+    argv = ["--recordings", str(rec / "recordings"), "--out", str(rec / "bundle"), "--lag", "auto", "--stride", "2",
+            "--threads", str(args.threads), "--ae-steps", str(args.ae_steps), "--dit-steps", str(args.dit_steps)]
+    t0 = time.perf_counter()
+    if calibrate(argv) != 0:
+        raise SystemExit(f"calibrate failed on {sensor_name}")
+    minutes = (time.perf_counter() - t0) / 60
+    import json
+
+    record = json.loads((rec / "bundle" / "calibration.json").read_text())
+    labels = np.concatenate([lag_labels(f, lag) for _, f, lag in cal])
+    kept = labels[(labels >= 1) & (labels <= 10)]
+    h = record["estimator"]["held_out"]
+    row = {"sensor": sensor_name, "grasps": args.k, "cal_frames": record["images"], "minutes": minutes,
+           "lags_true": [lag for _, _, lag in cal], "lags_found": [v["lag_frames"] for v in record["source"]["per_recording"].values()],
+           "cv_ratio": h["ratio_to_constant"], "use_estimator": record["estimator"]["use_estimator"],
+           **test_figures(rec / "bundle", "default", test, float(kept.mean()), tuple(args.size))}
+    return row
+
+
+def main(argv=None) -> dict:
+    p = base_parser(__doc__.split("\n\n")[0].strip("`"))
+    p.add_argument("--k", type=int, default=10, help="calibration grasps per sensor (default 10: ~50 frames)")
+    p.add_argument("--test-grasps", type=int, default=12)
+    p.add_argument("--ae-steps", type=int, default=600)
+    p.add_argument("--dit-steps", type=int, default=600)
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--seed", type=int, default=40)
+    p.add_argument("--size", type=int, nargs=2, default=(240, 320), help="calibrate's frame size (its default)")
+    p.add_argument("--resume", action="store_true", help="keep the sensors already in --out (written after each)")
+    args = p.parse_args(argv)
+    sensors = [(0, "three_light"), (0, "three_light_rot"), (1, "three_light_rot")]
+    if args.quick:
+        sensors, args.k, args.test_grasps, args.ae_steps, args.dit_steps = sensors[:1], 4, 2, 1, 2
+    rows, t0 = [], time.perf_counter()
+    if args.resume and args.out is not None and args.out.is_file():
+        import json
+
+        rows = json.loads(args.out.read_text())["rows"]
+    with tempfile.TemporaryDirectory(prefix="calibration-bench-") as work:
+        for index, optics in sensors:
+            name = f"unseen_{index:02d}/{optics}"
+            if any(r["sensor"] == name for r in rows):
+                continue
+            rows.append(calibrate_one(name, index, optics, args, Path(work)))
+            print_table(rows[-1:], ["sensor", "cal_frames", "minutes", "calibrated_ratio", "zero_shot_ratio",
+                                    "generator_calibrated_ratio", "generator_zero_shot_ratio"])
+            write_results(args.out, summary(rows, args, t0))
+    return summary(rows, args, t0, show=True)
+
+
+def summary(rows: list[dict], args, t0: float, show: bool = False) -> dict:
+    """The results document of the sensors done so far: their mean against the targets."""
+    mean = {k: float(np.mean([r[k] for r in rows])) for k in ("calibrated_ratio", "zero_shot_ratio", "cv_ratio",
+                                                             "generator_calibrated_ratio", "generator_zero_shot_ratio", "minutes")}
+    verdict = {"estimator_ratio": mean["calibrated_ratio"], "generator_ratio": mean["generator_calibrated_ratio"],
+               "minutes": mean["minutes"]}
+    results = {"benchmark": "calibration", "settings": {k: v for k, v in vars(args).items() if k != "out"},
+               "targets": TARGETS, "mean": mean,
+               "meets": {k: bool(verdict[k] <= TARGETS[k]) for k in TARGETS}, "rows": rows,
+               "wall_s_this_invocation": round(time.perf_counter() - t0, 1)}
+    if show:
+        print_table([{**mean, **{f"meets_{k}": v for k, v in results["meets"].items()}}],
+                    [*mean, *[f"meets_{k}" for k in TARGETS]],
+                    title="mean over sensors (ratios: estimator MAE / constant's, generator MSE / a copy's)")
+        write_results(args.out, results)
+    return results
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,173 @@
+"""The calibration bundle: the estimator's colour adapter and the generator's fine-tune, each measured on held-out
+grasps, written under ``OUT.partial`` and renamed to OUT when complete.
+
+A grasp (a press) is one contact pose: (object, pose_id) of the presses layout. The estimator is measured by
+grasp-level cross-validation (``FOLDS`` folds, each fitted without its grasps and scored on them), then fitted on
+all grasps. The generator is fine-tuned without the held-out grasps (``--val-fraction``) and scored on pairs of
+their frames with |ΔFz| >= MIN_PAIR_DFZ, against a copy of the reference.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+FOLDS = 5  # grasp-level cross-validation folds of the estimator's table
+USEFUL_RATIO = 0.9  # the estimator is used when its held-out MAE is below this share of the constant baseline's
+MIN_PAIR_DFZ = 1.5  # N: held-out generator pairs differ at least this much in Fz
+MAX_PAIRS = 96
+
+
+def held_out_poses(groups: dict, fraction: float) -> tuple[list[int], list[int]]:
+    """(train, validation) rows, whole contact poses apart: ``fraction`` of each object's poses, else (an object
+    with too few) that share of all poses, at least one; ValueError for a single pose."""
+    from controltac_il.estimators.data import split_by_pose
+
+    if len(groups) < 2:
+        raise ValueError("--presses: one contact pose only; at least two are needed (one is held out for validation)")
+    train, val = split_by_pose(groups, fraction, seed=0)
+    if val and train:
+        return train, val
+    keys = sorted(groups)
+    picked = {keys[i] for i in np.random.default_rng(0).permutation(len(keys))[:max(1, round(fraction * len(keys)))]}
+    return ([r for k in keys if k not in picked for r in groups[k]], [r for k in keys if k in picked for r in groups[k]])
+
+
+def grasp_ids(ds) -> np.ndarray:
+    """Grasp index (N,) of every row of a presses dataset: its contact pose's rank."""
+    out = np.empty(len(ds), int)
+    for g, rows in enumerate(ds.pose_groups().values()):
+        out[rows] = g
+    return out
+
+
+def cross_validated(base, residuals: np.ndarray, fz: np.ndarray, grasps: np.ndarray, steps: int) -> dict:
+    """The colour adapter's held-out Fz per frame (grasp-level folds) and its table row against the constant."""
+    from controltac_il.estimators.few_shot import ColourFit, fit_colour_adapter
+
+    ids = np.unique(grasps)
+    folds = np.random.default_rng(0).permutation(len(ids)) % min(FOLDS, len(ids))
+    pred, const = np.empty(len(fz)), np.empty(len(fz))
+    for k in range(folds.max() + 1):
+        out = np.isin(grasps, ids[folds == k])
+        est = fit_colour_adapter(base, residuals[~out], fz[~out], ColourFit(steps=steps))
+        pred[out] = est.predict(residuals[out], gate=False)[:, 2]
+        const[out] = fz[~out].mean()
+    mae, base_mae = float(np.abs(pred - fz).mean()), float(np.abs(const - fz).mean())
+    corr = float(np.corrcoef(pred, fz)[0, 1]) if np.std(pred) > 0 else None
+    return {"mae_n": mae, "constant_mae_n": base_mae, "ratio_to_constant": mae / max(base_mae, 1e-12), "corr": corr,
+            "frames": len(fz), "grasps": len(ids), "folds": int(folds.max() + 1), "predicted_fz": pred.tolist()}
+
+
+def estimator_part(args, ds, staging: Path) -> dict:
+    """Fit the colour adapter of the base estimator into ``staging / "estimator"``; its cross-validated table."""
+    from controltac_il.estimators import ForceEstimator
+    from controltac_il.estimators.data import load_arrays
+    from controltac_il.estimators.few_shot import ColourFit, fit_colour_adapter
+
+    base = ForceEstimator.from_pretrained(args.base_estimator)
+    x, f = load_arrays(ds, size=(base.config.input_height, base.config.input_width), progress=False)
+    grasps = grasp_ids(ds)
+    table = cross_validated(base, x, f[:, 2].astype(np.float64), grasps, args.estimator_steps)
+    before = float(np.abs(base.predict(x, gate=False)[:, 2] - f[:, 2]).mean())
+    est = fit_colour_adapter(base, x, f[:, 2], ColourFit(steps=args.estimator_steps))
+    est.save(staging / "estimator")
+    use = table["ratio_to_constant"] < USEFUL_RATIO
+    if not use:
+        warnings.warn(f"the calibrated estimator does not beat the constant baseline on held-out grasps (Fz MAE "
+                      f"{table['mae_n']:.2f} N vs {table['constant_mae_n']:.2f} N): ForceAugment with this bundle uses "
+                      "the nominal reference force for unlabelled frames", stacklevel=2)
+    return {"base": str(args.base_estimator or "default"), "base_hash": str(base.checkpoint_hash),
+            "method": "colour adapter (3x3 mix + shift) before the frozen base network", "steps": args.estimator_steps,
+            "images": len(x), "zero_shot_mae_n": before, "held_out": table, "use_estimator": bool(use),
+            "grasp_of_frame": grasps.tolist(), "true_fz": f[:, 2].astype(float).tolist(),
+            "hash": str(ForceEstimator.from_pretrained(staging / "estimator").checkpoint_hash)}
+
+
+def subset_presses(ds, rows: list[int], out: Path) -> Path:
+    """A presses folder at ``out`` holding only ``rows`` of ``ds`` (manifest rows, their images, backgrounds)."""
+    import csv
+
+    out.mkdir(parents=True, exist_ok=True)
+    with open(ds.root / "manifest.csv", newline="") as f:
+        reader = csv.DictReader(f)
+        fields, lines = reader.fieldnames, list(reader)
+    with open(out / "manifest.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=fields)
+        w.writeheader()
+        w.writerows(lines[i] for i in rows)
+    for name in ("background.png", "backgrounds", "images", "meta.json"):
+        src = ds.root / name
+        if src.exists() and not (out / name).exists():
+            (shutil.copytree if src.is_dir() else shutil.copy2)(src, out / name)
+    return out
+
+
+def held_out_pairs(ds, rows: list[int]) -> tuple:
+    """(reference residuals, target residuals, ΔF (P, 3) N) of frame pairs within each held-out grasp."""
+    f = ds.forces()
+    groups: dict = {}
+    for i in rows:
+        groups.setdefault((ds.records[i].object, ds.records[i].pose_id), []).append(i)
+    pairs = [(i, j) for g in groups.values() for i in g for j in g if abs(f[j, 2] - f[i, 2]) >= MIN_PAIR_DFZ]
+    if len(pairs) > MAX_PAIRS:
+        pairs = [pairs[k] for k in sorted(np.random.default_rng(0).choice(len(pairs), MAX_PAIRS, replace=False))]
+    if not pairs:
+        return None
+    ref = np.stack([ds.residual(i) for i, _ in pairs])
+    tgt = np.stack([ds.residual(j) for _, j in pairs])
+    return ref, tgt, np.stack([f[j] - f[i] for i, j in pairs]).astype(np.float32)
+
+
+def generator_part(args, ds, staging: Path) -> dict:
+    """Fine-tune the base generator on the training grasps into ``staging / "generator"``; error on held-out ones."""
+    from controltac_il.generator import ForceGenerator
+    from controltac_il.generator.finetune import fine_tune
+    from controltac_il.generator.pipeline import locate_checkpoint
+    from controltac_il.generator.validation import generation_error
+
+    base = locate_checkpoint(args.base_generator)
+    train, val = held_out_poses(ds.pose_groups(), args.val_fraction)
+    data = subset_presses(ds, train, staging / "generator.data")
+    final = fine_tune(base, data, staging / "generator.run", args.dit_steps, args.lr, args.ae_steps, batch=args.batch,
+                      threads=args.threads)
+    if (staging / "generator").exists():
+        shutil.rmtree(staging / "generator")
+    shutil.copytree(final, staging / "generator")
+    pairs, table = held_out_pairs(ds, val), None
+    if pairs is not None:
+        before = generation_error(ForceGenerator.from_pretrained(base), *pairs)
+        after = generation_error(ForceGenerator.from_pretrained(staging / "generator"), *pairs)
+        table = {"pairs": len(pairs[0]), "grasps": len({(ds.records[i].object, ds.records[i].pose_id) for i in val}),
+                 "zero_shot_ratio_to_copy": before["ratio_to_copy"], "ratio_to_copy": after["ratio_to_copy"],
+                 "mse": after["mse"], "copy_mse": after["copy_mse"]}
+    return {"base": str(args.base_generator), "base_hash": str(ForceGenerator.from_pretrained(base).checkpoint_hash),
+            "ae_steps": args.ae_steps, "dit_steps": args.dit_steps, "lr": args.lr, "train_images": len(train),
+            "held_out_rows": list(map(int, val)), "held_out": table,
+            "hash": str(ForceGenerator.from_pretrained(staging / "generator").checkpoint_hash)}
+
+
+def run(args, ds, source: dict | None = None) -> dict:
+    """Write the bundle (module docstring); returns its calibration record."""
+    from controltac_il.calibrate.report import card, save_report
+    from controltac_il.io import write_json
+
+    if args.threads:
+        import torch
+
+        torch.set_num_threads(args.threads)
+    staging = args.out.with_name(args.out.name + ".partial")
+    staging.mkdir(parents=True, exist_ok=True)
+    record = {"presses": str(ds.root.resolve()), "images": len(ds), "source": source,
+              "estimator": estimator_part(args, ds, staging), "generator": generator_part(args, ds, staging)}
+    write_json(staging / "calibration.json", record)
+    save_report(staging / "report.png", record, ds, staging / "generator")
+    (staging / "README.md").write_text(card(record))
+    for leftover in ("generator.run", "generator.data"):
+        shutil.rmtree(staging / leftover, ignore_errors=True)
+    os.replace(staging, args.out)
+    return record

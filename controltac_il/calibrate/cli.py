@@ -1,0 +1,98 @@
+"""The command line of ``python -m controltac_il.calibrate`` (presses or recordings -> a bundle)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from controltac_il.calibrate import __doc__ as DOC
+
+PROG = "python -m controltac_il.calibrate"
+
+
+def _lag(text: str):
+    if text == "auto":
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an int (frames) or 'auto', got {text!r}") from None
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=PROG, description=DOC.split("\n\n")[0].split(": ", 1)[1])
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--presses", type=Path, help="labelled frames in the FeelAnyForce layout (read-only)")
+    src.add_argument("--recordings", type=Path,
+                     help="a folder of recordings: <name>.mp4 or <name>/ frames, with <name>.csv (column fz, N, one row a frame)")
+    p.add_argument("--out", type=Path, required=True, help="the bundle folder to write (new)")
+    p.add_argument("--lag", type=_lag, default=0, help="recordings: force log shift in frames, or 'auto' (default 0)")
+    p.add_argument("--stride", type=int, default=1, help="recordings: keep every n-th ramp frame (default 1)")
+    p.add_argument("--size", type=int, nargs=2, default=(240, 320), metavar=("H", "W"),
+                   help="recordings: frame size written (default 240 320, the GelSight Mini's)")
+    p.add_argument("--base-generator", default="default", help="generator to fine-tune (default: the shipped one)")
+    p.add_argument("--base-estimator", default=None, help="estimator to calibrate (default: the shipped one)")
+    p.add_argument("--estimator-steps", type=int, default=150, help="colour adapter fitting steps (default 150)")
+    p.add_argument("--ae-steps", type=int, default=600, help="generator autoencoder fine-tuning steps (default 600)")
+    p.add_argument("--dit-steps", type=int, default=600, help="generator DiT fine-tuning steps (default 600)")
+    p.add_argument("--lr", type=float, default=2e-4, help="peak learning rate of the generator's fine-tunes")
+    p.add_argument("--batch", type=int, default=64, help="DiT batch (default 64)")
+    p.add_argument("--val-fraction", type=float, default=0.2, help="grasps held out from the generator (default 0.2)")
+    p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
+    p.add_argument("--resume", action="store_true", help="continue a stopped run in OUT.partial")
+    return p
+
+
+def check(args: argparse.Namespace) -> None:
+    """ValueError naming the flag for a bad option or output."""
+    for flag, value, low in (("--estimator-steps", args.estimator_steps, 1), ("--ae-steps", args.ae_steps, 0),
+                             ("--dit-steps", args.dit_steps, 1), ("--batch", args.batch, 1), ("--stride", args.stride, 1)):
+        if value < low:
+            raise ValueError(f"{flag}: expected an int >= {low}, got {value}")
+    if not 0 < args.val_fraction < 1:
+        raise ValueError(f"--val-fraction: expected a share in (0, 1), got {args.val_fraction}")
+    if args.out.exists():
+        raise ValueError(f"--out: {args.out} exists; a bundle is written to a new folder")
+    staging = args.out.with_name(args.out.name + ".partial")
+    if staging.exists() and not args.resume:
+        raise ValueError(f"--out: {staging} holds a stopped run: pass --resume to continue it, or delete it")
+    src, flag = (args.presses, "--presses") if args.presses is not None else (args.recordings, "--recordings")
+    if not src.is_dir():
+        raise ValueError(f"{flag}: {src} is not a folder")
+
+
+def load(args: argparse.Namespace):
+    """(the presses dataset, the recordings' summary or None); recordings are written as presses into the staging
+    folder first. ValueError naming the flag or file."""
+    from controltac_il.calibrate.recordings import RecordingOptions, recordings_to_presses
+    from controltac_il.tactile.dataset import load_dataset
+
+    source, root = None, args.presses
+    if args.recordings is not None:
+        root = args.out.with_name(args.out.name + ".partial") / "presses"
+        opts = RecordingOptions(size=tuple(args.size), lag=args.lag, stride=args.stride)
+        source = {"recordings": str(args.recordings.resolve()), "lag": args.lag, "stride": args.stride,
+                  "per_recording": recordings_to_presses(args.recordings, root, opts)}
+    try:
+        return load_dataset(root), source
+    except (ValueError, OSError) as exc:
+        raise ValueError(f"--presses: not a presses folder in the FeelAnyForce layout ({' '.join(str(exc).split())})") from None
+
+
+def main(argv=None) -> int:
+    """0 done, 1 stopped on a NaN / inf loss, 2 bad options or data, 130 Ctrl-C (state kept for --resume)."""
+    args = parser().parse_args(argv)  # before the job's imports (torch): --help answers at once
+    from controltac_il.training import run_cli
+
+    def job() -> None:  # run_cli turns a ValueError into one line and exit 2
+        from controltac_il.calibrate.bundle import run
+        from controltac_il.calibrate.report import table
+
+        check(args)
+        record = run(args, *load(args))
+        print(table(record))
+        print(json.dumps({k: record[k] for k in ("images", "source")}, indent=2))
+        print(f"wrote {args.out} (report: {args.out / 'report.png'})")
+
+    return run_cli(PROG, job)
