@@ -8,6 +8,7 @@ from benchmarks import augment as bench
 from controltac_il.generator import ForceGenerator
 
 
+@pytest.mark.slow  # 75 s: the benchmark's parts (ForceAugment, the writer) are tested in their own files
 def test_quick_run_counts_add_up_and_name_the_shipped_generator(tmp_path):
     out = tmp_path / "augment.json"
     bench.main(["--quick", "--out", str(out), "--rows", "hdf5", "lerobot"])  # the writer row: test_lerobot_v3_write

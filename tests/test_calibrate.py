@@ -101,7 +101,7 @@ def test_a_stopped_calibration_resumes_to_the_same_estimator(bases, tmp_path, ca
     tmp, presses = bases
     out = tmp_path / "lab"
     args = ["--presses", str(presses), "--out", str(out), "--base-estimator", str(tmp / "est"), "--estimator-steps",
-            "6", "--ae-steps", "1", "--dit-steps", "1", "--batch", "4", "--threads", "1"]
+            "6", "--ae-steps", "1", "--dit-steps", "1", "--batch", "4", "--threads", "1", "--estimator-method", "finetune"]
     assert main([*args, "--base-generator", str(tmp_path / "missing")]) == 2  # stops after the estimator part
     staging = tmp_path / "lab.partial"
     first = ForceEstimator.from_pretrained(staging / "estimator").checkpoint_hash
@@ -109,3 +109,6 @@ def test_a_stopped_calibration_resumes_to_the_same_estimator(bases, tmp_path, ca
     assert main([*args, "--base-generator", str(tmp / "gen" / "final")]) == 2  # a stopped run needs --resume
     assert main([*args, "--base-generator", str(tmp / "gen" / "final"), "--resume"]) == 0
     assert ForceEstimator.from_pretrained(out).checkpoint_hash == first and not staging.exists()
+    record = json.loads((out / "calibration.json").read_text())["estimator"]
+    assert record["method"] == "the whole base network fine-tuned" and record["steps"] == 6
+    assert sum(v is not None for v in record["held_out"]["predicted_fz"]) == record["held_out"]["frames"] < 30

@@ -1,9 +1,10 @@
 """The calibration bundle: the estimator's colour adapter and the generator's fine-tune, each measured on held-out
 grasps, written under ``OUT.partial`` and renamed to OUT when complete.
 
-A grasp (a press) is one contact pose: (object, pose_id) of the presses layout. The estimator is measured by
-grasp-level cross-validation (``FOLDS`` folds, each fitted without its grasps and scored on them), then fitted on
-all grasps. The generator is fine-tuned without the held-out grasps (``--val-fraction``) and scored on pairs of
+A grasp (a press) is one contact pose: (object, pose_id) of the presses layout. Below FINETUNE_FROM frames the
+estimator gets the colour adapter (``estimators.few_shot``), measured by grasp-level cross-validation (``FOLDS``
+folds, each fitted without its grasps and scored on them), then fitted on all grasps; from there on the whole
+network is fine-tuned without the held-out grasps and scored on them. The generator is fine-tuned without the held-out grasps (``--val-fraction``) and scored on pairs of
 their frames with |ΔFz| >= MIN_PAIR_DFZ, against a copy of the reference.
 """
 
@@ -17,6 +18,9 @@ from pathlib import Path
 import numpy as np
 
 FOLDS = 5  # grasp-level cross-validation folds of the estimator's table
+FINETUNE_FROM = 500  # frames: from here "auto" fine-tunes the whole estimator (benchmarks/results/finetune.json: 0.53 N
+#                      Fz MAE at 500 presses, 0.37 N at 2 000), below it fits the colour adapter
+STEPS = {"adapter": 150, "finetune": 1000}  # the estimator's default steps per method
 USEFUL_RATIO = 0.9  # the estimator is used when its held-out MAE is below this share of the constant baseline's
 MIN_PAIR_DFZ = 1.5  # N: held-out generator pairs differ at least this much in Fz
 MAX_PAIRS = 96
@@ -63,28 +67,60 @@ def cross_validated(base, residuals: np.ndarray, fz: np.ndarray, grasps: np.ndar
             "frames": len(fz), "grasps": len(ids), "folds": int(folds.max() + 1), "predicted_fz": pred.tolist()}
 
 
+def estimator_method(args, frames: int) -> str:
+    """"adapter" or "finetune": ``--estimator-method``, or by the number of labelled frames when "auto"."""
+    if args.estimator_method != "auto":
+        return args.estimator_method
+    return "finetune" if frames >= FINETUNE_FROM else "adapter"
+
+
+def finetuned(args, ds, base, x, f, grasps, staging: Path):
+    """(the base estimator fine-tuned on all axes, its table on held-out grasps (``--val-fraction``))."""
+    from controltac_il.estimators.fit import EstimatorTrainConfig, fit
+    from controltac_il.estimators.few_shot import held_out_mae
+
+    train, val = held_out_poses(ds.pose_groups(), args.val_fraction)  # the generator's split
+    steps = args.estimator_steps
+    cfg = EstimatorTrainConfig(steps=steps, lr=1e-3, min_lr=1e-5, warmup=min(50, steps // 5),
+                               checkpoint_every=max(steps // 4, 1))
+    state = staging / "estimator.train_state"
+    est, _ = fit(x[train], f[train], train=cfg, val=(x[val], f[val]), state_dir=state, init=base,
+                 resume=args.resume and (state / "state.json").is_file())
+    table = held_out_mae(est, x[val], f[val, 2], float(f[train, 2].mean()))
+    pred: list = [None] * len(f)  # held-out frames only
+    for i, v in zip(val, est.predict(x[val], gate=False)[:, 2]):
+        pred[i] = float(v)
+    return est, {**table, "grasps": len(np.unique(grasps[val])), "folds": 1, "predicted_fz": pred}
+
+
 def estimator_part(args, ds, staging: Path) -> dict:
-    """Fit the colour adapter of the base estimator into ``staging / "estimator"``; its cross-validated table."""
+    """Calibrate the base estimator into ``staging / "estimator"`` (module docstring); its held-out table."""
     from controltac_il.estimators import ForceEstimator
     from controltac_il.estimators.data import load_arrays
     from controltac_il.estimators.few_shot import ColourFit, fit_colour_adapter
 
     base = ForceEstimator.from_pretrained(args.base_estimator)
     x, f = load_arrays(ds, size=(base.config.input_height, base.config.input_width), progress=False)
-    grasps = grasp_ids(ds)
-    table = cross_validated(base, x, f[:, 2].astype(np.float64), grasps, args.estimator_steps)
+    grasps, method = grasp_ids(ds), estimator_method(args, len(ds))
+    args.estimator_steps = args.estimator_steps or STEPS[method]
     before = float(np.abs(base.predict(x, gate=False)[:, 2] - f[:, 2]).mean())
-    est = fit_colour_adapter(base, x, f[:, 2], ColourFit(steps=args.estimator_steps))
+    if method == "finetune":
+        est, table = finetuned(args, ds, base, x, f, grasps, staging)
+    else:
+        table = cross_validated(base, x, f[:, 2].astype(np.float64), grasps, args.estimator_steps)
+        est = fit_colour_adapter(base, x, f[:, 2], ColourFit(steps=args.estimator_steps))
     est.save(staging / "estimator")
     use = table["ratio_to_constant"] < USEFUL_RATIO
     if not use:
         warnings.warn(f"the calibrated estimator does not beat the constant baseline on held-out grasps (Fz MAE "
                       f"{table['mae_n']:.2f} N vs {table['constant_mae_n']:.2f} N): ForceAugment with this bundle uses "
                       "the nominal reference force for unlabelled frames", stacklevel=2)
+    names = {"adapter": "colour adapter (3x3 mix + shift) before the frozen base network",
+             "finetune": "the whole base network fine-tuned"}
     return {"base": str(args.base_estimator or "default"), "base_hash": str(base.checkpoint_hash),
-            "method": "colour adapter (3x3 mix + shift) before the frozen base network", "steps": args.estimator_steps,
-            "images": len(x), "zero_shot_mae_n": before, "held_out": table, "use_estimator": bool(use),
-            "grasp_of_frame": grasps.tolist(), "true_fz": f[:, 2].astype(float).tolist(),
+            "method": names[method], "steps": args.estimator_steps, "images": len(x), "zero_shot_mae_n": before,
+            "held_out": table, "use_estimator": bool(use), "grasp_of_frame": grasps.tolist(),
+            "true_fz": f[:, 2].astype(float).tolist(),
             "hash": str(ForceEstimator.from_pretrained(staging / "estimator").checkpoint_hash)}
 
 
@@ -167,7 +203,7 @@ def run(args, ds, source: dict | None = None) -> dict:
     write_json(staging / "calibration.json", record)
     save_report(staging / "report.png", record, ds, staging / "generator")
     (staging / "README.md").write_text(card(record))
-    for leftover in ("generator.run", "generator.data"):
+    for leftover in ("generator.run", "generator.data", "estimator.train_state"):
         shutil.rmtree(staging / leftover, ignore_errors=True)
     os.replace(staging, args.out)
     return record

@@ -33,7 +33,10 @@ def parser() -> argparse.ArgumentParser:
                    help="recordings: frame size written (default 240 320, the GelSight Mini's)")
     p.add_argument("--base-generator", default="default", help="generator to fine-tune (default: the shipped one)")
     p.add_argument("--base-estimator", default=None, help="estimator to calibrate (default: the shipped one)")
-    p.add_argument("--estimator-steps", type=int, default=150, help="colour adapter fitting steps (default 150)")
+    p.add_argument("--estimator-method", choices=("auto", "adapter", "finetune"), default="auto",
+                   help="adapter: a colour mix before the frozen network (few frames); finetune: the whole network; "
+                        "auto (default): finetune from 500 labelled frames on")
+    p.add_argument("--estimator-steps", type=int, default=None, help="estimator steps (default: 150 adapter, 1000 finetune)")
     p.add_argument("--ae-steps", type=int, default=600, help="generator autoencoder fine-tuning steps (default 600)")
     p.add_argument("--dit-steps", type=int, default=600, help="generator DiT fine-tuning steps (default 600)")
     p.add_argument("--lr", type=float, default=2e-4, help="peak learning rate of the generator's fine-tunes")
@@ -46,7 +49,7 @@ def parser() -> argparse.ArgumentParser:
 
 def check(args: argparse.Namespace) -> None:
     """ValueError naming the flag for a bad option or output."""
-    for flag, value, low in (("--estimator-steps", args.estimator_steps, 1), ("--ae-steps", args.ae_steps, 0),
+    for flag, value, low in (("--estimator-steps", args.estimator_steps or 1, 1), ("--ae-steps", args.ae_steps, 0),
                              ("--dit-steps", args.dit_steps, 1), ("--batch", args.batch, 1), ("--stride", args.stride, 1)):
         if value < low:
             raise ValueError(f"{flag}: expected an int >= {low}, got {value}")

@@ -70,11 +70,12 @@ def save_report(path: Path, record: dict, ds, generator_dir: Path) -> Path:
     e = record["estimator"]
     fig = plt.figure(figsize=(13, 4.6))
     ax = fig.add_subplot(1, 3, 1)
-    true, pred, grasp = np.array(e["true_fz"]), np.array(e["held_out"]["predicted_fz"]), np.array(e["grasp_of_frame"])
-    for g in np.unique(grasp):
-        m = grasp == g
+    true, grasp = np.array(e["true_fz"]), np.array(e["grasp_of_frame"])
+    pred = np.array([np.nan if v is None else v for v in e["held_out"]["predicted_fz"]], float)  # None: trained on
+    for g in np.unique(grasp[np.isfinite(pred)]):
+        m = (grasp == g) & np.isfinite(pred)
         ax.plot(true[m], pred[m], "o-", ms=3, lw=0.8)
-    lim = [0, max(true.max(), pred.max()) * 1.05]
+    lim = [0, max(true.max(), np.nanmax(pred)) * 1.05]
     ax.plot(lim, lim, "k--", lw=0.8)
     ax.set(xlabel="true Fz (N)", ylabel="estimated Fz, held out (N)", xlim=lim, ylim=lim,
            title=f"estimator: MAE {e['held_out']['mae_n']:.2f} N vs constant {e['held_out']['constant_mae_n']:.2f} N")

@@ -3,10 +3,11 @@
 Another sensor's optics (other LEDs, other light directions, another gain) mixes the residual's colour
 channels differently; to first order that is a linear map of the colours. So the shipped network stays frozen
 and only a 3x3 colour mix plus a shift (12 numbers, ``EstimatorConfig.input_mix`` / ``input_shift``) is fitted
-on the sensor's Fz labels, pulled towards the identity. Chosen by ``benchmarks.calibration_methods`` (issue
-40) over a frozen backbone with a ridge head, monotone maps of contact statistics and of the shipped reading,
-and a ridge on several statistics: with ~50 Fz-only frames, label lag and an unseen optical design it
-generalises best across objects. Fx and Fy keep the network's reading through the same mix.
+on the sensor's Fz labels, pulled towards the identity. Chosen over the candidates of
+``benchmarks.calibration_methods`` (a frozen backbone with a ridge head, monotone maps of contact statistics and
+of the shipped reading, a ridge on several statistics; best there: 0.65x the constant at ~50 frames) by an
+exploratory run of the same conditions (0.34-0.52x, not committed); ``benchmarks.calibration`` measures it end to
+end. Fx and Fy keep the network's reading through the same mix.
 """
 
 from __future__ import annotations
