@@ -51,7 +51,7 @@ def grasp_ids(ds) -> np.ndarray:
 
 def cross_validated(base, residuals: np.ndarray, fz: np.ndarray, grasps: np.ndarray, steps: int) -> dict:
     """The colour adapter's held-out Fz per frame (grasp-level folds) and its table row against the constant."""
-    from controltac_il.estimators.few_shot import ColourFit, fit_colour_adapter
+    from controltac_il.estimators.few_shot import ColourFit, fit_colour_adapter, held_out_mae
 
     ids = np.unique(grasps)
     folds = np.random.default_rng(0).permutation(len(ids)) % min(FOLDS, len(ids))
@@ -61,10 +61,8 @@ def cross_validated(base, residuals: np.ndarray, fz: np.ndarray, grasps: np.ndar
         est = fit_colour_adapter(base, residuals[~out], fz[~out], ColourFit(steps=steps))
         pred[out] = est.predict(residuals[out], gate=False)[:, 2]
         const[out] = fz[~out].mean()
-    mae, base_mae = float(np.abs(pred - fz).mean()), float(np.abs(const - fz).mean())
-    corr = float(np.corrcoef(pred, fz)[0, 1]) if np.std(pred) > 0 else None
-    return {"mae_n": mae, "constant_mae_n": base_mae, "ratio_to_constant": mae / max(base_mae, 1e-12), "corr": corr,
-            "frames": len(fz), "grasps": len(ids), "folds": int(folds.max() + 1), "predicted_fz": pred.tolist()}
+    return {**held_out_mae(pred, fz, const), "grasps": len(ids), "folds": int(folds.max() + 1),
+            "predicted_fz": pred.tolist()}
 
 
 def estimator_method(args, frames: int) -> str:
@@ -86,9 +84,10 @@ def finetuned(args, ds, base, x, f, grasps, staging: Path):
     state = staging / "estimator.train_state"
     est, _ = fit(x[train], f[train], train=cfg, val=(x[val], f[val]), state_dir=state, init=base,
                  resume=args.resume and (state / "state.json").is_file())
-    table = held_out_mae(est, x[val], f[val, 2], float(f[train, 2].mean()))
+    held = est.predict(x[val], gate=False)[:, 2]
+    table = held_out_mae(held, f[val, 2], float(f[train, 2].mean()))
     pred: list = [None] * len(f)  # held-out frames only
-    for i, v in zip(val, est.predict(x[val], gate=False)[:, 2]):
+    for i, v in zip(val, held):
         pred[i] = float(v)
     return est, {**table, "grasps": len(np.unique(grasps[val])), "folds": 1, "predicted_fz": pred}
 

@@ -164,9 +164,7 @@ def read_recording(name: str, frames_path: Path, csv_path: Path, opts: Recording
     if len(forces) != len(frames):
         raise ValueError(f"{csv_path}: {len(forces)} force rows for {len(frames)} frames in {frames_path.name}; "
                          "one row per frame is needed")
-    free = np.abs(forces[:, 2]) < opts.no_contact_force
-    if opts.lag != "auto":
-        free = np.abs(shift(forces, opts.lag)[:, 2]) < opts.no_contact_force
+    free = np.abs((forces if opts.lag == "auto" else shift(forces, opts.lag))[:, 2]) < opts.no_contact_force
     if not free.any():
         raise ValueError(f"{csv_path}: no no-contact frame (|Fz| < {opts.no_contact_force:g} N) for the background")
     background = np.median(frames[free], axis=0).round().astype(np.uint8)
