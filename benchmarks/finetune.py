@@ -29,7 +29,7 @@ from controltac_il.checkpoint import read_json
 from controltac_il.generator import ForceGenerator
 from controltac_il.generator.checkpoint import checkpoint_hash
 from controltac_il.generator.forces import VALIDATED_RANGE
-from controltac_il.generator.pipeline import locate_checkpoint
+from controltac_il.generator.shipped import locate_checkpoint
 from controltac_il.tactile import TRAIN_OBJECTS
 from controltac_il.tactile.dataset import write_dataset
 from controltac_il.tactile.instances import instance_by_name

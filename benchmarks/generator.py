@@ -41,7 +41,7 @@ from benchmarks.common import base_parser, median_time, print_table, write_resul
 from controltac_il.estimators import ForceEstimator
 from controltac_il.generator import ForceGenerator
 from controltac_il.generator.forces import VALIDATED_RANGE
-from controltac_il.generator.pipeline import CHECKPOINT_ROOT
+from controltac_il.generator.shipped import CHECKPOINT_ROOT
 from controltac_il.io import atomic_path, write_json
 from controltac_il.metrics import mse, ssim
 from controltac_il.tactile import HELDOUT_OBJECTS, TRAIN_OBJECTS, SensorSpec, TactileSensor, from_residual

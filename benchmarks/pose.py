@@ -39,7 +39,7 @@ from benchmarks.pose_estimation import fit_cnn, fit_pca, pose_errors, predict_cn
 from controltac_il.generator import ForceGenerator
 from controltac_il.generator.config import FZ_RANGE, SHEAR_MAX
 from controltac_il.generator.pose_data import POSE_SPREAD, PoseScenes, render_scenes
-from controltac_il.generator.pipeline import SHIPPED_ADAPTERS, locate_checkpoint
+from controltac_il.generator.shipped import SHIPPED_ADAPTERS, locate_checkpoint
 from controltac_il.io import atomic_path, write_json
 from controltac_il.tactile import HELDOUT_OBJECTS, TRAIN_OBJECTS, contact_mask, from_residual
 from controltac_il.tactile.residual import residual_magnitude

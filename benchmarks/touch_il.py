@@ -291,7 +291,7 @@ def main(argv=None) -> dict:
     generator_hash = None
     if max_force:
         from controltac_il.generator.checkpoint import checkpoint_hash
-        from controltac_il.generator.pipeline import locate_checkpoint
+        from controltac_il.generator.shipped import locate_checkpoint
 
         generator_hash = checkpoint_hash(locate_checkpoint(args.generator))
     # cells of a grid with other training or evaluation settings are never mixed into this one

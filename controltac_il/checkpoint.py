@@ -22,14 +22,12 @@ from __future__ import annotations
 import hashlib
 import json
 from pathlib import Path
-from typing import Callable, Mapping
-
-import torch
-from safetensors import SafetensorError
-from safetensors.torch import load as load_safetensors
-from safetensors.torch import save_file
+from typing import TYPE_CHECKING, Callable, Mapping
 
 from controltac_il.io import atomic_dir, write_json
+
+if TYPE_CHECKING:  # torch and safetensors are imported where tensors are (de)serialised: the CLIs' --help stays light
+    import torch
 
 CONFIG_FILE = "config.json"
 CARD_FILE = "model_card.json"
@@ -65,6 +63,8 @@ def read_json(path: str | Path) -> dict:
 def state_tensors(weights: torch.nn.Module | Mapping[str, torch.Tensor], dtype: torch.dtype | None = None
                   ) -> dict[str, torch.Tensor]:
     """A module's state dict (or a dict of tensors) on CPU, contiguous, floats cast to ``dtype`` if given."""
+    import torch
+
     state = weights.state_dict() if isinstance(weights, torch.nn.Module) else weights
     out = {}
     for k, v in state.items():
@@ -91,6 +91,8 @@ def save_folder(path: str | Path, config: dict, weights: Mapping[str, torch.nn.M
     """Write a checkpoint folder atomically: ``config.json``, one safetensors file per ``weights`` entry
     (file name -> module or tensors; floats cast to ``dtype``), ``files`` (name -> text, or an object
     written as JSON), what ``write_more(folder)`` adds, and the model card."""
+    from safetensors.torch import save_file
+
     path = Path(path)
     with atomic_dir(path) as tmp:
         write_json(tmp / CONFIG_FILE, config)
@@ -108,6 +110,10 @@ def load_folder(path: str | Path, weight_files: tuple[str, ...], optional: tuple
                 ) -> tuple[dict, dict[str, dict[str, torch.Tensor]]]:
     """(config dict, {file: tensors}) of a checkpoint folder, every weights file verified against the card.
     Files in ``optional`` are skipped when absent (but verified when present)."""
+    import torch
+    from safetensors import SafetensorError
+    from safetensors.torch import load as load_safetensors
+
     path = Path(path)
     if not path.is_dir():
         raise MissingCheckpointFile(f"checkpoint folder not found: {path}")

@@ -16,6 +16,7 @@ import argparse
 import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -23,8 +24,10 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 
 from envs.config import CAMERAS, SCENES, SENSORS, scene_config  # noqa: E402
-from envs.expert import ExpertConfig, ScriptedExpert  # noqa: E402
-from envs.peg_in_hole import PegInHoleEnv  # noqa: E402
+
+if TYPE_CHECKING:  # MuJoCo is imported by the job, after the options: --help stays light
+    from envs.expert import ScriptedExpert
+    from envs.peg_in_hole import PegInHoleEnv
 
 
 def record_episode(env: PegInHoleEnv, expert: ScriptedExpert, seed: int, hold_steps: int = 3):
@@ -147,12 +150,14 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 
 def main(argv=None) -> int:
+    args = parse_args(argv)
     from tqdm import tqdm
 
     from controltac_il.datasets.episodes import episode_index, episode_paths, write_episode
     from controltac_il.io import write_json
+    from envs.expert import ExpertConfig, ScriptedExpert
+    from envs.peg_in_hole import PegInHoleEnv
 
-    args = parse_args(argv)
     config = args.config
     max_attempts = 2 * args.episodes + 10 if args.max_attempts is None else args.max_attempts
     existing = episode_paths(args.out) if args.out.is_dir() else []

@@ -6,7 +6,7 @@ import pytest
 
 from benchmarks import act as bench
 from controltac_il.generator.checkpoint import checkpoint_hash
-from controltac_il.generator.pipeline import locate_checkpoint
+from controltac_il.generator.shipped import locate_checkpoint
 
 
 def _fake_run(folder, augment):

@@ -21,8 +21,11 @@ else:
     code = None
 print(json.dumps({{"code": code, "heavy": sorted(m for m in {heavy!r} if m in sys.modules)}}))
 """
-CLIS = [("deploy_policy.py", "run_path"), ("train_act.py", "run_path"), ("controltac_il", "run_module"),
-        ("controltac_il.augment", "run_module"), ("controltac_il.calibrate", "run_module")]
+CLIS = [("deploy_policy.py", "run_path"), ("train_act.py", "run_path"),
+        *((m, "run_module") for m in ("controltac_il", "controltac_il.augment", "controltac_il.calibrate",
+                                      "controltac_il.generator.train", "controltac_il.generator.train_pose",
+                                      "controltac_il.estimators.train", "controltac_il.tactile.dataset",
+                                      "controltac_il.sign", "envs.collect"))]
 
 
 @pytest.mark.parametrize("target, run", CLIS, ids=[c[0] for c in CLIS])

@@ -11,7 +11,7 @@ from safetensors import safe_open
 
 from controltac_il.generator import ForceGenerator
 from controltac_il.generator.checkpoint import CARD_FILE, CONFIG_FILE, DIT_FILE, WEIGHT_FILES
-from controltac_il.generator.pipeline import CHECKPOINT_ROOT
+from controltac_il.generator.shipped import CHECKPOINT_ROOT
 from controltac_il.metrics import mse
 from controltac_il.tactile import SensorSpec, TactileSensor, contact_mask, from_residual, to_residual
 

@@ -13,7 +13,7 @@ from controltac_il.generator import ForceGenerator
 from controltac_il.generator.adapter import PoseAdapter, masks_to_model
 from controltac_il.generator.checkpoint import ADAPTER_FILE, CARD_FILE, load_adapter, save_adapter
 from controltac_il.generator.config import PoseAdapterConfig
-from controltac_il.generator.pipeline import CHECKPOINT_ROOT
+from controltac_il.generator.shipped import CHECKPOINT_ROOT
 from controltac_il.generator.pose_data import render_scenes, sample_pose_pairs, target_mask
 from controltac_il.metrics import mse
 from controltac_il.tactile import SensorSpec, TactileSensor

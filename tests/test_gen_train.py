@@ -230,7 +230,7 @@ def test_torchrun_two_processes_gloo(dataset, tmp_path):
 
 
 def test_shipped_checkpoints_are_named_as_fine_tuning_sources(tmp_path):
-    from controltac_il.generator.pipeline import CHECKPOINT_ROOT
+    from controltac_il.generator.shipped import CHECKPOINT_ROOT
     from controltac_il.generator.train import parse_args
 
     (tmp_path / "presses").mkdir()

@@ -9,6 +9,7 @@ import pytest
 
 from controltac_il.tactile import SensorSpec
 from controltac_il.tactile import dataset as tds
+from controltac_il.tactile.sensor import TactileSensor
 
 SPEC = SensorSpec.gelsight_mini().scaled(60, 80)
 
@@ -49,7 +50,7 @@ def test_round_trip_and_pose_groups(tmp_path):
 
 def test_interrupted_write_leaves_nothing(tmp_path, monkeypatch):
     calls = {"n": 0}
-    real_press = tds.TactileSensor.press
+    real_press = TactileSensor.press
 
     def failing_press(self, *a, **k):
         calls["n"] += 1
@@ -57,7 +58,7 @@ def test_interrupted_write_leaves_nothing(tmp_path, monkeypatch):
             raise KeyboardInterrupt
         return real_press(self, *a, **k)
 
-    monkeypatch.setattr(tds.TactileSensor, "press", failing_press)
+    monkeypatch.setattr(TactileSensor, "press", failing_press)
     with pytest.raises(KeyboardInterrupt):
         _write(tmp_path / "out")
     assert list(tmp_path.iterdir()) == []

@@ -12,7 +12,7 @@ from controltac_il.augment.dataset import ForceAugment
 from controltac_il.datasets.stage import Augmented
 from controltac_il.generator import ForceGenerator
 from controltac_il.generator.checkpoint import checkpoint_hash
-from controltac_il.generator.pipeline import locate_checkpoint
+from controltac_il.generator.shipped import locate_checkpoint
 
 
 class ForceAugmentStage:

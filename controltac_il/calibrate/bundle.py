@@ -74,7 +74,8 @@ def estimator_method(args, frames: int) -> str:
 
 def finetuned(args, ds, base, x, f, grasps, staging: Path):
     """(the base estimator fine-tuned on all axes, its table on held-out grasps (``--val-fraction``))."""
-    from controltac_il.estimators.fit import EstimatorTrainConfig, fit
+    from controltac_il.estimators.config import EstimatorTrainConfig
+    from controltac_il.estimators.fit import fit
     from controltac_il.estimators.few_shot import held_out_mae
 
     train, val = held_out_poses(ds.pose_groups(), args.val_fraction)  # the generator's split
@@ -162,7 +163,7 @@ def generator_part(args, ds, staging: Path) -> dict:
     """Fine-tune the base generator on the training grasps into ``staging / "generator"``; error on held-out ones."""
     from controltac_il.generator import ForceGenerator
     from controltac_il.generator.finetune import fine_tune
-    from controltac_il.generator.pipeline import locate_checkpoint
+    from controltac_il.generator.shipped import locate_checkpoint
     from controltac_il.generator.validation import generation_error
 
     base = locate_checkpoint(args.base_generator)

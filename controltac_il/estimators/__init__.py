@@ -5,8 +5,10 @@ weights cannot be downloaded here). ``ForceEstimator.from_pretrained()`` loads t
 checkpoint; ``python -m controltac_il.estimators.train`` trains one.
 """
 
-from controltac_il.estimators.config import EstimatorConfig
-from controltac_il.estimators.estimator import ForceEstimator, validate_residuals
-from controltac_il.estimators.fit import EstimatorTrainConfig, fit
+from controltac_il.lazy import exports
 
-__all__ = ["EstimatorConfig", "ForceEstimator", "EstimatorTrainConfig", "fit", "validate_residuals"]
+_EXPORTS = {**dict.fromkeys(("EstimatorConfig", "EstimatorTrainConfig"), "controltac_il.estimators.config"),
+            **dict.fromkeys(("ForceEstimator", "validate_residuals"), "controltac_il.estimators.estimator"),
+            "fit": "controltac_il.estimators.fit"}
+__getattr__, __dir__ = exports(__name__, _EXPORTS)
+__all__ = list(_EXPORTS)

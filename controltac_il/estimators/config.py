@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 from dataclasses import field
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
-from pydantic import Field
+from pydantic import Field, model_validator
 from pydantic.dataclasses import dataclass
 
 from controltac_il.config import STRICT, JsonConfig
 from controltac_il.tactile.residual import OFFSET
+
+if TYPE_CHECKING:
+    import torch
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 Std = Annotated[float, Field(gt=0, allow_inf_nan=False)]
@@ -57,3 +60,40 @@ class EstimatorConfig(JsonConfig):
     input_kind: Literal["residual"] = "residual"
     extra: dict = field(default_factory=dict)
 
+
+@dataclass(config=STRICT)
+class EstimatorTrainConfig:
+    """Optimisation settings (pydantic: validated at construction, ValueError naming the field).
+
+    Fields:
+        steps: number of AdamW updates (fixed budget, independent of the data size).
+        batch_size: images per update.
+        lr, min_lr: peak and final learning rate of the cosine schedule (after ``warmup`` steps), 0 <= min_lr <= lr.
+        warmup: linear warm-up steps.
+        weight_decay: AdamW weight decay.
+        seed: seeds the weights and the batch sampler.
+        checkpoint_every: write resumable state every this many steps (0 = only at the end).
+        eval_every: evaluate on the validation arrays every this many steps (0 = only at the end).
+    """
+
+    steps: Annotated[int, Field(ge=1)] = 3000
+    batch_size: Annotated[int, Field(ge=1)] = 64
+    lr: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 2e-3
+    min_lr: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 2e-5
+    warmup: Annotated[int, Field(ge=0)] = 100
+    weight_decay: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 1e-4
+    seed: int = 0
+    checkpoint_every: Annotated[int, Field(ge=0)] = 250
+    eval_every: Annotated[int, Field(ge=0)] = 500
+
+    @model_validator(mode="after")
+    def _floor(self):
+        if self.min_lr > self.lr:
+            raise ValueError(f"min_lr={self.min_lr} must be <= lr={self.lr}")
+        return self
+
+    def schedule(self, opt: torch.optim.Optimizer, resume: dict | None = None, step: int = 0):
+        """Linear warm-up, then cosine decay to ``min_lr`` (torch schedulers; see ``controltac_il.training.lr_schedule``)."""
+        from controltac_il.training import lr_schedule
+
+        return lr_schedule(opt, [self.lr], self.steps, self.warmup, self.min_lr, resume, step)

@@ -8,59 +8,20 @@ from __future__ import annotations
 
 from dataclasses import asdict
 from pathlib import Path
-from typing import Annotated, Callable
+from typing import Callable
 
 import numpy as np
 import torch
 import torch.nn.functional as F
-from pydantic import Field, model_validator
-from pydantic.dataclasses import dataclass
 
 from controltac_il.checkpoint import read_json
-from controltac_il.config import STRICT
-from controltac_il.estimators.config import EstimatorConfig
+from controltac_il.estimators.config import EstimatorConfig, EstimatorTrainConfig
 from controltac_il.estimators.estimator import ForceEstimator, preprocess, validate_residuals
 from controltac_il.io import atomic_dir
 from controltac_il.run_state import load_run_state, save_run_state
-from controltac_il.training import lr_schedule, optimise
+from controltac_il.training import optimise
 
 STATE_DIR = "train_state"
-
-
-@dataclass(config=STRICT)
-class EstimatorTrainConfig:
-    """Optimisation settings (pydantic: validated at construction, ValueError naming the field).
-
-    Fields:
-        steps: number of AdamW updates (fixed budget, independent of the data size).
-        batch_size: images per update.
-        lr, min_lr: peak and final learning rate of the cosine schedule (after ``warmup`` steps), 0 <= min_lr <= lr.
-        warmup: linear warm-up steps.
-        weight_decay: AdamW weight decay.
-        seed: seeds the weights and the batch sampler.
-        checkpoint_every: write resumable state every this many steps (0 = only at the end).
-        eval_every: evaluate on the validation arrays every this many steps (0 = only at the end).
-    """
-
-    steps: Annotated[int, Field(ge=1)] = 3000
-    batch_size: Annotated[int, Field(ge=1)] = 64
-    lr: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 2e-3
-    min_lr: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 2e-5
-    warmup: Annotated[int, Field(ge=0)] = 100
-    weight_decay: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 1e-4
-    seed: int = 0
-    checkpoint_every: Annotated[int, Field(ge=0)] = 250
-    eval_every: Annotated[int, Field(ge=0)] = 500
-
-    @model_validator(mode="after")
-    def _floor(self):
-        if self.min_lr > self.lr:
-            raise ValueError(f"min_lr={self.min_lr} must be <= lr={self.lr}")
-        return self
-
-    def schedule(self, opt: torch.optim.Optimizer, resume: dict | None = None, step: int = 0):
-        """Linear warm-up, then cosine decay to ``min_lr`` (torch schedulers; see ``controltac_il.training.lr_schedule``)."""
-        return lr_schedule(opt, [self.lr], self.steps, self.warmup, self.min_lr, resume, step)
 
 
 def force_stats(forces: np.ndarray) -> tuple[tuple[float, ...], tuple[float, ...]]:

@@ -20,12 +20,10 @@ from pathlib import Path
 import numpy as np
 
 from controltac_il.config import one_line
-from controltac_il.estimators.config import EstimatorConfig
+from controltac_il.estimators.config import EstimatorConfig, EstimatorTrainConfig
 from controltac_il.estimators.data import load_arrays, native_no_contact, split_by_pose
-from controltac_il.estimators.fit import EstimatorTrainConfig, fit
 from controltac_il.outputs import claim_output, own_checkpoint, own_json, own_safetensors
 from controltac_il.tactile.residual import OFFSET
-from controltac_il.training import run_cli
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -131,12 +129,15 @@ def main(argv=None) -> int:
     except ValueError as exc:  # OutputInUse is a ValueError
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
+    from controltac_il.training import run_cli
+
     return run_cli(PROG, lambda: run(args, train, cfg))
 
 
 def run(args: argparse.Namespace, train: EstimatorTrainConfig, cfg: EstimatorConfig) -> None:
     import torch
 
+    from controltac_il.estimators.fit import fit
     from controltac_il.tactile.dataset import load_dataset
 
     if args.threads:

@@ -4,8 +4,8 @@ Modules: ``config`` (pydantic dataclasses), ``autoencoder`` (compact residual co
 diffusion transformer), ``sampler`` (DDIM via diffusers), ``checkpoint`` (safetensors + JSON + model card,
 ``controltac_il.checkpoint``), ``pipeline`` (``ForceGenerator``, the inference API), ``data``, ``objectives`` (the
 denoiser's training objective and EMA, stage 1 and 2 alike), ``stages`` (autoencoder, latents, DiT of a run),
-``train_config`` and ``train`` (the training CLI). Stage 2, the pose-control adapter over a frozen stage 1: ``adapter``, ``pose_data``
-and ``train_pose`` (its training CLI); ``ForceGenerator.generate(..., mask=...)`` uses it.
+``shipped`` (the shipped checkpoints by name), ``train_config`` and ``train`` (the training CLI). Stage 2, the pose-control adapter over a frozen stage 1: ``adapter``, ``pose_data``
+and ``train_pose`` (its training CLI, the job in ``pose_training``); ``ForceGenerator.generate(..., mask=...)`` uses it.
 """
 
 from controltac_il.lazy import exports

@@ -36,12 +36,10 @@ from controltac_il.generator.config import DETAIL_GATE_SIGMA_PX, GeneratorConfig
 from controltac_il.generator.dit import ForceDiT
 from controltac_il.generator.forces import VALIDATED_RANGE, TargetDecision, decide_targets
 from controltac_il.generator.sampler import ddim_sample, make_scheduler, seeded_noise
+from controltac_il.generator.shipped import SHIPPED_ADAPTERS, locate_checkpoint
 from controltac_il.tactile.pose import check_mask, move_mask
 from controltac_il.tactile.residual import OFFSET
 
-CHECKPOINT_ROOT = Path(__file__).resolve().parent / "checkpoints"
-SHIPPED = ("default", "fast")
-SHIPPED_ADAPTERS = ("pose",)  # stage-2 pose adapters, each trained on the shipped default
 RESIDUAL_OFFSET = float(OFFSET)
 # Largest change of aspect ratio (either way) the resize to the model's image size may make.
 MAX_ASPECT_CHANGE = 1.5
@@ -127,26 +125,6 @@ def _check_aspect(x: np.ndarray, model_hw: tuple[int, int], name: str) -> None:
             f"{name}: {h}x{w} (HxW) images would be resized to the model's {mh}x{mw} with a {change:.1f}x aspect "
             f"change (at most {MAX_ASPECT_CHANGE:g}x is allowed: the model would see distorted contacts); crop or "
             f"pad them to the model's {mh}:{mw} aspect first")
-
-
-BUNDLE_PART = "generator"  # a calibration bundle's generator subfolder (python -m controltac_il.calibrate)
-
-
-def locate_checkpoint(path: str | Path | None = None, shipped: tuple[str, ...] = SHIPPED) -> Path:
-    """The checkpoint folder ``from_pretrained(path)`` loads: ``None``/``"default"`` and ``"fast"`` name the shipped
-    ones (``shipped``: the names to accept, ``SHIPPED_ADAPTERS`` for stage 2); a calibration bundle gives its
-    ``generator/``."""
-    if path is None:
-        path = shipped[0]
-    if isinstance(path, str) and path in shipped:
-        path = CHECKPOINT_ROOT / path
-    path = Path(path)
-    if not path.is_dir():
-        raise FileNotFoundError(f"{'pose adapter' if shipped == SHIPPED_ADAPTERS else 'generator'} checkpoint folder "
-                                f"{path} not found")
-    if shipped != SHIPPED_ADAPTERS and (path / BUNDLE_PART).is_dir() and not (path / "config.json").is_file():
-        return path / BUNDLE_PART  # a calibration bundle (python -m controltac_il.calibrate)
-    return path
 
 
 def _stack_masks(value, n: int, hw: tuple[int, int], name: str) -> np.ndarray:

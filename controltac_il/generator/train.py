@@ -43,27 +43,30 @@ import sys
 import time
 from pathlib import Path
 
-import torch
-import torch.distributed as dist
-
 from controltac_il.config import one_line
-from controltac_il.generator.checkpoint import save_checkpoint
-from controltac_il.generator.config import DiffusionConfig, GeneratorConfig
-from controltac_il.generator.data import load_pair_data
-from controltac_il.generator.pipeline import CHECKPOINT_ROOT, SHIPPED, ForceGenerator
-from controltac_il.generator.stages import (autoencoder_for, cached_latents, check_same_models, latent_scales,
-                                           source_denoiser, train_denoiser)
-from controltac_il.generator.train_config import (DIT_PRESETS, STAGES, GeneratorTrainConfig, model_card)
-from controltac_il.generator.validation import Validation, generation_error, hold_out_objects
-from controltac_il.io import write_json
+from controltac_il.generator.shipped import CHECKPOINT_ROOT, SHIPPED
+from controltac_il.generator.train_config import DIT_PRESETS, STAGES, GeneratorTrainConfig
 from controltac_il.outputs import OutputInUse, claim_output, own_checkpoint, own_json, own_safetensors
-from controltac_il.training import barrier, run_cli, setup_distributed
 
 __all__ = ["GeneratorTrainConfig", "main", "parse_args", "run"]
 
 
 def run(cfg: GeneratorTrainConfig) -> Path:
     """Train per ``cfg``; returns the final checkpoint folder (``<out>/final``)."""
+    import torch  # the job's imports: --help stays light (tests/test_cli_imports.py)
+    import torch.distributed as dist
+
+    from controltac_il.generator.checkpoint import save_checkpoint
+    from controltac_il.generator.config import DiffusionConfig, GeneratorConfig
+    from controltac_il.generator.data import load_pair_data
+    from controltac_il.generator.pipeline import ForceGenerator
+    from controltac_il.generator.stages import (autoencoder_for, cached_latents, check_same_models, latent_scales,
+                                               source_denoiser, train_denoiser)
+    from controltac_il.generator.train_config import model_card
+    from controltac_il.generator.validation import Validation, generation_error, hold_out_objects
+    from controltac_il.io import write_json
+    from controltac_il.training import barrier, setup_distributed
+
     rank, world = setup_distributed()
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
@@ -191,6 +194,8 @@ def fail(message: str) -> None:
 def main(argv=None) -> int:
     """The CLI: 0 done, 1 stopped on a NaN / inf loss, 2 bad options or data (one line), 130 Ctrl-C (state saved)."""
     cfg = parse_args(argv)
+    from controltac_il.training import run_cli
+
     return run_cli("python -m controltac_il.generator.train", lambda: run(cfg))
 
 

@@ -1,5 +1,5 @@
-"""Arguments of a generator training run (``GeneratorTrainConfig``, a pydantic dataclass saved as ``train_config.json``)
-and the provenance a run records: the command that reproduces it, its dataset, the model card."""
+"""Arguments of a generator training run (``GeneratorTrainConfig``, a pydantic dataclass saved as ``train_config.json``;
+``PoseTrainConfig`` for the stage-2 adapter's) and the provenance a run records: the command that reproduces it, its dataset, the model card."""
 
 from __future__ import annotations
 
@@ -10,7 +10,6 @@ import platform
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Literal
 
-import torch
 from pydantic import Field, model_validator
 from pydantic.dataclasses import dataclass
 
@@ -184,6 +183,8 @@ def denoiser_lineage(src: Path) -> list[dict]:
 def model_card(cfg: GeneratorTrainConfig, data: PairData, ae: TactileAutoencoder, ae_meta: dict, dit: ForceDiT, dit_meta: dict,
                world: int, wall_s: float) -> dict:
     """The final checkpoint's ``model_card.json``: command, data, each stage's cost and lineage, machine."""
+    import torch
+
     meta = read_json(Path(cfg.data) / "meta.json") if (Path(cfg.data) / "meta.json").is_file() else {}
     return {
         "model": "controltac-il stage-1 force-control generator (tactile autoencoder + ΔF-conditioned DiT + DDIM)",
@@ -207,3 +208,55 @@ def model_card(cfg: GeneratorTrainConfig, data: PairData, ae: TactileAutoencoder
         "weights_dtype": "float16",
         "validated_range": VALIDATED_RANGE.card(),
     }
+
+
+POSE_PROG = "python -m controltac_il.generator.train_pose"
+
+
+@dataclass(config=STRICT)
+class PoseTrainConfig:
+    """Arguments of one adapter training run.
+
+    out: run folder. base: the frozen stage-1 checkpoint (a folder, or "default" / "fast"). adapter_from: start from
+    this adapter (a folder, or "pose") instead of the zero-initialised one: a longer or a fine-tuning run; it must
+    have been trained over ``base``, with the same widths.
+    procedural: random training shapes besides the six training objects. scenes, poses, forces: scenes per object,
+    contact poses per scene, forces per pose (render size ``size`` (H, W)); instances: training sensor instances
+    drawn from. steps, batch, lr, warmup_steps, min_lr_ratio, ema_decay: optimisation. one_step_fraction: share of
+    each batch at the last timestep. mask_channels, head_width, alignment_px, alignment_deg: PoseAdapterConfig.
+    val_objects: procedural shapes after the training ones (``procedural_<procedural>`` on), never trained on, in
+    two scenes each: the run's own validation split. The adapter's error on their cross-pose pairs is measured at
+    every state save and the best step's EMA weights ship (0 = no split: the last step ships).
+    checkpoint_every: steps between state saves. seed: scenes, pairs, noise, init. threads: torch threads (None =
+    torch's default). device: where the networks train ("cpu", "cuda"); the data stays on the CPU.
+    """
+
+    out: str
+    base: str = "default"
+    adapter_from: str | None = None
+    procedural: Annotated[int, Field(ge=0)] = 120
+    scenes: PosInt = 6
+    poses: Annotated[int, Field(ge=2)] = 4
+    forces: PosInt = 3
+    size: tuple[PosInt, PosInt] = (120, 160)
+    instances: PosInt = 16
+    steps: PosInt = 6000
+    batch: PosInt = 64
+    lr: Positive = 3e-4
+    warmup_steps: Annotated[int, Field(ge=0)] = 200
+    min_lr_ratio: Annotated[float, Field(ge=0, le=1)] = 0.05
+    ema_decay: Annotated[float, Field(ge=0, lt=1)] = 0.999
+    one_step_fraction: Annotated[float, Field(ge=0, le=1)] = 0.9
+    mask_channels: PosInt = 32
+    head_width: PosInt = 48
+    alignment_px: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 3.0
+    alignment_deg: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 1.0
+    val_objects: Annotated[int, Field(ge=0)] = 8
+    checkpoint_every: PosInt = 500
+    seed: Annotated[int, Field(ge=0)] = 0
+    threads: PosInt | None = None
+    device: str = "cpu"
+
+
+# what a resumed run may change (the step budget, how it runs); anything else must match the saved run
+RESUMABLE_CHANGES = ("steps", "checkpoint_every", "threads", "device")

@@ -12,7 +12,7 @@ warm-up and cosine decay; the EMA of the adapter is shipped (fp16, ``OUT/final``
 the lowest error on ``--val-objects`` procedural shapes it never trains on (its own validation split; the
 benchmark's held-out objects are never looked at). The stage-1 weights are never changed.
 
-Run folder: ``train_config.json``, ``adapter_state.{safetensors,json}`` (periodic, atomic), ``adapter_best.safetensors``
+The job is ``pose_training.run``. Run folder: ``train_config.json``, ``adapter_state.{safetensors,json}`` (periodic, atomic), ``adapter_best.safetensors``
 (the best validation step's EMA weights), ``final/``. ``--resume``
 continues with the saved run's data and model (only ``--steps``, ``--checkpoint-every``, ``--threads``, ``--device``
 may change; anything else, or another ``--base``, is refused).
@@ -24,86 +24,14 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
-import platform
 import sys
-import time
 from pathlib import Path
-from typing import Annotated
 
-import numpy as np
-import torch
-from diffusers.training_utils import EMAModel
-from pydantic import Field
-from pydantic.dataclasses import dataclass
-
-from controltac_il.checkpoint import read_json
 from controltac_il.config import one_line
-from controltac_il.generator.adapter import PoseAdapter, masks_to_model
-from controltac_il.generator.checkpoint import checkpoint_hash, load_adapter, load_checkpoint, save_adapter
-from controltac_il.generator.config import STRICT, PoseAdapterConfig, PosInt, Positive
-from controltac_il.generator.pipeline import SHIPPED_ADAPTERS, ForceGenerator, locate_checkpoint, residual_to_unit
-from controltac_il.generator.pose_data import render_scenes, sample_pose_pairs, target_mask
-from controltac_il.generator.sampler import make_scheduler
-from controltac_il.generator.objectives import ema_weights, noised_batch, prediction_loss, restore_ema
-from controltac_il.generator.validation import (VAL_PAIRS, BestOnValidation, Validation, distinct_pairs,
-                                                generation_error)
-from controltac_il.io import write_json
+from controltac_il.generator.shipped import locate_checkpoint
+from controltac_il.generator.train_config import POSE_PROG as PROG, PoseTrainConfig
 from controltac_il.outputs import OutputInUse, claim_output, own_checkpoint, own_json, own_safetensors
-from controltac_il.run_state import load_run_state, save_run_state
-from controltac_il.tactile.indenters import TRAIN_OBJECTS, procedural_objects
-from controltac_il.training import lr_schedule, optimise, run_cli
 
-PROG = "python -m controltac_il.generator.train_pose"
-
-
-@dataclass(config=STRICT)
-class PoseTrainConfig:
-    """Arguments of one adapter training run.
-
-    out: run folder. base: the frozen stage-1 checkpoint (a folder, or "default" / "fast"). adapter_from: start from
-    this adapter (a folder, or "pose") instead of the zero-initialised one: a longer or a fine-tuning run; it must
-    have been trained over ``base``, with the same widths.
-    procedural: random training shapes besides the six training objects. scenes, poses, forces: scenes per object,
-    contact poses per scene, forces per pose (render size ``size`` (H, W)); instances: training sensor instances
-    drawn from. steps, batch, lr, warmup_steps, min_lr_ratio, ema_decay: optimisation. one_step_fraction: share of
-    each batch at the last timestep. mask_channels, head_width, alignment_px, alignment_deg: PoseAdapterConfig.
-    val_objects: procedural shapes after the training ones (``procedural_<procedural>`` on), never trained on, in
-    two scenes each: the run's own validation split. The adapter's error on their cross-pose pairs is measured at
-    every state save and the best step's EMA weights ship (0 = no split: the last step ships).
-    checkpoint_every: steps between state saves. seed: scenes, pairs, noise, init. threads: torch threads (None =
-    torch's default). device: where the networks train ("cpu", "cuda"); the data stays on the CPU.
-    """
-
-    out: str
-    base: str = "default"
-    adapter_from: str | None = None
-    procedural: Annotated[int, Field(ge=0)] = 120
-    scenes: PosInt = 6
-    poses: Annotated[int, Field(ge=2)] = 4
-    forces: PosInt = 3
-    size: tuple[PosInt, PosInt] = (120, 160)
-    instances: PosInt = 16
-    steps: PosInt = 6000
-    batch: PosInt = 64
-    lr: Positive = 3e-4
-    warmup_steps: Annotated[int, Field(ge=0)] = 200
-    min_lr_ratio: Annotated[float, Field(ge=0, le=1)] = 0.05
-    ema_decay: Annotated[float, Field(ge=0, lt=1)] = 0.999
-    one_step_fraction: Annotated[float, Field(ge=0, le=1)] = 0.9
-    mask_channels: PosInt = 32
-    head_width: PosInt = 48
-    alignment_px: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 3.0
-    alignment_deg: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 1.0
-    val_objects: Annotated[int, Field(ge=0)] = 8
-    checkpoint_every: PosInt = 500
-    seed: Annotated[int, Field(ge=0)] = 0
-    threads: PosInt | None = None
-    device: str = "cpu"
-
-
-# what a resumed run may change (the step budget, how it runs); anything else must match the saved run
-RESUMABLE_CHANGES = ("steps", "checkpoint_every", "threads", "device")
 RUN_OUTPUTS = {
     "train_config.json": own_json("out", "base", "procedural"),
     "adapter_state.json": own_json("step", "config"),
@@ -111,157 +39,6 @@ RUN_OUTPUTS = {
     "adapter_best.safetensors": own_safetensors("best."),
     "final": own_checkpoint(("config.json", "adapter.safetensors", "model_card.json"), lambda c: "base" in c),
 }
-
-
-@torch.no_grad()
-def encode_scenes(ae, residuals: np.ndarray, size: tuple[int, int], batch: int = 128) -> torch.Tensor:
-    """Raw latents (N, C, h, w) of uint8 residuals (N, h0, w0, 3), resized to the model's ``size``."""
-    import cv2
-
-    h, w = size
-    out = []
-    for s in range(0, len(residuals), batch):
-        chunk = np.stack([cv2.resize(r, (w, h), interpolation=cv2.INTER_AREA) for r in residuals[s:s + batch]])
-        out.append(ae.encode(residual_to_unit(torch.from_numpy(chunk))))
-    return torch.cat(out)
-
-
-def _check_resume(cfg: PoseTrainConfig, out: Path) -> None:
-    """A resumed run must keep the saved run's data and model (only RESUMABLE_CHANGES may differ)."""
-    if (out / "train_config.json").is_file():
-        saved = read_json(out / "train_config.json")
-        changed = sorted(k for k, v in dataclasses.asdict(cfg).items()
-                         if k not in RESUMABLE_CHANGES and json.loads(json.dumps(v)) != saved.get(k))
-        if changed:
-            raise ValueError(f"--resume: {out} was trained with other {', '.join('--' + k.replace('_', '-') for k in changed)}"
-                             "; continue it with its own settings or choose another --out")
-
-
-def _adapter(cfg: PoseTrainConfig, acfg: PoseAdapterConfig, dit) -> tuple[PoseAdapter, dict | None]:
-    """The adapter to train: zero-initialised, or ``--adapter-from``'s weights (same base and widths); and the
-    source's model card (None without one)."""
-    torch.manual_seed(cfg.seed + 1)
-    adapter = PoseAdapter(acfg, dit)
-    if cfg.adapter_from is None:
-        return adapter, None
-    folder = locate_checkpoint(cfg.adapter_from, SHIPPED_ADAPTERS)
-    source, weights = load_adapter(folder)
-    if (source.base_hash, source.mask_channels, source.head_width) != (acfg.base_hash, acfg.mask_channels, acfg.head_width):
-        raise ValueError(f"--adapter-from {folder}: trained over another --base or with other widths")
-    adapter.load_state_dict(weights.state_dict())
-    return adapter, read_json(folder / "model_card.json")
-
-
-def _card(cfg: PoseTrainConfig, acfg: PoseAdapterConfig, adapter, source_card, meta: dict, data: dict, t0: float,
-          dev: torch.device) -> dict:
-    """The shipped adapter's model card: command, lineage, data and the cost of training."""
-    command = " ".join([PROG, *(f"--{k.replace('_', '-')} {' '.join(map(str, v)) if isinstance(v, (tuple, list)) else v}"
-                                for k, v in dataclasses.asdict(cfg).items() if v is not None)])
-    return {"trained_by": PROG, "command": command, "base": str(cfg.base),
-            "adapter_from": None if source_card is None else {"path": str(cfg.adapter_from), "command":
-                                                              source_card.get("command"), "training": source_card.get("training")},
-            "base_hash": acfg.base_hash, "train_config": dataclasses.asdict(cfg), "data": data,
-            "training": {"steps": meta["step"], "final_loss": meta["loss"], "wall_s": round(meta["wall_s"], 1),
-                         "total_s": round(time.perf_counter() - t0, 1), "machine": platform.processor() or platform.machine(),
-                         "threads": torch.get_num_threads(), "torch": torch.__version__,
-                         "device": torch.cuda.get_device_name(dev) if dev.type == "cuda" else "cpu"},
-            "parameters": sum(p.numel() for p in adapter.parameters()), "validation": meta.get("validation")}
-
-
-def _validation(cfg: PoseTrainConfig, gcfg, ae, dit, dev: torch.device) -> Validation | None:
-    """The run's validation split: ``cfg.val_objects`` procedural shapes it never trains on, two scenes each,
-    ``VAL_PAIRS`` cross-pose pairs (at most as many as there are) with exact target masks; its error is that of the adapter over the frozen base."""
-    if cfg.val_objects == 0:
-        return None
-    names = procedural_objects(cfg.procedural + cfg.val_objects)[cfg.procedural:]
-    scenes = render_scenes(names, 2, cfg.poses, cfg.forces, cfg.seed + 1, cfg.size, "train", cfg.instances)
-    rng = np.random.default_rng([cfg.seed, 23])
-    members = [m for m in scenes.members() if len(m) >= 2]
-    count = min(VAL_PAIRS, distinct_pairs(members))
-    pairs = np.stack([rng.choice(members[s], size=2, replace=False) for s in rng.integers(0, len(members), size=count)])
-    ref, tgt = scenes.residuals[pairs[:, 0]], scenes.residuals[pairs[:, 1]]
-    delta = scenes.forces[pairs[:, 1]] - scenes.forces[pairs[:, 0]]
-    masks = np.stack([target_mask(scenes, r, t) for r, t in pairs])
-    return Validation(tuple(names), len(pairs), lambda adapter: generation_error(
-        ForceGenerator(gcfg, ae, dit, device=dev, pose_adapter=adapter), ref, tgt, delta, mask=masks))
-
-
-def _fit(cfg: PoseTrainConfig, gcfg, acfg: PoseAdapterConfig, adapter, dit, scenes, z: torch.Tensor, stem: Path,
-         dev: torch.device, validation: Validation | None = None) -> dict:
-    """AdamW (+ EMA) on the adapter, resumable from ``stem``; leaves the EMA weights in ``adapter``: the last
-    step's, or with ``validation`` the best state save's. Returns the final state's metadata."""
-    ema = EMAModel(adapter.parameters(), decay=cfg.ema_decay, update_after_step=-1)
-    opt = torch.optim.AdamW(adapter.parameters(), lr=cfg.lr, weight_decay=0.0)
-    meta: dict = {"step": 0, "wall_s": 0.0}
-    if stem.with_suffix(".json").is_file():
-        if read_json(stem.with_suffix(".json")).get("config") != acfg.to_dict():
-            raise ValueError(f"--resume: {stem}.json was trained over another stage-1 checkpoint than --base {cfg.base}")
-        meta, tensors = load_run_state(stem, {"adapter": adapter}, opt)
-        restore_ema(ema, adapter, tensors, meta["ema_step"])
-    sched = lr_schedule(opt, [cfg.lr], cfg.steps, cfg.warmup_steps, cfg.min_lr_ratio * cfg.lr, meta.get("lr_schedule"),
-                        meta["step"])
-    noise_sched, members = make_scheduler(gcfg.diffusion), scenes.members()
-    c = gcfg.autoencoder.latent_channels
-    lat_s, dlt_s = (torch.tensor(v, device=dev).view(1, c, 1, 1) for v in (gcfg.latent_scale, gcfg.delta_scale))
-    t_run = time.perf_counter()
-    best = None if validation is None else BestOnValidation(validation, stem.parent / "adapter_best.safetensors",
-                                                            meta.get("validation"))
-
-    def batch_loss(step: int) -> torch.Tensor:
-        rng = np.random.default_rng([cfg.seed, 5, step])
-        ref, tgt, df, masks = sample_pose_pairs(scenes, members, cfg.batch, rng, cfg.alignment_px, cfg.alignment_deg)
-        ref, tgt = torch.from_numpy(ref).to(dev), torch.from_numpy(tgt).to(dev)
-        x0 = (z[tgt] - z[ref]) / dlt_s
-        x_t, t, target = noised_batch(gcfg, noise_sched, x0, cfg.one_step_fraction, int(rng.integers(0, 2**62)))
-        m = torch.from_numpy(masks_to_model(masks, gcfg.image_size)).to(dev)
-        return prediction_loss(adapter(dit, x_t, z[ref] / lat_s, t, torch.from_numpy(df).to(dev), m), target)
-
-    def save(step: int, loss: float) -> None:
-        if best is not None:
-            best.measure(step, adapter, ema)
-        save_run_state(stem, {"adapter": adapter, "ema": ema_weights(ema, adapter)},
-                       {"step": step, "loss": loss, "wall_s": meta["wall_s"] + time.perf_counter() - t_run,
-                        "config": acfg.to_dict(), "ema_step": ema.optimization_step,
-                        **({} if best is None else {"validation": best.record})}, opt, sched)
-
-    optimise(meta["step"], cfg.steps, batch_loss, opt, sched, list(adapter.parameters()), save, cfg.checkpoint_every,
-             "pose adapter", after_step=lambda step, out: ema.step(adapter.parameters()), state=str(stem))
-    meta, tensors = load_run_state(stem, {"adapter": adapter})
-    adapter.load_state_dict({k[len("ema."):]: v for k, v in tensors.items() if k.startswith("ema.")})
-    if best is not None and meta.get("validation", {}).get("best_step") is not None:
-        best.load_best(adapter)
-    return meta
-
-
-def run(cfg: PoseTrainConfig) -> Path:
-    """Train per ``cfg``; returns ``<out>/final``."""
-    if cfg.threads:
-        torch.set_num_threads(cfg.threads)
-    out = Path(cfg.out)
-    out.mkdir(parents=True, exist_ok=True)
-    _check_resume(cfg, out)
-    write_json(out / "train_config.json", dataclasses.asdict(cfg))
-    t0 = time.perf_counter()
-    base_dir = locate_checkpoint(cfg.base)
-    gcfg, ae, dit = load_checkpoint(base_dir)
-    dev = torch.device(cfg.device)
-    ae.requires_grad_(False)
-    dit.requires_grad_(False).to(dev)
-    objects = [*TRAIN_OBJECTS, *procedural_objects(cfg.procedural)]
-    scenes = render_scenes(objects, cfg.scenes, cfg.poses, cfg.forces, cfg.seed, cfg.size, "train", cfg.instances)
-    z = encode_scenes(ae.to(dev), scenes.residuals, gcfg.image_size)
-    acfg = PoseAdapterConfig(base=gcfg, base_hash=checkpoint_hash(base_dir), mask_channels=cfg.mask_channels,
-                             head_width=cfg.head_width, alignment_px=cfg.alignment_px, alignment_deg=cfg.alignment_deg)
-    adapter, source_card = _adapter(cfg, acfg, dit)
-    adapter = adapter.to(dev)
-    meta = _fit(cfg, gcfg, acfg, adapter, dit, scenes, z, out / "adapter_state", dev, _validation(cfg, gcfg, ae, dit, dev))
-    adapter.cpu()
-    data = {"objects": len(objects), "scenes": len(scenes.objects), "frames": len(scenes.residuals),
-            "size": list(cfg.size), "sensor_family": "train", "instances": cfg.instances}
-    card = _card(cfg, acfg, adapter, source_card, meta, data, t0, dev)
-    final = save_adapter(out / "final", acfg, adapter, dtype=torch.float16, model_card=card)
-    print(f"wrote {final}")
-    return final
 
 
 def fail(message: str) -> None:
@@ -298,6 +75,8 @@ def parse_args(argv=None) -> PoseTrainConfig:
         locate_checkpoint(cfg.base)
     except FileNotFoundError as exc:
         fail(f"--base: {exc}")
+    import torch
+
     try:
         device = torch.device(cfg.device)
     except RuntimeError:
@@ -318,6 +97,9 @@ def parse_args(argv=None) -> PoseTrainConfig:
 def main(argv=None) -> int:
     """The CLI: 0 done, 1 NaN / inf loss, 2 bad options (one line), 130 Ctrl-C (state saved)."""
     cfg = parse_args(argv)
+    from controltac_il.generator.pose_training import run
+    from controltac_il.training import run_cli
+
     return run_cli(PROG, lambda: run(cfg))
 
 

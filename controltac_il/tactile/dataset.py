@@ -27,9 +27,8 @@ import json
 import numbers
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
-import cv2
 import numpy as np
 from tqdm.auto import tqdm
 
@@ -37,8 +36,10 @@ from controltac_il.io import atomic_dir
 from controltac_il.tactile.indenters import INDENTERS, TRAIN_OBJECTS, get_indenter, procedural_objects
 from controltac_il.tactile.instances import FAMILIES, sensor_instance
 from controltac_il.tactile.residual import to_residual
-from controltac_il.tactile.sensor import TactileSensor
 from controltac_il.tactile.spec import SensorSpec
+
+if TYPE_CHECKING:  # the sensor model (OpenCV) is imported where images are rendered: --help stays light
+    from controltac_il.tactile.sensor import TactileSensor
 
 MANIFEST_FIELDS = ("image", "object", "pose_id", "x_mm", "y_mm", "theta_rad", "fx", "fy", "fz")
 SENSOR_FIELD = "sensor"  # optional: the simulated sensor instance of the row (controltac_il.tactile.instances)
@@ -117,6 +118,10 @@ def write_dataset(out_dir, objects: Sequence[str] = TRAIN_OBJECTS, poses_per_obj
     ``controltac_il.tactile.instances`` ("train" | "unseen") renders each contact pose with one of its first
     ``instances`` sensor instances, drawn per pose (``spec`` then only gives the size).
     """
+    import cv2
+
+    from controltac_il.tactile.sensor import TactileSensor
+
     objects = tuple(objects)
     _check_write_args(objects, poses_per_object, forces_per_pose, seed, fz_range, shear_max, sensors, instances)
     spec = spec or SensorSpec.gelsight_mini()
@@ -146,6 +151,10 @@ def _render(tmp: Path, sensor: TactileSensor, objects: tuple, poses_per_object: 
             ) -> tuple[list[list], dict]:
     """Press every (object, pose, force) and write its PNG under ``tmp/images``; returns the manifest rows and the
     sensor instances used (their backgrounds written under ``tmp/backgrounds``)."""
+    import cv2
+
+    from controltac_il.tactile.sensor import TactileSensor
+
     rows, used = [], {}
     total = len(objects) * poses_per_object * forces_per_pose
     with tqdm(total=total, desc=desc, unit="img", disable=True if desc is None else None) as bar:
@@ -182,6 +191,8 @@ class TactileDataset:
         return len(self.records)
 
     def image(self, i: int) -> np.ndarray:
+        import cv2
+
         path = self.root / self.records[i].image
         bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
         if bgr is None:
@@ -253,6 +264,8 @@ def load_dataset(root, fz_pressing: str = "auto") -> TactileDataset:
         sign = "negative" if np.median([r.force[2] for r in records]) < 0 else "positive"
     if sign == "negative":
         records = [dataclasses.replace(r, force=(r.force[0], r.force[1], -r.force[2])) for r in records]
+    import cv2
+
     def read(path):
         return cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB) if path.is_file() else None
     backgrounds = {n: read(root / "backgrounds" / f"{n}.png") for n in {r.sensor for r in records} - {None}}
