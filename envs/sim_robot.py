@@ -28,6 +28,8 @@ from hardware.interfaces import (
     Arm,
     ArmFault,
     ArmState,
+    ForceSample,
+    ForceSensor,
     Frame,
     FrameSource,
     Gripper,
@@ -108,6 +110,21 @@ class SimFrameSource(FrameSource):
         return Frame(obs[self._key], self._robot.frame_time, self._robot.steps)
 
 
+class SimPadForce(ForceSensor):
+    """The contact force on one gel, as the simulation knows it: ``normal_n`` = the pad's Fz in its sensor frame
+    (N, the tactile frames' own label), at the newest frame's time."""
+
+    def __init__(self, robot: "SimRobot", sensor: str):
+        self._robot, self.name = robot, f"sim_{sensor}_pad"
+        self._sensor = sensor
+
+    def read(self) -> ForceSample:
+        obs = self._robot.observation
+        if obs is None:
+            raise SensorError(f"sim {self.name}: no reading (the robot is closed)")
+        return ForceSample(float(obs[f"force/{self._sensor}"][2]), self._robot.frame_time)
+
+
 class SimRobot:
     """A ``PegInHoleEnv`` episode seen through the hardware interfaces (see the module docstring).
 
@@ -115,6 +132,7 @@ class SimRobot:
     seed: the episode's scene seed (``reset(seed)``).
     limits: the scene's workspace with per-period limits MAX_STEP_M / MAX_ROTATION_RAD.
     control: ``ControlLoopConfig(rate_hz=<scene's control_hz>, inference="sync")``.
+    force: a :class:`SimPadForce` per gel (``python -m controltac_il.calibrate record --sim``).
     After each period: ``last_info`` (the env's info dict), ``success``, ``steps``.
     """
 
@@ -135,6 +153,14 @@ class SimRobot:
                                    yaw_min=cfg.workspace_low[3], yaw_max=cfg.workspace_high[3],
                                    max_step_m=MAX_STEP_M, max_rotation_rad=MAX_ROTATION_RAD)
         self.control = ControlLoopConfig(rate_hz=cfg.control_hz, inference="sync")
+        self.force = {s: SimPadForce(self, s) for s in SENSORS}
+
+    def squeeze_pose(self, depth_m: float = 0.018) -> np.ndarray:
+        """[x, y, z, yaw] (m, rad) that puts the standing peg between the open fingers, the TCP ``depth_m``
+        below its top, the gels square to it: where calibration presses squeeze it."""
+        pos, rot = self.env.peg_pose()
+        yaw = (math.atan2(rot[1, 0], rot[0, 0]) + math.pi / 2) % math.pi - math.pi / 2  # the gripper's half turn
+        return np.array([pos[0], pos[1], pos[2] + self.env.peg_half_length_m - depth_m, yaw])
 
     @property
     def success(self) -> bool:

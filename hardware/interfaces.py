@@ -70,6 +70,15 @@ class Frame:
     index: int
 
 
+@dataclass(frozen=True)
+class ForceSample:
+    """One contact-force reading: ``normal_n`` the force pressing on the tactile sensor (N, >= 0 while pressing),
+    ``timestamp`` clock seconds when it was read."""
+
+    normal_n: float
+    timestamp: float
+
+
 class Clock(abc.ABC):
     """Time source of the control loop and the adapters. ``realtime`` is True when ``now`` follows the wall clock.
 
@@ -286,6 +295,31 @@ class FrameSource(abc.ABC):
 
     def close(self) -> None:
         """Stop capturing and release the device."""
+
+    def __enter__(self):
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class ForceSensor(abc.ABC):
+    """What reads the force on the tactile sensor while it presses (a wrist F/T sensor, or the simulation's contact
+    force); each adapter says how its ``normal_n`` is obtained. ``start`` zeroes it where the device can, with
+    nothing in contact."""
+
+    name: str = "force"
+
+    def start(self) -> None:
+        """Open the reading (and zero it, with the sensor out of contact)."""
+
+    @abc.abstractmethod
+    def read(self) -> ForceSample:
+        """Newest reading; raises :class:`SensorError` when the device fails."""
+
+    def close(self) -> None:
+        """Release the reading."""
 
     def __enter__(self):
         self.start()

@@ -16,7 +16,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from controltac_il.config import one_line
-from hardware.interfaces import Arm, ArmFault, ArmState, Clock, WallClock
+from hardware.interfaces import Arm, ArmFault, ArmState, Clock, ForceSample, ForceSensor, SensorError, WallClock
 from hardware.net import preflight, unreachable
 from hardware.pose import tool_rotation, yaw_of
 
@@ -118,3 +118,26 @@ class URArm(Arm):
             self.control.disconnect()
         if self.receive is not None:
             self.receive.disconnect()
+
+
+class URForce(ForceSensor):
+    """The e-series wrist F/T through the arm's RTDE interfaces: ``zeroFtSensor`` on ``start`` (out of contact),
+    then ``normal_n`` = |(Fx, Fy, Fz)| of ``getActualTCPForce`` (N, base frame): the press's reaction, whose
+    shear is small while the finger presses straight. The arm must be connected first."""
+
+    name = "ur_wrist"
+
+    def __init__(self, arm: URArm):
+        self.arm = arm
+
+    def start(self) -> None:
+        if self.arm.control is None:
+            raise SensorError(f"UR {self.arm.ip}: connect the arm before its wrist force sensor")
+        self.arm.control.zeroFtSensor()
+
+    def read(self) -> ForceSample:
+        wrench = self.arm.receive.getActualTCPForce()
+        force = np.asarray(wrench, dtype=np.float64)[:3]
+        if force.shape != (3,) or not np.isfinite(force).all():
+            raise SensorError(f"UR {self.arm.ip}: getActualTCPForce returned {wrench!r}, not 6 finite numbers")
+        return ForceSample(float(np.linalg.norm(force)), self.arm.clock.now())

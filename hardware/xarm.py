@@ -27,7 +27,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from controltac_il.config import one_line
-from hardware.interfaces import Arm, ArmFault, ArmState, Clock, Gripper, GripperState, HardwareError, WallClock
+from hardware.interfaces import (Arm, ArmFault, ArmState, Clock, ForceSample, ForceSensor, Gripper, GripperState, HardwareError,
+                                 SensorError, WallClock)
 from hardware.net import preflight, unreachable
 from hardware.pose import tool_rotation, yaw_of
 from hardware.safety import wrap_angle
@@ -247,3 +248,45 @@ class XArmGripper(Gripper):
 
     def stop(self) -> None:
         """Nothing to send: the gripper holds its last target (a gripped object stays)."""
+
+
+class XArmForce(ForceSensor):
+    """The xArm's six-axis F/T sensor through the SDK: enabled and zeroed on ``start`` (out of contact; the
+    controller then leaves the motion state, which is restored), then ``normal_n`` = |(Fx, Fy, Fz)| of
+    ``get_ft_sensor_data`` (N): the press's reaction, whose shear is small while the finger presses straight.
+    SDK names before and after 1.17 (``ft_sensor_enable`` / ``set_ft_sensor_enable``, ``..._set_zero`` /
+    ``set_..._zero``) are both accepted. The arm must be connected first."""
+
+    name = "xarm_ft"
+
+    def __init__(self, arm: XArm):
+        self.arm = arm
+
+    def _call(self, names: tuple[str, ...], *args) -> None:
+        fn = next((getattr(self.arm.api, n) for n in names if hasattr(self.arm.api, n)), None)
+        if fn is None:
+            raise SensorError(f"xArm {self.arm.ip}: the SDK has no {names[0]} (an F/T sensor is needed)")
+        code = fn(*args)
+        if code != 0:
+            raise SensorError(f"xArm {self.arm.ip}: {names[0]} returned API code {code}")
+
+    def start(self) -> None:
+        if self.arm.api is None:
+            raise SensorError(f"xArm {self.arm.ip}: connect the arm before its F/T sensor")
+        self._call(("set_ft_sensor_enable", "ft_sensor_enable"), 1)
+        self._call(("set_ft_sensor_zero", "ft_sensor_set_zero"))
+        self._call(("set_state",), STATE_MOTION)
+
+    def read(self) -> ForceSample:
+        code, data = self.arm.api.get_ft_sensor_data()
+        force = np.asarray(data, dtype=np.float64).ravel()[:3] if code == 0 else np.full(3, np.nan)
+        if force.shape != (3,) or not np.isfinite(force).all():
+            raise SensorError(f"xArm {self.arm.ip}: get_ft_sensor_data returned code {code}, {data!r}")
+        return ForceSample(float(np.linalg.norm(force)), self.arm.clock.now())
+
+    def close(self) -> None:
+        if self.arm.api is not None and self.arm.api.connected:
+            for n in ("set_ft_sensor_enable", "ft_sensor_enable"):
+                if hasattr(self.arm.api, n):
+                    getattr(self.arm.api, n)(0)
+                    break

@@ -1,5 +1,6 @@
 """``python -m controltac_il.calibrate``: fit the force estimator and the generator to a lab's own sensor.
 
+    python -m controltac_il.calibrate record --setup my_ur.yaml --start X Y Z YAW --out DIR   # presses, recorded
     python -m controltac_il.calibrate --recordings DIR --out my_sensor --lag auto   # videos + force CSVs
     python -m controltac_il.calibrate --presses DIR --out my_sensor                 # or the FeelAnyForce layout
     ForceAugment(dataset, generator="my_sensor")                                    # its estimator too
