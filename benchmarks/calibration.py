@@ -11,7 +11,13 @@ only) lags the video by -1, 0 or +1 frame. ``K`` grasps are recorded and calibra
 grasps of the same sensor are the test: the estimator's Fz MAE on all their contact frames against the
 constant (the calibration labels' mean) and the zero-shot estimator; the generator's MSE against a reference
 copy's on pairs within a grasp with |ΔFz| >= 1.5 N, before and after. Targets: estimator <= 0.5x the constant,
-generator <= 0.35x a copy, <= 15 min a calibration on two cores.
+generator <= 0.35x a copy, <= 15 min a calibration on two cores (the mean over these sensors).
+
+Beside them, ``sim_record``: ``python -m controltac_il.calibrate record --sim`` presses in the MuJoCo scene (the
+gripper squeezing the standing peg, the pad force its label, frames of the training sensor as the scene renders
+it), ``K`` presses calibrated and ``--test-grasps`` presses of another seed, at other places on the gel, the test:
+the recording routine end to end (``--no-sim-record`` skips it). Rows record their commit: ``--resume`` keeps
+the rows already written.
 """
 
 from __future__ import annotations
@@ -89,31 +95,69 @@ def test_figures(bundle: Path, base_generator: str, test: list[tuple], const: fl
 
 
 def calibrate_one(sensor_name: str, index: int, optics: str, args, work: Path) -> dict:
-    """Record, calibrate and test one sensor; the row of the results."""
-    from controltac_il.calibrate import main as calibrate
-
+    """Record, calibrate and test one sensor of the sensor model; the row of the results."""
     _, sensor = make_sensor(index, optics)
     rng = np.random.default_rng([args.seed, index, len(optics)])
     rec = work / sensor_name.replace("/", "_")
     cal = record_grasps(sensor, rng, args.k, rec / "recordings")
     test = record_grasps(sensor, rng, args.test_grasps, None)
+    labels = np.concatenate([lag_labels(f, lag) for _, f, lag in cal])
+    return {"sensor": sensor_name, **calibrate_and_test(rec, labels, test, args),
+            "lags_true": [lag for _, _, lag in cal]}
+
+
+def sim_record_one(args, work: Path) -> dict:
+    """``calibrate record --sim``: ``args.k`` presses of the MuJoCo scene's gripper on the standing peg (its pad
+    force the label), calibrated; ``args.test_grasps`` presses of another seed (other places on the gel) the test."""
+    from controltac_il.app.record_cli import main as record
+    from controltac_il.calibrate.recordings import find_recordings, read_forces, read_frames
+    from controltac_il.tactile.residual import to_residual
+
+    rec = work / "sim_record"
+    for name, seed, n in (("recordings", args.seed, args.k), ("test", args.seed + 1, args.test_grasps)):
+        if record(["--sim", "--out", str(rec / name), "--presses", str(n), "--seed", str(seed)]) != 0:
+            raise SystemExit("calibrate record --sim failed")
+    test, labels = [], []
+    for folder, tests in (("recordings", False), ("test", True)):
+        for frames_path, csv_path in find_recordings(rec / folder).values():
+            fz = read_forces(csv_path)[0][:, 2]
+            labels.append(fz)
+            if tests:
+                frames = read_frames(frames_path, tuple(args.size))
+                bg = np.median(frames[fz < 0.2], axis=0).astype(np.uint8)
+                test.append((np.stack([to_residual(f, bg) for f in frames]), fz, 0))
+    return {"sensor": "sim_record/peg_squeeze", **calibrate_and_test(rec, np.concatenate(labels[:args.k]), test, args),
+            "lags_true": [0] * args.k}
+
+
+def calibrate_and_test(rec: Path, labels: np.ndarray, test: list[tuple], args) -> dict:
+    """``calibrate --recordings rec/recordings``, timed, and its bundle on the ``test`` grasps; the constant is the
+    calibration ``labels``' mean over the validated range."""
+    import json
+
+    from controltac_il.calibrate import main as calibrate
+
     argv = ["--recordings", str(rec / "recordings"), "--out", str(rec / "bundle"), "--lag", "auto", "--stride", "2",
             "--threads", str(args.threads), "--ae-steps", str(args.ae_steps), "--dit-steps", str(args.dit_steps)]
     t0 = time.perf_counter()
     if calibrate(argv) != 0:
-        raise SystemExit(f"calibrate failed on {sensor_name}")
+        raise SystemExit(f"calibrate failed on {rec.name}")
     minutes = (time.perf_counter() - t0) / 60
-    import json
-
     record = json.loads((rec / "bundle" / "calibration.json").read_text())
-    labels = np.concatenate([lag_labels(f, lag) for _, f, lag in cal])
     kept = labels[(labels >= 1) & (labels <= 10)]
     h = record["estimator"]["held_out"]
-    row = {"sensor": sensor_name, "grasps": args.k, "cal_frames": record["images"], "minutes": minutes,
-           "lags_true": [lag for _, _, lag in cal], "lags_found": [v["lag_frames"] for v in record["source"]["per_recording"].values()],
-           "cv_ratio": h["ratio_to_constant"], "use_estimator": record["estimator"]["use_estimator"],
-           **test_figures(rec / "bundle", "default", test, float(kept.mean()), tuple(args.size))}
-    return row
+    return {"grasps": args.k, "cal_frames": record["images"], "minutes": minutes, "commit": git_commit(),
+            "lags_found": [v["lag_frames"] for v in record["source"]["per_recording"].values()],
+            "cv_ratio": h["ratio_to_constant"], "use_estimator": record["estimator"]["use_estimator"],
+            **test_figures(rec / "bundle", "default", test, float(kept.mean()), tuple(args.size))}
+
+
+def git_commit() -> str:
+    """The checkout's commit, per row: rows added by a later --resume may come from a later commit."""
+    import subprocess
+
+    return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                          cwd=Path(__file__).parent).stdout.strip()
 
 
 def main(argv=None) -> dict:
@@ -126,6 +170,7 @@ def main(argv=None) -> dict:
     p.add_argument("--seed", type=int, default=40)
     p.add_argument("--size", type=int, nargs=2, default=(240, 320), help="calibrate's frame size (its default)")
     p.add_argument("--resume", action="store_true", help="keep the sensors already in --out (written after each)")
+    p.add_argument("--no-sim-record", action="store_true", help="skip the MuJoCo scene's recorded presses")
     args = p.parse_args(argv)
     sensors = [(0, "three_light"), (0, "three_light_rot"), (1, "three_light_rot")]
     if args.quick:
@@ -140,16 +185,24 @@ def main(argv=None) -> dict:
             name = f"unseen_{index:02d}/{optics}"
             if any(r["sensor"] == name for r in rows):
                 continue
-            rows.append(calibrate_one(name, index, optics, args, Path(work)))
-            print_table(rows[-1:], ["sensor", "cal_frames", "minutes", "calibrated_ratio", "zero_shot_ratio",
-                                    "generator_calibrated_ratio", "generator_zero_shot_ratio"])
-            write_results(args.out, summary(rows, args, t0))
+            add_row(rows, calibrate_one(name, index, optics, args, Path(work)), args, t0)
+        if not (args.no_sim_record or args.quick or any(r["sensor"].startswith("sim_record") for r in rows)):
+            add_row(rows, sim_record_one(args, Path(work)), args, t0)
     return summary(rows, args, t0, show=True)
 
 
+def add_row(rows: list[dict], row: dict, args, t0: float) -> None:
+    rows.append(row)
+    print_table(rows[-1:], ["sensor", "cal_frames", "minutes", "calibrated_ratio", "zero_shot_ratio",
+                            "generator_calibrated_ratio", "generator_zero_shot_ratio"])
+    write_results(args.out, summary(rows, args, t0))
+
+
 def summary(rows: list[dict], args, t0: float, show: bool = False) -> dict:
-    """The results document of the sensors done so far: their mean against the targets."""
-    mean = {k: float(np.mean([r[k] for r in rows])) for k in ("calibrated_ratio", "zero_shot_ratio", "cv_ratio",
+    """The results document of the sensors done so far: the mean of the unseen sensors against the targets (the
+    MuJoCo scene's presses, of the training sensor, reported beside it)."""
+    unseen = [r for r in rows if not r["sensor"].startswith("sim_record")] or rows
+    mean = {k: float(np.mean([r[k] for r in unseen])) for k in ("calibrated_ratio", "zero_shot_ratio", "cv_ratio",
                                                              "generator_calibrated_ratio", "generator_zero_shot_ratio", "minutes")}
     verdict = {"estimator_ratio": mean["calibrated_ratio"], "generator_ratio": mean["generator_calibrated_ratio"],
                "minutes": mean["minutes"]}

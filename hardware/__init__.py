@@ -1,11 +1,11 @@
 """Robot side of controltac-il: device interfaces, adapters, safety and the shared control loop.
 
 Modules (one job each):
-    interfaces    Arm / Gripper / FrameSource / Clock contracts and their small dataclasses
+    interfaces    Arm / Gripper / FrameSource / ForceSensor / Clock contracts and their small dataclasses
     safety        workspace box, largest step per period, gripper limits, watchdog
     control_loop  the 10 Hz loop (any callable policy, async inference, deadline stats, stop on fault)
     temporal_ensembling  ACT's blend of overlapping action chunks
-    xarm, ur      UFACTORY xArm (+ gripper) and Universal Robots arms
+    xarm, ur      UFACTORY xArm (+ gripper, F/T) and Universal Robots arms (+ e-series wrist F/T)
     dynamixel, robotiq   serial grippers (Protocol 2.0; Modbus RTU)
     cameras       OpenCV cameras and the GelSight Mini reader
     config, check one YAML file per setup, validated; ``python -m hardware.check setup.yaml``
