@@ -109,11 +109,24 @@ def _verdict_row(ver: dict) -> list[str]:
             " / ".join(_ci(c) for c in fa2) + " (95 % CI)"]
 
 
+def _calibration_row(cal: dict, source: str) -> list[str]:
+    unseen = [r for r in cal["rows"] if not r["sensor"].startswith("sim_record")]
+    m, t = cal["mean"], cal["targets"]
+    frames = sorted({r["cal_frames"] for r in unseen})
+    return [f"few-shot calibration of {len(unseen)} sensors never seen ({'-'.join(map(str, frames[::max(1, len(frames) - 1)]))}"
+            f" labelled frames each)", f"estimator Fz MAE {m['calibrated_ratio']:.2f}× the constant's (target ≤ "
+            f"{t['estimator_ratio']}×), generator {m['generator_calibrated_ratio']:.2f}× a copy's (target ≤ "
+            f"{t['generator_ratio']}×), {m['minutes']:.1f} min each", "over sensors: estimator "
+            f"{min(r['calibrated_ratio'] for r in unseen):.2f}-{max(r['calibrated_ratio'] for r in unseen):.2f}×, generator "
+            f"{min(r['generator_calibrated_ratio'] for r in unseen):.2f}-{max(r['generator_calibrated_ratio'] for r in unseen):.2f}×",
+            "[calibration](docs/calibration.md#calibrate-to-your-own-sensor)", source]
+
+
 def headline() -> str:
     """One row per headline figure: what, the figure, its spread or interval, its docs section, its JSON."""
     rf = _rf()
-    names = ("generator.json", "finetune.json", "touch_il_verdict.json", "env.json", "act.json")
-    gen, fin, ver, env, act = docs = [rf.load(n) for n in names]
+    names = ("generator.json", "finetune.json", "calibration.json", "touch_il_verdict.json", "env.json", "act.json")
+    gen, fin, cal, ver, env, act = docs = [rf.load(n) for n in names]
     src = {n: f"`{n}` ({doc['machine']['git_commit']}, {doc['machine']['date_utc'][:10]})"
            + (" *History*" if _source(rf, n, doc).startswith("*History") else "") for n, doc in zip(names, docs)}
     d = next(m for m in gen["methods"] if m["method"] == "default DDIM-1")
@@ -135,6 +148,7 @@ def headline() -> str:
          f"copy's MSE (zero-shot {first['mse_ratio_to_copy']:.3f}×); estimator Fz MAE {first['estimator_mae'][2]:.2f} "
          f"→ {last['estimator_mae'][2]:.2f} N", f"MSE {last['mse']:.1f} ± {last['mse_sd']:.1f} SD over {last['n']} pairs",
          "[calibration](docs/calibration.md#what-calibration-buys-the-fine-tuning-curve)", src["finetune.json"]],
+        _calibration_row(cal, src["calibration.json"]),
         [*_verdict_row(ver), verdict_link, src["touch_il_verdict.json"]],
         ["touch matters: ACT without its tactile streams vs with them, grip as in the demos",
          f"{vis['diff'] * 100:+.1f} points: **{vis['verdict']}**", _ci(vis) + " (95 % CI)", verdict_link,
@@ -149,5 +163,29 @@ def headline() -> str:
     return rf.table(["what", "measured", "error or interval", "details", "source (`benchmarks/results/`)"], rows)
 
 
-BLOCKS = {"sensor": sensor, "env-speed": env_speed, "hardware": hardware, "generation-chunk": generation_chunk,
+def calibration() -> str:
+    """``calibrate`` per sensor on its test grasps, and the mean of the unseen sensors against the targets."""
+    rf = _rf()
+    doc = rf.load("calibration.json")
+    t = doc["targets"]
+
+    def row(r: dict, name: str) -> list:
+        lags = sum(-a == b for a, b in zip(r["lags_true"], r["lags_found"]))  # a log late by L needs the shift -L
+        return [name, f"{r['grasps']} / {r['cal_frames']}", f"{r['calibrated_ratio']:.2f}× ({r['calibrated_mae_n']:.2f} N)",
+                f"{r['zero_shot_ratio']:.2f}×", f"{r['cv_ratio']:.2f}×", f"{r['generator_calibrated_ratio']:.2f}×",
+                f"{r['generator_zero_shot_ratio']:.2f}×", f"{r['minutes']:.1f}", f"{lags}/{len(r['lags_true'])}",
+                r.get("commit", doc["machine"]["git_commit"])]
+
+    m = doc["mean"]
+    rows = [row(r, f"`{r['sensor']}`") for r in doc["rows"]]
+    rows.append(["**mean of the unseen sensors**", "", f"**{m['calibrated_ratio']:.2f}×** (target ≤ {t['estimator_ratio']}×)",
+                 f"{m['zero_shot_ratio']:.2f}×", f"{m['cv_ratio']:.2f}×",
+                 f"**{m['generator_calibrated_ratio']:.2f}×** (target ≤ {t['generator_ratio']}×)",
+                 f"{m['generator_zero_shot_ratio']:.2f}×", f"**{m['minutes']:.1f}** (target ≤ {t['minutes']:.0f})", "", ""])
+    head = ["sensor", "grasps / frames", "estimator MAE ÷ constant's (calibrated)", "zero-shot", "its own CV estimate",
+            "generator MSE ÷ copy's (calibrated)", "zero-shot", "minutes", "lags found", "commit"]
+    return rf.table(head, rows) + "\n\n" + _source(rf, "calibration.json", doc)
+
+
+BLOCKS = {"calibration": calibration, "sensor": sensor, "env-speed": env_speed, "hardware": hardware, "generation-chunk": generation_chunk,
           "force-scaling": force_scaling, "headline": headline}
