@@ -276,7 +276,24 @@ class Gripper(_Device):
         """Measured opening in [0, 1] (0 open, 1 closed)."""
 
 
-class FrameSource(abc.ABC):
+class _Stream(abc.ABC):
+    """A sensor read in the loop: ``start`` on ``__enter__``, ``close`` on ``__exit__``."""
+
+    def start(self) -> None:
+        """Open the device and begin reading."""
+
+    def close(self) -> None:
+        """Stop reading and release the device."""
+
+    def __enter__(self):
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class FrameSource(_Stream):
     """A camera or tactile sensor that keeps its newest frame.
 
     ``name`` identifies it in observations (``images/<name>`` or ``tactile/<name>``);
@@ -286,44 +303,18 @@ class FrameSource(abc.ABC):
     name: str = "camera"
     background: np.ndarray | None = None
 
-    def start(self) -> None:
-        """Open the device and begin capturing."""
-
     @abc.abstractmethod
     def latest(self) -> Frame:
         """Newest frame; raises :class:`SensorError` when the source has failed or has none yet."""
 
-    def close(self) -> None:
-        """Stop capturing and release the device."""
 
-    def __enter__(self):
-        self.start()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-
-class ForceSensor(abc.ABC):
+class ForceSensor(_Stream):
     """What reads the force on the tactile sensor while it presses (a wrist F/T sensor, or the simulation's contact
     force); each adapter says how its ``normal_n`` is obtained. ``start`` zeroes it where the device can, with
     nothing in contact."""
 
     name: str = "force"
 
-    def start(self) -> None:
-        """Open the reading (and zero it, with the sensor out of contact)."""
-
     @abc.abstractmethod
     def read(self) -> ForceSample:
         """Newest reading; raises :class:`SensorError` when the device fails."""
-
-    def close(self) -> None:
-        """Release the reading."""
-
-    def __enter__(self):
-        self.start()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()

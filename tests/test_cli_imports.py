@@ -12,7 +12,7 @@ REPO = Path(__file__).resolve().parents[1]
 HEAVY = ("torch", "diffusers", "mujoco", "cv2", "h5py", "pyarrow", "matplotlib")
 PROBE = """
 import json, runpy, sys
-sys.argv = [{prog!r}, "--help"]
+sys.argv = [{prog!r}, *{args!r}, "--help"]
 try:
     runpy.{run}({target!r}, run_name="__main__"{alter})
 except SystemExit as exc:
@@ -21,16 +21,17 @@ else:
     code = None
 print(json.dumps({{"code": code, "heavy": sorted(m for m in {heavy!r} if m in sys.modules)}}))
 """
-CLIS = [("deploy_policy.py", "run_path"), ("train_act.py", "run_path"),
-        *((m, "run_module") for m in ("controltac_il", "controltac_il.augment", "controltac_il.calibrate",
-                                      "controltac_il.generator.train", "controltac_il.generator.train_pose",
-                                      "controltac_il.estimators.train", "controltac_il.tactile.dataset",
-                                      "controltac_il.sign", "envs.collect"))]
+CLIS = [("deploy_policy.py", "run_path", ()), ("train_act.py", "run_path", ()),
+        ("controltac_il.calibrate", "run_module", ("record",)),
+        *((m, "run_module", ()) for m in ("controltac_il", "controltac_il.augment", "controltac_il.calibrate",
+                                          "controltac_il.generator.train", "controltac_il.generator.train_pose",
+                                          "controltac_il.estimators.train", "controltac_il.tactile.dataset",
+                                          "controltac_il.sign", "envs.collect"))]
 
 
-@pytest.mark.parametrize("target, run", CLIS, ids=[c[0] for c in CLIS])
-def test_help_imports_no_heavy_module(target, run):
-    code = PROBE.format(prog=target, run=run, target=str(REPO / target) if run == "run_path" else target,
+@pytest.mark.parametrize("target, run, args", CLIS, ids=[" ".join((c[0], *c[2])) for c in CLIS])
+def test_help_imports_no_heavy_module(target, run, args):
+    code = PROBE.format(prog=target, args=args, run=run, target=str(REPO / target) if run == "run_path" else target,
                         alter=", alter_sys=True" if run == "run_module" else "", heavy=HEAVY)
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
     lines = out.stdout.strip().splitlines()

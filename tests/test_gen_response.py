@@ -61,6 +61,7 @@ def test_detail_kept_tells_a_frame_that_keeps_its_fine_detail_from_one_resized_t
     assert bench.response(ResizingGenerator(blur=False), ref, np.array([0.0, 1.0]))["detail_kept"] is None  # no +2 N
 
 
+@pytest.mark.slow  # the whole --quick benchmark: its response measure is tested above; with -m slow
 def test_quick_run_writes_every_reference_and_the_plot(tmp_path):
     out = tmp_path / "response.json"
     doc = bench.main(["--quick", "--out", str(out)])

@@ -37,6 +37,7 @@ def test_cross_pose_pairs_move_the_contact_and_perturbed_masks_stay_binary():
     assert m.dtype == bool and (m.sum((1, 2)) > scenes.masks[:4].sum((1, 2))).all()
 
 
+@pytest.mark.slow  # the whole --quick benchmark (9 s idle): its pairs and masks are tested above; with -m slow
 def test_quick_run_writes_the_tables_json_and_sheet(tmp_path, capsys):
     out = tmp_path / "pose.json"
     doc = main(["--quick", "--out", str(out)])
