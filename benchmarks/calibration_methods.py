@@ -17,7 +17,8 @@ held-out objects among them). Every hyperparameter is chosen by leave-one-grasp-
 Methods: constant (the calibration labels' mean), zero_shot (the shipped estimator), stat_monotone (a monotone map
 of a contact statistic), ship_monotone / ship_affine (the shipped Fz reading mapped by a monotone / affine 1-D
 fit), stats_ridge (ridge on [shipped Fz, contact area, summed residual]), frozen_ridge (ridge on the shipped
-network's 128-d penultimate features).
+network's 128-d penultimate features), colour_adapter (``estimators.few_shot``: a 3x3 mix and shift of the input's
+colours before the frozen shipped network, fitted on the labels: what ``calibrate`` uses below 500 frames).
 """
 
 from __future__ import annotations
@@ -35,7 +36,8 @@ LABEL_RANGE = (1.0, 10.0)  # N: the calibration labels kept
 TEST_MIN_FZ = 0.5  # N: test frames with contact
 ALPHAS = np.logspace(-2, 4, 13)  # ridge penalties tried by leave-one-grasp-out
 OPTICS = ("polynomial", "three_light", "three_light_rot")
-METHODS = ("constant", "zero_shot", "stat_monotone", "ship_monotone", "ship_affine", "stats_ridge", "frozen_ridge")
+METHODS = ("constant", "zero_shot", "stat_monotone", "ship_monotone", "ship_affine", "stats_ridge", "frozen_ridge",
+           "colour_adapter")
 GATE = 8.0  # grey levels: a pixel deviating more is contact (the shipped estimator's gate threshold)
 
 
@@ -116,7 +118,8 @@ def frame_features(est, residuals: np.ndarray) -> dict:
 @dataclass
 class Bank:
     """All rendered frames of one sensor: per-frame grasp id ``gid``, position ``pos`` in its grasp, true ``fz``
-    (N), features (``frame_features``); grasps ``cal_pool`` may calibrate, ``test`` are only scored."""
+    (N), features (``frame_features`` of the shipped estimator ``base``) and the residuals ``res`` uint8 (N, H, W, 3);
+    grasps ``cal_pool`` may calibrate, ``test`` are only scored."""
 
     name: str
     gid: np.ndarray
@@ -125,6 +128,8 @@ class Bank:
     feats: dict
     cal_pool: np.ndarray
     test: np.ndarray
+    res: np.ndarray
+    base: object
 
 
 def make_bank(est, index: int, optics: str, n_cal: int, n_test: int, seed: int, size=SIZE, crop_w: int = CROP_W) -> Bank:
@@ -142,9 +147,9 @@ def make_bank(est, index: int, optics: str, n_cal: int, n_test: int, seed: int, 
         pos += list(range(len(f)))
         fz.append(f)
         res.append(r)
-    feats = frame_features(est, np.concatenate(res))
-    return Bank(name, np.asarray(gid), np.asarray(pos), np.concatenate(fz), feats,
-                np.arange(n_cal), np.arange(n_cal, n_cal + n_test))
+    res = np.concatenate(res)
+    return Bank(name, np.asarray(gid), np.asarray(pos), np.concatenate(fz), frame_features(est, res),
+                np.arange(n_cal), np.arange(n_cal, n_cal + n_test), res, est)
 
 
 def calibration_set(bank: Bank, grasps, lags, stride: int, phase: int) -> tuple[np.ndarray, np.ndarray]:
@@ -226,8 +231,9 @@ def affine(x, y):
     return lambda q: a * q + b
 
 
-def fit_method(method: str, bank: Bank, rows: np.ndarray, y: np.ndarray):
-    """Fit ``method`` on calibration frames ``rows`` with labels ``y``; returns (predict(frame rows) -> Fz, info)."""
+def fit_method(method: str, bank: Bank, rows: np.ndarray, y: np.ndarray, adapter_steps: int = 150):
+    """Fit ``method`` on calibration frames ``rows`` with labels ``y``; returns (predict(frame rows) -> Fz, info).
+    adapter_steps: the colour adapter's full-batch steps (``calibrate``'s 150; fewer in a --quick run)."""
     f, groups = bank.feats, bank.gid[rows]
     if method == "constant":
         c = float(y.mean())
@@ -249,6 +255,11 @@ def fit_method(method: str, bank: Bank, rows: np.ndarray, y: np.ndarray):
     if method == "frozen_ridge":
         m, alpha = fit_ridge(f["hidden"][rows], y, groups)
         return (lambda r: m(f["hidden"][r])), {"alpha": alpha}
+    if method == "colour_adapter":
+        from controltac_il.estimators.few_shot import ColourFit, fit_colour_adapter
+
+        adapted = fit_colour_adapter(bank.base, bank.res[rows], y, ColourFit(steps=adapter_steps))
+        return (lambda r: adapted.predict(bank.res[r])[:, 2].astype(np.float64)), {}
     raise ValueError(f"unknown method {method!r}; expected one of {METHODS}")
 
 
@@ -261,7 +272,8 @@ def score(pred: np.ndarray, true: np.ndarray) -> dict:
             "corr": corr}
 
 
-def run_draw(bank: Bank, k: int, rng: np.random.Generator, stride: int, methods=METHODS) -> list[dict]:
+def run_draw(bank: Bank, k: int, rng: np.random.Generator, stride: int, methods=METHODS,
+             adapter_steps: int = 150) -> list[dict]:
     """One calibration draw of ``k`` grasps: every method's test MAE, correlation and fit wall time."""
     grasps = rng.choice(bank.cal_pool, size=k, replace=False)
     lags = rng.integers(-1, 2, size=k)
@@ -270,7 +282,7 @@ def run_draw(bank: Bank, k: int, rng: np.random.Generator, stride: int, methods=
     out = []
     for m in methods:
         t0 = time.perf_counter()
-        predict, info = fit_method(m, bank, rows, y)
+        predict, info = fit_method(m, bank, rows, y, adapter_steps)
         fit_s = time.perf_counter() - t0
         out.append({"sensor": bank.name, "k": k, "method": m, "cal_frames": len(rows), "test_frames": len(test),
                     **score(predict(test), bank.fz[test]), "fit_s": fit_s, **info})
@@ -316,9 +328,9 @@ def settings(args) -> dict:
     """Sizes of the run: full or --quick."""
     if args.quick:
         return {"instances": [0], "optics": ["polynomial"], "n_cal": 6, "n_test": 2, "ks": [3, 5], "draws": 2,
-                "size": (60, 80), "crop_w": 60}
+                "size": (60, 80), "crop_w": 60, "adapter_steps": 3}
     return {"instances": [0, 1, 2], "optics": list(OPTICS), "n_cal": 20, "n_test": 12, "ks": [5, 10, 15],
-            "draws": args.draws, "size": SIZE, "crop_w": CROP_W}
+            "draws": args.draws, "size": SIZE, "crop_w": CROP_W, "adapter_steps": 150}
 
 
 def main(argv=None) -> dict:
@@ -344,7 +356,8 @@ def main(argv=None) -> dict:
         for k in cfg["ks"]:
             for d in range(cfg["draws"]):
                 rng = np.random.default_rng([args.seed, si, k, d])
-                records += [{**r, "draw": d} for r in run_draw(bank, k, rng, args.stride)]
+                records += [{**r, "draw": d} for r in run_draw(bank, k, rng, args.stride,
+                                                               adapter_steps=cfg["adapter_steps"])]
     table = summarise(records)
     print_table(table, ["k", "method", "cal_frames", "mae", "mae_sd", "ratio", "ratio_sd", "ratio_worst", "ratio_in_range", "corr",
                         "fit_ms", "n"], title="Fz MAE (N) on test grasps; ratio = MAE / constant baseline's MAE")

@@ -124,7 +124,7 @@ def test_colour_adapter_undoes_another_optics_colour_mix(frames):
     rng = np.random.default_rng(0)
     mix = np.array([[0.2, 0.9, 0.1], [0.1, 0.2, 1.1], [1.0, 0.1, 0.3]])
     res, fz = [], []
-    for k in range(48):
+    for k in range(36):
         f = float(rng.uniform(1, 10))
         img = sensor.press(("big_sphere", "cross", "slim_cylinder")[k % 3], (rng.uniform(-2, 2), rng.uniform(-2, 2), 0.0), (0, 0, f),
                            noise_seed=k).image
@@ -133,9 +133,9 @@ def test_colour_adapter_undoes_another_optics_colour_mix(frames):
         fz.append(f)
     res, fz = np.stack(res), np.array(fz)
     base = ForceEstimator.from_pretrained()
-    est = fit_colour_adapter(base, res[:32], fz[:32], ColourFit(steps=150))
-    err = lambda e: np.abs(e.predict(res[32:], gate=False)[:, 2] - fz[32:]).mean()  # noqa: E731
-    constant = np.abs(fz[:32].mean() - fz[32:]).mean()
+    est = fit_colour_adapter(base, res[:24], fz[:24], ColourFit(steps=150))
+    err = lambda e: np.abs(e.predict(res[24:], gate=False)[:, 2] - fz[24:]).mean()  # noqa: E731
+    constant = np.abs(fz[:24].mean() - fz[24:]).mean()
     assert err(est) < 0.8 * min(err(base), constant), (err(est), err(base), constant)
     assert est.checkpoint_hash != base.checkpoint_hash
     with pytest.raises(ValueError, match="one finite label"):

@@ -7,13 +7,19 @@ from benchmarks import calibration_methods as cm
 
 
 def _bank(n_cal=4, n_test=3, frames=12):
-    """A synthetic bank: ramps of ``frames`` frames, one feature = the true Fz."""
+    """A synthetic bank: ramps of ``frames`` frames, one feature = the true Fz; residuals a disc growing with Fz."""
+    from controltac_il.estimators import ForceEstimator
+
     gid = np.repeat(np.arange(n_cal + n_test), frames)
     pos = np.tile(np.arange(frames), n_cal + n_test)
     fz = np.tile(cm.ramp(frames, 12.0), n_cal + n_test)
     feats = {k: fz.copy() for k in ("fz_ship", "area", "summag")}
     feats["hidden"] = np.stack([fz, fz**2, np.sin(fz)], 1)
-    return cm.Bank("synthetic", gid, pos, fz, feats, np.arange(n_cal), np.arange(n_cal, n_cal + n_test))
+    yy, xx = np.mgrid[:48, :64]
+    disc = np.hypot(yy - 24, xx - 32)[None] < 4 * np.sqrt(fz)[:, None, None]
+    res = np.where(disc[..., None], np.array([150, 110, 170], np.uint8), np.uint8(127)).astype(np.uint8)
+    return cm.Bank("synthetic", gid, pos, fz, feats, np.arange(n_cal), np.arange(n_cal, n_cal + n_test), res,
+                   ForceEstimator.from_pretrained())
 
 
 def test_ramp_rises_from_zero_to_its_peak():
@@ -79,7 +85,7 @@ def test_methods_fit_on_a_clean_sensor():
     rows, y = cm.calibration_set(bank, np.arange(6), np.zeros(6, int), 1, 0)
     test = cm.scored_rows(bank)
     for m in cm.METHODS:
-        predict, _ = cm.fit_method(m, bank, rows, y)
+        predict, _ = cm.fit_method(m, bank, rows, y, adapter_steps=3)  # the adapter's own test: test_calibrate_recordings
         mae = np.abs(predict(test) - bank.fz[test]).mean()
         assert np.isfinite(mae)
         if m in ("zero_shot", "ship_monotone", "ship_affine"):
