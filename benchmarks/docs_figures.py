@@ -187,5 +187,17 @@ def calibration() -> str:
     return rf.table(head, rows) + "\n\n" + _source(rf, "calibration.json", doc)
 
 
-BLOCKS = {"calibration": calibration, "sensor": sensor, "env-speed": env_speed, "hardware": hardware, "generation-chunk": generation_chunk,
+def calibration_methods() -> str:
+    """Each estimator calibration method at every K: its test MAE's ratio to the constant's, over sensors x draws."""
+    rf = _rf()
+    doc = rf.load("calibration_methods.json")
+    rows = [[r["k"], f"`{r['method']}`", f"{r['cal_frames']:.0f}", f"{r['mae']:.2f} ± {r['mae_sd']:.2f}",
+             f"{r['ratio']:.2f}× ± {r['ratio_sd']:.2f}", f"{r['ratio_worst']:.2f}×",
+             "" if r["corr"] is None else f"{r['corr']:.2f}", f"{r['fit_ms']:.0f}", r["n"]]
+            for r in doc["summary"] if r["method"] != "constant"]
+    head = ["K grasps", "method", "frames", "Fz MAE, N (± SD)", "÷ constant's (± SD)", "worst", "corr", "fit ms", "n"]
+    return rf.table(head, rows) + "\n\n" + _source(rf, "calibration_methods.json", doc)
+
+
+BLOCKS = {"calibration": calibration, "calibration-methods": calibration_methods, "sensor": sensor, "env-speed": env_speed, "hardware": hardware, "generation-chunk": generation_chunk,
           "force-scaling": force_scaling, "headline": headline}

@@ -21,7 +21,7 @@ from controltac_il.tactile.dataset import load_dataset
 from controltac_il.tactile.residual import residual_magnitude, to_residual
 from envs.config import PegInHoleConfig
 from envs.sim_robot import SimRobot
-from hardware.interfaces import GRIPPER, ForceSample, ForceSensor, SensorError
+from hardware.interfaces import GRIPPER, ForceSample, ForceSensor, HardwareError, SensorError
 from hardware.ur import URArm, URForce
 from hardware.xarm import XArm, XArmForce
 
@@ -103,6 +103,26 @@ def test_force_past_the_abort_stops_backs_out_and_writes_nothing(tmp_path):
                            tmp_path / "recs")
         assert robot.command[GRIPPER] == 0.0 and robot.force["left"].read().normal_n < 0.2  # released
     assert list(tmp_path.iterdir()) == []  # nothing written, no partial folder
+
+
+class Blind(ForceSensor):
+    """A reading that turns NaN at the third call."""
+
+    def __init__(self, inner):
+        self.inner, self.name, self.calls = inner, "blind", 0
+
+    def read(self):
+        self.calls += 1
+        s = self.inner.read()
+        return ForceSample(float("nan") if self.calls >= 3 else s.normal_n, s.timestamp)
+
+
+def test_a_nan_force_stops_the_arm_and_writes_nothing(tmp_path):
+    with SimRobot(SCENE, seed=0) as robot:
+        with pytest.raises(HardwareError, match="blind: the force reads nan"):
+            record_presses(robot, "left", Blind(robot.force["left"]), PressPlan(presses=1), robot.squeeze_pose(),
+                           tmp_path / "recs")
+    assert list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.parametrize("change, field", [(dict(start_dz=-0.2), "start"), (dict(spread_m=0.01, start_dx="edge"), "spread_m"),

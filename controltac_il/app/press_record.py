@@ -37,7 +37,7 @@ from controltac_il.config import STRICT
 from controltac_il.generator.forces import VALIDATED_RANGE
 from controltac_il.io import atomic_dir, write_json
 from hardware.control_loop import ControlLoop, ControlLoopConfig
-from hardware.interfaces import GRIPPER, POSE_DIM, ForceSensor, HardwareError
+from hardware.interfaces import GRIPPER, POSE_DIM, ForceSensor, HardwareError, SensorError
 from hardware.safety import SafetyLimits
 
 ABORT_MAX_N = 15.0  # N: no plan lets the gel see more (the validated range ends at 10 N)
@@ -161,7 +161,9 @@ class PressController:
         self.phase, self.press = "release", self.plan.presses - 1  # back to this press's start, then done
 
     def __call__(self, observation: dict) -> np.ndarray:
-        self.force_n = self.force.read().normal_n
+        self.force_n = float(self.force.read().normal_n)
+        if not np.isfinite(self.force_n):  # never pressed on blind: the loop stops the arm
+            raise SensorError(f"{self.force.name}: the force reads {self.force_n}")
         if self.phase == "approach":
             self._approach(np.asarray(observation["qpos"], dtype=np.float64))
         elif self.phase == "settle":

@@ -65,10 +65,16 @@ def _run(args: argparse.Namespace) -> int:
         raise ValueError(one_line(exc, {k: "--" + k.replace("_", "-") for k in PLAN_FLAGS})) from None
     if args.out.exists():
         raise ValueError(f"--out {args.out} exists; recordings are written to a new folder")
-    try:
-        summary = (_sim if args.sim else _robot)(args, plan, record_presses)
-    except HardwareError as exc:
-        raise RunFault(str(exc)) from None
+    from tqdm import tqdm
+
+    with tqdm(total=plan.presses, unit="press", desc="calibration presses", disable=None) as bar:
+        def record(*a, **kw):
+            return record_presses(*a, **kw, progress=lambda done, total: bar.update(1))
+
+        try:
+            summary = (_sim if args.sim else _robot)(args, plan, record)
+        except HardwareError as exc:
+            raise RunFault(str(exc)) from None
     peaks = summary["peak_fz"]
     print(f"wrote {summary['presses']} presses to {args.out} (peaks {min(peaks):.2f}-{max(peaks):.2f} N, "
           f"force from {summary['force_source']}); next: python -m controltac_il.calibrate --recordings {args.out} "
