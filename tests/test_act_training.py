@@ -145,6 +145,7 @@ def test_train_cli_reports_bad_input(tmp_path, capsys, monkeypatch):
     assert "no checkpoint" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # two torch processes and gloo (9 s); the data-parallel path with -m slow
 @pytest.mark.skipif(sys.platform != "linux", reason="torchrun smoke test runs on Linux")
 def test_torchrun_two_process_gloo_smoke(tmp_path):
     root = write_tiny_episodes(tmp_path / "demos", n=4)
