@@ -20,6 +20,7 @@ import math
 import numpy as np
 
 from envs.config import SENSORS, PegInHoleConfig
+from envs.expert import wrap_half_turn
 from envs.peg_in_hole import PegInHoleEnv
 from hardware.control_loop import ControlLoopConfig
 from hardware.interfaces import (
@@ -159,7 +160,7 @@ class SimRobot:
         """[x, y, z, yaw] (m, rad) that puts the standing peg between the open fingers, the TCP ``depth_m``
         below its top, the gels square to it: where calibration presses squeeze it."""
         pos, rot = self.env.peg_pose()
-        yaw = (math.atan2(rot[1, 0], rot[0, 0]) + math.pi / 2) % math.pi - math.pi / 2  # the gripper's half turn
+        yaw = wrap_half_turn(math.atan2(rot[1, 0], rot[0, 0]))
         return np.array([pos[0], pos[1], pos[2] + self.env.peg_half_length_m - depth_m, yaw])
 
     @property

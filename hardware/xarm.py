@@ -262,8 +262,12 @@ class XArmForce(ForceSensor):
     def __init__(self, arm: XArm):
         self.arm = arm
 
+    def _sdk(self, names: tuple[str, ...]):
+        """The SDK method of the first of ``names`` (its name in 1.17+, then before), or None."""
+        return next((getattr(self.arm.api, n) for n in names if hasattr(self.arm.api, n)), None)
+
     def _call(self, names: tuple[str, ...], *args) -> None:
-        fn = next((getattr(self.arm.api, n) for n in names if hasattr(self.arm.api, n)), None)
+        fn = self._sdk(names)
         if fn is None:
             raise SensorError(f"xArm {self.arm.ip}: the SDK has no {names[0]} (an F/T sensor is needed)")
         code = fn(*args)
@@ -285,8 +289,6 @@ class XArmForce(ForceSensor):
         return ForceSample(float(np.linalg.norm(force)), self.arm.clock.now())
 
     def close(self) -> None:
-        if self.arm.api is not None and self.arm.api.connected:
-            for n in ("set_ft_sensor_enable", "ft_sensor_enable"):
-                if hasattr(self.arm.api, n):
-                    getattr(self.arm.api, n)(0)
-                    break
+        disable = self._sdk(("set_ft_sensor_enable", "ft_sensor_enable")) if self.arm.api is not None else None
+        if disable is not None and self.arm.api.connected:
+            disable(0)

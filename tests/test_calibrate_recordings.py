@@ -53,16 +53,15 @@ def test_the_lag_is_found_on_a_smooth_ramp_where_a_linear_correlation_fails():
     """A sensor-model grasp on a smoothstep ramp (its contact signal grows with force by a concave law), the log
     one frame early: the rank correlation undoes it (shift -1); a linear one picks the shift that straightens the
     curve."""
-    from controltac_il.calibrate.recordings import AREA_GATE
-    from controltac_il.tactile.residual import residual_magnitude, to_residual
+    from controltac_il.calibrate.recordings import contact_signal
+    from controltac_il.tactile.residual import to_residual
 
     sensor = TactileSensor(SPEC, seed=1)
     t = np.linspace(0, 1, 16)
     fz = np.r_[np.zeros(3), 12 * (3 * t**2 - 2 * t**3)]
     imgs = [sensor.press("big_sphere", (0.5, 0.0, 0.0), (0.0, 0.0, float(f)), noise_seed=k).image if f > 0 else
             sensor.background for k, f in enumerate(fz)]
-    signal = np.array([np.maximum(residual_magnitude(to_residual(im, sensor.background)) - AREA_GATE, 0).mean()
-                       for im in imgs])
+    signal = np.array([contact_signal(to_residual(im, sensor.background)) for im in imgs])
     log = shift(fz[:, None], 1)[:, 0]  # label[i] = force[i + 1]
     assert best_lag(signal, log) == -1
     linear = {lag: np.corrcoef(signal[3:-3], shift(log[:, None], lag)[3:-3, 0])[0, 1] for lag in range(-3, 4)}

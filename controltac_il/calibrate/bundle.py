@@ -175,16 +175,16 @@ def generator_part(args, ds, staging: Path) -> dict:
         shutil.rmtree(staging / "generator")
     shutil.copytree(final, staging / "generator")
     pairs, table = held_out_pairs(ds, val), None
+    base_gen, tuned = ForceGenerator.from_pretrained(base), ForceGenerator.from_pretrained(staging / "generator")
     if pairs is not None:
-        before = generation_error(ForceGenerator.from_pretrained(base), *pairs)
-        after = generation_error(ForceGenerator.from_pretrained(staging / "generator"), *pairs)
+        before, after = generation_error(base_gen, *pairs), generation_error(tuned, *pairs)
         table = {"pairs": len(pairs[0]), "grasps": len({(ds.records[i].object, ds.records[i].pose_id) for i in val}),
                  "zero_shot_ratio_to_copy": before["ratio_to_copy"], "ratio_to_copy": after["ratio_to_copy"],
                  "mse": after["mse"], "copy_mse": after["copy_mse"]}
-    return {"base": str(args.base_generator), "base_hash": str(ForceGenerator.from_pretrained(base).checkpoint_hash),
+    return {"base": str(args.base_generator), "base_hash": str(base_gen.checkpoint_hash),
             "ae_steps": args.ae_steps, "dit_steps": args.dit_steps, "lr": args.lr, "train_images": len(train),
             "held_out_rows": list(map(int, val)), "held_out": table,
-            "hash": str(ForceGenerator.from_pretrained(staging / "generator").checkpoint_hash)}
+            "hash": str(tuned.checkpoint_hash)}
 
 
 def run(args, ds, source: dict | None = None) -> dict:

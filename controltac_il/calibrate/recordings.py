@@ -120,6 +120,12 @@ def shift(forces: np.ndarray, lag: int) -> np.ndarray:
     return forces[idx]
 
 
+def contact_signal(residual: np.ndarray) -> float:
+    """The contact signal ``lag="auto"`` aligns with the force: the mean residual above AREA_GATE (grey levels) of a
+    uint8 (H, W, 3) residual, contact area weighted by depth."""
+    return float(np.maximum(residual_magnitude(residual) - AREA_GATE, 0).mean())
+
+
 def best_lag(signal: np.ndarray, fz: np.ndarray, max_lag: int = MAX_LAG) -> int:
     """The shift in [-max_lag, max_lag] frames maximising the rank (Spearman) correlation of contact signal[i] and
     Fz[i + lag] over the frames where both exist (no held ends); the smallest shift on ties, 0 for a flat signal.
@@ -174,8 +180,7 @@ def read_recording(name: str, frames_path: Path, csv_path: Path, opts: Recording
         raise ValueError(f"{csv_path}: no no-contact frame (|Fz| < {opts.no_contact_force:g} N) for the background")
     background = np.median(frames[free], axis=0).round().astype(np.uint8)
     if opts.lag == "auto":
-        signal = np.array([np.maximum(residual_magnitude(to_residual(f, background)[None])[0] - AREA_GATE, 0).mean()
-                           for f in frames])
+        signal = np.array([contact_signal(to_residual(f, background)) for f in frames])
         lag = best_lag(signal, forces[:, 2])
     else:
         lag = int(opts.lag)

@@ -72,13 +72,17 @@ def identity(weights_hash: str, config: EstimatorConfig) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
+def colour_mix(x: torch.Tensor, mix: torch.Tensor, shift: torch.Tensor) -> torch.Tensor:
+    """Input (N, 3, h, w) with its colour channels c mixed to ``mix`` (3, 3) @ c + ``shift`` (3,)."""
+    return torch.einsum("ij,njhw->nihw", mix, x) + shift[None, :, None, None]
+
+
 def mix_colours(x: torch.Tensor, config: EstimatorConfig) -> torch.Tensor:
     """Network input (N, 3, h, w) with the config's colour calibration applied (identity when it has none)."""
     if config.input_mix is None:
         return x
-    mix = torch.tensor(config.input_mix, dtype=x.dtype, device=x.device)
-    shift = torch.tensor(config.input_shift, dtype=x.dtype, device=x.device)
-    return torch.einsum("ij,njhw->nihw", mix, x) + shift[None, :, None, None]
+    return colour_mix(x, torch.tensor(config.input_mix, dtype=x.dtype, device=x.device),
+                      torch.tensor(config.input_shift, dtype=x.dtype, device=x.device))
 
 
 class ForceEstimator:

@@ -3,11 +3,11 @@
 Another sensor's optics (other LEDs, other light directions, another gain) mixes the residual's colour
 channels differently; to first order that is a linear map of the colours. So the shipped network stays frozen
 and only a 3x3 colour mix plus a shift (12 numbers, ``EstimatorConfig.input_mix`` / ``input_shift``) is fitted
-on the sensor's Fz labels, pulled towards the identity. Chosen over the candidates of
+on the sensor's Fz labels, pulled towards the identity. Chosen over the other candidates of
 ``benchmarks.calibration_methods`` (a frozen backbone with a ridge head, monotone maps of contact statistics and
-of the shipped reading, a ridge on several statistics; best there: 0.65x the constant at ~50 frames) by an
-exploratory run of the same conditions (0.34-0.52x, not committed); ``benchmarks.calibration`` measures it end to
-end. Fx and Fy keep the network's reading through the same mix.
+of the shipped reading, a ridge on several statistics): at ~50 frames it reads 0.50x the constant against 0.65x
+for the best of them (``benchmarks/results/calibration_methods.json``); ``benchmarks.calibration`` measures it end
+to end. Fx and Fy keep the network's reading through the same mix.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from controltac_il.estimators.estimator import ForceEstimator, identity, preprocess, validate_residuals
+from controltac_il.estimators.estimator import ForceEstimator, colour_mix, identity, preprocess, validate_residuals
 
 
 @dataclasses.dataclass(frozen=True)
@@ -47,8 +47,7 @@ def fit_colour_adapter(base: ForceEstimator, residuals: np.ndarray, fz: np.ndarr
     model = base.model.eval().requires_grad_(False)
     try:
         for _ in range(settings.steps):
-            mixed = torch.einsum("ij,njhw->nihw", mix, x) + shift[None, :, None, None]
-            loss = F.smooth_l1_loss(base.denormalise_forces(model(mixed))[:, 2], target)
+            loss = F.smooth_l1_loss(base.denormalise_forces(model(colour_mix(x, mix, shift)))[:, 2], target)
             loss = loss + settings.pull * ((mix - eye) ** 2).sum()
             if not torch.isfinite(loss):
                 raise ValueError("the colour adapter's loss became NaN / inf: check the frames and labels")
