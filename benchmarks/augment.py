@@ -18,16 +18,17 @@ range, so every frame would be kept real and online mode would generate nothing:
 are reported beside the row.
 
 The LeRobot writer row (``--rows lerobot_write``) writes the same episodes as a LeRobot v3.0 folder
-(``benchmarks.lerobot_source``: gelsight_left an image feature, gelsight_right an AV1 video) and times
-``python -m controltac_il.augment --dataset ROOT --out OUT``'s whole write (cache build with the episodes'
-reading, then the export: PNGs, re-encoded videos, stats, meta) against the time the generator itself spends
-on the same frames (its ``generate_at`` calls inside that write), in wall seconds and in this process's CPU
-seconds (``time.process_time``, every thread: torch's intra-op threads inside ``generate_at``, the codecs'
-outside it), so that a machine shared with other work still gives a comparison (CPU seconds are inflated too
-where torch's threads spin-wait for a core, which favours the writer's ratio). Target: the writer at >= 0.8x
-the generator's throughput. The same write is then timed again with ``--video-round-trip`` (every re-encoded
-video decoded back): its cost (``round_trip_cpu_seconds``, the writer's own CPU seconds it adds) and its
-MSE (uint8 units) of the regenerated frames, reported beside the generator's own error (README,
+(``benchmarks.lerobot_source``: gelsight_left an image feature, gelsight_right an AV1 video, per-episode stats
+of every feature as ``lerobot-record`` writes them) and times ``python -m controltac_il.augment --dataset ROOT
+--out OUT``'s whole write (cache build with the episodes' reading and, beside it, the export: PNGs, re-encoded
+videos, stats, meta) against the time the generator alone spends on the same frames (its ``generate_at`` calls in
+a cache build with nothing beside it; inside the write they share the cores with the export, so their time there,
+``generator_seconds_in_write``, is reported but not compared with), in wall seconds and in this process's CPU
+seconds (``time.process_time``, every thread: torch's intra-op threads, the codecs'), so that a machine shared
+with other work still gives a comparison (CPU seconds are inflated too where torch's threads spin-wait for a
+core). Target: the writer at >= 0.8x the generator's throughput. The same write is then timed again with
+``--video-round-trip`` (every re-encoded video decoded back): its cost (``round_trip_cpu_seconds``) and its MSE
+(uint8 units) of the regenerated frames, reported beside the generator's own error (README,
 ``benchmarks/results/generator.json``).
 """
 
@@ -166,49 +167,73 @@ class TimedGenerator:
             self.cpu_seconds += time.process_time() - c0
 
 
-def timed_write(source, out: Path, gen, copies: int, steps, round_trip: bool) -> tuple[dict, dict, int]:
-    """``python -m controltac_il.augment --dataset SOURCE --out OUT``'s write (cache build and export), timed:
-    (wall and CPU seconds of the whole write and of the generator inside it, the write's record, sampler steps)."""
+def _augment(source, gen, copies: int, steps, cache_dir: Path) -> ForceAugment:
+    """ForceAugment over ``source``'s tactile streams as the CLI opens it (a folder of its own, tactile keys only)."""
+    from benchmarks.lerobot_source import FORCES
+    from controltac_il.datasets.lerobot_v3 import LeRobotFolder
+
+    tactile_only = LeRobotFolder(source.root, keys=[*FORCES, *FORCES.values()], video_threads=0)
+    return ForceAugment(tactile_only, gen, copies=copies, steps=steps, tactile_keys=list(FORCES), force_keys=FORCES,
+                        cache_dir=cache_dir, build="manual", progress=True)
+
+
+def generator_alone(source, cache_dir: Path, gen, copies: int, steps) -> dict:
+    """Wall and CPU seconds of the generator's own calls when the same frames are generated with nothing beside it
+    (a cache build alone: its reading is not timed)."""
     import warnings
 
-    from benchmarks.lerobot_source import FORCES
+    timed = TimedGenerator(gen)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", ".*background estimated", UserWarning)
+        _augment(source, timed, copies, steps, cache_dir).build_cache()
+    return {"generator_seconds": timed.seconds, "generator_cpu_seconds": timed.cpu_seconds}
+
+
+def timed_write(source, out: Path, gen, copies: int, steps, round_trip: bool) -> tuple[dict, dict, int]:
+    """``python -m controltac_il.augment --dataset SOURCE --out OUT``'s write (cache build and export beside it),
+    timed: (wall and CPU seconds of the whole write and of the generator's calls inside it, the write's record,
+    sampler steps)."""
+    import warnings
+
     from controltac_il.augment.to_lerobot import staging_dir, write_lerobot
-    from controltac_il.datasets.lerobot_v3 import LeRobotFolder
 
     timed = TimedGenerator(gen)
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", ".*background estimated", UserWarning)
         t0, c0 = time.perf_counter(), time.process_time()
-        tactile_only = LeRobotFolder(source.root, keys=[*FORCES, *FORCES.values()], video_threads=0)  # as the CLI
-        aug = ForceAugment(tactile_only, timed, copies=copies, steps=steps, tactile_keys=list(FORCES),
-                           force_keys=FORCES, cache_dir=staging_dir(out) / "cache", build="manual", progress=True)
+        aug = _augment(source, timed, copies, steps, staging_dir(out) / "cache")
         marker = write_lerobot(aug, source, out, round_trip=round_trip)["marker"]
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    times = {"write_seconds": wall, "generator_seconds": timed.seconds, "writer_vs_generator": timed.seconds / wall,
-             "write_cpu_seconds": cpu, "generator_cpu_seconds": timed.cpu_seconds,
-             "writer_vs_generator_cpu": timed.cpu_seconds / cpu, "writer_own_cpu_seconds": cpu - timed.cpu_seconds}
+    times = {"write_seconds": wall, "write_cpu_seconds": cpu, "generator_seconds_in_write": timed.seconds,
+             "generator_cpu_seconds_in_write": timed.cpu_seconds}
     return times, marker, aug.steps
 
 
 def lerobot_write_row(tmp: Path, gen, copies: int, steps) -> dict:
-    """A LeRobot folder in, an augmented LeRobot folder out: writer vs generator throughput (wall and CPU), then
-    the same write with the codec round trip measured (its cost and error)."""
+    """A LeRobot folder in, an augmented LeRobot folder out: writer vs the generator alone on the same frames
+    (wall and CPU), then the same write with the codec round trip measured (its cost and error)."""
     from benchmarks.lerobot_source import write_source
     from controltac_il.datasets.lerobot_v3 import LeRobotFolder
 
     source = LeRobotFolder(write_source(tmp / "demos", tmp / "lerobot_source"), video_threads=0)  # as the CLI
+    alone = generator_alone(source, tmp / "generator_alone", gen, copies, steps)
     plain, marker, steps = timed_write(source, tmp / "lerobot_augmented", gen, copies, steps, round_trip=False)
     checked, checked_marker, _ = timed_write(source, tmp / "lerobot_round_trip", gen, copies, steps, round_trip=True)
     n = marker["regenerated_frames"]
-    row = {"regenerated_frames": n, **plain, "writer_frames_per_s": n / plain["write_seconds"],
-           "generator_frames_per_s": n / plain["generator_seconds"], "target_0_8x": plain["writer_vs_generator"] >= 0.8,
-           "generator_cores": plain["generator_cpu_seconds"] / plain["generator_seconds"],
+    for times in (plain, checked):
+        times.update({"writer_vs_generator": alone["generator_seconds"] / times["write_seconds"],
+                      "writer_vs_generator_cpu": alone["generator_cpu_seconds"] / times["write_cpu_seconds"],
+                      "writer_own_cpu_seconds": times["write_cpu_seconds"] - alone["generator_cpu_seconds"]})
+    row = {"regenerated_frames": n, **alone, **plain, "writer_frames_per_s": n / plain["write_seconds"],
+           "generator_frames_per_s": n / alone["generator_seconds"], "target_0_8x": plain["writer_vs_generator"] >= 0.8,
+           "generator_cores": alone["generator_cpu_seconds"] / alone["generator_seconds"],
            "episodes_written": marker["episodes"]["written"], "frames_written": marker["frames"],
            "video_round_trip_mse": checked_marker["video_round_trip_mse"],
            "video_round_trip_psnr_db": checked_marker["video_round_trip_psnr_db"], "with_round_trip": checked,
-           "round_trip_cpu_seconds": checked["writer_own_cpu_seconds"] - plain["writer_own_cpu_seconds"],
-           "steps": steps, "source": "gelsight_left image (PNG), gelsight_right AV1 video, two AV1 cameras"}
-    print_table([row, {**checked, "video_round_trip_mse": row["video_round_trip_mse"]}],
+           "round_trip_cpu_seconds": checked["write_cpu_seconds"] - plain["write_cpu_seconds"],
+           "steps": steps, "source": "gelsight_left image (PNG), gelsight_right AV1 video, two AV1 cameras; "
+                                     "per-episode stats of every feature in meta/episodes, as lerobot-record writes"}
+    print_table([{**alone, **plain}, {**alone, **checked, "video_round_trip_mse": row["video_round_trip_mse"]}],
                 ["write_seconds", "generator_seconds", "writer_vs_generator", "write_cpu_seconds",
                  "generator_cpu_seconds", "writer_vs_generator_cpu", "video_round_trip_mse"],
                 title="LeRobot folder in, augmented LeRobot folder out (without, then with the round trip)")

@@ -1,7 +1,9 @@
 """A LeRobot v3.0 folder of the augment benchmark's recorded episodes, laid out as ``lerobot-record`` lays one
 out: every episode in one data file (a row group each) and one mp4 per camera (episodes back to back, AV1 as
 LeRobot's default). Tactile ``gelsight_left`` is an image feature (PNG in the parquet), ``gelsight_right`` a
-video feature, the two RGB cameras videos; force labels under ``observation.gelsight_<s>.force``."""
+video feature, the two RGB cameras videos; force labels under ``observation.gelsight_<s>.force``; per-episode
+stats of every feature in ``meta/episodes`` and their aggregate in ``meta/stats.json``, as the recorder writes
+them."""
 
 from __future__ import annotations
 
@@ -12,8 +14,10 @@ import numpy as np
 import pyarrow as pa
 
 from controltac_il.datasets.episodes import episode_paths, read_episode
-from controltac_il.datasets.lerobot_v3_write import (encode_video, png_bytes, vector_stats, write_data_parquet,
-                                                     write_meta, write_parquet)
+from controltac_il.datasets.lerobot_v3 import numbers
+from controltac_il.datasets.lerobot_v3_write import (aggregate_stats, encode_video, image_stats, png_bytes,
+                                                     sample_indices, vector_stats, write_data_parquet, write_meta,
+                                                     write_parquet)
 
 FPS = 10
 IMAGE, VIDEO = "observation.images.gelsight_left", "observation.images.gelsight_right"
@@ -59,6 +63,7 @@ def write_source(demos: Path, root: Path) -> Path:
         for key in videos:
             row.update({f"videos/{key}/chunk_index": 0, f"videos/{key}/file_index": 0,
                         f"videos/{key}/from_timestamp": start / FPS, f"videos/{key}/to_timestamp": (start + L) / FPS})
+        row["stats"] = _episode_stats(tables[-1], ep)
         rows.append(row)
         start += L
     write_data_parquet(root / "data" / "chunk-000" / "file-000.parquet", pa.concat_tables(tables))
@@ -68,6 +73,18 @@ def write_source(demos: Path, root: Path) -> Path:
     return root
 
 
+def _episode_stats(table: pa.Table, ep) -> dict:
+    """Per-episode stats of every feature (cameras at the frames LeRobot samples), as the recorder writes them."""
+    picks = sample_indices(len(ep.qpos))
+    images = {IMAGE: ep.tactile["left"], VIDEO: ep.tactile["right"],
+              **{f"observation.images.{c}": ep.images[c] for c in CAMERAS}}
+    stats = {key: image_stats(np.asarray(frames)[picks]) for key, frames in images.items()}
+    for key in table.column_names:
+        if key not in images:
+            stats[key] = vector_stats(numbers(table.column(key)), key)
+    return stats
+
+
 def _write_meta(root: Path, rows: list[dict], ep, total: int) -> None:
     info = {"codebase_version": "v3.0", "robot_type": None, "total_episodes": len(rows), "total_frames": total,
             "total_tasks": 1, "chunks_size": 1000, "data_files_size_in_mb": 100, "video_files_size_in_mb": 200,
@@ -75,7 +92,7 @@ def _write_meta(root: Path, rows: list[dict], ep, total: int) -> None:
             "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
             "video_path": "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4",
             "features": _features(ep.tactile["left"].shape[1:], ep.images[CAMERAS[0]].shape[1:])}
-    write_meta(root, info, rows, {"index": vector_stats(np.arange(total), "index")})
+    write_meta(root, info, rows, aggregate_stats([row["stats"] for row in rows]))
     pandas = {"index_columns": ["__index_level_0__"], "column_indexes": [], "columns": [
         {"name": "task_index", "field_name": "task_index", "pandas_type": "int64", "numpy_type": "int64",
          "metadata": None},

@@ -309,7 +309,7 @@ def augment_lerobot_write() -> str:
              f"{r['generator_seconds']:.1f}", f"{r['writer_frames_per_s']:.1f}", f"{r['generator_frames_per_s']:.1f}",
              f"{r['writer_vs_generator']:.2f} (target 0.80)",
              f"{r['video_round_trip_mse']:.2f}", f"{default['unseen_240']['mse']:.1f}"]]
-    header = ["regenerated frames", "episodes written", "write s", "of which generator s", "writer frames/s",
+    header = ["regenerated frames", "episodes written", "write s", "generator alone s", "writer frames/s",
               "generator frames/s", "writer ÷ generator", "video round trip MSE",
               f"generator's own MSE (unseen, 240×320, DDIM-{r['steps']})"]
     return table(header, rows) + "\n\n" + provenance("augment_lerobot_write.json", doc, doc["generator_hash"])

@@ -135,7 +135,7 @@ def written(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("lerobot_write")
     root, out = write_source(tmp / "source"), tmp / "out"
     aug = augment(root, out)
-    counts = write_lerobot(aug, aug.dataset, out, progress=False)
+    counts = write_lerobot(aug, LeRobotFolder(root), out, progress=False)
     reference = ForceAugment(LeRobotFolder(root), aug.generator, tactile_keys=[LEFT, RIGHT], force_keys=FORCES,
                              copies=2, steps=1, cache_dir=tmp / "reference", progress=False)  # a cache of its own
     return root, out, counts, reference
@@ -359,7 +359,7 @@ def test_interrupted_and_shared_writes_equal_one_clean_write(written, tmp_path):
     shared = tmp_path / "shared"
     for rank in (1, 0):
         aug = augment(root, shared, generator=reference.generator)
-        write_lerobot(aug, aug.dataset, shared, rank=rank, world_size=2, progress=False, poll_s=0.0)
+        write_lerobot(aug, LeRobotFolder(root), shared, rank=rank, world_size=2, progress=False, poll_s=0.0)
     assert files(shared) == files(clean)
 
 

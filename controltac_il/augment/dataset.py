@@ -257,12 +257,13 @@ class ForceAugment(Dataset):
 
     # --- cache mode: build ----------------------------------------------------------------------
     def build_cache(self, rank: int | None = None, world_size: int | None = None, progress: bool = True,
-                    stop_after: int | None = None) -> dict:
+                    stop_after: int | None = None, on_chunk=None) -> dict:
         """Generate this rank's missing chunks (rank/world_size default to torchrun's RANK/WORLD_SIZE).
 
         Chunk j of ``chunk_list()`` belongs to rank ``j * world_size // len(chunks)``; each chunk is
         written atomically, so an interrupted build resumes where it stopped and equals a clean one.
-        stop_after: stop after writing this many chunks (to split a build). Returns counts of the run.
+        stop_after: stop after writing this many chunks (to split a build). on_chunk: called with (episode, copy)
+        after each chunk is written (an exception it raises stops the build). Returns counts of the run.
         """
         if self.config.mode != "cache":
             raise ValueError("build_cache: only in mode='cache'")
@@ -278,7 +279,7 @@ class ForceAugment(Dataset):
         else:
             write_manifest(self.cache_dir, settings, chunks)
         remove_leftovers(self.cache_dir)
-        return self._writer().build(chunks, rank, world_size, progress, stop_after)
+        return self._writer().build(chunks, rank, world_size, progress, stop_after, on_chunk)
 
     def verify_cache(self) -> int:
         """Check every built chunk against the manifest's settings (``provenance.check_chunk``, image file

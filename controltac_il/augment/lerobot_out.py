@@ -18,7 +18,9 @@ else 0). Names carry the camera's last name part, never "image" (LeRobot gives a
 "image..." camera-shaped stats).
 
 Stats (``lerobot_v3_write``) are those of the frames written, and what output episodes share is computed once:
-the features every copy holds unchanged (cameras, actions, states) once per source episode; a tactile camera's
+the features every copy holds unchanged (cameras, actions, states) once per source episode, or taken from the
+source's own per-episode stats where its ``meta/episodes`` holds them complete (``lerobot-record`` writes them; the
+stats of the very frames copied, so an unchanged camera is not decoded for them); a tactile camera's
 from per-frame channel histograms, the source's at the sampled frames with the regenerated frames' in their place
 (equal to recomputing them from the copy's frames: a frame's histogram depends on that frame alone). A tactile
 image feature's PNGs are decoded only at the frames its stats sample (all of an episode shorter than 100 frames).
@@ -41,10 +43,11 @@ import numpy as np
 import pyarrow as pa
 from tqdm import tqdm
 
-from controltac_il.datasets.lerobot_v3 import decode_png, numbers
-from controltac_il.datasets.lerobot_v3_write import (decode_video, encode_video, frame_histograms, histogram_stats,
-                                                     image_stats, png_bytes, sample_indices, vector_stats, video_codec,
-                                                     write_data_parquet)
+from controltac_il.cli import tty_only
+from controltac_il.datasets.lerobot_v3 import decode_png, numbers, read_episode_stats
+from controltac_il.datasets.lerobot_v3_write import (STAT_NAMES, complete_stats, decode_video, encode_video,
+                                                     frame_histograms, histogram_stats, image_stats, png_bytes,
+                                                     sample_indices, vector_stats, video_codec, write_data_parquet)
 from controltac_il.io import atomic_path, write_json
 
 PREFIX = "augment"
@@ -117,6 +120,9 @@ class LeRobotExport:
         self.starts = np.concatenate([[0], np.cumsum(lengths)]).astype(int)
         self.chunks_size = int(source.meta.get("chunks_size", 1000))
         self.first_video = {k: self._first_free(k) for k in source.video_keys}
+        self.shared = [k for k, ft in source.features.items()
+                       if k not in (*self.tactile, "episode_index", "index") and ft["dtype"] != "string"]
+        self.given = read_episode_stats(source.root, self.shared)
 
     @property
     def total(self) -> int:
@@ -136,15 +142,20 @@ class LeRobotExport:
         E = len(self.sources)
         return [p for p in range(E) if any(not self._row_path(k * E + p).is_file() for k in range(self.copies + 1))]
 
-    def write(self, rank: int = 0, world_size: int = 1, progress: bool = True, stop_after: int | None = None) -> dict:
+    def write(self, rank: int = 0, world_size: int = 1, progress: bool = True, stop_after: int | None = None,
+              ready=None) -> dict:
         """Write this rank's share of the missing episodes (source position p belongs to rank p * world // E).
-        stop_after: stop after this many output episodes (to split a write). Returns counts of the run."""
+        stop_after: stop after this many output episodes (to split a write). ready: called with a source episode
+        before it is written, returns whether its chunks are built (False: stop here); None: the cache is built.
+        Returns counts of the run."""
         E = len(self.sources)
         mine = [p for p in self.missing() if p * world_size // E == rank]
         counts = {"episodes": 0, "regenerated": 0, "video_sse": 0.0, "video_values": 0}
         bar = tqdm(total=len(mine) * (self.copies + 1), desc=f"writing episodes (rank {rank})", unit="episode",
-                   disable=not progress, file=sys.stderr)
+                   position=1, disable=tty_only(progress), file=sys.stderr)  # under the cache's bar
         for p in mine:
+            if ready is not None and not ready(self.sources[p]):
+                break
             for _ in self._write_source(p, counts):
                 bar.update(1)
                 if stop_after is not None and counts["episodes"] >= stop_after:
@@ -189,17 +200,18 @@ class LeRobotExport:
             lambda i: decode_png(column[int(i)].as_py(), key, f"{path} (episode {e}, frame {i})"), rows))
 
     def _shared_stats(self, table: pa.Table, e: int, picks: np.ndarray) -> dict:
-        """Stats of the features every copy of episode ``e`` shares (all but the tactile keys, provenance,
-        episode_index and index)."""
-        out = {}
-        for key, ft in self.source.features.items():
-            if key in self.tactile or key in ("episode_index", "index"):
-                continue
-            if ft["dtype"] == "video":
+        """Stats of the features every copy of episode ``e`` shares (``shared``: all but the tactile keys,
+        provenance, episode_index and index): the source's where complete, else computed."""
+        out, given = {}, self.given.get(e, {})
+        for key in self.shared:
+            ft = self.source.features[key]
+            if complete_stats(given.get(key), ft):
+                out[key] = {name: given[key][name] for name in STAT_NAMES}
+            elif ft["dtype"] == "video":
                 out[key] = image_stats(self.source.video_frames(key, e)[picks])
             elif ft["dtype"] == "image":
                 out[key] = image_stats(self._decode_images(table, e, key, picks))
-            elif ft["dtype"] != "string":
+            else:
                 out[key] = vector_stats(numbers(table.column(key)), key)
         return out
 

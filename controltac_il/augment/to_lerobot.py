@@ -3,8 +3,9 @@
 Everything is written under ``OUT.partial`` (``staging_dir``): ``write.json`` (what is being written: the
 ForceAugment settings, the source, the writer format), ``cache/`` (the ForceAugment cache), ``dataset/`` (the
 folder being written) and ``done/`` (one meta row per finished episode). Re-running the same command resumes;
-under torchrun every rank builds its share of the cache, then writes its share of the episodes, and rank 0
-writes ``meta/`` and publishes: ``dataset/`` is renamed to OUT, and ``OUT.partial`` removed. OUT is never the
+each rank builds its share of the cache (torchrun: every rank) while a thread of it writes its share of the
+episodes, each source episode as soon as the cache holds all its copies (``ChunkGate``: the export's codecs and
+parquet work beside the generator), and rank 0 writes ``meta/`` and publishes: ``dataset/`` is renamed to OUT, and ``OUT.partial`` removed. OUT is never the
 source (nor inside it, nor around it) and never a folder this tool did not write (``check_destination``).
 
 The record of a write (``finish``: settings, source, counts, and with ``round_trip`` the codec's round trip over
@@ -19,12 +20,15 @@ import hashlib
 import json
 import os
 import shutil
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
 from controltac_il.augment.lerobot_out import PREFIX, LeRobotExport
+from controltac_il.augment.provenance import chunk_done
 from controltac_il.datasets.lerobot_v3_write import aggregate_stats, write_meta
 from controltac_il.io import write_json
 
@@ -97,25 +101,87 @@ def published(out: Path, aug, source) -> bool:
     return True
 
 
+class ChunkGate:
+    """Lets the export wait for a source episode's chunks while the build writes them: ``built`` after each chunk,
+    ``close`` when the build ends (``aborted``: it failed); ``wait(e)`` returns True once every copy of episode ``e``
+    is in the cache, False when the build ended without them or failed. ``error``: the export's exception, once it failed (``fail``)."""
+
+    def __init__(self, cache_dir: Path, copies: int):
+        self.cache_dir, self.copies = Path(cache_dir), int(copies)
+        self._changed, self._open, self._aborted, self.error = threading.Condition(), True, False, None
+
+    def fail(self, error: BaseException) -> None:
+        self.error = error
+
+    def _ready(self, episode: int) -> bool:
+        return all(chunk_done(self.cache_dir, episode, k) for k in range(1, self.copies + 1))
+
+    def built(self, episode: int, copy: int) -> None:
+        with self._changed:
+            self._changed.notify_all()
+
+    def close(self, aborted: bool = False) -> None:
+        with self._changed:
+            self._open, self._aborted = False, bool(aborted)
+            self._changed.notify_all()
+
+    def wait(self, episode: int) -> bool:
+        with self._changed:
+            self._changed.wait_for(lambda: not self._open or self._ready(episode))
+            return not self._aborted and self._ready(episode)
+
+
+def build_and_export(aug, export: LeRobotExport, rank: int, world_size: int, progress: bool, stop_after, poll_s):
+    """Build this rank's chunks while a thread exports this rank's episodes as their chunks arrive (``ChunkGate``);
+    an export error stops the build at its next chunk and is raised. Returns (build counts, export counts)."""
+    gate = ChunkGate(aug.cache_dir, aug.config.copies)
+
+    def export_episodes() -> dict:
+        try:
+            return export.write(rank, world_size, progress, stop_after, gate.wait)
+        except BaseException as exc:
+            gate.fail(exc)
+            raise
+
+    def on_chunk(episode: int, copy: int) -> None:
+        if gate.error is not None:
+            raise gate.error
+        gate.built(episode, copy)
+
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        job = pool.submit(export_episodes)
+        try:
+            built = aug.build_cache(rank=rank, world_size=world_size, progress=progress, on_chunk=on_chunk)
+            aug.wait_complete(poll_s)
+        except BaseException:
+            gate.close(aborted=True)  # the export stops after the source episode it is writing
+            raise
+        gate.close()
+        return built, job.result()
+
+
 def write_lerobot(aug, source, out: Path, *, rank: int | None = None, world_size: int | None = None,
                   progress: bool = True, stop_after: int | None = None, poll_s: float = 2.0,
                   round_trip: bool = False) -> dict:
-    """Write the augmented folder ``out`` of ``source`` (a LeRobotFolder) through ``aug`` (a ForceAugment of it
-    in cache mode whose ``cache_dir`` is ``staging_dir(out) / "cache"``). round_trip: decode every re-encoded
+    """Write the augmented folder ``out`` of ``source`` (a LeRobotFolder, not the object ``aug`` reads: the two
+    are read at once) through ``aug`` (a ForceAugment of it in cache mode whose ``cache_dir`` is
+    ``staging_dir(out) / "cache"``). round_trip: decode every re-encoded
     video back and record the codec's round trip error over the episodes written with it on (data and videos
     are the same either way). Returns the counts of this run and, once published, the
     record of the write (``marker``; ``published``: True)."""
     out = Path(out)
+    if source is aug.dataset:
+        raise ValueError("source: pass a LeRobotFolder of its own (LeRobotFolder(root)), not the one ForceAugment "
+                         "reads: the export reads it while the cache is built")
     if check_destination(source.root, out):
         return {"published": published(out, aug, source), "already": True, "marker": read_record(out)}
     rank = int(os.environ.get("RANK", 0)) if rank is None else int(rank)
     world_size = int(os.environ.get("WORLD_SIZE", 1)) if world_size is None else int(world_size)
     staging, sig = staging_dir(out), signature(aug, source)
     claim(staging, sig)
-    built = aug.build_cache(rank=rank, world_size=world_size, progress=progress)
-    aug.wait_complete(poll_s)
     export = LeRobotExport(aug, source, staging / "dataset", staging / "done", round_trip)
-    counts = {"cache": built, **export.write(rank, world_size, progress, stop_after), "published": False}
+    built, written = build_and_export(aug, export, rank, world_size, progress, stop_after, poll_s)
+    counts = {"cache": built, **written, "published": False}
     if rank != 0 or (stop_after is not None and export.missing()):
         return counts
     while export.missing():  # other ranks' episodes

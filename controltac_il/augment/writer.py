@@ -131,8 +131,9 @@ class CacheWriter:
         return sum(r.row >= 0 for r in records)
 
     def build(self, chunks: list[tuple[int, int]], rank: int, world_size: int, progress: bool,
-              stop_after: int | None) -> dict:
-        """Write this rank's missing chunks (chunk j belongs to rank j * world_size // len(chunks))."""
+              stop_after: int | None, on_chunk: Callable[[int, int], None] | None = None) -> dict:
+        """Write this rank's missing chunks (chunk j belongs to rank j * world_size // len(chunks)); on_chunk:
+        called with (episode, copy) after each is written."""
         remove_leftovers(self.cache_dir / "chunks")  # of a killed build, even when no chunk is left to write
         mine = [c for j, c in enumerate(chunks) if j * world_size // max(len(chunks), 1) == rank]
         todo = [c for c in mine if not chunk_done(self.cache_dir, *c)]
@@ -148,6 +149,8 @@ class CacheWriter:
             if e != current:
                 current, frames = e, self.load_episode(e)
             counts["generated"] += self.write_chunk(e, k, frames)
+            if on_chunk is not None:
+                on_chunk(e, k)
             counts["chunks"] += 1
             counts["frames"] += lengths[e]
             bar.update(lengths[e])

@@ -112,6 +112,24 @@ def read_episodes(root: Path) -> dict[int, dict]:
     return episodes
 
 
+def read_episode_stats(root: Path, keys) -> dict[int, dict]:
+    """{episode_index: {feature: {stat: value}}}: the ``stats/<feature>/<stat>`` columns of ``meta/episodes`` for
+    the features ``keys``, as stored (nested lists; a null cell left out)."""
+    keys, out = set(keys), {}
+    for p in sorted((root / "meta" / "episodes").glob("*/*.parquet")):
+        with readable(p):
+            names = [n for n in pq.read_schema(p).names
+                     if n.startswith("stats/") and n[len("stats/"):].rsplit("/", 1)[0] in keys]
+            rows = pq.read_table(p, columns=["episode_index", *names]).to_pylist()
+        for row in rows:
+            stats = out.setdefault(int(row.pop("episode_index")), {})
+            for name, value in row.items():
+                feature, stat = name[len("stats/"):].rsplit("/", 1)
+                if value is not None:
+                    stats.setdefault(feature, {})[stat] = value
+    return out
+
+
 def delta_indices(delta_timestamps, features: dict, fps: int, tolerance_s: float) -> dict[str, list[int]] | None:
     """LeRobot's frame offsets ``round(d * fps)`` of ``delta_timestamps`` {key: [d s]}, checked as LeRobot
     checks them: |d * fps - round(d * fps)| / fps <= tolerance_s."""

@@ -184,6 +184,20 @@ def _stats(x: np.ndarray) -> dict:
     return out
 
 
+def complete_stats(stats: dict | None, feature: dict) -> bool:
+    """Whether ``stats`` (one episode's of ``feature``, as meta/episodes holds them) has every stat of
+    STAT_NAMES, finite, of the feature's shape ((3, 1, 1) a camera's, else the feature's size) and count > 0."""
+    if not stats or any(k not in stats for k in STAT_NAMES):
+        return False
+    shape = (3, 1, 1) if feature["dtype"] in ("image", "video") else (int(np.prod(feature["shape"])),)
+    try:
+        values = [np.asarray(stats[k], np.float64) for k in STAT_NAMES if k != "count"]
+        count = np.asarray(stats["count"], np.float64)
+    except (TypeError, ValueError):
+        return False
+    return count.shape == (1,) and count[0] > 0 and all(v.shape == shape and np.isfinite(v).all() for v in values)
+
+
 def aggregate_stats(episodes: list[dict]) -> dict:
     """Dataset stats {feature: {stat: list}} from per-episode stats (module docstring)."""
     out = {}

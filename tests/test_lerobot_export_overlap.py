@@ -1,0 +1,143 @@
+"""The LeRobot export beside the cache build: a source episode is exported while later chunks are still being
+generated, with the same files as before; an export error stops the build at its next chunk; ``ChunkGate``'s
+rule; a source's own per-episode stats reused for the features copies hold unchanged where complete, computed
+where not. Source folder and tiny generator: ``test_lerobot_v3_write``."""
+
+import shutil
+import threading
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+import test_lerobot_v3_write
+from test_lerobot_v3_write import LEFT, LENGTHS, RIGHT, WRIST, augment
+
+from controltac_il.augment.lerobot_out import LeRobotExport
+from controltac_il.augment.provenance import PROVENANCE, chunk_dir
+from controltac_il.augment.to_lerobot import ChunkGate, staging_dir, write_lerobot
+from controltac_il.datasets.lerobot_v3 import LeRobotFolder, read_episode_stats
+from controltac_il.datasets.lerobot_v3_write import STAT_NAMES
+
+EPISODES_META = "meta/episodes/chunk-000/file-000.parquet"
+written = test_lerobot_v3_write.written  # its fixture: the source and one clean write
+
+
+class Gated:
+    """The generator; its ``stall``-th ``generate_at`` call first waits for ``release`` (at most 60 s) and records
+    whether it came."""
+
+    def __init__(self, generator, stall: int, release: threading.Event):
+        self.generator, self.stall, self.release, self.calls, self.released = generator, stall, release, 0, None
+
+    def __getattr__(self, name):
+        return getattr(self.generator, name)
+
+    def generate_at(self, *args, **kwargs):
+        self.calls += 1
+        if self.calls == self.stall:
+            self.released = self.release.wait(timeout=60)
+        return self.generator.generate_at(*args, **kwargs)
+
+
+def files(folder):
+    return {p.relative_to(folder): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def test_a_source_episode_is_exported_while_later_chunks_are_generated(written, tmp_path, monkeypatch):
+    root, clean, _, reference = written
+    exported = threading.Event()
+    original = LeRobotExport._write_source
+
+    def spy(self, p, counts):
+        yield from original(self, p, counts)
+        if p == 0:
+            exported.set()
+
+    monkeypatch.setattr(LeRobotExport, "_write_source", spy)
+    gated = Gated(reference.generator, stall=3, release=exported)  # chunks (0, 1), (0, 2), then (1, 1) waits
+    out = tmp_path / "out"
+    write_lerobot(augment(root, out, generator=gated), LeRobotFolder(root), out, progress=False)
+    assert gated.released is True and gated.calls == 4
+    assert files(out) == files(clean)
+
+
+def test_an_export_error_stops_the_build_at_its_next_chunk(written, tmp_path, monkeypatch):
+    root, _, _, reference = written
+    failed = threading.Event()
+
+    def broken(self, j, *args):
+        raise ValueError("dataset: a broken source file")
+
+    def fail(self, error):
+        original(self, error)
+        failed.set()
+
+    original = ChunkGate.fail
+    monkeypatch.setattr(LeRobotExport, "_write_episode", broken)
+    monkeypatch.setattr(ChunkGate, "fail", fail)
+    gated = Gated(reference.generator, stall=3, release=failed)
+    out = tmp_path / "out"
+    with pytest.raises(ValueError, match="^dataset: a broken source file$"):
+        write_lerobot(augment(root, out, generator=gated), LeRobotFolder(root), out, progress=False)
+    assert gated.released is True and gated.calls == 3  # chunk (1, 2) never generated
+    assert not out.exists() and not list((staging_dir(out) / "done").glob("*.json"))
+
+
+def test_the_gate_opens_on_an_episodes_last_chunk_or_the_builds_end(tmp_path):
+    gate = ChunkGate(tmp_path, copies=2)
+    for e, k in ((3, 1), (3, 2), (7, 1)):
+        chunk_dir(tmp_path, e, k).mkdir(parents=True)
+        (chunk_dir(tmp_path, e, k) / PROVENANCE).write_text("{}")
+    assert gate.wait(3) is True  # both copies built, the build still on
+    results = []
+    waiter = threading.Thread(target=lambda: results.append(gate.wait(7)))  # copy 2 never built
+    waiter.start()
+    gate.built(7, 1)
+    gate.close()
+    waiter.join(timeout=60)
+    assert results == [False] and gate.wait(3) is True
+    gate.close(aborted=True)  # a failed build: nothing more is exported
+    assert gate.wait(3) is False
+
+
+def _with_stats(root, tmp_path):
+    """A copy of the source whose meta/episodes holds stats: complete for the wrist camera and the state (values
+    no frame has, so that reuse shows), without q99 for the action."""
+    src = tmp_path / "with_stats"
+    shutil.copytree(root, src)
+    table = pq.read_table(src / EPISODES_META)
+    given = {}
+    for e in range(len(LENGTHS)):
+        camera = {s: [[[0.1 * (e + 1) + 0.01 * c]] for c in range(3)] for s in STAT_NAMES if s != "count"}
+        state = {s: [1000.0 + e, 2000.0, 3000.0] for s in STAT_NAMES if s != "count"}
+        action = {s: [0.5, 0.5] for s in STAT_NAMES if s not in ("count", "q99")}
+        given[e] = {WRIST: {**camera, "count": [LENGTHS[e]]}, "observation.state": {**state, "count": [LENGTHS[e]]},
+                    "action": {**action, "count": [LENGTHS[e]]}}
+    for key in (WRIST, "observation.state", "action"):
+        for stat in given[0][key]:
+            table = table.append_column(f"stats/{key}/{stat}", pa.array([given[e][key][stat] for e in given]))
+    pq.write_table(table, src / EPISODES_META)
+    return src, given
+
+
+def test_a_sources_complete_stats_are_reused_for_unchanged_features(written, tmp_path):
+    root, clean, _, reference = written
+    src, given = _with_stats(root, tmp_path)
+    assert read_episode_stats(src, [WRIST, "action"]) == {e: {k: given[e][k] for k in (WRIST, "action")}
+                                                          for e in given}
+    out = tmp_path / "out"
+    write_lerobot(augment(src, out, generator=reference.generator), LeRobotFolder(src), out, progress=False)
+    rows = pq.read_table(out / EPISODES_META).to_pylist()
+    before = pq.read_table(clean / EPISODES_META).to_pylist()
+    E = len(LENGTHS)
+    for j, (row, old) in enumerate(zip(rows, before)):
+        for key in (WRIST, "observation.state"):  # the source's, originals and copies alike
+            assert {s: row[f"stats/{key}/{s}"] for s in STAT_NAMES} == given[j % E][key]
+        for s in STAT_NAMES:  # incomplete: computed from the frames, as without any
+            assert row[f"stats/action/{s}"] == old[f"stats/action/{s}"]
+            assert row[f"stats/{LEFT}/{s}"] == old[f"stats/{LEFT}/{s}"]
+            assert row[f"stats/{RIGHT}/{s}"] == old[f"stats/{RIGHT}/{s}"]
+    state = np.asarray([row["stats/observation.state/mean"] for row in rows])
+    assert np.all(state >= 1000.0)
