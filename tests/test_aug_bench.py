@@ -33,15 +33,17 @@ def test_quick_run_counts_add_up_and_name_the_shipped_generator(tmp_path):
 @pytest.mark.slow  # 25 s: the LeRobot writer itself is tested in test_lerobot_v3_write
 def test_quick_lerobot_write_row_times_the_write_against_the_generator_alone(tmp_path):
     res = bench.main(["--quick", "--rows", "lerobot_write", "--out", str(tmp_path / "w.json")])["lerobot_write"]
-    checked = res["with_round_trip"]
+    checked, after = res["with_round_trip"], res["export_after_build"]
+    assert res["rounds"] == 1 and len(res["per_round"]) == 1
     assert res["generator_seconds"] > 0 and res["generator_cpu_seconds"] > 0  # the same frames, nothing beside it
-    for times in (res, checked):  # wall and CPU seconds: the generator's calls inside the write, and the ratios
-        assert 0 < times["generator_seconds_in_write"] < times["write_seconds"]
-        assert 0 < times["generator_cpu_seconds_in_write"] < times["write_cpu_seconds"]
+    assert 0 < res["generator_seconds_in_write"] < res["write_seconds"]
+    assert 0 < checked["generator_cpu_seconds_in_write"] < checked["write_cpu_seconds"]
+    for times in (res, checked, after):  # wall and CPU seconds against the generator alone's
         assert times["writer_vs_generator"] == pytest.approx(res["generator_seconds"] / times["write_seconds"])
         assert times["writer_vs_generator_cpu"] == pytest.approx(res["generator_cpu_seconds"]
                                                                  / times["write_cpu_seconds"])
         assert times["writer_own_cpu_seconds"] == pytest.approx(times["write_cpu_seconds"]
                                                                 - res["generator_cpu_seconds"])
+    assert res["per_round"][0]["export_after_build_seconds"] == after["write_seconds"]
     assert res["round_trip_cpu_seconds"] == pytest.approx(checked["write_cpu_seconds"] - res["write_cpu_seconds"])
     assert res["episodes_written"] == 9 and res["regenerated_frames"] > 0 and res["video_round_trip_mse"] > 0

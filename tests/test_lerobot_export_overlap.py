@@ -1,5 +1,5 @@
-"""The LeRobot export beside the cache build: a source episode is exported while later chunks are still being
-generated, with the same files as before; an export error stops the build at its next chunk; ``ChunkGate``'s
+"""The LeRobot export beside the cache build: a copy is exported while later chunks are still being generated,
+with the same files as before; an export error stops the build at its next chunk; ``ChunkGate``'s
 rule; a source's own per-episode stats reused for the features copies hold unchanged where complete, computed
 where not. Source folder and tiny generator: ``test_lerobot_v3_write``."""
 
@@ -45,18 +45,19 @@ def files(folder):
     return {p.relative_to(folder): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
-def test_a_source_episode_is_exported_while_later_chunks_are_generated(written, tmp_path, monkeypatch):
+def test_a_copy_is_exported_while_later_chunks_are_generated(written, tmp_path, monkeypatch):
     root, clean, _, reference = written
-    exported = threading.Event()
-    original = LeRobotExport._write_source
+    exported, E = threading.Event(), len(LENGTHS)
+    original = LeRobotExport._write_episode
 
-    def spy(self, p, counts):
-        yield from original(self, p, counts)
-        if p == 0:
+    def spy(self, j, *args):
+        row = original(self, j, *args)
+        if j == E:  # copy 1 of source episode 0
             exported.set()
+        return row
 
-    monkeypatch.setattr(LeRobotExport, "_write_source", spy)
-    gated = Gated(reference.generator, stall=3, release=exported)  # chunks (0, 1), (0, 2), then (1, 1) waits
+    monkeypatch.setattr(LeRobotExport, "_write_episode", spy)
+    gated = Gated(reference.generator, stall=2, release=exported)  # chunk (0, 1), then (0, 2) waits
     out = tmp_path / "out"
     write_lerobot(augment(root, out, generator=gated), LeRobotFolder(root), out, progress=False)
     assert gated.released is True and gated.calls == 4
@@ -77,29 +78,29 @@ def test_an_export_error_stops_the_build_at_its_next_chunk(written, tmp_path, mo
     original = ChunkGate.fail
     monkeypatch.setattr(LeRobotExport, "_write_episode", broken)
     monkeypatch.setattr(ChunkGate, "fail", fail)
-    gated = Gated(reference.generator, stall=3, release=failed)
+    gated = Gated(reference.generator, stall=2, release=failed)  # the original fails once chunk (0, 1) is built
     out = tmp_path / "out"
     with pytest.raises(ValueError, match="^dataset: a broken source file$"):
         write_lerobot(augment(root, out, generator=gated), LeRobotFolder(root), out, progress=False)
-    assert gated.released is True and gated.calls == 3  # chunk (1, 2) never generated
+    assert gated.released is True and gated.calls == 2  # chunks (1, 1) and (1, 2) never generated
     assert not out.exists() and not list((staging_dir(out) / "done").glob("*.json"))
 
 
-def test_the_gate_opens_on_an_episodes_last_chunk_or_the_builds_end(tmp_path):
-    gate = ChunkGate(tmp_path, copies=2)
+def test_the_gate_opens_on_a_chunk_or_the_builds_end(tmp_path):
+    gate = ChunkGate(tmp_path)
     for e, k in ((3, 1), (3, 2), (7, 1)):
         chunk_dir(tmp_path, e, k).mkdir(parents=True)
         (chunk_dir(tmp_path, e, k) / PROVENANCE).write_text("{}")
-    assert gate.wait(3) is True  # both copies built, the build still on
+    assert gate.wait(3, 2) is True and gate.wait(7, 1) is True  # built, the build still on
     results = []
-    waiter = threading.Thread(target=lambda: results.append(gate.wait(7)))  # copy 2 never built
+    waiter = threading.Thread(target=lambda: results.append(gate.wait(7, 2)))  # never built
     waiter.start()
     gate.built(7, 1)
     gate.close()
     waiter.join(timeout=60)
-    assert results == [False] and gate.wait(3) is True
+    assert results == [False] and gate.wait(3, 1) is True
     gate.close(aborted=True)  # a failed build: nothing more is exported
-    assert gate.wait(3) is False
+    assert gate.wait(3, 1) is False
 
 
 def _with_stats(root, tmp_path):

@@ -145,8 +145,8 @@ class LeRobotExport:
     def write(self, rank: int = 0, world_size: int = 1, progress: bool = True, stop_after: int | None = None,
               ready=None) -> dict:
         """Write this rank's share of the missing episodes (source position p belongs to rank p * world // E).
-        stop_after: stop after this many output episodes (to split a write). ready: called with a source episode
-        before it is written, returns whether its chunks are built (False: stop here); None: the cache is built.
+        stop_after: stop after this many output episodes (to split a write). ready: called with (source episode,
+        copy) before what reads that chunk, returns whether it is built (False: stop here); None: the cache is built.
         Returns counts of the run."""
         E = len(self.sources)
         mine = [p for p in self.missing() if p * world_size // E == rank]
@@ -154,9 +154,10 @@ class LeRobotExport:
         bar = tqdm(total=len(mine) * (self.copies + 1), desc=f"writing episodes (rank {rank})", unit="episode",
                    position=1, disable=tty_only(progress), file=sys.stderr)  # under the cache's bar
         for p in mine:
-            if ready is not None and not ready(self.sources[p]):
-                break
-            for _ in self._write_source(p, counts):
+            for j in self._write_source(p, counts, ready or (lambda e, k: True)):
+                if j is None:
+                    bar.close()
+                    return counts
                 bar.update(1)
                 if stop_after is not None and counts["episodes"] >= stop_after:
                     bar.close()
@@ -164,15 +165,23 @@ class LeRobotExport:
         bar.close()
         return counts
 
-    def _write_source(self, p: int, counts: dict):
-        """Write every missing output episode of source position ``p``; yields after each."""
-        src = self._read_source(self.sources[p])
+    def _write_source(self, p: int, counts: dict, ready):
+        """Write every missing output episode of source position ``p``, each copy once ``ready`` says its chunk is
+        built (the original needs copy 1's: the reference forces); yields each output episode written, None where
+        a chunk is not built."""
+        e, E = self.sources[p], len(self.sources)
+        todo = [k for k in range(self.copies + 1) if not self._row_path(k * E + p).is_file()]
+        if not todo or not ready(e, 1):
+            yield from ([] if not todo else [None])
+            return
+        src = self._read_source(e)
         frames = src.table.column("frame_index").to_numpy().astype(int)
         first = self.aug.chunk(src.index, 1)
-        for k in range(self.copies + 1):
-            j = k * len(self.sources) + p
-            if self._row_path(j).is_file():
-                continue
+        for k in todo:
+            j = k * E + p
+            if k > 1 and not ready(e, k):
+                yield None
+                return
             regenerated, prov = self._copy_frames(src, k, frames, first)
             row = self._write_episode(j, src, regenerated, prov, counts)
             write_json(self._row_path(j), row)

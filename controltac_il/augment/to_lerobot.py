@@ -4,7 +4,7 @@ Everything is written under ``OUT.partial`` (``staging_dir``): ``write.json`` (w
 ForceAugment settings, the source, the writer format), ``cache/`` (the ForceAugment cache), ``dataset/`` (the
 folder being written) and ``done/`` (one meta row per finished episode). Re-running the same command resumes;
 each rank builds its share of the cache (torchrun: every rank) while a thread of it writes its share of the
-episodes, each source episode as soon as the cache holds all its copies (``ChunkGate``: the export's codecs and
+episodes, each copy as soon as the cache holds its chunk (``ChunkGate``: the export's codecs and
 parquet work beside the generator), and rank 0 writes ``meta/`` and publishes: ``dataset/`` is renamed to OUT, and ``OUT.partial`` removed. OUT is never the
 source (nor inside it, nor around it) and never a folder this tool did not write (``check_destination``).
 
@@ -102,19 +102,16 @@ def published(out: Path, aug, source) -> bool:
 
 
 class ChunkGate:
-    """Lets the export wait for a source episode's chunks while the build writes them: ``built`` after each chunk,
-    ``close`` when the build ends (``aborted``: it failed); ``wait(e)`` returns True once every copy of episode ``e``
-    is in the cache, False when the build ended without them or failed. ``error``: the export's exception, once it failed (``fail``)."""
+    """Lets the export wait for a chunk while the build writes them: ``built`` after each chunk, ``close`` when the
+    build ends (``aborted``: it failed); ``wait(e, k)`` returns True once chunk (episode ``e``, copy ``k``) is in
+    the cache, False when the build ended without it or failed. ``error``: the export's exception, once it failed (``fail``)."""
 
-    def __init__(self, cache_dir: Path, copies: int):
-        self.cache_dir, self.copies = Path(cache_dir), int(copies)
+    def __init__(self, cache_dir: Path):
+        self.cache_dir = Path(cache_dir)
         self._changed, self._open, self._aborted, self.error = threading.Condition(), True, False, None
 
     def fail(self, error: BaseException) -> None:
         self.error = error
-
-    def _ready(self, episode: int) -> bool:
-        return all(chunk_done(self.cache_dir, episode, k) for k in range(1, self.copies + 1))
 
     def built(self, episode: int, copy: int) -> None:
         with self._changed:
@@ -125,16 +122,16 @@ class ChunkGate:
             self._open, self._aborted = False, bool(aborted)
             self._changed.notify_all()
 
-    def wait(self, episode: int) -> bool:
+    def wait(self, episode: int, copy: int) -> bool:
         with self._changed:
-            self._changed.wait_for(lambda: not self._open or self._ready(episode))
-            return not self._aborted and self._ready(episode)
+            self._changed.wait_for(lambda: not self._open or chunk_done(self.cache_dir, episode, copy))
+            return not self._aborted and chunk_done(self.cache_dir, episode, copy)
 
 
 def build_and_export(aug, export: LeRobotExport, rank: int, world_size: int, progress: bool, stop_after, poll_s):
     """Build this rank's chunks while a thread exports this rank's episodes as their chunks arrive (``ChunkGate``);
     an export error stops the build at its next chunk and is raised. Returns (build counts, export counts)."""
-    gate = ChunkGate(aug.cache_dir, aug.config.copies)
+    gate = ChunkGate(aug.cache_dir)
 
     def export_episodes() -> dict:
         try:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Callable
 
@@ -144,19 +145,26 @@ class CacheWriter:
         t0 = time.perf_counter()
         bar = tqdm(total=sum(lengths[e] for e, _ in todo), unit="frame", desc=f"ForceAugment cache (rank {rank})",
                    disable=tty_only(progress), file=sys.stderr)
-        current, frames = None, None
-        for e, k in todo:
-            if e != current:
-                current, frames = e, self.load_episode(e)
-            counts["generated"] += self.write_chunk(e, k, frames)
-            if on_chunk is not None:
-                on_chunk(e, k)
-            counts["chunks"] += 1
-            counts["frames"] += lengths[e]
-            bar.update(lengths[e])
+        for e, frames in self._read_ahead(list(dict.fromkeys(e for e, _ in todo))):
+            for k in [k for d, k in todo if d == e]:
+                counts["generated"] += self.write_chunk(e, k, frames)
+                counts["chunks"] += 1
+                counts["frames"] += lengths[e]
+                bar.update(lengths[e])
+                if on_chunk is not None:
+                    on_chunk(e, k)
         bar.close()
         counts["seconds"] = time.perf_counter() - t0
         return counts
+
+    def _read_ahead(self, episodes: list[int]):
+        """(episode, its EpisodeFrames) in order, the next episode read by a thread while this one is generated."""
+        with ThreadPoolExecutor(max_workers=1) as reader:
+            ahead = reader.submit(self.load_episode, episodes[0]) if episodes else None
+            for n, e in enumerate(episodes):
+                frames = ahead.result()
+                ahead = reader.submit(self.load_episode, episodes[n + 1]) if n + 1 < len(episodes) else None
+                yield e, frames
 
 
 def _merged(parts: list[tuple[np.ndarray, TargetDecision]], n: int) -> TargetDecision:
