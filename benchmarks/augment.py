@@ -17,19 +17,7 @@ estimator reads these sensor-model renders with more than 1 N of shear, outside 
 range, so every frame would be kept real and online mode would generate nothing: the counts without labels
 are reported beside the row.
 
-The LeRobot writer row (``--rows lerobot_write``) writes the same episodes as a LeRobot v3.0 folder
-(``benchmarks.lerobot_source``: gelsight_left an image feature, gelsight_right an AV1 video, per-episode stats
-of every feature as ``lerobot-record`` writes them) and times ``python -m controltac_il.augment --dataset ROOT
---out OUT``'s whole write (cache build with the episodes' reading and, beside it, the export: PNGs, re-encoded
-videos, stats, meta) against the time the generator alone spends on the same frames (its ``generate_at`` calls in
-a cache build with nothing beside it; inside the write they share the cores with the export, so their time there,
-``generator_seconds_in_write``, is reported but not compared with), in wall seconds and in this process's CPU
-seconds (``time.process_time``, every thread: torch's intra-op threads, the codecs'), so that a machine shared
-with other work still gives a comparison (CPU seconds are inflated too where torch's threads spin-wait for a
-core). Target: the writer at >= 0.8x the generator's throughput. The same write is then timed again with
-``--video-round-trip`` (every re-encoded video decoded back): its cost (``round_trip_cpu_seconds``) and its MSE
-(uint8 units) of the regenerated frames, reported beside the generator's own error (README,
-``benchmarks/results/generator.json``).
+The LeRobot writer row (``--rows lerobot_write``): ``benchmarks.lerobot_write``.
 """
 
 from __future__ import annotations
@@ -149,135 +137,6 @@ def lerobot_row(tmp: Path, gen, copies: int, steps, items: int, epochs: int, onl
             "images": "float32 (3, H, W) in [0, 1]", "tactile_keys": keys}
 
 
-class TimedGenerator:
-    """The generator, with the wall seconds (``seconds``) and this process's CPU seconds (``cpu_seconds``, every
-    thread: torch's intra-op threads run inside the call) spent in its ``generate_at`` calls summed."""
-
-    def __init__(self, generator):
-        self.generator, self.seconds, self.cpu_seconds = generator, 0.0, 0.0
-
-    def __getattr__(self, name):
-        return getattr(self.generator, name)
-
-    def generate_at(self, *args, **kwargs):
-        t0, c0 = time.perf_counter(), time.process_time()
-        try:
-            return self.generator.generate_at(*args, **kwargs)
-        finally:
-            self.seconds += time.perf_counter() - t0
-            self.cpu_seconds += time.process_time() - c0
-
-
-def _augment(source, gen, copies: int, steps, cache_dir: Path) -> ForceAugment:
-    """ForceAugment over ``source``'s tactile streams as the CLI opens it (a folder of its own, tactile keys only)."""
-    from benchmarks.lerobot_source import FORCES
-    from controltac_il.datasets.lerobot_v3 import LeRobotFolder
-
-    tactile_only = LeRobotFolder(source.root, keys=[*FORCES, *FORCES.values()], video_threads=0)
-    return ForceAugment(tactile_only, gen, copies=copies, steps=steps, tactile_keys=list(FORCES), force_keys=FORCES,
-                        cache_dir=cache_dir, build="manual", progress=True)
-
-
-def generator_alone(source, cache_dir: Path, gen, copies: int, steps) -> dict:
-    """Wall and CPU seconds of the generator's own calls when the same frames are generated with nothing beside it
-    (a cache build alone: its reading is not timed)."""
-    import warnings
-
-    timed = TimedGenerator(gen)
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", ".*background estimated", UserWarning)
-        _augment(source, timed, copies, steps, cache_dir).build_cache()
-    return {"generator_seconds": timed.seconds, "generator_cpu_seconds": timed.cpu_seconds}
-
-
-def timed_write(source, out: Path, gen, copies: int, steps, round_trip: bool) -> tuple[dict, dict, int]:
-    """``python -m controltac_il.augment --dataset SOURCE --out OUT``'s write (cache build and export beside it),
-    timed: (wall and CPU seconds of the whole write and of the generator's calls inside it, the write's record,
-    sampler steps)."""
-    import warnings
-
-    from controltac_il.augment.to_lerobot import staging_dir, write_lerobot
-
-    timed = TimedGenerator(gen)
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", ".*background estimated", UserWarning)
-        t0, c0 = time.perf_counter(), time.process_time()
-        aug = _augment(source, timed, copies, steps, staging_dir(out) / "cache")
-        marker = write_lerobot(aug, source, out, round_trip=round_trip)["marker"]
-        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    times = {"write_seconds": wall, "write_cpu_seconds": cpu, "generator_seconds_in_write": timed.seconds,
-             "generator_cpu_seconds_in_write": timed.cpu_seconds}
-    return times, marker, aug.steps
-
-
-def sequential_write(source, out: Path, gen, copies: int, steps) -> dict:
-    """The same write with the export after the whole build (the writer before the export ran beside the build;
-    the build still reads ahead), left unpublished in its staging folder: wall and CPU seconds."""
-    import warnings
-
-    from controltac_il.augment.lerobot_out import LeRobotExport
-    from controltac_il.augment.to_lerobot import claim, finish, signature, staging_dir
-
-    staging = staging_dir(out)
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", ".*background estimated", UserWarning)
-        t0, c0 = time.perf_counter(), time.process_time()
-        aug = _augment(source, gen, copies, steps, staging / "cache")
-        sig = signature(aug, source)
-        claim(staging, sig)
-        aug.build_cache()
-        export = LeRobotExport(aug, source, staging / "dataset", staging / "done")
-        export.write()
-        finish(export, sig)
-        return {"write_seconds": time.perf_counter() - t0, "write_cpu_seconds": time.process_time() - c0}
-
-
-def _median(runs: list[dict]) -> dict:
-    return {k: float(np.median([r[k] for r in runs])) for k in runs[0]}
-
-
-def lerobot_write_row(tmp: Path, gen, copies: int, steps, rounds: int) -> dict:
-    """A LeRobot folder in, an augmented LeRobot folder out: ``rounds`` rounds of the generator alone, the write,
-    and the write with its export after the build, on the same frames (medians, wall and CPU); then the write with
-    the codec round trip measured (its cost and error)."""
-    from benchmarks.lerobot_source import write_source
-    from controltac_il.datasets.lerobot_v3 import LeRobotFolder
-
-    source = LeRobotFolder(write_source(tmp / "demos", tmp / "lerobot_source"), video_threads=0)  # as the CLI
-    alone, plain, after = [], [], []
-    for r in range(rounds):
-        alone.append(generator_alone(source, tmp / f"generator_alone_{r}", gen, copies, steps))
-        times, marker, steps = timed_write(source, tmp / f"lerobot_augmented_{r}", gen, copies, steps, False)
-        plain.append(times)
-        after.append(sequential_write(source, tmp / f"lerobot_sequential_{r}", gen, copies, steps))
-    checked, checked_marker, _ = timed_write(source, tmp / "lerobot_round_trip", gen, copies, steps, round_trip=True)
-    gen_s = _median(alone)
-    medians = {**_median(plain), "export_after_build": _median(after)}
-    for times in (medians, medians["export_after_build"], checked):
-        times.update({"writer_vs_generator": gen_s["generator_seconds"] / times["write_seconds"],
-                      "writer_vs_generator_cpu": gen_s["generator_cpu_seconds"] / times["write_cpu_seconds"],
-                      "writer_own_cpu_seconds": times["write_cpu_seconds"] - gen_s["generator_cpu_seconds"]})
-    n = marker["regenerated_frames"]
-    row = {"regenerated_frames": n, "rounds": rounds, **gen_s, **medians,
-           "writer_frames_per_s": n / medians["write_seconds"], "generator_frames_per_s": n / gen_s["generator_seconds"],
-           "target_0_8x": medians["writer_vs_generator"] >= 0.8,
-           "per_round": [{"generator_seconds": a["generator_seconds"], "write_seconds": p["write_seconds"],
-                          "export_after_build_seconds": q["write_seconds"]} for a, p, q in zip(alone, plain, after)],
-           "generator_cores": gen_s["generator_cpu_seconds"] / gen_s["generator_seconds"],
-           "episodes_written": marker["episodes"]["written"], "frames_written": marker["frames"],
-           "video_round_trip_mse": checked_marker["video_round_trip_mse"],
-           "video_round_trip_psnr_db": checked_marker["video_round_trip_psnr_db"], "with_round_trip": checked,
-           "round_trip_cpu_seconds": checked["write_cpu_seconds"] - medians["write_cpu_seconds"],
-           "steps": steps, "source": "gelsight_left image (PNG), gelsight_right AV1 video, two AV1 cameras; "
-                                     "per-episode stats of every feature in meta/episodes, as lerobot-record writes"}
-    print_table([{"write": name, **gen_s, **t} for name, t in (("export beside the build", medians), (
-        "export after the build", medians["export_after_build"]), ("with the round trip", checked))],
-                ["write", "write_seconds", "generator_seconds", "writer_vs_generator", "write_cpu_seconds",
-                 "generator_cpu_seconds", "writer_vs_generator_cpu"],
-                title=f"LeRobot folder in, augmented LeRobot folder out (medians of {rounds} rounds; round trip: one)")
-    return row
-
-
 def items_per_s(readers: dict, items: int, rounds: int, seed: int = 0) -> dict:
     """Median items/s of each reader over ``rounds`` epochs of ``items`` random items.
 
@@ -368,8 +227,10 @@ def main(argv=None) -> dict:
         if "lerobot" in rows:
             results["lerobot"] = lerobot_row(tmp, gen, *sizes)
         if "lerobot_write" in rows:
-            torch.set_num_threads(args.threads)
-            results["lerobot_write"] = lerobot_write_row(tmp, gen, copies, steps, 1 if args.quick else WRITE_ROUNDS)
+            from benchmarks.lerobot_write import lerobot_write_row
+
+            results["lerobot_write"] = lerobot_write_row(tmp, tmp / "demos", args.generator, args.threads, copies,
+                                                         steps, 1 if args.quick else WRITE_ROUNDS)
     table = [{"dataset": name, "reader": k, "items/s": v, "vs bare": v / rates["bare"]}
              for name, rates in (("hdf5", results.get("items_per_s")), ("lerobot", results.get("lerobot", {}).get(
                  "items_per_s"))) if rates for k, v in rates.items()]

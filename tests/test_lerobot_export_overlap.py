@@ -142,3 +142,22 @@ def test_a_sources_complete_stats_are_reused_for_unchanged_features(written, tmp
             assert row[f"stats/{RIGHT}/{s}"] == old[f"stats/{RIGHT}/{s}"]
     state = np.asarray([row["stats/observation.state/mean"] for row in rows])
     assert np.all(state >= 1000.0)
+
+
+def test_the_cli_lets_torch_sleep_while_it_waits_only_for_a_lerobot_write(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    from test_lerobot_v3_write import write_source
+
+    root = write_source(tmp_path / "source")
+    (tmp_path / "hdf5").mkdir()
+    script = ("import os, sys\nfrom controltac_il.augment.cli import main\nassert 'torch' not in sys.modules\n"
+              "main(['--dataset', sys.argv[1], '--out', sys.argv[2], '--copies', '0'])\n"
+              "print(os.environ.get('OMP_WAIT_POLICY'), 'torch' in sys.modules)")
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    printed = [subprocess.run([sys.executable, "-c", script, str(folder), str(tmp_path / "out")], env=env,
+                              capture_output=True, text=True, check=True).stdout.split()
+               for folder in (root, tmp_path / "hdf5")]
+    assert printed == [["PASSIVE", "True"], ["None", "True"]]  # set before torch loaded (it loads in _setup)

@@ -1,12 +1,14 @@
 """``write_lerobot``: a LeRobot v3.0 folder in, an augmented LeRobot v3.0 folder out (``lerobot_out``).
 
 Everything is written under ``OUT.partial`` (``staging_dir``): ``write.json`` (what is being written: the
-ForceAugment settings, the source, the writer format), ``cache/`` (the ForceAugment cache), ``dataset/`` (the
-folder being written) and ``done/`` (one meta row per finished episode). Re-running the same command resumes;
-each rank builds its share of the cache (torchrun: every rank) while a thread of it writes its share of the
-episodes, each copy as soon as the cache holds its chunk (``ChunkGate``: the export's codecs and
-parquet work beside the generator), and rank 0 writes ``meta/`` and publishes: ``dataset/`` is renamed to OUT, and ``OUT.partial`` removed. OUT is never the
-source (nor inside it, nor around it) and never a folder this tool did not write (``check_destination``).
+ForceAugment settings, the source, the writer format), ``cache/`` (the ForceAugment cache), ``dataset/`` (the folder
+being written) and ``done/`` (one meta row per finished episode). Re-running the same command resumes; each rank
+builds its share of the cache (torchrun: every rank) while a thread of it writes its share of the episodes, each
+copy as soon as the cache holds its chunk (``ChunkGate``: the export's codecs and parquet work beside the generator;
+the CLI lets torch's OpenMP threads sleep while they wait, ``cli.EXPORT_ENV``, so that they leave the export its
+cycles), and rank 0 writes ``meta/`` and publishes: ``dataset/`` is renamed to OUT, and ``OUT.partial`` removed. OUT
+is never the source (nor inside it, nor around it) and never a folder this tool did not write
+(``check_destination``).
 
 The record of a write (``finish``: settings, source, counts, and with ``round_trip`` the codec's round trip over
 the re-encoded videos' regenerated frames, else None) lives in ``meta/info.json`` as

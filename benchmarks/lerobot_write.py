@@ -1,0 +1,196 @@
+"""The LeRobot writer row of ``benchmarks.augment`` (``--rows lerobot_write``): a LeRobot folder in, an augmented
+LeRobot folder out, against the generator alone on the same frames.
+
+The source (``benchmarks.lerobot_source``): gelsight_left an image feature, gelsight_right an AV1 video, two AV1
+cameras, per-episode stats of every feature as ``lerobot-record`` writes them. Each round runs two fresh
+processes, one after the other:
+
+- the **generator alone** (the reference), torch's OpenMP at its default wait policy (threads spin a while
+  before sleeping: the generator's best): the wall and CPU seconds of its ``generate_at`` calls in a cache build
+  with nothing beside it (its reading not timed);
+- ``python -m controltac_il.augment --dataset ROOT --out OUT``'s **write** as the CLI runs it (its environment,
+  ``EXPORT_ENV``: OpenMP threads sleep while they wait), timed whole: the cache build with its reading and, beside
+  it, the export (PNGs, re-encoded videos, stats, meta); then the same write with the **export after the build**
+  (the writer without the overlap) and the generator alone under the CLI's environment (what that costs it).
+
+Medians over rounds, wall seconds and this process's CPU seconds (``time.process_time``: every thread, torch's and
+the codecs'). Target: the write at >= 0.8x the generator alone's throughput. Last, one write with
+``--video-round-trip`` (every re-encoded video decoded back): its cost and its MSE (uint8 units) of the regenerated
+frames, beside the generator's own error (``benchmarks/results/generator.json``)."""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import time
+import warnings
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from benchmarks.augment import load_generator
+from benchmarks.common import print_table
+from benchmarks.lerobot_source import FORCES, write_source
+from controltac_il.augment import ForceAugment
+from controltac_il.augment.cli import EXPORT_ENV
+from controltac_il.augment.lerobot_out import LeRobotExport
+from controltac_il.augment.to_lerobot import claim, finish, signature, staging_dir, write_lerobot
+from controltac_il.datasets.lerobot_v3 import LeRobotFolder
+
+DEFAULT_ENV = {name: None for name in EXPORT_ENV}  # OpenMP's own default
+
+
+class TimedGenerator:
+    """The generator, with the wall seconds (``seconds``) and this process's CPU seconds (``cpu_seconds``, every
+    thread: torch's intra-op threads run inside the call) spent in its ``generate_at`` calls summed."""
+
+    def __init__(self, generator):
+        self.generator, self.seconds, self.cpu_seconds = generator, 0.0, 0.0
+
+    def __getattr__(self, name):
+        return getattr(self.generator, name)
+
+    def generate_at(self, *args, **kwargs):
+        t0, c0 = time.perf_counter(), time.process_time()
+        try:
+            return self.generator.generate_at(*args, **kwargs)
+        finally:
+            self.seconds += time.perf_counter() - t0
+            self.cpu_seconds += time.process_time() - c0
+
+
+def _augment(source, gen, copies: int, steps, cache_dir: Path) -> ForceAugment:
+    """ForceAugment over ``source``'s tactile streams as the CLI opens it (a folder of its own, tactile keys only)."""
+    tactile_only = LeRobotFolder(source.root, keys=[*FORCES, *FORCES.values()], video_threads=0)
+    return ForceAugment(tactile_only, gen, copies=copies, steps=steps, tactile_keys=list(FORCES), force_keys=FORCES,
+                        cache_dir=cache_dir, build="manual", progress=False)
+
+
+def generator_alone(source, cache_dir: Path, gen, copies: int, steps) -> dict:
+    """Wall and CPU seconds of the generator's calls in a cache build with nothing beside it."""
+    timed = TimedGenerator(gen)
+    _augment(source, timed, copies, steps, cache_dir).build_cache(progress=False)
+    return {"generator_seconds": timed.seconds, "generator_cpu_seconds": timed.cpu_seconds}
+
+
+def timed_write(source, out: Path, gen, copies: int, steps, round_trip: bool) -> tuple[dict, dict, int]:
+    """The CLI's write (cache build and export beside it), timed: (wall and CPU seconds of the whole write and of
+    the generator's calls inside it, the write's record, sampler steps)."""
+    timed = TimedGenerator(gen)
+    t0, c0 = time.perf_counter(), time.process_time()
+    aug = _augment(source, timed, copies, steps, staging_dir(out) / "cache")
+    marker = write_lerobot(aug, source, out, progress=False, round_trip=round_trip)["marker"]
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    times = {"write_seconds": wall, "write_cpu_seconds": cpu, "generator_seconds_in_write": timed.seconds,
+             "generator_cpu_seconds_in_write": timed.cpu_seconds}
+    return times, marker, aug.steps
+
+
+def sequential_write(source, out: Path, gen, copies: int, steps) -> dict:
+    """The same write with the export after the whole build (the build still reads ahead), left unpublished in its
+    staging folder: wall and CPU seconds."""
+    staging = staging_dir(out)
+    t0, c0 = time.perf_counter(), time.process_time()
+    aug = _augment(source, gen, copies, steps, staging / "cache")
+    sig = signature(aug, source)
+    claim(staging, sig)
+    aug.build_cache(progress=False)
+    export = LeRobotExport(aug, source, staging / "dataset", staging / "done")
+    export.write(progress=False)
+    finish(export, sig)
+    return {"write_seconds": time.perf_counter() - t0, "write_cpu_seconds": time.process_time() - c0}
+
+
+def _open(root: Path, generator: str | None, threads: int):
+    torch.set_num_threads(threads)
+    warnings.filterwarnings("ignore", ".*background estimated", UserWarning)
+    return LeRobotFolder(root, video_threads=0), load_generator(generator)[0]  # as the CLI opens them
+
+
+def generator_job(root: Path, tmp: Path, generator: str | None, threads: int, copies: int, steps) -> dict:
+    """A child process: the generator alone."""
+    source, gen = _open(root, generator, threads)
+    return generator_alone(source, tmp / "alone_default_env", gen, copies, steps)
+
+
+def write_job(root: Path, tmp: Path, generator: str | None, threads: int, copies: int, steps,
+              round_trip: bool) -> dict:
+    """A child process: the write (with ``round_trip``: that alone), the write with the export after the build, the
+    generator alone."""
+    source, gen = _open(root, generator, threads)
+    times, marker, steps = timed_write(source, tmp / "write", gen, copies, steps, round_trip)
+    out = {"write": times, "marker": marker, "steps": steps}
+    if not round_trip:
+        out["export_after_build"] = sequential_write(source, tmp / "after", gen, copies, steps)
+        out["generator_alone"] = generator_alone(source, tmp / "alone", gen, copies, steps)
+    return out
+
+
+def _set_env(values: dict) -> None:
+    for name, value in values.items():
+        if value is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = value
+
+
+def in_child(env: dict, fn, *args):
+    """``fn(*args)`` in a fresh spawned process whose environment holds ``env`` (None: unset) before torch loads."""
+    saved = {name: os.environ.get(name) for name in env}
+    try:
+        _set_env(env)
+        with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn")) as pool:
+            return pool.submit(fn, *args).result()
+    finally:
+        _set_env(saved)
+
+
+def _median(runs: list[dict]) -> dict:
+    return {k: float(np.median([r[k] for r in runs])) for k in runs[0]}
+
+
+def _ratios(times: dict, reference: dict) -> dict:
+    return {**times, "writer_vs_generator": reference["generator_seconds"] / times["write_seconds"],
+            "writer_vs_generator_cpu": reference["generator_cpu_seconds"] / times["write_cpu_seconds"],
+            "writer_own_cpu_seconds": times["write_cpu_seconds"] - reference["generator_cpu_seconds"]}
+
+
+def lerobot_write_row(tmp: Path, demos: Path, generator: str | None, threads: int, copies: int, steps,
+                      rounds: int) -> dict:
+    """The row (module docstring) over the ACT episodes in ``demos``."""
+    root, settings = write_source(demos, tmp / "lerobot_source"), (generator, threads, copies, steps)
+    alone, runs = [], []
+    for r in range(rounds):
+        alone.append(in_child(DEFAULT_ENV, generator_job, root, tmp / f"round_{r}", *settings))
+        runs.append(in_child(EXPORT_ENV, write_job, root, tmp / f"round_{r}", *settings, False))
+    checked = in_child(EXPORT_ENV, write_job, root, tmp / "round_trip", *settings, True)
+    reference = _median(alone)
+    write = _ratios(_median([r["write"] for r in runs]), reference)
+    after = _ratios(_median([r["export_after_build"] for r in runs]), reference)
+    marker, n = runs[0]["marker"], runs[0]["marker"]["regenerated_frames"]
+    row = {"regenerated_frames": n, "rounds": rounds, "wait_policy": {"generator_alone": "OpenMP default",
+                                                                      "write": EXPORT_ENV},
+           **reference, **write, "export_after_build": after,
+           "generator_alone_in_write_env": _median([r["generator_alone"] for r in runs]),
+           "writer_frames_per_s": n / write["write_seconds"], "generator_frames_per_s": n / reference["generator_seconds"],
+           "target_0_8x": write["writer_vs_generator"] >= 0.8,
+           "per_round": [{"generator_seconds": a["generator_seconds"], "write_seconds": r["write"]["write_seconds"],
+                          "export_after_build_seconds": r["export_after_build"]["write_seconds"]}
+                         for a, r in zip(alone, runs)],
+           "generator_cores": reference["generator_cpu_seconds"] / reference["generator_seconds"],
+           "episodes_written": marker["episodes"]["written"], "frames_written": marker["frames"],
+           "video_round_trip_mse": checked["marker"]["video_round_trip_mse"],
+           "video_round_trip_psnr_db": checked["marker"]["video_round_trip_psnr_db"],
+           "with_round_trip": _ratios(checked["write"], reference),
+           "round_trip_cpu_seconds": checked["write"]["write_cpu_seconds"] - write["write_cpu_seconds"],
+           "steps": runs[0]["steps"], "source": "gelsight_left image (PNG), gelsight_right AV1 video, two AV1 "
+                                                "cameras; per-episode stats of every feature, as lerobot-record writes"}
+    print_table([{"write": name, **reference, **t} for name, t in (
+        ("export beside the build", write), ("export after the build", after),
+        ("with the round trip", row["with_round_trip"]))],
+                ["write", "write_seconds", "generator_seconds", "writer_vs_generator", "write_cpu_seconds",
+                 "generator_cpu_seconds", "writer_vs_generator_cpu"],
+                title=f"LeRobot folder in, augmented LeRobot folder out (medians of {rounds} rounds; round trip: one)")
+    return row
