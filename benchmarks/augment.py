@@ -36,7 +36,7 @@ from controltac_il.datasets import Episode, EpisodeDataset, write_episode
 from controltac_il.tactile import SensorSpec, TactileSensor
 
 SENSORS = ("left", "right")
-WRITE_ROUNDS = 3  # the writer row's rounds (medians; the machine is shared)
+WRITE_ROUNDS = 5  # the writer row's rounds (medians; the machine is shared and its speed drifts by 20 %)
 
 
 def force_profile(T: int, peak: float, rng: np.random.Generator) -> np.ndarray:
