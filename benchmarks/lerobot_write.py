@@ -2,16 +2,17 @@
 LeRobot folder out, against the generator alone on the same frames.
 
 The source (``benchmarks.lerobot_source``): gelsight_left an image feature, gelsight_right an AV1 video, two AV1
-cameras, per-episode stats of every feature as ``lerobot-record`` writes them. Each round runs two fresh
-processes, one after the other:
+cameras, per-episode stats of every feature as ``lerobot-record`` writes them. Each round runs fresh processes,
+one after the other:
 
 - the **generator alone** (the reference), torch's OpenMP at its default wait policy (threads spin a while
   before sleeping: the generator's best): the wall and CPU seconds of its ``generate_at`` calls in a cache build
   with nothing beside it (its reading not timed);
-- ``python -m controltac_il.augment --dataset ROOT --out OUT``'s **write** as the CLI runs it (its environment,
-  ``EXPORT_ENV``: OpenMP threads sleep while they wait), timed whole: the cache build with its reading and, beside
-  it, the export (PNGs, re-encoded videos, stats, meta); then the same write with the **export after the build**
-  (the writer without the overlap) and the generator alone under the CLI's environment (what that costs it).
+- ``python -m controltac_il.augment --dataset ROOT --out OUT``'s **write**, timed whole: the cache build with its
+  reading and, beside it, the export (PNGs, re-encoded videos, stats, meta), under each OpenMP wait policy
+  (``WAIT_POLICIES``: the default, and PASSIVE, threads sleeping while they wait, which may leave the export more
+  of the cores), their order alternating by round; beside the default, the same write with the **export after
+  the build** (the writer without the overlap). The headline is the policy the CLI runs (``cli.EXPORT_ENV``).
 
 Medians over rounds, wall seconds and this process's CPU seconds (``time.process_time``: every thread, torch's and
 the codecs'). Target: the write at >= 0.8x the generator alone's throughput. Last, one write with
@@ -39,7 +40,8 @@ from controltac_il.augment.lerobot_out import LeRobotExport
 from controltac_il.augment.to_lerobot import claim, finish, signature, staging_dir, write_lerobot
 from controltac_il.datasets.lerobot_v3 import LeRobotFolder
 
-DEFAULT_ENV = {name: None for name in EXPORT_ENV}  # OpenMP's own default
+DEFAULT_ENV = {"OMP_WAIT_POLICY": None}  # OpenMP's own default: threads spin a while, then sleep
+WAIT_POLICIES = {"openmp_default": DEFAULT_ENV, "passive": {"OMP_WAIT_POLICY": "PASSIVE"}}  # the write under each
 
 
 class TimedGenerator:
@@ -115,16 +117,15 @@ def generator_job(root: Path, tmp: Path, generator: str | None, threads: int, co
     return generator_alone(source, tmp / "alone_default_env", gen, copies, steps)
 
 
-def write_job(root: Path, tmp: Path, generator: str | None, threads: int, copies: int, steps,
-              round_trip: bool) -> dict:
-    """A child process: the write (with ``round_trip``: that alone), the write with the export after the build, the
-    generator alone."""
+def write_job(root: Path, tmp: Path, generator: str | None, threads: int, copies: int, steps, round_trip: bool,
+              after: bool) -> dict:
+    """A child process: the write (``round_trip``: with it), then with ``after`` the write with the export after
+    the build."""
     source, gen = _open(root, generator, threads)
     times, marker, steps = timed_write(source, tmp / "write", gen, copies, steps, round_trip)
     out = {"write": times, "marker": marker, "steps": steps}
-    if not round_trip:
+    if after:
         out["export_after_build"] = sequential_write(source, tmp / "after", gen, copies, steps)
-        out["generator_alone"] = generator_alone(source, tmp / "alone", gen, copies, steps)
     return out
 
 
@@ -157,39 +158,50 @@ def _ratios(times: dict, reference: dict) -> dict:
             "writer_own_cpu_seconds": times["write_cpu_seconds"] - reference["generator_cpu_seconds"]}
 
 
+def _rounds(root: Path, tmp: Path, settings: tuple, rounds: int) -> tuple[list, dict]:
+    """Each round: the generator alone, then the write under each wait policy (their order alternating by round;
+    the export after the build measured beside OpenMP's default). Returns (generator alone runs, {policy: runs})."""
+    alone, runs = [], {name: [] for name in WAIT_POLICIES}
+    for r in range(rounds):
+        alone.append(in_child(DEFAULT_ENV, generator_job, root, tmp / f"round_{r}", *settings))
+        for name in list(WAIT_POLICIES)[:: 1 if r % 2 == 0 else -1]:
+            runs[name].append(in_child(WAIT_POLICIES[name], write_job, root, tmp / f"round_{r}_{name}", *settings,
+                                       False, name == "openmp_default"))
+    return alone, runs
+
+
 def lerobot_write_row(tmp: Path, demos: Path, generator: str | None, threads: int, copies: int, steps,
                       rounds: int) -> dict:
     """The row (module docstring) over the ACT episodes in ``demos``."""
     root, settings = write_source(demos, tmp / "lerobot_source"), (generator, threads, copies, steps)
-    alone, runs = [], []
-    for r in range(rounds):
-        alone.append(in_child(DEFAULT_ENV, generator_job, root, tmp / f"round_{r}", *settings))
-        runs.append(in_child(EXPORT_ENV, write_job, root, tmp / f"round_{r}", *settings, False))
-    checked = in_child(EXPORT_ENV, write_job, root, tmp / "round_trip", *settings, True)
+    alone, runs = _rounds(root, tmp, settings, rounds)
+    cli = next(name for name, env in WAIT_POLICIES.items() if {k: v for k, v in env.items() if v} == EXPORT_ENV)
+    checked = in_child(WAIT_POLICIES[cli], write_job, root, tmp / "round_trip", *settings, True, False)
     reference = _median(alone)
-    write = _ratios(_median([r["write"] for r in runs]), reference)
-    after = _ratios(_median([r["export_after_build"] for r in runs]), reference)
-    marker, n = runs[0]["marker"], runs[0]["marker"]["regenerated_frames"]
-    row = {"regenerated_frames": n, "rounds": rounds, "wait_policy": {"generator_alone": "OpenMP default",
-                                                                      "write": EXPORT_ENV},
-           **reference, **write, "export_after_build": after,
-           "generator_alone_in_write_env": _median([r["generator_alone"] for r in runs]),
+    policies = {name: _ratios(_median([r["write"] for r in rs]), reference) for name, rs in runs.items()}
+    write = policies[cli]
+    after = _ratios(_median([r["export_after_build"] for r in runs["openmp_default"]]), reference)
+    marker, n = runs[cli][0]["marker"], runs[cli][0]["marker"]["regenerated_frames"]
+    row = {"regenerated_frames": n, "rounds": rounds, "cli_wait_policy": cli, **reference, **write,
+           "wait_policies": policies, "export_after_build": {**after, "wait_policy": "openmp_default"},
            "writer_frames_per_s": n / write["write_seconds"], "generator_frames_per_s": n / reference["generator_seconds"],
            "target_0_8x": write["writer_vs_generator"] >= 0.8,
-           "per_round": [{"generator_seconds": a["generator_seconds"], "write_seconds": r["write"]["write_seconds"],
-                          "export_after_build_seconds": r["export_after_build"]["write_seconds"]}
-                         for a, r in zip(alone, runs)],
+           "per_round": [{"generator_seconds": a["generator_seconds"],
+                          **{f"write_seconds_{name}": rs[r]["write"]["write_seconds"] for name, rs in runs.items()},
+                          "export_after_build_seconds": runs["openmp_default"][r]["export_after_build"]["write_seconds"]}
+                         for r, a in enumerate(alone)],
            "generator_cores": reference["generator_cpu_seconds"] / reference["generator_seconds"],
            "episodes_written": marker["episodes"]["written"], "frames_written": marker["frames"],
            "video_round_trip_mse": checked["marker"]["video_round_trip_mse"],
            "video_round_trip_psnr_db": checked["marker"]["video_round_trip_psnr_db"],
            "with_round_trip": _ratios(checked["write"], reference),
            "round_trip_cpu_seconds": checked["write"]["write_cpu_seconds"] - write["write_cpu_seconds"],
-           "steps": runs[0]["steps"], "source": "gelsight_left image (PNG), gelsight_right AV1 video, two AV1 "
-                                                "cameras; per-episode stats of every feature, as lerobot-record writes"}
+           "steps": runs[cli][0]["steps"], "source": "gelsight_left image (PNG), gelsight_right AV1 video, two AV1 "
+                                                     "cameras; per-episode stats of every feature, as lerobot-record "
+                                                     "writes"}
+    shown = [(f"export beside the build ({name})", t) for name, t in policies.items()]
     print_table([{"write": name, **reference, **t} for name, t in (
-        ("export beside the build", write), ("export after the build", after),
-        ("with the round trip", row["with_round_trip"]))],
+        *shown, ("export after the build (openmp_default)", after), ("with the round trip", row["with_round_trip"]))],
                 ["write", "write_seconds", "generator_seconds", "writer_vs_generator", "write_cpu_seconds",
                  "generator_cpu_seconds", "writer_vs_generator_cpu"],
                 title=f"LeRobot folder in, augmented LeRobot folder out (medians of {rounds} rounds; round trip: one)")

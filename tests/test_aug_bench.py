@@ -35,8 +35,10 @@ def test_quick_lerobot_write_row_times_the_write_against_the_generator_alone(tmp
     res = bench.main(["--quick", "--rows", "lerobot_write", "--out", str(tmp_path / "w.json")])["lerobot_write"]
     checked, after = res["with_round_trip"], res["export_after_build"]
     assert res["rounds"] == 1 and len(res["per_round"]) == 1
-    assert res["wait_policy"] == {"generator_alone": "OpenMP default", "write": {"OMP_WAIT_POLICY": "PASSIVE"}}
-    assert res["generator_alone_in_write_env"]["generator_seconds"] > 0
+    assert res["cli_wait_policy"] == "passive" and set(res["wait_policies"]) == {"openmp_default", "passive"}
+    assert res["write_seconds"] == res["wait_policies"]["passive"]["write_seconds"]
+    assert set(res["per_round"][0]) == {"generator_seconds", "write_seconds_openmp_default", "write_seconds_passive",
+                                        "export_after_build_seconds"}
     assert res["generator_seconds"] > 0 and res["generator_cpu_seconds"] > 0  # the same frames, nothing beside it
     assert 0 < res["generator_seconds_in_write"] < res["write_seconds"]
     assert 0 < checked["generator_cpu_seconds_in_write"] < checked["write_cpu_seconds"]
