@@ -305,15 +305,20 @@ def augment_lerobot_write() -> str:
     doc = load("augment_lerobot_write.json")
     r, gen = doc["lerobot_write"], load("generator.json")
     default = next(m for m in gen["methods"] if m["kind"] == "default" and m["steps"] == r["steps"])
-    after = r["export_after_build"]
-    rows = [[r["regenerated_frames"], r["episodes_written"], r["rounds"], f"{r['generator_seconds']:.1f}",
-             f"{r['write_seconds']:.1f}", f"{r['writer_vs_generator']:.2f} (target 0.80)", f"{after['write_seconds']:.1f}",
-             f"{after['writer_vs_generator']:.2f}", f"{r['video_round_trip_mse']:.2f}",
-             f"{default['unseen_240']['mse']:.1f}"]]
-    header = ["regenerated frames", "episodes written", "rounds", "generator alone s", "write s",
-              "writer ÷ generator", "export after the build s", "its ratio", "video round trip MSE",
-              f"generator's own MSE (unseen, 240×320, DDIM-{r['steps']})"]
-    return table(header, rows) + "\n\n" + provenance("augment_lerobot_write.json", doc, doc["generator_hash"])
+    summary = [[r["regenerated_frames"], r["episodes_written"], r["rounds"], f"{r['generator_seconds']:.1f}",
+                f"{r['generator_frames_per_s']:.1f}", f"{r['video_round_trip_mse']:.2f}",
+                f"{default['unseen_240']['mse']:.1f}"]]
+    head = ["regenerated frames", "episodes written", "rounds", "generator alone s", "generator frames/s",
+            "video round trip MSE", f"generator's own MSE (unseen, 240×320, DDIM-{r['steps']})"]
+    names = {"openmp_default": "OpenMP's default wait policy", "passive": "OMP_WAIT_POLICY=PASSIVE"}
+    variants = [(f"export beside the build, {names[k]}", t) for k, t in r["wait_policies"].items()]
+    variants += [(f"export after the build, {names[r['export_after_build']['wait_policy']]}", r["export_after_build"]),
+                 (f"beside, {names[r['cli_wait_policy']]}, with --video-round-trip (one run)", r["with_round_trip"])]
+    rows = [[name, f"{t['write_seconds']:.1f}", f"{t['writer_vs_generator']:.2f}",
+             f"{t['writer_vs_generator_cpu']:.2f}"] for name, t in variants]
+    return (table(head, summary) + "\n\n" + table(["write", "s (median)", "writer ÷ generator (target 0.80)",
+                                                     "in CPU s"], rows)
+            + "\n\n" + provenance("augment_lerobot_write.json", doc, doc["generator_hash"]))
 
 
 def _p(cell: dict) -> str:

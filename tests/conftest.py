@@ -21,3 +21,12 @@ def clock():
     c.attach()
     yield c
     c.detach()
+
+
+@pytest.fixture(scope="session")
+def written(tmp_path_factory):
+    """A LeRobot source folder and one clean augmented write of it (``test_lerobot_v3_write.write_clean``), shared by
+    the LeRobot writer's test modules."""
+    from test_lerobot_v3_write import write_clean
+
+    return write_clean(tmp_path_factory.mktemp("lerobot_write"))

@@ -1,5 +1,5 @@
 """The LeRobot export beside the cache build: a copy is exported while later chunks are still being generated,
-with the same files as before; an export error stops the build at its next chunk; ``ChunkGate``'s
+with the same files as before (the session's ``written`` clean write, conftest); an export error stops the build at its next chunk; ``ChunkGate``'s
 rule; a source's own per-episode stats reused for the features copies hold unchanged where complete, computed
 where not. Source folder and tiny generator: ``test_lerobot_v3_write``."""
 
@@ -11,7 +11,6 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-import test_lerobot_v3_write
 from test_lerobot_v3_write import LEFT, LENGTHS, RIGHT, WRIST, augment
 
 from controltac_il.augment.lerobot_out import LeRobotExport
@@ -21,7 +20,6 @@ from controltac_il.datasets.lerobot_v3 import LeRobotFolder, read_episode_stats
 from controltac_il.datasets.lerobot_v3_write import STAT_NAMES
 
 EPISODES_META = "meta/episodes/chunk-000/file-000.parquet"
-written = test_lerobot_v3_write.written  # its fixture: the source and one clean write
 
 
 class Gated:
@@ -143,21 +141,3 @@ def test_a_sources_complete_stats_are_reused_for_unchanged_features(written, tmp
     state = np.asarray([row["stats/observation.state/mean"] for row in rows])
     assert np.all(state >= 1000.0)
 
-
-def test_the_cli_lets_torch_sleep_while_it_waits_only_for_a_lerobot_write(tmp_path):
-    import os
-    import subprocess
-    import sys
-
-    from test_lerobot_v3_write import write_source
-
-    root = write_source(tmp_path / "source")
-    (tmp_path / "hdf5").mkdir()
-    script = ("import os, sys\nfrom controltac_il.augment.cli import main\nassert 'torch' not in sys.modules\n"
-              "main(['--dataset', sys.argv[1], '--out', sys.argv[2], '--copies', '0'])\n"
-              "print(os.environ.get('OMP_WAIT_POLICY'), 'torch' in sys.modules)")
-    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
-    printed = [subprocess.run([sys.executable, "-c", script, str(folder), str(tmp_path / "out")], env=env,
-                              capture_output=True, text=True, check=True).stdout.split()
-               for folder in (root, tmp_path / "hdf5")]
-    assert printed == [["PASSIVE", "True"], ["None", "True"]]  # set before torch loaded (it loads in _setup)

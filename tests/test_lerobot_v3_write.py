@@ -130,9 +130,9 @@ def augment(root, out, copies=2, generator=None):
                         build="manual", progress=False)
 
 
-@pytest.fixture(scope="module")
-def written(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("lerobot_write")
+def write_clean(tmp: Path):
+    """The ``written`` fixture (conftest: one per session): the source, one clean write of it, its counts and a
+    ForceAugment cache of its own over the same source."""
     root, out = write_source(tmp / "source"), tmp / "out"
     aug = augment(root, out)
     counts = write_lerobot(aug, LeRobotFolder(root), out, progress=False)

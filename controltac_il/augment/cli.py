@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import os
 import re
 import sys
 from pathlib import Path
@@ -23,9 +22,6 @@ if TYPE_CHECKING:  # the job's modules (torch, h5py) are imported inside it: --h
     from controltac_il.augment.dataset import ForceAugment
 
 PROG = "python -m controltac_il.augment"
-# a LeRobot write: torch's OpenMP threads sleep while they wait instead of spinning, leaving the export the cycles the
-# generator does not use (set before torch loads; benchmarks/results/augment_lerobot_write.json measures both)
-EXPORT_ENV = {"OMP_WAIT_POLICY": "PASSIVE"}
 
 
 class UsageError(Exception):
@@ -277,9 +273,6 @@ def main(argv=None) -> int:
     """Run the command; returns the exit status (0, 2 for a validation error, 130 when interrupted)."""
     try:
         args = parser().parse_args(argv)
-        if (args.dataset / "meta" / "info.json").is_file() and "torch" not in sys.modules:
-            for name, value in EXPORT_ENV.items():
-                os.environ.setdefault(name, value)
         aug = _setup(args)
         from controltac_il.augment.provenance import StaleCacheError
 

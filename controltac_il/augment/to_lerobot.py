@@ -4,9 +4,8 @@ Everything is written under ``OUT.partial`` (``staging_dir``): ``write.json`` (w
 ForceAugment settings, the source, the writer format), ``cache/`` (the ForceAugment cache), ``dataset/`` (the folder
 being written) and ``done/`` (one meta row per finished episode). Re-running the same command resumes; each rank
 builds its share of the cache (torchrun: every rank) while a thread of it writes its share of the episodes, each
-copy as soon as the cache holds its chunk (``ChunkGate``: the export's codecs and parquet work beside the generator;
-the CLI lets torch's OpenMP threads sleep while they wait, ``cli.EXPORT_ENV``, so that they leave the export its
-cycles), and rank 0 writes ``meta/`` and publishes: ``dataset/`` is renamed to OUT, and ``OUT.partial`` removed. OUT
+copy as soon as the cache holds its chunk (``ChunkGate``: the export's codecs and parquet work beside the
+generator), and rank 0 writes ``meta/`` and publishes: ``dataset/`` is renamed to OUT, and ``OUT.partial`` removed. OUT
 is never the source (nor inside it, nor around it) and never a folder this tool did not write
 (``check_destination``).
 
