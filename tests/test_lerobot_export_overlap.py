@@ -1,7 +1,7 @@
-"""The LeRobot export beside the cache build: a copy is exported while later chunks are still being generated,
-with the same files as before (the session's ``written`` clean write, conftest); an export error stops the build at its next chunk; ``ChunkGate``'s
-rule; a source's own per-episode stats reused for the features copies hold unchanged where complete, computed
-where not. Source folder and tiny generator: ``test_lerobot_v3_write``."""
+"""The LeRobot export beside the cache build: a copy is exported while later chunks are still being generated, with the
+same files as before (the session's ``written`` clean write, conftest); an export error stops the build at its next
+chunk; ``ChunkGate``'s rule; a source's own per-episode stats reused for the features copies hold unchanged where
+complete, computed where not. Source folder and tiny generator: ``test_lerobot_v3_write``."""
 
 import shutil
 import threading
@@ -141,3 +141,22 @@ def test_a_sources_complete_stats_are_reused_for_unchanged_features(written, tmp
     state = np.asarray([row["stats/observation.state/mean"] for row in rows])
     assert np.all(state >= 1000.0)
 
+
+
+def test_only_complete_plausible_stats_count_as_given():
+    from controltac_il.datasets.lerobot_v3_write import complete_stats, image_stats, vector_stats
+
+    camera = {"dtype": "video", "shape": (4, 4, 3)}
+    frames = np.random.default_rng(0).integers(0, 256, (5, 4, 4, 3), dtype=np.uint8)
+    good = image_stats(frames)
+    assert complete_stats(good, camera)
+    in_levels = {k: (np.asarray(v) * 255).tolist() if k != "count" else v for k, v in good.items()}
+    assert not complete_stats(in_levels, camera)  # 0-255, not LeRobot's [0, 1]
+    assert not complete_stats({k: v for k, v in good.items() if k != "q99"}, camera)
+    assert not complete_stats({**good, "mean": [[[2.0]]] * 3}, camera)  # above its max
+    vector = {"dtype": "float32", "shape": (2,)}
+    stats = vector_stats(np.array([[0.0, 1.0], [2.0, 3.0]]), "x")
+    assert complete_stats(stats, vector)
+    assert not complete_stats({**stats, "std": [float("nan"), 1.0]}, vector)
+    assert not complete_stats({**stats, "count": [0]}, vector)
+    assert not complete_stats({**stats, "mean": [1.0]}, vector)  # the feature's size is 2

@@ -256,29 +256,36 @@ class ForceAugment(Dataset):
                            self._reader.spec if self._reader is not None else ChunkSpec.of(self.settings()))
 
     # --- cache mode: build ----------------------------------------------------------------------
+    def prepare_cache(self) -> list[tuple[int, int]]:
+        """Check the cache folder against these settings (the chunks already there refused unless they provably
+        belong) or start it; returns ``chunk_list()``. ``build_cache`` runs it first unless given its result."""
+        if self.config.mode != "cache":
+            raise ValueError("build_cache: only in mode='cache'")
+        settings = self.settings()
+        self._reader.spec = ChunkSpec.of(settings)
+        chunks = self.chunk_list()
+        if check_manifest(self.cache_dir, settings, chunks):
+            self.verify_cache()
+        else:
+            write_manifest(self.cache_dir, settings, chunks)
+        remove_leftovers(self.cache_dir)
+        return chunks
+
     def build_cache(self, rank: int | None = None, world_size: int | None = None, progress: bool = True,
-                    stop_after: int | None = None, on_chunk=None) -> dict:
+                    stop_after: int | None = None, on_chunk=None, prepared: list | None = None) -> dict:
         """Generate this rank's missing chunks (rank/world_size default to torchrun's RANK/WORLD_SIZE).
 
         Chunk j of ``chunk_list()`` belongs to rank ``j * world_size // len(chunks)``; each chunk is
         written atomically, so an interrupted build resumes where it stopped and equals a clean one.
         stop_after: stop after writing this many chunks (to split a build). on_chunk: called with (episode, copy)
-        after each chunk is written (an exception it raises stops the build). Returns counts of the run.
+        after each chunk is written (an exception it raises stops the build). prepared: ``prepare_cache()``'s
+        result where it ran already. Returns counts of the run.
         """
-        if self.config.mode != "cache":
-            raise ValueError("build_cache: only in mode='cache'")
         rank = int(os.environ.get("RANK", 0)) if rank is None else int(rank)
         world_size = int(os.environ.get("WORLD_SIZE", 1)) if world_size is None else int(world_size)
         if not 0 <= rank < world_size:
             raise ValueError(f"rank: expected 0 <= rank < world_size={world_size}, got {rank}")
-        settings = self.settings()
-        self._reader.spec = ChunkSpec.of(settings)
-        chunks = self.chunk_list()
-        if check_manifest(self.cache_dir, settings, chunks):
-            self.verify_cache()  # the chunks already there: refused unless they provably belong
-        else:
-            write_manifest(self.cache_dir, settings, chunks)
-        remove_leftovers(self.cache_dir)
+        chunks = self.prepare_cache() if prepared is None else prepared
         return self._writer().build(chunks, rank, world_size, progress, stop_after, on_chunk)
 
     def verify_cache(self) -> int:

@@ -146,16 +146,18 @@ def build_and_export(aug, export: LeRobotExport, rank: int, world_size: int, pro
             raise gate.error
         gate.built(episode, copy)
 
+    chunks = aug.prepare_cache()  # its check of the chunks there reads them: before the export reads any
     with ThreadPoolExecutor(max_workers=1) as pool:
         job = pool.submit(export_episodes)
         try:
-            built = aug.build_cache(rank=rank, world_size=world_size, progress=progress, on_chunk=on_chunk)
+            built = aug.build_cache(rank=rank, world_size=world_size, progress=progress, on_chunk=on_chunk,
+                                    prepared=chunks)
             aug.wait_complete(poll_s)
-        except BaseException:
+            gate.close()
+            return built, job.result()
+        except BaseException:  # the build's error, the export's, or Ctrl-C while either runs
             gate.close(aborted=True)  # the export stops after the source episode it is writing
             raise
-        gate.close()
-        return built, job.result()
 
 
 def write_lerobot(aug, source, out: Path, *, rank: int | None = None, world_size: int | None = None,
@@ -182,8 +184,10 @@ def write_lerobot(aug, source, out: Path, *, rank: int | None = None, world_size
     counts = {"cache": built, **written, "published": False}
     if rank != 0 or (stop_after is not None and export.missing()):
         return counts
-    while export.missing():  # other ranks' episodes
-        time.sleep(poll_s)
+    while export.missing():  # other ranks' episodes, or any whose chunks another rank built after this one's build
+        export.write(progress=False, ready=lambda e, k: chunk_done(aug.cache_dir, e, k))
+        if export.missing():
+            time.sleep(poll_s)
     marker = finish(export, sig)
     if out.is_dir():
         out.rmdir()  # empty (check_destination)

@@ -186,16 +186,22 @@ def _stats(x: np.ndarray) -> dict:
 
 def complete_stats(stats: dict | None, feature: dict) -> bool:
     """Whether ``stats`` (one episode's of ``feature``, as meta/episodes holds them) has every stat of
-    STAT_NAMES, finite, of the feature's shape ((3, 1, 1) a camera's, else the feature's size) and count > 0."""
+    STAT_NAMES, finite, of the feature's shape ((3, 1, 1) a camera's, else the feature's size), count > 0,
+    min <= mean <= max, and a camera's in [0, 1] (as LeRobot's and ours)."""
     if not stats or any(k not in stats for k in STAT_NAMES):
         return False
-    shape = (3, 1, 1) if feature["dtype"] in ("image", "video") else (int(np.prod(feature["shape"])),)
+    camera = feature["dtype"] in ("image", "video")
+    shape = (3, 1, 1) if camera else (int(np.prod(feature["shape"])),)
     try:
-        values = [np.asarray(stats[k], np.float64) for k in STAT_NAMES if k != "count"]
+        values = {k: np.asarray(stats[k], np.float64) for k in STAT_NAMES if k != "count"}
         count = np.asarray(stats["count"], np.float64)
     except (TypeError, ValueError):
         return False
-    return count.shape == (1,) and count[0] > 0 and all(v.shape == shape and np.isfinite(v).all() for v in values)
+    if count.shape != (1,) or not count[0] > 0 or any(v.shape != shape or not np.isfinite(v).all()
+                                                      for v in values.values()):
+        return False
+    lo, mean, hi = values["min"], values["mean"], values["max"]
+    return bool(np.all(lo <= mean) and np.all(mean <= hi) and (not camera or (np.all(lo >= 0) and np.all(hi <= 1))))
 
 
 def aggregate_stats(episodes: list[dict]) -> dict:
