@@ -160,3 +160,22 @@ def test_only_complete_plausible_stats_count_as_given():
     assert not complete_stats({**stats, "std": [float("nan"), 1.0]}, vector)
     assert not complete_stats({**stats, "count": [0]}, vector)
     assert not complete_stats({**stats, "mean": [1.0]}, vector)  # the feature's size is 2
+
+
+def test_rank_0_writes_what_another_ranks_export_left(written, tmp_path):
+    root, clean, _, reference = written
+    out = tmp_path / "three_ranks"
+    # 3 ranks, 2 episodes x 2 copies: episode 1 is rank 1's to export, its copy 2 rank 2's to build; rank 1 runs
+    # before rank 2 has built it, so its export stops short and rank 0 finishes it
+    for rank in (1, 2):
+        write_lerobot(augment(root, out, generator=reference.generator), LeRobotFolder(root), out, rank=rank,
+                      world_size=3, progress=False, poll_s=0.0)
+    assert sorted(p.name for p in (staging_dir(out) / "done").iterdir()) == ["episode-000001.json",
+                                                                             "episode-000003.json"]
+    finished = []
+    last = threading.Thread(target=lambda: finished.append(write_lerobot(
+        augment(root, out, generator=reference.generator), LeRobotFolder(root), out, rank=0, world_size=3,
+        progress=False, poll_s=0.0)["published"]), daemon=True)  # a hang fails the test, not the run
+    last.start()
+    last.join(timeout=120)
+    assert finished == [True] and files(out) == files(clean)

@@ -105,7 +105,8 @@ def published(out: Path, aug, source) -> bool:
 class ChunkGate:
     """Lets the export wait for a chunk while the build writes them: ``built`` after each chunk, ``close`` when the
     build ends (``aborted``: it failed); ``wait(e, k)`` returns True once chunk (episode ``e``, copy ``k``) is in
-    the cache, False when the build ended without it or failed. ``error``: the export's exception, once it failed (``fail``)."""
+    the cache, False when the build ended without it or failed. ``error``: the export's exception, once it failed
+    (``fail``)."""
 
     def __init__(self, cache_dir: Path):
         self.cache_dir = Path(cache_dir)
