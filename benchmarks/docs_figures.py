@@ -199,5 +199,6 @@ def calibration_methods() -> str:
     return rf.table(head, rows) + "\n\n" + _source(rf, "calibration_methods.json", doc)
 
 
-BLOCKS = {"calibration": calibration, "calibration-methods": calibration_methods, "sensor": sensor, "env-speed": env_speed, "hardware": hardware, "generation-chunk": generation_chunk,
+BLOCKS = {"calibration": calibration, "calibration-methods": calibration_methods, "sensor": sensor,
+          "env-speed": env_speed, "hardware": hardware, "generation-chunk": generation_chunk,
           "force-scaling": force_scaling, "headline": headline}

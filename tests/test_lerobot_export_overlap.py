@@ -93,7 +93,7 @@ def test_the_gate_opens_on_a_chunk_or_the_builds_end(tmp_path):
     results = []
     waiter = threading.Thread(target=lambda: results.append(gate.wait(7, 2)))  # never built
     waiter.start()
-    gate.built(7, 1)
+    gate.built()
     gate.close()
     waiter.join(timeout=60)
     assert results == [False] and gate.wait(3, 1) is True

@@ -171,8 +171,10 @@ class LeRobotExport:
         a chunk is not built."""
         e, E = self.sources[p], len(self.sources)
         todo = [k for k in range(self.copies + 1) if not self._row_path(k * E + p).is_file()]
-        if not todo or not ready(e, 1):
-            yield from ([] if not todo else [None])
+        if not todo:
+            return
+        if not ready(e, 1):
+            yield None
             return
         src = self._read_source(e)
         frames = src.table.column("frame_index").to_numpy().astype(int)

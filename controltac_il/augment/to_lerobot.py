@@ -115,7 +115,7 @@ class ChunkGate:
     def fail(self, error: BaseException) -> None:
         self.error = error
 
-    def built(self, episode: int, copy: int) -> None:
+    def built(self) -> None:
         with self._changed:
             self._changed.notify_all()
 
@@ -145,7 +145,7 @@ def build_and_export(aug, export: LeRobotExport, rank: int, world_size: int, pro
     def on_chunk(episode: int, copy: int) -> None:
         if gate.error is not None:
             raise gate.error
-        gate.built(episode, copy)
+        gate.built()
 
     chunks = aug.prepare_cache()  # its check of the chunks there reads them: before the export reads any
     with ThreadPoolExecutor(max_workers=1) as pool:
@@ -185,8 +185,10 @@ def write_lerobot(aug, source, out: Path, *, rank: int | None = None, world_size
     counts = {"cache": built, **written, "published": False}
     if rank != 0 or (stop_after is not None and export.missing()):
         return counts
-    while export.missing():  # other ranks' episodes, or any whose chunks another rank built after this one's build
-        export.write(progress=False, ready=lambda e, k: chunk_done(aug.cache_dir, e, k))
+    together = int(os.environ.get("WORLD_SIZE", 1)) > 1  # torchrun: every rank's export ends with its share written
+    while export.missing():  # other ranks' episodes
+        if not together:  # ranks run one after another: what an earlier rank's export left waiting for a chunk
+            export.write(progress=False, ready=lambda e, k: chunk_done(aug.cache_dir, e, k))
         if export.missing():
             time.sleep(poll_s)
     marker = finish(export, sig)
