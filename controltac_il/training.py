@@ -185,6 +185,17 @@ def wrap(model: torch.nn.Module, world: int) -> torch.nn.Module:
     return torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
 
 
+def device_problem(name: str) -> str | None:
+    """Why ``name`` cannot be trained on here (one line naming ``--device``), or None."""
+    try:
+        device = torch.device(name)
+    except RuntimeError:
+        return f"--device: expected a torch device such as cpu or cuda, got {name!r}"
+    if device.type == "cuda" and not torch.cuda.is_available():
+        return f"--device {name}: no CUDA device is available; use --device cpu"
+    return None
+
+
 def optimise(step: int, total: int, batch_loss: Callable[[int], torch.Tensor | dict], optimizer: torch.optim.Optimizer,
              scheduler, params, save: Callable[[int, float], None] | None, every: int, desc: str, *, rank: int = 0,
              grad_clip: float = 1.0, after_step: Callable[[int, object], None] | None = None,

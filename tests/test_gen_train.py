@@ -141,6 +141,9 @@ def _exit(argv) -> int:
     (["--stage", "denoiser"], "stage 'denoiser'"), (["--checkpoint-every", "0"], "--checkpoint-every"),
     (["--ae-finetune-steps", "5"], "--autoencoder-from"),
     (["--ae-finetune-steps", "5", "--autoencoder-from", "x", "--denoiser-from", "x", "--dit-steps", "0"], "--dit-steps"),
+    (["--device", "abacus"], "--device"),
+    pytest.param(["--device", "cuda"], "no CUDA device", marks=pytest.mark.skipif(
+        __import__("torch").cuda.is_available(), reason="this machine has CUDA: the refusal is for machines without")),
 ])
 def test_bad_training_arguments_are_one_line_naming_the_flag(dataset, tmp_path, capsys, flags, named):
     assert _exit(["--data", str(dataset), "--out", str(tmp_path / "x"), *flags]) == 2

@@ -35,6 +35,14 @@ def test_same_seed_same_bytes_other_seed_differs(tmp_path):
     assert _digest(a) != _digest(c)
 
 
+def test_worker_processes_write_the_same_bytes(tmp_path):
+    """Rendering objects in parallel changes nothing on disk: images, manifest order, instance backgrounds."""
+    kw = dict(objects=("cross", "big_sphere", "procedural_0001"), sensors="train", instances=5)
+    one, two = _write(tmp_path / "one", **kw), _write(tmp_path / "two", workers=2, **kw)
+    assert _digest(one) == _digest(two)
+    assert len(list((two / "backgrounds").iterdir())) >= 2  # several instances drawn, each background written
+
+
 def test_round_trip_and_pose_groups(tmp_path):
     ds = tds.load_dataset(_write(tmp_path / "d"))
     assert len(ds) == 12
@@ -136,6 +144,7 @@ def test_command_line_writes_the_same_bytes_as_the_call(tmp_path, capsys):
     (["--seed", "-1"], "--seed"),
     (["--optics", "raytrace"], "--optics"),
     (["--procedural", "-2"], "--procedural"),
+    (["--workers", "0"], "--workers"),
 ])
 def test_command_line_refuses_bad_arguments_by_name(tmp_path, capsys, argv, flag):
     with pytest.raises(SystemExit) as exit_:
@@ -151,6 +160,7 @@ def test_command_line_refuses_bad_arguments_by_name(tmp_path, capsys, argv, flag
     (dict(seed=-1), "seed"),
     (dict(fz_range=(1.0, float("inf"))), "fz_range"),
     (dict(forces_per_pose=0), "forces_per_pose"),
+    (dict(workers=0), "workers"),
 ])
 def test_write_dataset_refuses_bad_arguments_by_name(tmp_path, kwargs, name):
     with pytest.raises(ValueError, match=name):

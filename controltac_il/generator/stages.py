@@ -36,6 +36,8 @@ def fit_autoencoder(cfg: GeneratorTrainConfig, ae: TactileAutoencoder, data: Pai
     """AdamW on all of ``ae``'s weights for ``steps`` steps on random crops of ``data`` (the loss of
     ``autoencoder_loss``; crops drawn from the rng stream ``stream``), resumable from ``out/<state>``; ``extra``
     joins the saved state's metadata. Returns that metadata."""
+    dev = torch.device(cfg.device)
+    ae.to(dev)
     opt = torch.optim.AdamW(ae.parameters(), lr=cfg.ae_lr, weight_decay=0.0)
     stem = out / state
     meta = {"step": 0, "wall_s": 0.0}
@@ -46,7 +48,7 @@ def fit_autoencoder(cfg: GeneratorTrainConfig, ae: TactileAutoencoder, data: Pai
     model, per_rank, t0 = wrap(ae, world), max(1, cfg.ae_batch // world), time.perf_counter()
 
     def batch_loss(step: int) -> torch.Tensor:
-        x = crop_batch(data, np.random.default_rng([cfg.seed, stream, rank, step]), per_rank, cfg.ae_crop)
+        x = crop_batch(data, np.random.default_rng([cfg.seed, stream, rank, step]), per_rank, cfg.ae_crop).to(dev)
         return autoencoder_loss(model(x), x, cfg.ae_contact_weight)
 
     def save(step: int, loss: float) -> None:
@@ -102,7 +104,9 @@ def reuse_autoencoder(src: Path) -> tuple[TactileAutoencoder, dict]:
 
 @torch.no_grad()
 def encode_all(ae: TactileAutoencoder, data: PairData, batch: int = 64) -> torch.Tensor:
-    zs = [ae.encode(residual_to_unit(torch.from_numpy(data.residuals[s:s + batch])))
+    """Latents of every residual of ``data``, float32 (N, C, h, w) on the CPU, encoded where ``ae`` is."""
+    dev = next(ae.parameters()).device
+    zs = [ae.encode(residual_to_unit(torch.from_numpy(data.residuals[s:s + batch]).to(dev))).cpu()
           for s in tqdm(range(0, len(data.residuals), batch), desc="encoding dataset", unit="batch", disable=None)]
     return torch.cat(zs)
 
@@ -121,7 +125,7 @@ def latent_scales(z: torch.Tensor, data: PairData, seed: int, pairs: int = 4096)
 def cached_latents(cfg: GeneratorTrainConfig, ae: TactileAutoencoder, data: PairData, out: Path, rank: int, world: int) -> torch.Tensor:
     path = out / "latents.safetensors"
     if rank == 0 and not path.is_file():
-        z = encode_all(ae, data)
+        z = encode_all(ae.to(cfg.device), data)
         with atomic_path(path) as tmp:
             save_file({"latents": z.contiguous()}, str(tmp))
     barrier(world)
@@ -167,13 +171,14 @@ def denoiser_loss(cfg: GeneratorTrainConfig, gcfg: GeneratorConfig, sched, z: to
                   model: torch.nn.Module, rank: int, step: int, per_rank: int) -> torch.Tensor:
     """0.5 L1 + 0.5 MSE of the DiT's prediction (noise or x0) on one batch of same-pose latent pairs;
     ``sched``: the training noise schedule (diffusers)."""
-    c = gcfg.autoencoder.latent_channels
+    c, dev = gcfg.autoencoder.latent_channels, z.device
     rng = np.random.default_rng([cfg.seed, 2, rank, step])
     ref, tgt, df = sample_pairs(data, per_rank, rng, cfg.no_contact_prob, cfg.distinct_pairs)
-    x0 = (z[tgt] - z[ref]) / torch.tensor(gcfg.delta_scale).view(1, c, 1, 1)
-    zr = z[ref] / torch.tensor(gcfg.latent_scale).view(1, c, 1, 1)
+    ref, tgt = torch.from_numpy(ref).to(dev), torch.from_numpy(tgt).to(dev)
+    x0 = (z[tgt] - z[ref]) / torch.tensor(gcfg.delta_scale, device=dev).view(1, c, 1, 1)
+    zr = z[ref] / torch.tensor(gcfg.latent_scale, device=dev).view(1, c, 1, 1)
     x_t, t, target = noised_batch(gcfg, sched, x0, cfg.one_step_fraction, int(rng.integers(0, 2**62)))
-    return prediction_loss(model(x_t, zr, t, torch.from_numpy(df)), target)
+    return prediction_loss(model(x_t, zr, t, torch.from_numpy(df).to(dev)), target)
 
 
 def train_denoiser(cfg: GeneratorTrainConfig, gcfg: GeneratorConfig, z: torch.Tensor, data: PairData, out: Path,
@@ -182,9 +187,10 @@ def train_denoiser(cfg: GeneratorTrainConfig, gcfg: GeneratorConfig, z: torch.Te
     """Train (or resume) the DiT; ``init``: starting weights when there is no state to resume. Returns the EMA
     weights of the last step, or with ``validation`` those of the best periodic save (``meta["validation"]``)."""
     torch.manual_seed(cfg.seed + 1)
-    dit = ForceDiT(gcfg.dit)
+    dit, z = ForceDiT(gcfg.dit), z.to(cfg.device)
     if init is not None:
         dit.load_state_dict(init)
+    dit.to(cfg.device)
     ema = EMAModel(dit.parameters(), decay=cfg.ema_decay, update_after_step=-1)  # decay min(ema_decay, (1+n)/(10+n))
     opt = torch.optim.AdamW(dit.parameters(), lr=cfg.dit_lr, weight_decay=0.0)
     stem = out / "denoiser_state"

@@ -95,9 +95,9 @@ def run(cfg: GeneratorTrainConfig) -> Path:
     if source is not None:
         check_same_models(Path(cfg.denoiser_from), source, gcfg)
     validate = None if split is None else Validation(split.objects, len(split.ref), lambda d: generation_error(
-        ForceGenerator(gcfg, ae, d), data.residuals[split.ref], data.residuals[split.tgt], split.delta))
+        ForceGenerator(gcfg, ae, d, device=cfg.device), data.residuals[split.ref], data.residuals[split.tgt], split.delta))
     dit, dit_meta = train_denoiser(cfg, gcfg, z, train_data, out, rank, world, init, validate)
-    final = out / "final"
+    final, ae, dit = out / "final", ae.cpu(), dit.cpu()
     if rank == 0:
         card = model_card(cfg, train_data, ae, ae_meta, dit, dit_meta, world, time.perf_counter() - t_start)
         save_checkpoint(final, gcfg, ae, dit, dtype=torch.float16, model_card=card)
@@ -151,6 +151,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--detail-gate", type=float, default=0.0, metavar="G",
                    help="with anchoring: keep the reference's fine detail only where the target keeps its contact; "
                         "G grey levels (default 0 = always keep; the shipped default uses 4)")
+    p.add_argument("--device", default="cpu",
+                   help="where the networks train and the dataset is encoded: cpu (default) or cuda; pairs are drawn on the CPU")
     p.add_argument("--overwrite", action="store_true",
                    help="replace a previous run in --out (only the files this tool wrote there; never anything else)")
     return p
@@ -166,6 +168,10 @@ def parse_args(argv=None) -> GeneratorTrainConfig:
         cfg = GeneratorTrainConfig(**a)
     except ValueError as exc:  # pydantic: one line naming the flag
         fail(one_line(exc, {f: "--" + f.replace("_", "-") for f in a}))
+    from controltac_il.training import device_problem
+
+    if device_problem(cfg.device):
+        fail(device_problem(cfg.device))
     if not Path(cfg.data).is_dir():
         fail(f"--data {cfg.data}: dataset folder not found (a controltac_il.tactile.dataset folder with manifest.csv)")
     out = Path(cfg.out)

@@ -66,6 +66,7 @@ class GeneratorTrainConfig:
         (0 = no split: the last step is shipped).
     checkpoint_every: steps between periodic state saves. seed: data order, noise, init, the split.
     threads: torch intra-op threads per process (None = torch's default).
+    device: where the networks train and the dataset is encoded ("cpu", "cuda"); pairs are drawn on the CPU.
     """
 
     data: str
@@ -103,6 +104,7 @@ class GeneratorTrainConfig:
     checkpoint_every: PosInt = 250
     seed: int = 0
     threads: PosInt | None = None
+    device: str = "cpu"
 
     @model_validator(mode="after")
     def _consistent(self):
@@ -204,7 +206,8 @@ def model_card(cfg: GeneratorTrainConfig, data: PairData, ae: TactileAutoencoder
         "autoencoder_parameters": sum(p.numel() for p in ae.parameters()),
         "world_size": world,
         "total_wall_s": wall_s,
-        "machine": {"cpu_count": os.cpu_count(), "torch": torch.__version__, "python": platform.python_version()},
+        "machine": {"cpu_count": os.cpu_count(), "torch": torch.__version__, "python": platform.python_version(),
+                    "device": torch.cuda.get_device_name(cfg.device) if cfg.device.startswith("cuda") else "cpu"},
         "weights_dtype": "float16",
         "validated_range": VALIDATED_RANGE.card(),
     }

@@ -75,14 +75,10 @@ def parse_args(argv=None) -> PoseTrainConfig:
         locate_checkpoint(cfg.base)
     except FileNotFoundError as exc:
         fail(f"--base: {exc}")
-    import torch
+    from controltac_il.training import device_problem
 
-    try:
-        device = torch.device(cfg.device)
-    except RuntimeError:
-        fail(f"--device: expected a torch device such as cpu or cuda, got {cfg.device!r}")
-    if device.type == "cuda" and not torch.cuda.is_available():
-        fail(f"--device {cfg.device}: no CUDA device is available; use --device cpu")
+    if device_problem(cfg.device):
+        fail(device_problem(cfg.device))
     if resume and overwrite:
         fail("--resume and --overwrite exclude each other")
     if resume and not (Path(cfg.out) / "adapter_state.json").is_file():

@@ -27,7 +27,7 @@ import json
 import numbers
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Sequence
+from typing import Sequence
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -37,9 +37,6 @@ from controltac_il.tactile.indenters import INDENTERS, TRAIN_OBJECTS, get_indent
 from controltac_il.tactile.instances import FAMILIES, sensor_instance
 from controltac_il.tactile.residual import to_residual
 from controltac_il.tactile.spec import SensorSpec
-
-if TYPE_CHECKING:  # the sensor model (OpenCV) is imported where images are rendered: --help stays light
-    from controltac_il.tactile.sensor import TactileSensor
 
 MANIFEST_FIELDS = ("image", "object", "pose_id", "x_mm", "y_mm", "theta_rad", "fx", "fy", "fz")
 SENSOR_FIELD = "sensor"  # optional: the simulated sensor instance of the row (controltac_il.tactile.instances)
@@ -60,13 +57,15 @@ class TactileRecord:
 
 
 def sample_contacts(objects: Sequence[str], poses_per_object: int, forces_per_pose: int, seed: int,
-                    spec: SensorSpec, fz_range=(0.5, 11.0), shear_max: float = 1.0):
-    """Deterministic contact list: each (object, pose) draws from its own stream keyed by (seed, object, pose).
+                    spec: SensorSpec, fz_range=(0.5, 11.0), shear_max: float = 1.0, only: int | None = None):
+    """Deterministic contact list: each (object, pose) draws from its own stream keyed by (seed, object index, pose).
 
-    Yields (object, pose_id, pose (x, y, θ), [(fx, fy, fz), ...], noise seeds).
+    Yields (object, pose_id, pose (x, y, θ), [(fx, fy, fz), ...], noise seeds); ``only``: that object index alone.
     """
     half_h, half_w = (s / 2 for s in spec.pad_size_mm)
     for oi, name in enumerate(objects):
+        if only is not None and oi != only:
+            continue
         get_indenter(name)
         for pid in range(poses_per_object):
             rng = np.random.default_rng([seed, oi, pid])
@@ -110,10 +109,11 @@ def _check_write_args(objects: tuple, poses_per_object, forces_per_pose, seed, f
 def write_dataset(out_dir, objects: Sequence[str] = TRAIN_OBJECTS, poses_per_object: int = 50,
                   forces_per_pose: int = 8, seed: int = 0, spec: SensorSpec | None = None,
                   optics: str = "three_light", fz_range=(0.5, 11.0), shear_max: float = 1.0,
-                  progress: bool = True, sensors: str | None = None, instances: int = 16) -> Path:
+                  progress: bool = True, sensors: str | None = None, instances: int = 16, workers: int = 1) -> Path:
     """Render a sensor-model dataset into ``out_dir`` (built in a temporary folder, renamed when complete).
 
-    Every image is a pure function of (seed, object, pose_id, k): the same arguments give the same files.
+    Every image is a pure function of (seed, object, pose_id, k): the same arguments give the same files, whatever
+    ``workers`` (processes rendering whole objects at once; 1 = this process).
     sensors: None renders every image with ``spec`` and ``optics``; a family of
     ``controltac_il.tactile.instances`` ("train" | "unseen") renders each contact pose with one of its first
     ``instances`` sensor instances, drawn per pose (``spec`` then only gives the size).
@@ -124,15 +124,23 @@ def write_dataset(out_dir, objects: Sequence[str] = TRAIN_OBJECTS, poses_per_obj
 
     objects = tuple(objects)
     _check_write_args(objects, poses_per_object, forces_per_pose, seed, fz_range, shear_max, sensors, instances)
+    if not _is_int(workers) or workers < 1:
+        raise ValueError(f"workers must be an int >= 1, got {workers!r}")
     spec = spec or SensorSpec.gelsight_mini()
-    sensor = TactileSensor(spec, optics=optics)
     out_dir = Path(out_dir)
     total = len(objects) * poses_per_object * forces_per_pose
+    job = _RenderJob(objects, poses_per_object, forces_per_pose, seed, spec, optics, tuple(fz_range), shear_max,
+                     sensors, instances)
     with atomic_dir(out_dir) as tmp:
         if sensors is None:
-            cv2.imwrite(str(tmp / "background.png"), cv2.cvtColor(sensor.background, cv2.COLOR_RGB2BGR))
-        rows, used = _render(tmp, sensor, objects, poses_per_object, forces_per_pose, seed, spec, fz_range, shear_max,
-                             sensors, instances, f"rendering {out_dir.name}" if progress else None)
+            background = TactileSensor(spec, optics=optics).background
+            cv2.imwrite(str(tmp / "background.png"), cv2.cvtColor(background, cv2.COLOR_RGB2BGR))
+        rows, used = _render_all(tmp, job, workers, f"rendering {out_dir.name}" if progress else None)
+        for name, which in used.items():  # each instance's no-contact frame, written once by this process
+            (tmp / "backgrounds").mkdir(exist_ok=True)
+            inst = sensor_instance(sensors, which, (spec.height, spec.width))
+            cv2.imwrite(str(tmp / "backgrounds" / f"{name}.png"),
+                        cv2.cvtColor(TactileSensor(inst.spec, optics=inst.optics).background, cv2.COLOR_RGB2BGR))
         with open(tmp / "manifest.csv", "w", newline="") as f:
             w = csv.writer(f)
             w.writerow(MANIFEST_FIELDS + ((SENSOR_FIELD,) if sensors is not None else ()))
@@ -146,36 +154,74 @@ def write_dataset(out_dir, objects: Sequence[str] = TRAIN_OBJECTS, poses_per_obj
     return out_dir
 
 
-def _render(tmp: Path, sensor: TactileSensor, objects: tuple, poses_per_object: int, forces_per_pose: int, seed: int,
-            spec: SensorSpec, fz_range, shear_max: float, sensors: str | None, instances: int, desc: str | None
-            ) -> tuple[list[list], dict]:
-    """Press every (object, pose, force) and write its PNG under ``tmp/images``; returns the manifest rows and the
-    sensor instances used (their backgrounds written under ``tmp/backgrounds``)."""
+@dataclass(frozen=True)
+class _RenderJob:
+    """The arguments of :func:`write_dataset` that decide the images (picklable, for worker processes)."""
+
+    objects: tuple
+    poses_per_object: int
+    forces_per_pose: int
+    seed: int
+    spec: SensorSpec
+    optics: str
+    fz_range: tuple
+    shear_max: float
+    sensors: str | None
+    instances: int
+
+
+def _render_all(tmp: Path, job: _RenderJob, workers: int, desc: str | None) -> tuple[list[list], dict[str, int]]:
+    """Every object of ``job`` rendered under ``tmp/images``, by ``workers`` processes (one object per task); the
+    manifest rows in object order and the sensor instances used ({name: index})."""
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    per_object = job.poses_per_object * job.forces_per_pose
+    results: list = [None] * len(job.objects)
+    with tqdm(total=per_object * len(job.objects), desc=desc, unit="img", disable=True if desc is None else None) as bar:
+        if workers == 1:
+            for oi in range(len(job.objects)):
+                results[oi] = _render_object(tmp, job, oi)
+                bar.update(per_object)
+        else:
+            with ProcessPoolExecutor(min(workers, len(job.objects))) as pool:
+                futures = {pool.submit(_render_object, tmp, job, oi): oi for oi in range(len(job.objects))}
+                for future in as_completed(futures):
+                    results[futures[future]] = future.result()
+                    bar.update(per_object)
+    rows, used = [], {}
+    for object_rows, object_used in results:
+        rows += object_rows
+        used.update(object_used)
+    return rows, used
+
+
+def _render_object(tmp: Path, job: _RenderJob, oi: int) -> tuple[list[list], dict[str, int]]:
+    """Press every (pose, force) of object ``job.objects[oi]`` and write its PNGs; its manifest rows and the sensor
+    instances it used ({name: index})."""
     import cv2
 
     from controltac_il.tactile.sensor import TactileSensor
 
-    rows, used = [], {}
-    total = len(objects) * poses_per_object * forces_per_pose
-    with tqdm(total=total, desc=desc, unit="img", disable=True if desc is None else None) as bar:
-        for name, pid, pose, forces, noise in sample_contacts(objects, poses_per_object, forces_per_pose, seed, spec, fz_range, shear_max):
-            (tmp / "images" / name).mkdir(parents=True, exist_ok=True)
-            if sensors is not None:
-                which = int(np.random.default_rng([seed, objects.index(name), pid, 9]).integers(instances))
-                inst = sensor_instance(sensors, which, (spec.height, spec.width))
-                if inst.name not in used:
-                    used[inst.name] = TactileSensor(inst.spec, optics=inst.optics)
-                    (tmp / "backgrounds").mkdir(exist_ok=True)
-                    cv2.imwrite(str(tmp / "backgrounds" / f"{inst.name}.png"),
-                                cv2.cvtColor(used[inst.name].background, cv2.COLOR_RGB2BGR))
-                sensor = used[inst.name]
-            for k, (force, ns) in enumerate(zip(forces, noise)):
-                c = sensor.press(name, pose, force, noise_seed=ns)
-                rel = f"images/{name}/{pid:04d}_{k:02d}.png"
-                cv2.imwrite(str(tmp / rel), cv2.cvtColor(c.image, cv2.COLOR_RGB2BGR))
-                rows.append([rel, name, pid, *(f"{v:.6f}" for v in pose), *(f"{v:.6f}" for v in c.force)]
-                            + ([inst.name] if sensors is not None else []))
-                bar.update()
+    name, spec = job.objects[oi], job.spec
+    (tmp / "images" / name).mkdir(parents=True, exist_ok=True)
+    sensor = TactileSensor(spec, optics=job.optics) if job.sensors is None else None
+    rows, used, sensors = [], {}, {}
+    contacts = sample_contacts(job.objects, job.poses_per_object, job.forces_per_pose, job.seed, spec, job.fz_range,
+                               job.shear_max, only=oi)
+    for _, pid, pose, forces, noise in contacts:
+        if job.sensors is not None:
+            which = int(np.random.default_rng([job.seed, oi, pid, 9]).integers(job.instances))
+            inst = sensor_instance(job.sensors, which, (spec.height, spec.width))
+            if inst.name not in sensors:
+                sensors[inst.name] = TactileSensor(inst.spec, optics=inst.optics)
+                used[inst.name] = which
+            sensor = sensors[inst.name]
+        for k, (force, ns) in enumerate(zip(forces, noise)):
+            c = sensor.press(name, pose, force, noise_seed=ns)
+            rel = f"images/{name}/{pid:04d}_{k:02d}.png"
+            cv2.imwrite(str(tmp / rel), cv2.cvtColor(c.image, cv2.COLOR_RGB2BGR))
+            rows.append([rel, name, pid, *(f"{v:.6f}" for v in pose), *(f"{v:.6f}" for v in c.force)]
+                        + ([inst.name] if job.sensors is not None else []))
     return rows, used
 
 
@@ -314,6 +360,9 @@ def _parser() -> "_Parser":
                    help="normal force range in N, 0 <= LOW < HIGH, drawn uniformly (default {} {})".format(*d["fz_range"]))
     p.add_argument("--shear-max", type=float, default=d["shear_max"],
                    help=f"|Fx|, |Fy| bound in N, >= 0 (default {d['shear_max']})")
+    p.add_argument("--workers", type=int, default=d["workers"],
+                   help="processes rendering whole objects at once; the files are the same for any number "
+                        f"(default {d['workers']})")
     return p
 
 
@@ -332,6 +381,8 @@ def main(argv=None) -> Path:
             p.error(f"{flag} must be an int >= 1, got {value}")
     if a.seed < 0:
         p.error(f"--seed must be an int >= 0, got {a.seed}")
+    if a.workers < 1:
+        p.error(f"--workers must be an int >= 1, got {a.workers}")
     lo, hi = a.fz_range
     if not (np.isfinite([lo, hi]).all() and 0 <= lo < hi):
         p.error(f"--fz-range LOW HIGH must be finite newtons with 0 <= LOW < HIGH, got {lo:g} {hi:g}")
@@ -346,7 +397,8 @@ def main(argv=None) -> Path:
                     f"(e.g. 120 160), got {a.size[0]} {a.size[1]}")
     try:
         out = write_dataset(a.out, objects, a.poses_per_object, a.forces_per_pose, a.seed, spec, a.optics,
-                            (lo, hi), a.shear_max, sensors=a.sensors, instances=a.instances)
+                            (lo, hi), a.shear_max, sensors=a.sensors, instances=a.instances,
+                            workers=a.workers)
     except ValueError as e:
         p.error(str(e).splitlines()[0] if str(e).strip() else repr(e))
     print(f"wrote {out} ({len(objects) * a.poses_per_object * a.forces_per_pose} images)")
