@@ -26,7 +26,7 @@ fi
 log() { echo "[$(date -u +%T) +${SECONDS}s] $*" | tee -a "$RUNS/driver.log"; }
 log "commit $(git rev-parse --short HEAD 2>/dev/null || echo unknown); $(nproc) cores; $(nvidia-smi -L 2>/dev/null | head -1)"
 python3 -c "import torch, diffusers, pydantic, cv2; print('torch', torch.__version__, 'cuda', torch.cuda.is_available())" \
-  2>&1 | tee -a "$RUNS/driver.log"
+  >> "$RUNS/driver.log" 2>&1 || { log "imports failed"; tail -3 "$RUNS/driver.log"; exit 5; }
 
 log "rendering proc240v"
 python3 -m controltac_il.tactile.dataset --size 240 320 --out "$DATA" $RENDER \
