@@ -118,7 +118,7 @@ def main(argv=None) -> dict:
                    help="autoencoder fine-tuning steps per budget (batch 32 crops; 0 = the DiT only; default 600)")
     p.add_argument("--lr", type=float, default=2e-4, help="peak learning rate of both fine-tunes (default 2e-4)")
     p.add_argument("--estimator-steps", type=int, default=1000, help="estimator fine-tuning steps (default 1000)")
-    p.add_argument("--base", default="default", help="the generator to fine-tune: default, fast or a folder")
+    p.add_argument("--base", default="default", help="the generator to fine-tune: default, fast, quality or a folder")
     p.add_argument("--instance", default="unseen_00", help="the held-out sensor instance playing the lab's sensor")
     p.add_argument("--pairs", type=int, default=96, help="held-out evaluation pairs (default 96)")
     p.add_argument("--runs", type=Path, default=Path("runs/finetune"), help="datasets and fine-tuned runs")

@@ -12,7 +12,7 @@
 # logs.tgz; archives over 15 MB are split (<name>.part-aa, -ab, ...), as the device tool returns files of 16 MiB.
 # Wheels missing on the GPU machine (diffusers, pydantic, ...) are installed from .whl/ when it exists.
 # FRONTIER_SMOKE=1: the same on the CPU with a small dataset (checks this script before a device call).
-set -u
+set -um  # -m: job control, so that the trainings started in the background take the deadline's Ctrl-C (SIGINT)
 OUT=${1:?OUT_DIR}; STEPS=${2:-8000}; DEADLINE=${3:-440}
 RENDER="--procedural 114 --poses-per-object 30 --workers 15"; DEVICE=cuda; VAL=10; EVERY=500
 if [ "${FRONTIER_SMOKE:-0}" = 1 ]; then RENDER="--procedural 10 --poses-per-object 3 --workers 2"; DEVICE=cpu; VAL=3; EVERY=5; fi

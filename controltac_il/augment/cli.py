@@ -85,8 +85,9 @@ def parser() -> argparse.ArgumentParser:
                         "to write (new or empty; written under OUT.partial and renamed when complete)")
     add_config_flags(p)
     p.add_argument("--generator", default=None,
-                   help="generator checkpoint folder, or a calibration bundle (python -m controltac_il.calibrate; its "
-                        "estimator too) (default: shipped)")
+                   help="generator: a shipped preset (default, fast: faster, quality: lowest error, slower), a checkpoint "
+                        "folder, or a calibration bundle (python -m controltac_il.calibrate; its estimator too) "
+                        "(default: default)")
     p.add_argument("--estimator", default=None, help="force estimator checkpoint (only for data without force labels)")
     p.add_argument("--pose-adapter", default="pose",
                    help="with --pose-offset: the stage-2 pose adapter folder (default: pose, shipped for the default)")
@@ -228,7 +229,7 @@ def _models(args, pose: bool):
     try:
         generator = ForceGenerator.from_pretrained(args.generator, device=device)
     except (ValueError, OSError) as exc:
-        raise UsageError("--generator", f"expected a generator checkpoint folder (or default / fast): "
+        raise UsageError("--generator", f"expected a generator checkpoint folder (or default / fast / quality): "
                                         f"{' '.join(str(exc).split())}") from exc
     if pose:
         try:

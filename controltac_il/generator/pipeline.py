@@ -189,7 +189,8 @@ class ForceGenerator:
     @classmethod
     def from_pretrained(cls, path: str | Path | None = None, device: str | torch.device = "cpu",
                         dtype: torch.dtype = torch.float32, pose_adapter: str | Path | None = None) -> "ForceGenerator":
-        """Load a checkpoint folder; ``None`` or ``"default"`` = the shipped default, ``"fast"`` = the faster variant.
+        """Load a checkpoint folder, or a shipped preset: ``None`` or ``"default"``, ``"fast"`` (faster, twice the
+        error) or ``"quality"`` (a 9.9 M-parameter DiT: the lowest error, slower); docs/generator.md has the frontier.
         ``pose_adapter``: also load a stage-2 adapter (a folder, or ``"pose"``, shipped for the default)."""
         path = locate_checkpoint(path)
         config, ae, dit = load_checkpoint(path)

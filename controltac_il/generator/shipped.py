@@ -6,15 +6,15 @@ from __future__ import annotations
 from pathlib import Path
 
 CHECKPOINT_ROOT = Path(__file__).resolve().parent / "checkpoints"
-SHIPPED = ("default", "fast")
+SHIPPED = ("default", "fast", "quality")  # the presets: speed against error, docs/generator.md
 SHIPPED_ADAPTERS = ("pose",)  # stage-2 pose adapters, each trained on the shipped default
 
 BUNDLE_PART = "generator"  # a calibration bundle's generator subfolder (python -m controltac_il.calibrate)
 
 
 def locate_checkpoint(path: str | Path | None = None, shipped: tuple[str, ...] = SHIPPED) -> Path:
-    """The checkpoint folder ``from_pretrained(path)`` loads: ``None``/``"default"`` and ``"fast"`` name the shipped
-    ones (``shipped``: the names to accept, ``SHIPPED_ADAPTERS`` for stage 2); a calibration bundle gives its
+    """The checkpoint folder ``from_pretrained(path)`` loads: ``None``/``"default"``, ``"fast"`` and ``"quality"`` name the
+    shipped presets (``shipped``: the names to accept, ``SHIPPED_ADAPTERS`` for stage 2); a calibration bundle gives its
     ``generator/``."""
     if path is None:
         path = shipped[0]

@@ -53,7 +53,7 @@ def parse_args(argv=None) -> PoseTrainConfig:
         "stage-1 generator on sensor-model scenes rendered in memory. Resumable states; the fp16 adapter with its "
         "model card goes to OUT/final."))
     p.add_argument("--out", required=True, help="run folder (states, OUT/final)")
-    p.add_argument("--base", default="default", help="frozen stage-1 checkpoint: a folder, or default / fast (default: default)")
+    p.add_argument("--base", default="default", help="frozen stage-1 checkpoint: a folder, or default / fast / quality (default: default)")
     p.add_argument("--adapter-from", default=None,
                    help="start from this adapter (a folder, or pose) instead of a zero-initialised one; same --base")
     p.add_argument("--resume", action="store_true", help="continue the run in --out")
