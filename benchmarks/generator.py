@@ -18,10 +18,15 @@ only, so on ``unseen_sensor`` both are large).
 Methods: reference copy; physics re-render (``controltac_il.tactile.inverse``); "target through the model
 size", a bound rather than a method: the true target resized to the generator's image size and back, i.e. what
 a perfect generator working at that size would lose at 240×320 if it kept none of the frame's finer detail; the
-default generator at DDIM steps 1, 2, 5, 10, 20, 50; the faster variant at its steps. For each: images/s at
-batch 1 and batch 32 at 120×160, and at batch 32 at 240×320 (median of repeats, this process's torch threads),
-and the peak resident memory of a fresh process generating one batch of 32 (``--quick``: the default setting only). ``autoencoder_speed``: the autoencoder's share of a batch of 32 (one encode,
-two decodes) for the shipped one and for an f8 autoencoder at 240×320, the native-resolution alternative.
+default generator at DDIM steps 1, 2, 5, 10, 20, 50; the faster variant at 1, 2, 5; the frontier's other sizes
+(``benchmarks.generator_frontier``: from-scratch tiny and small, the quality preset) at 1, 2, 5. Each generator row
+records its checkpoint (``preset``) and DiT ``parameters``, and on the real GelSight Mini frames of ../shared
+(``real``) its output at ΔF = 0 against the frame and the monotonicity of its contact area in Fz. For each:
+images/s at batch 1 and batch 32 at 120×160, and at batch 32 at 240×320 (median of repeats, this process's torch
+threads), and the peak resident memory of a fresh process generating one batch of 32 (``--quick``: the default
+setting only). ``autoencoder_speed``: the autoencoder's share of a batch of 32 (one encode, two decodes) for the
+shipped one and for an f8 autoencoder at 240×320, the native-resolution alternative. Beside ``--out``: the PNG
+sheet and ``<out>_frontier.png``, error against images/s per size.
 """
 
 from __future__ import annotations
@@ -38,6 +43,7 @@ import torch
 from tqdm.auto import tqdm
 
 from benchmarks.common import base_parser, median_time, print_table, write_results
+from benchmarks.generator_frontier import FRONTIER, FRONTIER_STEPS, checkpoint_folder, real_checks, save_frontier_plot
 from controltac_il.estimators import ForceEstimator
 from controltac_il.generator import ForceGenerator
 from controltac_il.generator.forces import VALIDATED_RANGE
@@ -218,7 +224,7 @@ def table_row(entry: dict) -> dict:
         row[f"{split} MSE"] = f"{q['mse']:.1f} ± {q['mse_sd']:.1f}"
         row[f"{split} SSIM"] = f"{q['ssim']:.3f}"
     rb = entry["unseen_240"]
-    return {**row, "unseen_240 Fz read-back N (true)": f"{rb['readback_fz_mae']:.2f} ({rb['true_readback_fz_mae']:.2f})",
+    return {**row, "DiT params": entry.get("parameters"), "unseen_240 Fz read-back N (true)": f"{rb['readback_fz_mae']:.2f} ({rb['true_readback_fz_mae']:.2f})",
             "unseen noise": f"{entry['unseen']['bare_noise_ratio']:.2f}", "img/s b1": entry.get("img_per_s_b1"),
             "img/s b32": entry.get("img_per_s_b32"), "img/s b32 240": entry.get("img_per_s_b32_240"),
             "peak MB": entry.get("peak_rss_mb")}
@@ -228,6 +234,9 @@ def main(argv=None) -> dict:
     p = base_parser(__doc__.splitlines()[0])
     p.add_argument("--checkpoint", default="default", help="default generator (shipped name or folder)")
     p.add_argument("--fast", default="fast", help="faster variant (shipped name or folder; '' to skip)")
+    p.add_argument("--frontier", nargs="*", default=None, metavar="NAME",
+                   help=f"the frontier's other sizes, each at DDIM {'/'.join(map(str, FRONTIER_STEPS))} (default: "
+                        f"{' '.join(FRONTIER)}; --quick: none)")
     p.add_argument("--sheet", type=Path, default=None, help="PNG sheet path (default: beside --out)")
     p.add_argument("--cache", type=Path, default=Path("/tmp/controltac_generator_bench"), help="evaluation data cache")
     p.add_argument("--threads", type=int, default=torch.get_num_threads(), help="torch threads")
@@ -241,16 +250,18 @@ def main(argv=None) -> dict:
     repeats = 2 if quick else 5
 
     data = {s: eval_pairs(a.cache, s, poses=2 if quick else 8, forces=4 if quick else 6, max_pairs=n_pairs) for s in SPLITS}
-    gens = {"default": ForceGenerator.from_pretrained(a.checkpoint)}
-    if a.fast:
-        gens["fast"] = ForceGenerator.from_pretrained(a.fast)
+    frontier = a.frontier if a.frontier is not None else (() if quick else FRONTIER)
+    folders = {"default": a.checkpoint, **({"fast": a.fast} if a.fast else {}),
+               **{n: checkpoint_folder(n) for n in frontier}}
+    gens = {k: ForceGenerator.from_pretrained(v) for k, v in folders.items()}
 
     methods: list[tuple[str, str, int | None]] = [("reference copy", "copy", None), ("physics re-render", "rerender", None),
                                                   ("target through the model size", "roundtrip", None)]
     methods += [(f"default DDIM-{s}", "default", s) for s in steps_grid]
     if "fast" in gens:
         fs = gens["fast"].config.default_steps
-        methods += [(f"fast DDIM-{s}", "fast", s) for s in sorted({1, fs, 2 * fs})]
+        methods += [(f"fast DDIM-{s}", "fast", s) for s in sorted({1, fs, 2 * fs} | (set() if quick else set(FRONTIER_STEPS)))]
+    methods += [(f"{n} DDIM-{s}", n, s) for n in frontier for s in FRONTIER_STEPS]
     estimator = ForceEstimator.from_pretrained()
     sensors = {size: TactileSensor(SensorSpec.gelsight_mini().scaled(*size)) for size in (RENDER_SIZE, NATIVE_SIZE)}
     model_hw = tuple(gens["default"].config.image_size)
@@ -267,7 +278,8 @@ def main(argv=None) -> dict:
     rows, per_method = [], {}
     for name, kind, steps in tqdm(methods, desc="methods", unit="method", disable=None):
         fn = None if kind == "roundtrip" else predictor(kind, steps)
-        entry = {"method": name, "kind": kind, "steps": steps}
+        entry = {"method": name, "kind": kind, "steps": steps, "preset": kind if kind in gens else None,
+                 "parameters": sum(t.numel() for t in gens[kind].denoiser.parameters()) if kind in gens else None}
         preds = {}
         for split, (refs, tgts, rf, tf, bg) in data.items():
             t0 = time.perf_counter()
@@ -281,6 +293,8 @@ def main(argv=None) -> dict:
         def on(split):  # (a batch function over that split's forces, its references)
             refs, _, rf, tf, _ = data[split]
             return (lambda r: fn(r, np.resize(rf, (len(r), 3)), np.resize(tf, (len(r), 3)))), refs
+        if kind in gens:
+            entry["real"] = real_checks(fn)
         default_setting = kind == "default" and steps == gens["default"].config.default_steps
         if not quick or default_setting:  # --quick times the default setting only
             entry.update(throughput(*on("unseen"), 1 if kind == "rerender" else repeats))
@@ -289,7 +303,7 @@ def main(argv=None) -> dict:
         if kind == "copy":
             entry.update(peak_rss_mb=None, batch_growth_mb=0.0)
         elif not quick or default_setting:
-            ck = None if kind == "rerender" else (a.checkpoint if kind == "default" else a.fast)
+            ck = folders.get(kind)
             entry.update(peak_memory_mb("generator" if ck else "rerender", ck, steps, a.threads))
         per_method[name] = (entry, preds)
         rows.append(table_row(entry))
@@ -330,6 +344,10 @@ def main(argv=None) -> dict:
                 cases.append((split, refs[k], tgts[k], per_method[name][1][split][k], bgs[k]))
         save_sheet(sheet, cases)
         print(f"wrote {sheet}")
+        if frontier:
+            picture = (a.out or sheet).with_name((a.out or sheet).stem + "_frontier.png")
+            save_frontier_plot(picture, [per_method[n][0] for n in per_method], a.threads)
+            print(f"wrote {picture}")
 
     results = {
         "autoencoder_speed": autoencoder_speed(gens["default"].autoencoder, repeats, 4 if quick else 32),
@@ -337,15 +355,14 @@ def main(argv=None) -> dict:
                      "splits": {k: {"objects": list(v[0]), "render_size": list(v[2]), "sensors": v[3] or "nominal"}
                                 for k, v in SPLITS.items()},
                      "model_size": list(gens["default"].config.image_size), "threads": a.threads,
-                     "checkpoints": {k: {"path": str(v if isinstance(v, str) else v), "hash": gens[k].checkpoint_hash}
-                                     for k, v in (("default", a.checkpoint), ("fast", a.fast)) if k in gens}},
+                     "checkpoints": {k: {"path": str(v), "hash": gens[k].checkpoint_hash} for k, v in folders.items()}},
         "methods": [per_method[n][0] for n in per_method],
         "targets": targets,
     }
     doc = write_results(a.out, results)
     if a.update_model_card:
         for key in gens:
-            ck = Path(a.checkpoint if key == "default" else a.fast)
+            ck = Path(folders[key])
             folder = CHECKPOINT_ROOT / ck if not ck.is_dir() else ck
             card_path = folder / "model_card.json"
             card = json.loads(card_path.read_text()) if card_path.is_file() else {}
