@@ -125,25 +125,19 @@ def _calibration_row(cal: dict, source: str) -> list[str]:
 def headline() -> str:
     """One row per headline figure: what, the figure, its spread or interval, its docs section, its JSON."""
     rf = _rf()
-    names = ("generator.json", "finetune.json", "calibration.json", "touch_il_verdict.json", "env.json", "act.json")
-    gen, fin, cal, ver, env, act = docs = [rf.load(n) for n in names]
+    names = ("generator.json", "finetune.json", "calibration.json", "touch_il_verdict.json", "env.json", "act.json",
+             "generator_speed.json")
+    gen, fin, cal, ver, env, act, speed = docs = [rf.load(n) for n in names]
     src = {n: f"`{n}` ({doc['machine']['git_commit']}, {doc['machine']['date_utc'][:10]})"
            + (" *History*" if _source(rf, n, doc).startswith("*History") else "") for n, doc in zip(names, docs)}
-    d = next(m for m in gen["methods"] if m["method"] == "default DDIM-1")
-    ratio = gen["targets"]["unseen_240_mse_ratio_to_copy"]
     first, last = fin["rows"][0], fin["rows"][-1]
     vis = next(c for c in ver["comparisons"] if (c["variant"], c["setting"]) == ("vision_only", "nominal"))
     full, expert = env["step_timing"][-1], env["expert"][0]
     lo, hi = (rf.pct(x) for x in wilson_interval(expert["successes"], expert["episodes"]))
     cpu = next(r for r in act["latency"] if r["preset"] == "cpu")
-    gen_link, verdict_link = "[generator](docs/generator.md#the-benchmark)", "[experiments](docs/experiments.md#the-verdict-v1)"
+    verdict_link = "[experiments](docs/experiments.md#the-verdict-v1)"
     rows = [
-        ["generator speed (shipped default, DDIM-1, batch 32)", f"{d['img_per_s_b32']:.1f} img/s on 120×160 frames, "
-         f"{d['img_per_s_b32_240']:.1f} on 240×320", "one timing each (median of repeats), no interval", gen_link,
-         src["generator.json"]],
-        ["generator error (6 held-out objects, 240×320)", f"MSE {d['unseen_240']['mse']:.1f}: {ratio:.3f}× a reference "
-         f"copy's (target ≤ 0.25×: {'met' if ratio <= 0.25 else 'missed'})",
-         f"± {d['unseen_240']['mse_sd']:.1f} SD over {d['unseen_240']['n']} pairs", gen_link, src["generator.json"]],
+        *(_preset_row(gen, speed, name, src) for name in ("fast", "default", "quality")),
         [f"calibration to a held-out sensor ({last['images']:,} presses)".replace(",", " "), f"generator {last['mse_ratio_to_copy']:.3f}× a "
          f"copy's MSE (zero-shot {first['mse_ratio_to_copy']:.3f}×); estimator Fz MAE {first['estimator_mae'][2]:.2f} "
          f"→ {last['estimator_mae'][2]:.2f} N", f"MSE {last['mse']:.1f} ± {last['mse_sd']:.1f} SD over {last['n']} pairs",
@@ -161,6 +155,22 @@ def headline() -> str:
          f"{cpu['ms_per_chunk']:.1f} ms per chunk of {cpu['chunk']} (target {cpu['target_ms']:.0f})",
          "one timing, no interval", "[ACT](docs/act_and_deployment.md#speed)", src["act.json"]]]
     return rf.table(["what", "measured", "error or interval", "details", "source (`benchmarks/results/`)"], rows)
+
+
+def _preset_row(gen: dict, speed: dict, name: str, src: dict) -> list:
+    """A shipped generator preset at DDIM-1: its speed (median, range over rounds) and, beside it, its error on the
+    held-out objects at 240×320."""
+    m = next(m for m in gen["methods"] if m["method"] == f"{name} DDIM-1")
+    s = next(r for r in speed["rows"] if (r["checkpoint"], r["frames"], r["steps"]) == (name, "240", 1))
+    copy = next(m for m in gen["methods"] if m["kind"] == "copy")["unseen_240"]["mse"]
+    ratio, q = m["unseen_240"]["mse"] / copy, m["unseen_240"]
+    return [f"generator preset `{name}` ({m['parameters'] / 1e6:.2f} M-parameter DiT, DDIM-1, batch 32, 2 CPU threads)",
+            f"{s['img_per_s_b32']:.1f} img/s on 240×320 frames at MSE {ratio:.3f}× a reference copy's on 6 held-out "
+            f"objects (target ≤ 0.25×: {'met' if ratio <= 0.25 else 'missed'})",
+            f"speed {min(s['img_per_s_rounds']):.1f}–{max(s['img_per_s_rounds']):.1f} over {len(s['img_per_s_rounds'])} "
+            f"rounds; MSE {q['mse']:.1f} ± {q['mse_sd']:.1f} SD over {q['n']} pairs",
+            "[generator](docs/generator.md#presets-the-speed-error-frontier-across-model-sizes)",
+            f"{src['generator.json']}, {src['generator_speed.json']}"]
 
 
 def calibration() -> str:
@@ -199,6 +209,54 @@ def calibration_methods() -> str:
     return rf.table(head, rows) + "\n\n" + _source(rf, "calibration_methods.json", doc)
 
 
+# -- the generator's frontier ---------------------------------------------------------------------------------
+
+FRONTIER_ORDER = ("fast", "default", "frontier_tiny", "frontier_small", "quality")
+
+
+def _card(name: str) -> dict:
+    """A shipped checkpoint's model card (its training and its own validation curve; committed beside it)."""
+    import json
+
+    return json.loads((_rf().ROOT / "controltac_il" / "generator" / "checkpoints" / name / "model_card.json").read_text())
+
+
+def generator_frontier() -> str:
+    """Every size at DDIM 1 / 2 / 5: error on unseen objects at 240×320 and elsewhere (× a copy's), on real frames,
+    its own validation, speed on 2 CPU threads (generator_speed.json: median and range over rounds) and on the GPU
+    (generator_speed_gpu.json)."""
+    rf = _rf()
+    doc, cpu, gpu = (rf.load(n) for n in ("generator.json", "generator_speed.json", "generator_speed_gpu.json"))
+    copy = {k: v for k, v in next(m for m in doc["methods"] if m["kind"] == "copy").items() if isinstance(v, dict)}
+    on_gpu = {(r["hash"], r["steps"]): r["img_per_s_b32"] for r in gpu["rows"] if r["frames"] == "240"}
+    on_cpu = {(r["hash"], r["steps"]): r for r in cpu["rows"] if r["frames"] == "240"}
+    hashes = {k: v["hash"] for k, v in doc["settings"]["checkpoints"].items()}
+    rows = []
+    for kind in FRONTIER_ORDER:
+        val = _card(kind)["denoiser"].get("validation") or {}
+        for m in (m for m in doc["methods"] if m["kind"] == kind and m["steps"] in (1, 2, 5)):
+            ratio = {k: m[k]["mse"] / copy[k]["mse"] for k in ("unseen", "unseen_240", "unseen_sensor")}
+            real = m.get("real") or {}
+            best = val.get("best") or {}
+            rows.append([f"`{kind}`" if m["steps"] == 1 else "", f"{m['parameters'] / 1e6:.2f} M" if m["steps"] == 1 else "",
+                         m["steps"], f"**{ratio['unseen_240']:.3f}**", f"{ratio['unseen']:.3f}", f"{ratio['unseen_sensor']:.3f}",
+                         f"{real['identity_mse']:.1f}" if real else "–", ("yes" if real["monotone"] else "**no**") if real else "–",
+                         f"{best['ratio_to_copy']:.3f} (step {val['best_step']})" if best and m["steps"] == 1 else "",
+                         _speed(on_cpu[(hashes[kind], m["steps"])]), f"{on_gpu[(hashes[kind], m['steps'])]:.0f}"
+                         if (hashes[kind], m["steps"]) in on_gpu else "–", f"{m['peak_rss_mb']:.0f}"])
+    head = ["size", "DiT params", "DDIM", "unseen 240 MSE ÷ copy", "unseen", "unseen sensor", "real: MSE at ΔF = 0",
+            "real: monotone", "its validation ÷ copy", "img/s b32 240, 2 CPU threads (range)", "img/s b32 240, H200",
+            "peak MB (CPU, b32)"]
+    return (rf.table(head, rows) + "\n\n" + _source(rf, "generator.json", doc) + "\n"
+            + _source(rf, "generator_speed.json", cpu) + "\n" + _source(rf, "generator_speed_gpu.json", gpu))
+
+
+def _speed(row: dict) -> str:
+    """Median img/s over rounds with the rounds' range."""
+    lo, hi = min(row["img_per_s_rounds"]), max(row["img_per_s_rounds"])
+    return f"{row['img_per_s_b32']:.1f} ({lo:.1f}–{hi:.1f})"
+
+
 BLOCKS = {"calibration": calibration, "calibration-methods": calibration_methods, "sensor": sensor,
           "env-speed": env_speed, "hardware": hardware, "generation-chunk": generation_chunk,
-          "force-scaling": force_scaling, "headline": headline}
+          "force-scaling": force_scaling, "headline": headline, "generator-frontier": generator_frontier}

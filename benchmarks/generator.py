@@ -26,7 +26,8 @@ images/s at batch 1 and batch 32 at 120×160, and at batch 32 at 240×320 (media
 threads), and the peak resident memory of a fresh process generating one batch of 32 (``--quick``: the default
 setting only). ``autoencoder_speed``: the autoencoder's share of a batch of 32 (one encode, two decodes) for the
 shipped one and for an f8 autoencoder at 240×320, the native-resolution alternative. Beside ``--out``: the PNG
-sheet and ``<out>_frontier.png``, error against images/s per size.
+sheet. The frontier's picture joins these errors to ``benchmarks.generator_speed``'s timings
+(``python -m benchmarks.generator_frontier``).
 """
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ import torch
 from tqdm.auto import tqdm
 
 from benchmarks.common import base_parser, median_time, print_table, write_results
-from benchmarks.generator_frontier import FRONTIER, FRONTIER_STEPS, checkpoint_folder, real_checks, save_frontier_plot
+from benchmarks.generator_frontier import FRONTIER, FRONTIER_STEPS, checkpoint_folder, real_checks
 from controltac_il.estimators import ForceEstimator
 from controltac_il.generator import ForceGenerator
 from controltac_il.generator.forces import VALIDATED_RANGE
@@ -344,10 +345,6 @@ def main(argv=None) -> dict:
                 cases.append((split, refs[k], tgts[k], per_method[name][1][split][k], bgs[k]))
         save_sheet(sheet, cases)
         print(f"wrote {sheet}")
-        if frontier:
-            picture = (a.out or sheet).with_name((a.out or sheet).stem + "_frontier.png")
-            save_frontier_plot(picture, [per_method[n][0] for n in per_method], a.threads)
-            print(f"wrote {picture}")
 
     results = {
         "autoencoder_speed": autoencoder_speed(gens["default"].autoencoder, repeats, 4 if quick else 32),

@@ -403,7 +403,7 @@ CARDS: dict[str, tuple[str, Callable[[dict], dict]]] = {
         "generator.json", lambda doc, key=key: {
             "machine": doc["machine"], "settings": doc["settings"], "targets": doc["targets"],
             "methods": [m for m in doc["methods"] if m["kind"] in ("copy", "rerender", key)]})
-    for key in ("default", "fast")
+    for key in ("default", "fast", "quality", "frontier_tiny", "frontier_small")
 } | {"controltac_il/generator/checkpoints/pose/model_card.json": (
     "pose.json", lambda doc: {k: doc[k] for k in ("machine", "pose_control", "robustness", "speed")})}
 

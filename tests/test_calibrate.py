@@ -112,3 +112,19 @@ def test_a_stopped_calibration_resumes_to_the_same_estimator(bases, tmp_path, ca
     record = json.loads((out / "calibration.json").read_text())["estimator"]
     assert record["method"] == "the whole base network fine-tuned" and record["steps"] == 6
     assert sum(v is not None for v in record["held_out"]["predicted_fz"]) == record["held_out"]["frames"] < 30
+
+
+def test_calibration_starts_from_the_quality_preset(bases, tmp_path):
+    """``--base-generator quality`` (#41): the bundle's generator is the 9.9 M-parameter DiT fine-tuned, its base
+    recorded by hash (2 + 2 steps at batch 4: the plumbing, not the curve of benchmarks.finetune)."""
+    tmp, presses = bases
+    out = tmp_path / "from_quality"
+    assert main(["--presses", str(presses), "--out", str(out), "--base-generator", "quality", "--base-estimator",
+                 str(tmp / "est"), "--estimator-steps", "2", "--ae-steps", "2", "--dit-steps", "2", "--batch", "4",
+                 "--threads", "1"]) == 0
+    record = json.loads((out / "calibration.json").read_text())
+    base, gen = ForceGenerator.from_pretrained("quality"), ForceGenerator.from_pretrained(out)
+    assert record["generator"]["base_hash"] == base.checkpoint_hash != gen.checkpoint_hash == record["generator"]["hash"]
+    assert gen.config.dit == base.config.dit and gen.config.dit.hidden_size == 256
+    x = np.full((2, 60, 80, 3), 127, np.uint8)
+    assert gen.generate(x, np.zeros((2, 3), np.float32)).shape == x.shape
