@@ -79,3 +79,28 @@ def test_quick_run_writes_the_table_json_targets_and_sheet(tmp_path, capsys):
     assert "unseen MSE" in capsys.readouterr().out
     sheet = cv2.imread(str(out.with_suffix(".png")))
     assert sheet.shape == (24 + 9 * 2 * bench.RENDER_SIZE[0], 4 * 2 * bench.RENDER_SIZE[1], 3)
+
+
+def test_speed_rounds_time_every_checkpoint_and_keep_each_rounds_figure(tmp_path):
+    """benchmarks.generator_speed: one row per (checkpoint, frames, steps), the median over rounds with the rounds."""
+    from benchmarks import generator_speed
+
+    doc = generator_speed.main(["--quick", "--rounds", "2", "--repeats", "1", "--threads", "1", "--checkpoints",
+                                "fast", "--out", str(tmp_path / "s.json")])
+    rows = json.loads((tmp_path / "s.json").read_text())["rows"]
+    assert rows == doc["rows"] and len(rows) == len(generator_speed.SIZES) * len(generator_speed.STEPS)
+    for r in rows:
+        assert r["checkpoint"] == "fast" and len(r["img_per_s_rounds"]) == 2
+        assert r["img_per_s_b32"] == pytest.approx(float(np.median(r["img_per_s_rounds"]))) and r["dit_parameters"] > 0
+
+
+def test_the_frontier_joins_errors_to_timings_by_checkpoint_and_steps():
+    """Each point: the generator row's error ÷ the copy's, the speed rows' rounds at 240×320; untimed rows left out."""
+    from benchmarks.generator_frontier import frontier_points
+
+    copy = {"kind": "copy", "unseen_240": {"mse": 40.0}}
+    methods = [copy, {"kind": "quality", "steps": 1, "parameters": 9, "unseen_240": {"mse": 10.0}},
+               {"kind": "quality", "steps": 5, "parameters": 9, "unseen_240": {"mse": 12.0}}]
+    speed = [{"checkpoint": "quality", "frames": "240", "steps": 1, "img_per_s_rounds": [30.0, 32.0]},
+             {"checkpoint": "quality", "frames": "120", "steps": 5, "img_per_s_rounds": [11.0]}]
+    assert frontier_points(methods, speed) == {"quality": [([30.0, 32.0], 0.25, 1)]}
