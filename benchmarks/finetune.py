@@ -57,7 +57,7 @@ def calibrate(base: Path, data: Path, bundle: Path, args) -> Path:
     if not bundle.is_dir():
         argv = ["--presses", str(data), "--out", str(bundle), "--base-generator", str(base), "--dit-steps",
                 str(args.steps), "--ae-steps", str(args.ae_steps), "--estimator-steps", str(args.estimator_steps),
-                "--lr", str(args.lr)]
+                "--lr", str(args.lr), "--device", args.device]
         partial = bundle.with_name(bundle.name + ".partial").is_dir()
         if run(argv + (["--resume"] if partial else [])) != 0:
             raise RuntimeError(f"calibrating on {data} failed")
@@ -123,6 +123,7 @@ def main(argv=None) -> dict:
     p.add_argument("--pairs", type=int, default=96, help="held-out evaluation pairs (default 96)")
     p.add_argument("--runs", type=Path, default=Path("runs/finetune"), help="datasets and fine-tuned runs")
     p.add_argument("--resume", action="store_true", help="keep the budgets already in --out")
+    p.add_argument("--device", default="cpu", help="where the generator fine-tunes: cpu (default) or cuda")
     args = p.parse_args(argv)
     if args.quick:
         args.images, args.steps, args.ae_steps, args.pairs, args.estimator_steps = [0, 48], 4, 2, 12, 4

@@ -77,7 +77,8 @@ def test_bad_presses_and_stopped_runs_are_one_line(bases, tmp_path, capsys):
     cases = [(["--presses", str(tmp_path / "photos"), "--out", str(tmp_path / "o")], "--presses: not a presses folder"),
              (["--presses", str(tmp_path / "none"), "--out", str(tmp_path / "o")], "--presses: "),
              (["--presses", str(presses), "--out", str(tmp_path / "o"), "--dit-steps", "0"], "--dit-steps: "),
-             (["--presses", str(presses), "--out", str(tmp_path / "o"), "--val-fraction", "1"], "--val-fraction: ")]
+             (["--presses", str(presses), "--out", str(tmp_path / "o"), "--val-fraction", "1"], "--val-fraction: "),
+             (["--presses", str(presses), "--out", str(tmp_path / "o"), "--device", "abacus"], "--device: ")]
     (tmp_path / "s.partial").mkdir()
     cases.append((["--presses", str(presses), "--out", str(tmp_path / "s")], "--resume"))
     for argv, expected in cases:

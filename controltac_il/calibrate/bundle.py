@@ -170,7 +170,7 @@ def generator_part(args, ds, staging: Path) -> dict:
     train, val = held_out_poses(ds.pose_groups(), args.val_fraction)
     data = subset_presses(ds, train, staging / "generator.data")
     final = fine_tune(base, data, staging / "generator.run", args.dit_steps, args.lr, args.ae_steps, batch=args.batch,
-                      threads=args.threads)
+                      threads=args.threads, device=args.device)
     if (staging / "generator").exists():
         shutil.rmtree(staging / "generator")
     shutil.copytree(final, staging / "generator")

@@ -43,6 +43,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--batch", type=int, default=64, help="DiT batch (default 64)")
     p.add_argument("--val-fraction", type=float, default=0.2, help="grasps held out from the generator (default 0.2)")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
+    p.add_argument("--device", default="cpu", help="where the generator fine-tunes: cpu (default) or cuda")
     p.add_argument("--resume", action="store_true", help="continue a stopped run in OUT.partial")
     return p
 
@@ -55,6 +56,10 @@ def check(args: argparse.Namespace) -> None:
             raise ValueError(f"{flag}: expected an int >= {low}, got {value}")
     if not 0 < args.val_fraction < 1:
         raise ValueError(f"--val-fraction: expected a share in (0, 1), got {args.val_fraction}")
+    from controltac_il.training import device_problem
+
+    if device_problem(args.device):
+        raise ValueError(device_problem(args.device))
     if args.out.exists():
         raise ValueError(f"--out: {args.out} exists; a bundle is written to a new folder")
     staging = args.out.with_name(args.out.name + ".partial")

@@ -22,10 +22,10 @@ def base_flags(base: Path) -> list[str]:
 
 
 def fine_tune(base: Path, data: Path, out: Path, steps: int, lr: float, ae_steps: int = 0, batch: int = 64,
-              threads: int | None = None) -> Path:
+              threads: int | None = None, device: str = "cpu") -> Path:
     """Fine-tune ``base``'s autoencoder (``ae_steps``) and then its DiT (``steps``, batch ``batch``) on the
-    dataset folder ``data`` into the run folder ``out`` (resumed where a run stopped; kept when done); returns
-    the checkpoint ``out / "final"``. RuntimeError when the training stops with an error."""
+    dataset folder ``data`` into the run folder ``out`` on ``device`` (resumed where a run stopped; kept when
+    done); returns the checkpoint ``out / "final"``. RuntimeError when the training stops with an error."""
     from controltac_il.generator import ForceGenerator
     from controltac_il.generator.train import main as train
 
@@ -42,6 +42,8 @@ def fine_tune(base: Path, data: Path, out: Path, steps: int, lr: float, ae_steps
             argv += ["--ae-finetune-steps", str(ae_steps), "--ae-lr", str(lr), "--ae-crop", "64", "80"]
         if threads:
             argv += ["--threads", str(threads)]
+        if device != "cpu":
+            argv += ["--device", device]
         resume = any((out / f"{s}_state.json").is_file() for s in ("autoencoder_finetune", "denoiser"))
         rc = train(argv + (["--resume"] if resume else []))
         if rc != 0:
