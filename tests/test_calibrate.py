@@ -115,6 +115,7 @@ def test_a_stopped_calibration_resumes_to_the_same_estimator(bases, tmp_path, ca
     assert sum(v is not None for v in record["held_out"]["predicted_fz"]) == record["held_out"]["frames"] < 30
 
 
+@pytest.mark.slow  # 6 s on the 2-core machine, most of it the 9.9 M DiT's fine-tune and loads: with -m slow
 def test_calibration_starts_from_the_quality_preset(bases, tmp_path):
     """``--base-generator quality`` (#41): the bundle's generator is the 9.9 M-parameter DiT fine-tuned, its base
     recorded by hash (2 + 2 steps at batch 4: the plumbing, not the curve of benchmarks.finetune)."""
