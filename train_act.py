@@ -44,7 +44,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--augment", choices=("none", "force"), default="none",
                    help="force: add ForceAugment copies of every training episode (generated tactile frames)")
     p.add_argument("--copies", type=int, default=2, help="ForceAugment copies per episode, 1-9 (default 2)")
-    p.add_argument("--generator", type=Path, default=None, help="generator checkpoint (default: the shipped one)")
+    p.add_argument("--generator", default=None,
+                   help="with --augment force: a shipped preset (default, fast, quality) or a checkpoint folder (default: default)")
     p.add_argument("--demos", type=int, default=20, help="episodes collected for the embedded default (default 20)")
     p.add_argument("--resume", action="store_true", help="continue from OUT/last (same dataset and options)")
     p.add_argument("--overwrite", action="store_true",

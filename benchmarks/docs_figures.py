@@ -211,7 +211,10 @@ def calibration_methods() -> str:
 
 # -- the generator's frontier ---------------------------------------------------------------------------------
 
-FRONTIER_ORDER = ("fast", "default", "frontier_tiny", "frontier_small", "quality")
+def _frontier_order() -> tuple[str, ...]:
+    from benchmarks.generator_frontier import FRONTIER
+
+    return ("fast", "default", *FRONTIER)
 
 
 def _card(name: str) -> dict:
@@ -232,7 +235,7 @@ def generator_frontier() -> str:
     on_cpu = {(r["hash"], r["steps"]): r for r in cpu["rows"] if r["frames"] == "240"}
     hashes = {k: v["hash"] for k, v in doc["settings"]["checkpoints"].items()}
     rows = []
-    for kind in FRONTIER_ORDER:
+    for kind in _frontier_order():
         val = _card(kind)["denoiser"].get("validation") or {}
         for m in (m for m in doc["methods"] if m["kind"] == kind and m["steps"] in (1, 2, 5)):
             ratio = {k: m[k]["mse"] / copy[k]["mse"] for k in ("unseen", "unseen_240", "unseen_sensor")}

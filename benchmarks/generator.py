@@ -44,7 +44,7 @@ import torch
 from tqdm.auto import tqdm
 
 from benchmarks.common import base_parser, median_time, print_table, write_results
-from benchmarks.generator_frontier import FRONTIER, FRONTIER_STEPS, checkpoint_folder, real_checks
+from benchmarks.generator_frontier import FRONTIER, FRONTIER_STEPS, real_checks
 from controltac_il.estimators import ForceEstimator
 from controltac_il.generator import ForceGenerator
 from controltac_il.generator.forces import VALIDATED_RANGE
@@ -253,7 +253,7 @@ def main(argv=None) -> dict:
     data = {s: eval_pairs(a.cache, s, poses=2 if quick else 8, forces=4 if quick else 6, max_pairs=n_pairs) for s in SPLITS}
     frontier = a.frontier if a.frontier is not None else (() if quick else FRONTIER)
     folders = {"default": a.checkpoint, **({"fast": a.fast} if a.fast else {}),
-               **{n: checkpoint_folder(n) for n in frontier}}
+               **{n: n for n in frontier}}
     gens = {k: ForceGenerator.from_pretrained(v) for k, v in folders.items()}
 
     methods: list[tuple[str, str, int | None]] = [("reference copy", "copy", None), ("physics re-render", "rerender", None),

@@ -16,19 +16,13 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.response import DELTAS, MAX_DROP_PP, contact_area_pct, real_references
-from controltac_il.generator.shipped import CHECKPOINT_ROOT
+from controltac_il.generator.shipped import FRONTIER_SIZES
 from controltac_il.metrics import mse
 
-FRONTIER = ("frontier_tiny", "frontier_small", "quality")
+FRONTIER = (*FRONTIER_SIZES, "quality")  # beside fast and default, each loadable by name
 FRONTIER_STEPS = (1, 2, 5)
 PAPER = {"label": "ControlTac (147 M, real data)", "unseen_ratio_to_copy": 26 / 233}  # DESIGN.md's paper figures
 REAL_FZ = 4.0  # the nominal reference force (N) the real frames' ΔF sweeps start from (they carry no label)
-
-
-def checkpoint_folder(name: str) -> str:
-    """A shipped checkpoint's folder by name (the presets and the frontier's sizes), or ``name`` as a path."""
-    folder = CHECKPOINT_ROOT / name
-    return str(folder) if folder.is_dir() else name
 
 
 def real_checks(predict) -> dict | None:

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from benchmarks.common import base_parser, median_time, print_table, write_results
-from benchmarks.generator_frontier import checkpoint_folder
+from benchmarks.generator_frontier import FRONTIER
 from controltac_il.generator import ForceGenerator
 from controltac_il.tactile import HELDOUT_OBJECTS, SensorSpec, TactileSensor
 from controltac_il.tactile.residual import to_residual
@@ -49,7 +49,7 @@ def time_round(gens: dict, device: str, repeats: int, data: dict, order: list[st
             for steps in STEPS:
                 def once():
                     gen.generate(refs, delta, steps=steps, seed=0, batch_size=BATCH)
-                out[(name, size, steps)] = BATCH / median_time(once, repeats=repeats, warmup=1)
+                out[(name, size, steps)] = len(refs) / median_time(once, repeats=repeats, warmup=1)
         peaks[name] = torch.cuda.max_memory_allocated() / 2**20 if device.startswith("cuda") else None
     return out, peaks
 
@@ -58,7 +58,7 @@ def time_checkpoints(names: list[str], device: str, repeats: int, rounds: int, d
     """One row per (checkpoint, frames, steps): img/s as the median over ``rounds`` rounds, each round timing
     every checkpoint (the order rotated round to round, so that a drift of the machine's speed spreads over all),
     with the rounds' own figures beside it."""
-    gens = {n: ForceGenerator.from_pretrained(checkpoint_folder(n), device=device) for n in names}
+    gens = {n: ForceGenerator.from_pretrained(n, device=device) for n in names}
     per_round = [time_round(gens, device, repeats, data, names[r % len(names):] + names[:r % len(names)])
                  for r in range(rounds)]
     rows = []
@@ -74,7 +74,7 @@ def time_checkpoints(names: list[str], device: str, repeats: int, rounds: int, d
 
 def main(argv=None) -> dict:
     p = base_parser(__doc__.splitlines()[0])
-    p.add_argument("--checkpoints", nargs="+", default=["fast", "default", "frontier_tiny", "frontier_small", "quality"],
+    p.add_argument("--checkpoints", nargs="+", default=["fast", "default", *FRONTIER],
                    help="shipped names (the presets, the frontier's sizes) or checkpoint folders (default: all five)")
     p.add_argument("--device", default="cpu", help="cpu (default) or cuda")
     p.add_argument("--threads", type=int, default=2, help="torch threads on the CPU (default 2, the target machine's)")

@@ -23,6 +23,8 @@ from collections.abc import Callable
 from pathlib import Path
 from statistics import mean
 
+from controltac_il.generator.shipped import FRONTIER_SIZES, SHIPPED
+
 from benchmarks import docs_figures
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -403,7 +405,7 @@ CARDS: dict[str, tuple[str, Callable[[dict], dict]]] = {
         "generator.json", lambda doc, key=key: {
             "machine": doc["machine"], "settings": doc["settings"], "targets": doc["targets"],
             "methods": [m for m in doc["methods"] if m["kind"] in ("copy", "rerender", key)]})
-    for key in ("default", "fast", "quality", "frontier_tiny", "frontier_small")
+    for key in (*SHIPPED, *FRONTIER_SIZES)
 } | {"controltac_il/generator/checkpoints/pose/model_card.json": (
     "pose.json", lambda doc: {k: doc[k] for k in ("machine", "pose_control", "robustness", "speed")})}
 

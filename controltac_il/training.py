@@ -190,9 +190,13 @@ def device_problem(name: str) -> str | None:
     try:
         device = torch.device(name)
     except RuntimeError:
-        return f"--device: expected a torch device such as cpu or cuda, got {name!r}"
+        device = None
+    if device is None or device.type not in ("cpu", "cuda"):
+        return f"--device: expected cpu, cuda or cuda:N, got {name!r}"
     if device.type == "cuda" and not torch.cuda.is_available():
         return f"--device {name}: no CUDA device is available; use --device cpu"
+    if device.type == "cuda" and (device.index or 0) >= torch.cuda.device_count():
+        return f"--device {name}: this machine has {torch.cuda.device_count()} CUDA device(s)"
     return None
 
 

@@ -143,6 +143,8 @@ def test_train_cli_reports_bad_input(tmp_path, capsys, monkeypatch):
     assert "steps" in capsys.readouterr().err
     assert train_act.main(["--dataset", str(root), "--out", str(tmp_path / "run"), "--resume"]) == 2
     assert "no checkpoint" in capsys.readouterr().err
+    # a preset name stays a name (a Path would look for a folder called "quality" here)
+    assert train_act.parse_args(["--augment", "force", "--generator", "quality"]).generator == "quality"
 
 
 @pytest.mark.slow  # two torch processes and gloo (9 s); the data-parallel path with -m slow

@@ -11,7 +11,7 @@ from safetensors import safe_open
 
 from controltac_il.generator import ForceGenerator
 from controltac_il.generator.checkpoint import CARD_FILE, CONFIG_FILE, DIT_FILE, WEIGHT_FILES
-from controltac_il.generator.shipped import CHECKPOINT_ROOT, SHIPPED
+from controltac_il.generator.shipped import CHECKPOINT_ROOT, FRONTIER_SIZES, SHIPPED
 from controltac_il.metrics import mse
 from controltac_il.tactile import SensorSpec, TactileSensor, contact_mask, from_residual, to_residual
 
@@ -43,7 +43,7 @@ def magnitude(res: np.ndarray) -> np.ndarray:
 
 # -- shipped files --------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("name", SHIPPED)
+@pytest.mark.parametrize("name", [*SHIPPED, *FRONTIER_SIZES])
 def test_shipped_checkpoint_is_small_fp16_with_a_model_card(name):
     folder = CHECKPOINT_ROOT / name
     total = sum(f.stat().st_size for f in folder.iterdir() if f.is_file())

@@ -8,12 +8,13 @@ import pytest
 import benchmarks.response as bench
 from controltac_il.generator import ForceGenerator
 from controltac_il.generator.checkpoint import checkpoint_hash
-from controltac_il.generator.shipped import SHIPPED, locate_checkpoint
+from controltac_il.generator.shipped import FRONTIER_SIZES, SHIPPED, locate_checkpoint
 from controltac_il.metrics import mse
 from controltac_il.tactile import HELDOUT_OBJECTS, SensorSpec, TactileSensor
 
 # ForceAugment caches key on these: a changed file is a new generator, never the same name silently
-HASHES = {"default": "ded63c1c8e7216ae", "fast": "41bfd44359d0212d", "quality": "43804a76f38836b6"}
+HASHES = {"default": "ded63c1c8e7216ae", "fast": "41bfd44359d0212d", "quality": "43804a76f38836b6",
+          "frontier_tiny": "3b260a406790ba20", "frontier_small": "367c790bce80dbcb"}
 
 
 @pytest.fixture(scope="module", params=SHIPPED)
@@ -31,9 +32,9 @@ def native():
     return ref, up
 
 
-def test_every_preset_is_named_and_pinned():
-    assert set(SHIPPED) == set(HASHES)
-    for name in SHIPPED:
+def test_every_shipped_checkpoint_is_named_and_pinned():
+    assert {*SHIPPED, *FRONTIER_SIZES} == set(HASHES)
+    for name in HASHES:
         assert checkpoint_hash(locate_checkpoint(name)) == HASHES[name]
 
 

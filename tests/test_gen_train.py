@@ -141,7 +141,7 @@ def _exit(argv) -> int:
     (["--stage", "denoiser"], "stage 'denoiser'"), (["--checkpoint-every", "0"], "--checkpoint-every"),
     (["--ae-finetune-steps", "5"], "--autoencoder-from"),
     (["--ae-finetune-steps", "5", "--autoencoder-from", "x", "--denoiser-from", "x", "--dit-steps", "0"], "--dit-steps"),
-    (["--device", "abacus"], "--device"),
+    (["--device", "abacus"], "--device"), (["--device", "mps"], "--device"),
     pytest.param(["--device", "cuda"], "no CUDA device", marks=pytest.mark.skipif(
         __import__("torch").cuda.is_available(), reason="this machine has CUDA: the refusal is for machines without")),
 ])

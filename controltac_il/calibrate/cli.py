@@ -58,8 +58,9 @@ def check(args: argparse.Namespace) -> None:
         raise ValueError(f"--val-fraction: expected a share in (0, 1), got {args.val_fraction}")
     from controltac_il.training import device_problem
 
-    if device_problem(args.device):
-        raise ValueError(device_problem(args.device))
+    problem = device_problem(args.device)
+    if problem:
+        raise ValueError(problem)
     if args.out.exists():
         raise ValueError(f"--out: {args.out} exists; a bundle is written to a new folder")
     staging = args.out.with_name(args.out.name + ".partial")

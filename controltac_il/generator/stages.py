@@ -126,6 +126,7 @@ def cached_latents(cfg: GeneratorTrainConfig, ae: TactileAutoencoder, data: Pair
     path = out / "latents.safetensors"
     if rank == 0 and not path.is_file():
         z = encode_all(ae.to(cfg.device), data)
+        ae.cpu()
         with atomic_path(path) as tmp:
             save_file({"latents": z.contiguous()}, str(tmp))
     barrier(world)

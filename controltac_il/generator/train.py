@@ -170,8 +170,11 @@ def parse_args(argv=None) -> GeneratorTrainConfig:
         fail(one_line(exc, {f: "--" + f.replace("_", "-") for f in a}))
     from controltac_il.training import device_problem
 
-    if device_problem(cfg.device):
-        fail(device_problem(cfg.device))
+    problem = device_problem(cfg.device)
+    if problem:
+        fail(problem)
+    if cfg.device != "cpu" and int(os.environ.get("WORLD_SIZE", "1")) > 1:
+        fail(f"--device {cfg.device} under torchrun: data parallelism here is CPU only (gloo); train on one GPU instead")
     if not Path(cfg.data).is_dir():
         fail(f"--data {cfg.data}: dataset folder not found (a controltac_il.tactile.dataset folder with manifest.csv)")
     out = Path(cfg.out)

@@ -77,8 +77,9 @@ def parse_args(argv=None) -> PoseTrainConfig:
         fail(f"--base: {exc}")
     from controltac_il.training import device_problem
 
-    if device_problem(cfg.device):
-        fail(device_problem(cfg.device))
+    problem = device_problem(cfg.device)
+    if problem:
+        fail(problem)
     if resume and overwrite:
         fail("--resume and --overwrite exclude each other")
     if resume and not (Path(cfg.out) / "adapter_state.json").is_file():

@@ -183,11 +183,14 @@ def _render_all(tmp: Path, job: _RenderJob, workers: int, desc: str | None) -> t
                 results[oi] = _render_object(tmp, job, oi)
                 bar.update(per_object)
         else:
-            with ProcessPoolExecutor(min(workers, len(job.objects))) as pool:
+            pool = ProcessPoolExecutor(min(workers, len(job.objects)))
+            try:
                 futures = {pool.submit(_render_object, tmp, job, oi): oi for oi in range(len(job.objects))}
                 for future in as_completed(futures):
                     results[futures[future]] = future.result()
                     bar.update(per_object)
+            finally:  # a failed object or Ctrl-C: the objects not started are dropped, not rendered first
+                pool.shutdown(cancel_futures=True)
     rows, used = [], {}
     for object_rows, object_used in results:
         rows += object_rows
