@@ -164,8 +164,9 @@ def _preset_row(gen: dict, speed: dict, name: str, src: dict) -> list:
     s = next(r for r in speed["rows"] if (r["checkpoint"], r["frames"], r["steps"]) == (name, "240", 1))
     copy = next(m for m in gen["methods"] if m["kind"] == "copy")["unseen_240"]["mse"]
     ratio, q = m["unseen_240"]["mse"] / copy, m["unseen_240"]
-    return [f"generator preset `{name}` ({m['parameters'] / 1e6:.2f} M-parameter DiT, DDIM-1, batch 32, 2 CPU threads)",
-            f"{s['img_per_s_b32']:.1f} img/s on 240×320 frames at MSE {ratio:.3f}× a reference copy's on 6 held-out "
+    objects, threads = len(gen["settings"]["splits"]["unseen_240"]["objects"]), speed["settings"]["threads"]
+    return [f"generator preset `{name}` ({m['parameters'] / 1e6:.2f} M-parameter DiT, DDIM-1, batch 32, {threads} CPU threads)",
+            f"{s['img_per_s_b32']:.1f} img/s on 240×320 frames at MSE {ratio:.3f}× a reference copy's on {objects} held-out "
             f"objects (target ≤ 0.25×: {'met' if ratio <= 0.25 else 'missed'})",
             f"speed {min(s['img_per_s_rounds']):.1f}–{max(s['img_per_s_rounds']):.1f} over {len(s['img_per_s_rounds'])} "
             f"rounds; MSE {q['mse']:.1f} ± {q['mse_sd']:.1f} SD over {q['n']} pairs",
