@@ -44,7 +44,8 @@ done
 running() { for size in tiny small base; do kill -0 "$(cat "$RUNS/$size.pid")" 2>/dev/null && return 0; done; return 1; }
 while [ "$SECONDS" -lt "$DEADLINE" ] && running; do sleep 5; done
 for size in tiny small base; do
-  kill -INT "$(cat "$RUNS/$size.pid")" 2>/dev/null && log "$size: stopped at the deadline"
+  pid=$(cat "$RUNS/$size.pid")
+  kill -0 "$pid" 2>/dev/null && kill -INT "$pid" && log "$size: Ctrl-C at the deadline (its state is saved at the step in hand)"
 done
 wait
 log "trainings ended"
