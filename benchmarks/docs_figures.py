@@ -220,9 +220,10 @@ def _frontier_order() -> tuple[str, ...]:
 
 def _card(name: str) -> dict:
     """A shipped checkpoint's model card (its training and its own validation curve; committed beside it)."""
-    import json
+    from controltac_il.checkpoint import read_json
+    from controltac_il.generator.shipped import locate_checkpoint
 
-    return json.loads((_rf().ROOT / "controltac_il" / "generator" / "checkpoints" / name / "model_card.json").read_text())
+    return read_json(locate_checkpoint(name) / "model_card.json")
 
 
 def generator_frontier() -> str:

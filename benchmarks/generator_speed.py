@@ -19,7 +19,6 @@ from benchmarks.common import base_parser, median_time, print_table, write_resul
 from benchmarks.generator_frontier import FRONTIER
 from controltac_il.generator import ForceGenerator
 from controltac_il.tactile import HELDOUT_OBJECTS, SensorSpec, TactileSensor
-from controltac_il.tactile.residual import to_residual
 
 SIZES = {"240": (240, 320), "120": (120, 160)}
 STEPS = (1, 2, 5)
@@ -31,9 +30,8 @@ def frames(size: tuple[int, int], count: int = BATCH) -> tuple[np.ndarray, np.nd
     asked for +1 N."""
     sensor = TactileSensor(SensorSpec.gelsight_mini().scaled(*size))
     rng = np.random.default_rng(0)
-    res = [to_residual(sensor.press(HELDOUT_OBJECTS[k % len(HELDOUT_OBJECTS)], (0.0, 0.0, 0.0),
-                                    (0.0, 0.0, float(rng.uniform(2, 9))), noise_seed=k).image, sensor.background)
-           for k in range(count)]
+    res = [sensor.press(HELDOUT_OBJECTS[k % len(HELDOUT_OBJECTS)], (0.0, 0.0, 0.0), (0.0, 0.0, float(rng.uniform(2, 9))),
+                        noise_seed=k).residual for k in range(count)]
     return np.stack(res), np.tile(np.float32([[0.0, 0.0, 1.0]]), (count, 1))
 
 

@@ -200,6 +200,12 @@ def device_problem(name: str) -> str | None:
     return None
 
 
+def device_name(device: str | torch.device) -> str:
+    """What a model card records of where it trained: the GPU's name, or "cpu"."""
+    device = torch.device(device)
+    return torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu"
+
+
 def optimise(step: int, total: int, batch_loss: Callable[[int], torch.Tensor | dict], optimizer: torch.optim.Optimizer,
              scheduler, params, save: Callable[[int, float], None] | None, every: int, desc: str, *, rank: int = 0,
              grad_clip: float = 1.0, after_step: Callable[[int, object], None] | None = None,

@@ -31,7 +31,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--stride", type=int, default=1, help="recordings: keep every n-th ramp frame (default 1)")
     p.add_argument("--size", type=int, nargs=2, default=(240, 320), metavar=("H", "W"),
                    help="recordings: frame size written (default 240 320, the GelSight Mini's)")
-    p.add_argument("--base-generator", default="default", help="generator to fine-tune: a shipped preset (default, fast, quality) or a folder (default: default)")
+    p.add_argument("--base-generator", default="default",
+                   help="generator to fine-tune: a shipped preset (default, fast, quality) or a folder (default: default)")
     p.add_argument("--base-estimator", default=None, help="estimator to calibrate (default: the shipped one)")
     p.add_argument("--estimator-method", choices=("auto", "adapter", "finetune"), default="auto",
                    help="adapter: a colour mix before the frozen network (few frames); finetune: the whole network; "

@@ -29,7 +29,7 @@ from controltac_il.generator.validation import (VAL_PAIRS, BestOnValidation, Val
 from controltac_il.io import write_json
 from controltac_il.run_state import load_run_state, save_run_state
 from controltac_il.tactile.indenters import TRAIN_OBJECTS, procedural_objects
-from controltac_il.training import lr_schedule, optimise
+from controltac_il.training import device_name, lr_schedule, optimise
 
 
 @torch.no_grad()
@@ -83,7 +83,7 @@ def _card(cfg: PoseTrainConfig, acfg: PoseAdapterConfig, adapter, source_card, m
             "training": {"steps": meta["step"], "final_loss": meta["loss"], "wall_s": round(meta["wall_s"], 1),
                          "total_s": round(time.perf_counter() - t0, 1), "machine": platform.processor() or platform.machine(),
                          "threads": torch.get_num_threads(), "torch": torch.__version__,
-                         "device": torch.cuda.get_device_name(dev) if dev.type == "cuda" else "cpu"},
+                         "device": device_name(dev)},
             "parameters": sum(p.numel() for p in adapter.parameters()), "validation": meta.get("validation")}
 
 

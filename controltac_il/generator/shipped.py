@@ -16,9 +16,9 @@ BUNDLE_PART = "generator"  # a calibration bundle's generator subfolder (python 
 
 
 def locate_checkpoint(path: str | Path | None = None, shipped: tuple[str, ...] = (*SHIPPED, *FRONTIER_SIZES)) -> Path:
-    """The checkpoint folder ``from_pretrained(path)`` loads: ``None``/``"default"``, ``"fast"`` and ``"quality"`` name the
-    shipped presets, ``FRONTIER_SIZES`` the frontier's other shipped sizes (``shipped``: the names to accept, ``SHIPPED_ADAPTERS`` for stage 2); a calibration bundle gives its
-    ``generator/``."""
+    """The checkpoint folder ``from_pretrained(path)`` loads: ``None``/``"default"``, ``"fast"`` and ``"quality"``
+    name the shipped presets, ``FRONTIER_SIZES`` the frontier's other shipped sizes (``shipped``: the names to
+    accept, ``SHIPPED_ADAPTERS`` for stage 2); a calibration bundle gives its ``generator/``."""
     if path is None:
         path = shipped[0]
     if isinstance(path, str) and path in shipped:

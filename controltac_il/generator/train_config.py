@@ -187,6 +187,8 @@ def model_card(cfg: GeneratorTrainConfig, data: PairData, ae: TactileAutoencoder
     """The final checkpoint's ``model_card.json``: command, data, each stage's cost and lineage, machine."""
     import torch
 
+    from controltac_il.training import device_name
+
     meta = read_json(Path(cfg.data) / "meta.json") if (Path(cfg.data) / "meta.json").is_file() else {}
     return {
         "model": "controltac-il stage-1 force-control generator (tactile autoencoder + ΔF-conditioned DiT + DDIM)",
@@ -207,7 +209,7 @@ def model_card(cfg: GeneratorTrainConfig, data: PairData, ae: TactileAutoencoder
         "world_size": world,
         "total_wall_s": wall_s,
         "machine": {"cpu_count": os.cpu_count(), "torch": torch.__version__, "python": platform.python_version(),
-                    "device": torch.cuda.get_device_name(cfg.device) if cfg.device.startswith("cuda") else "cpu"},
+                    "device": device_name(cfg.device)},
         "weights_dtype": "float16",
         "validated_range": VALIDATED_RANGE.card(),
     }
