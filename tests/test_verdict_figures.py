@@ -1,0 +1,73 @@
+"""benchmarks.verdict_figures: the verdict v2's docs block and README rows from a grid's JSON, finished or running."""
+
+import json
+import re
+
+from benchmarks import touch_il_verdict_v2 as v2
+from benchmarks import verdict_figures as vf
+from benchmarks import verdict_report as vr
+from benchmarks.readme_figures import table
+
+SEEDS = list(range(10))
+SETTINGS = list(v2.SETTINGS)
+
+
+def _outcomes(rate: float, episodes: int = 10) -> list[int]:
+    return [1] * round(rate * episodes) + [0] * (episodes - round(rate * episodes))
+
+
+def _doc(tests: bool = True) -> dict:
+    """A grid's JSON: real at 50 %, fa2 at 90 % everywhere, fa2_range = real, image_aug at 10 %; validation best at
+    step 3000. Its protocol holds the fields the tables read (the grid writes ``v2.protocol_of``)."""
+    rate = {"real": 0.5, "fa2": 0.9, "fa2_range": 0.5, "image_aug": 0.1}
+    train = [{"kind": "train", "variant": v, "seed": s,
+              "validation": {str(k): _outcomes(0.6 if k == 3000 else 0.4) for k in v2.SNAPSHOTS}}
+             for s in SEEDS for v in v2.VARIANTS]
+    test = [{"kind": "test", "variant": v, "seed": s, "test": {st: _outcomes(rate[v]) for st in SETTINGS}}
+            for s in SEEDS for v in v2.VARIANTS] if tests else []
+    protocol = {"settings": {k: list(b) for k, b in v2.SETTINGS.items()}, "stress_test": v2.STRESS,
+                "variants": list(v2.VARIANTS), "train_seeds": SEEDS, "recipe": {"snapshots": list(v2.SNAPSHOTS)}}
+    doc = {"protocol": protocol, "units": train + test, "power_statement": "stated first",
+           "force_augment_counts": {"fa2_range": {"clamped_fraction_of_contact": 0.068, "regenerated": 6016,
+                                                  "requested_fz_quantiles": [1.52, 5.22, 9.95]}}}
+    doc["table"], doc["comparisons"] = vr.summarise_seed_level(test, v2.VARIANTS, SEEDS, SETTINGS, v2.PRIMARY, 10, reps=50)
+    if tests:
+        doc["steps"] = {v: v2.choose_step([u for u in train if u["variant"] == v], v2.SNAPSHOTS) for v in v2.VARIANTS}
+    return doc
+
+
+def test_the_block_reports_each_variant_at_its_step_with_its_spread_and_the_primary_verdicts_first():
+    doc = _doc()
+    text = vf.block(doc, table, "*source*")
+    rows = {}  # the success table's row of each variant: the first table naming it
+    for line in text.splitlines():
+        if line.startswith("| "):
+            rows.setdefault(line.split(" | ")[0].strip("| "), line)
+    assert re.match(r"\| fa2 \| 3000 \| 90 % \[\d+, \d+\], SD 0, 0/10 below real's worst \|", rows["fa2"])
+    assert re.search(r"10 % \[\d+, \d+\], SD 0, 10/10 below real's worst", rows["image_aug"])
+    assert "below" not in rows["real"]
+    comparisons = [line for line in text.splitlines() if " vs real | " in line]
+    assert len(comparisons) == 9 and all("secondary" in line for line in comparisons[6:])
+    fa2 = next(line for line in comparisons if line.startswith("| fa2 vs real | nominal"))
+    assert re.search(r"\| \+40\.0 \[\+\d+\.\d, \+\d+\.\d\] \|", fa2) and fa2.endswith("| **helps** |")  # 10 seeds all +40: p = 2/1024, Holm x6
+    assert f"| {2 / 1024 * 6:.3g} |" in fa2
+    assert any(line.startswith("| fa2_range vs real") and "**no detectable effect**" in line for line in comparisons)
+    assert "grip_11-14 (11–14 N, stress test)" in text and "| **60** |" in text  # step 3000 chosen on validation
+    assert "| fa2_range | 6.8 % | 1.5 / 5.2 / 9.9 | 6016 |" in text
+
+
+def test_the_readme_rows_are_one_per_primary_variant_in_setting_order():
+    rows = vf.headline_rows(_doc(), "src")
+    assert [r[0].split("`")[1] for r in rows] == ["fa2", "fa2_range"]
+    assert rows[0][1].startswith("+40.0 / +40.0 / +40.0 points (nominal (4–7 N) / ")
+    assert rows[0][1].endswith("**helps** / **helps** / **helps**") and "10 paired training seeds" in rows[0][0]
+    assert rows[1][1].endswith(" / ".join(["**no detectable effect**"] * 3))
+
+
+def test_a_running_grid_prints_provisional_steps_and_pending_tests(tmp_path, capsys):
+    path = tmp_path / "grid.json"
+    path.write_text(json.dumps(_doc(tests=False)))
+    assert vf.main([str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "steps provisional" in out and "Comparisons: pending" in out
+    assert "| real | 3000 | pending | pending | pending |" in out
