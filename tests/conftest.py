@@ -1,4 +1,4 @@
-"""Test-suite defaults: headless rendering and two torch threads (the 2-core CI machine; 1 thread made the suite ~12 s slower)."""
+"""Test-suite defaults: headless rendering and the 2-core CI machine's two torch threads, shared by the xdist workers."""
 
 import os
 
@@ -8,7 +8,17 @@ os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 import pytest  # noqa: E402
 import torch  # noqa: E402
 
-torch.set_num_threads(2)
+THREADS = max(1, 2 // int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", 1)))  # 2 cores over the xdist workers
+torch.set_num_threads(THREADS)
+
+
+@pytest.fixture(autouse=True)
+def _torch_threads():
+    """Each test starts at THREADS: one that sets torch's thread count (a CLI's ``--threads``) does not leak it into
+    the next, whose bytes may depend on it (a ForceAugment record holds ``intra_op_threads``)."""
+    yield
+    if torch.get_num_threads() != THREADS:
+        torch.set_num_threads(THREADS)
 
 
 @pytest.fixture

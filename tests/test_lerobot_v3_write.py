@@ -363,6 +363,50 @@ def test_interrupted_and_shared_writes_equal_one_clean_write(written, tmp_path):
     assert files(shared) == files(clean)
 
 
+def test_ctrl_c_while_meta_is_written_publishes_nothing_and_the_rerun_equals_a_clean_write(written, tmp_path,
+                                                                                          monkeypatch):
+    from controltac_il.augment import to_lerobot
+
+    root, clean, _, reference = written
+    out, real_write_meta = tmp_path / "out", to_lerobot.write_meta
+
+    def interrupted(folder, info, rows, stats):  # meta/episodes written, then Ctrl-C before stats and info.json
+        real_write_meta(folder, info, rows, stats)
+        (folder / "meta" / "info.json").unlink()
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(to_lerobot, "write_meta", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        write_lerobot(augment(root, out, generator=reference.generator), LeRobotFolder(root), out, progress=False)
+    assert not out.exists() and staging_dir(out).is_dir()  # nothing half-written where the user looks
+    monkeypatch.setattr(to_lerobot, "write_meta", real_write_meta)
+    done = write_lerobot(augment(root, out, generator=reference.generator), LeRobotFolder(root), out, progress=False)
+    assert done["published"] and not staging_dir(out).exists()
+    assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == \
+        {p.relative_to(clean): p.read_bytes() for p in clean.rglob("*") if p.is_file()}
+
+
+def test_ctrl_c_while_the_staging_folder_is_removed_is_finished_by_the_rerun(written, tmp_path, monkeypatch):
+    from controltac_il.augment import to_lerobot
+
+    root, clean, _, reference = written
+    out, real_discard = tmp_path / "out", to_lerobot.discard
+
+    def interrupted(staging):  # the cache removed, then Ctrl-C: dataset/ is published, the rest of OUT.partial left
+        shutil.rmtree(staging / "cache")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(to_lerobot, "discard", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        write_lerobot(augment(root, out, generator=reference.generator), LeRobotFolder(root), out, progress=False)
+    assert read_record(out) is not None and (staging_dir(out) / "write.json").is_file()
+    monkeypatch.setattr(to_lerobot, "discard", real_discard)
+    again = write_lerobot(augment(root, out, generator=reference.generator), LeRobotFolder(root), out, progress=False)
+    assert again["already"] and again["published"] and not staging_dir(out).exists()
+    assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == \
+        {p.relative_to(clean): p.read_bytes() for p in clean.rglob("*") if p.is_file()}
+
+
 def test_cli_writes_and_refuses_in_one_line_naming_the_flag(written, tmp_path, capsys):
     from controltac_il.generator.checkpoint import save_checkpoint
 

@@ -5,7 +5,8 @@ ForceAugment settings, the source, the writer format), ``cache/`` (the ForceAugm
 being written) and ``done/`` (one meta row per finished episode). Re-running the same command resumes; each rank
 builds its share of the cache (torchrun: every rank) while a thread of it writes its share of the episodes, each
 copy as soon as the cache holds its chunk (``ChunkGate``: the export's codecs and parquet work beside the
-generator), and rank 0 writes ``meta/`` and publishes: ``dataset/`` is renamed to OUT, and ``OUT.partial`` removed. OUT
+generator), and rank 0 writes ``meta/`` and publishes: ``dataset/`` is renamed to OUT, and ``OUT.partial`` removed (``write.json``
+last: a removal Ctrl-C stopped is finished by the next run of the command). OUT
 is never the source (nor inside it, nor around it) and never a folder this tool did not write
 (``check_destination``).
 
@@ -93,6 +94,24 @@ def claim(staging: Path, sig: dict) -> None:
     write_json(path, {"digest": _digest(sig), **sig})
 
 
+def claimed(staging: Path, sig: dict) -> bool:
+    """Whether ``staging`` holds the claim of this very write."""
+    try:
+        return json.loads((staging / "write.json").read_text()).get("digest") == _digest(sig)
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def discard(staging: Path) -> None:
+    """Remove a published write's staging folder (the cache with it), its claim ``write.json`` last: a removal
+    that Ctrl-C stopped is finished by the next run of the same write."""
+    for child in staging.iterdir():
+        if child.name != "write.json":
+            shutil.rmtree(child) if child.is_dir() and not child.is_symlink() else child.unlink()
+    (staging / "write.json").unlink(missing_ok=True)
+    staging.rmdir()
+
+
 def published(out: Path, aug, source) -> bool:
     """Whether ``out`` holds this very write (its record names the same digest); ValueError naming ``out`` for
     another write of this tool."""
@@ -174,11 +193,14 @@ def write_lerobot(aug, source, out: Path, *, rank: int | None = None, world_size
     if source is aug.dataset:
         raise ValueError("source: pass a LeRobotFolder of its own (LeRobotFolder(root)), not the one ForceAugment "
                          "reads: the export reads it while the cache is built")
+    staging, sig = staging_dir(out), signature(aug, source)
     if check_destination(source.root, out):
-        return {"published": published(out, aug, source), "already": True, "marker": read_record(out)}
+        done = published(out, aug, source)
+        if claimed(staging, sig):  # a publish that Ctrl-C stopped while it removed its staging folder
+            discard(staging)
+        return {"published": done, "already": True, "marker": read_record(out)}
     rank = int(os.environ.get("RANK", 0)) if rank is None else int(rank)
     world_size = int(os.environ.get("WORLD_SIZE", 1)) if world_size is None else int(world_size)
-    staging, sig = staging_dir(out), signature(aug, source)
     claim(staging, sig)
     export = LeRobotExport(aug, source, staging / "dataset", staging / "done", round_trip)
     built, written = build_and_export(aug, export, rank, world_size, progress, stop_after, poll_s)
@@ -195,7 +217,7 @@ def write_lerobot(aug, source, out: Path, *, rank: int | None = None, world_size
     if out.is_dir():
         out.rmdir()  # empty (check_destination)
     os.replace(staging / "dataset", out)
-    shutil.rmtree(staging)
+    discard(staging)
     return {**counts, "published": True, "marker": marker}
 
 
