@@ -10,11 +10,16 @@ export MUJOCO_GL=${MUJOCO_GL:-egl}
 export PYOPENGL_PLATFORM=${PYOPENGL_PLATFORM:-$MUJOCO_GL}
 
 setup() {
-    # torch: keep whatever the user has (e.g. a CUDA build); on a machine without one
-    # install the CPU build pin, because plain `torch` pulls several GB of CUDA wheels.
+    # torch: keep whatever the user has (e.g. a CUDA build); on a machine without one install the CPU build,
+    # because PyPI's Linux `torch` pulls several GB of CUDA wheels: on Linux from PyTorch's CPU index (offline,
+    # pip falls back to a local wheel after its retries), elsewhere PyPI's wheel is the CPU one.
     if ! "$PY" -c "import torch" 2>/dev/null; then
-        echo "[setup] installing torch==2.13.0 (CPU build)"
-        "$PY" -m pip install -q torch==2.13.0
+        echo "[setup] installing torch 2.13.0 (CPU build)"
+        if [ "$(uname -s)" = Linux ]; then
+            "$PY" -m pip install -q "torch==2.13.0+cpu" --extra-index-url https://download.pytorch.org/whl/cpu
+        else
+            "$PY" -m pip install -q torch==2.13.0
+        fi
     fi
     # headless OpenGL for MuJoCo's renderer (Debian/Ubuntu); skipped when present.
     if [ "$MUJOCO_GL" = egl ] && ! ldconfig -p 2>/dev/null | grep -q libEGL.so.1; then
