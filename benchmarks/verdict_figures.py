@@ -107,6 +107,8 @@ def main(argv=None) -> int:
     p.add_argument("json", type=Path, help="the grid's --out JSON")
     args = p.parse_args(argv)
     doc = json.loads(args.json.read_text())
+    if not isinstance(doc, dict) or doc.get("benchmark") != "touch_il_verdict_v2":
+        raise ValueError(f"{args.json}: not the JSON of python -m benchmarks.touch_il_verdict_v2")
     train = [u for u in doc["units"] if u["kind"] == "train"]
     note = f"{len(train)} train and {len(doc['units']) - len(train)} test units done"
     if "steps" not in doc:  # the rule applied to the seeds trained so far
@@ -120,4 +122,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from controltac_il.cli import guard
+
+    raise SystemExit(guard("python -m benchmarks.verdict_figures", main))

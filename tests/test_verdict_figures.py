@@ -3,6 +3,8 @@
 import json
 import re
 
+import pytest
+
 from benchmarks import touch_il_verdict_v2 as v2
 from benchmarks import verdict_figures as vf
 from benchmarks import verdict_report as vr
@@ -27,7 +29,7 @@ def _doc(tests: bool = True) -> dict:
             for s in SEEDS for v in v2.VARIANTS] if tests else []
     protocol = {"settings": {k: list(b) for k, b in v2.SETTINGS.items()}, "stress_test": v2.STRESS,
                 "variants": list(v2.VARIANTS), "train_seeds": SEEDS, "recipe": {"snapshots": list(v2.SNAPSHOTS)}}
-    doc = {"protocol": protocol, "units": train + test, "power_statement": "stated first",
+    doc = {"benchmark": "touch_il_verdict_v2", "protocol": protocol, "units": train + test, "power_statement": "stated first",
            "force_augment_counts": {"fa2_range": {"clamped_fraction_of_contact": 0.068, "regenerated": 6016,
                                                   "requested_fz_quantiles": [1.52, 5.22, 9.95]}}}
     doc["table"], doc["comparisons"] = vr.summarise_seed_level(test, v2.VARIANTS, SEEDS, SETTINGS, v2.PRIMARY, 10, reps=50)
@@ -71,3 +73,17 @@ def test_a_running_grid_prints_provisional_steps_and_pending_tests(tmp_path, cap
     out = capsys.readouterr().out
     assert "steps provisional" in out and "Comparisons: pending" in out
     assert "| real | 3000 | pending | pending | pending |" in out
+
+
+@pytest.mark.parametrize("content, says", [(None, "No such file"), ("{", "Expecting"),
+                                           ('{"benchmark": "touch_il_verdict"}', "not the JSON of")])
+def test_a_missing_or_foreign_json_is_one_line_and_exit_2(tmp_path, content, says):
+    import subprocess
+    import sys
+
+    path = tmp_path / "grid.json"
+    if content is not None:
+        path.write_text(content)
+    run = subprocess.run([sys.executable, "-m", "benchmarks.verdict_figures", str(path)], capture_output=True, text=True)
+    assert run.returncode == 2 and run.stderr.count("\n") == 1 and says in run.stderr
+    assert run.stderr.startswith("python -m benchmarks.verdict_figures: error: ")
