@@ -73,6 +73,13 @@ def state_tensors(weights: torch.nn.Module | Mapping[str, torch.Tensor], dtype: 
     return out
 
 
+def non_finite(tensors: Mapping[str, torch.Tensor]) -> list[str]:
+    """The names of the floating-point tensors holding NaN or inf."""
+    import torch
+
+    return [k for k, v in tensors.items() if v.is_floating_point() and not torch.isfinite(v).all()]
+
+
 def sign(folder: str | Path, card: dict | None = None) -> dict:
     """Write ``model_card.json`` = ``card`` (default: the folder's current card, or {}) plus the SHA-256 of
     every .safetensors file in ``folder``; returns the card."""
@@ -97,7 +104,12 @@ def save_folder(path: str | Path, config: dict, weights: Mapping[str, torch.nn.M
     with atomic_dir(path) as tmp:
         write_json(tmp / CONFIG_FILE, config)
         for name, w in weights.items():
-            save_file(state_tensors(w, dtype), str(tmp / name))
+            tensors = state_tensors(w, dtype)
+            bad = non_finite(tensors)
+            if bad:  # what load_folder would refuse: never written (a NaN update, or beyond the range of dtype)
+                raise CheckpointError(f"{path}: not saved: {name} tensors {bad[:5]} hold NaN or inf"
+                                      + (f" as {str(dtype).removeprefix('torch.')}" if dtype is not None else ""))
+            save_file(tensors, str(tmp / name))
         for name, obj in (files or {}).items():
             (tmp / name).write_text(obj) if isinstance(obj, str) else write_json(tmp / name, obj)
         if write_more is not None:
@@ -110,7 +122,6 @@ def load_folder(path: str | Path, weight_files: tuple[str, ...], optional: tuple
                 ) -> tuple[dict, dict[str, dict[str, torch.Tensor]]]:
     """(config dict, {file: tensors}) of a checkpoint folder, every weights file verified against the card.
     Files in ``optional`` are skipped when absent (but verified when present)."""
-    import torch
     from safetensors import SafetensorError
     from safetensors.torch import load as load_safetensors
 
@@ -143,7 +154,7 @@ def load_folder(path: str | Path, weight_files: tuple[str, ...], optional: tuple
             tensors = load_safetensors(data)
         except (SafetensorError, OSError) as e:
             raise CheckpointError(f"{f} is corrupted or not a safetensors file: {e}") from None
-        bad = [k for k, v in tensors.items() if v.is_floating_point() and not torch.isfinite(v).all()]
+        bad = non_finite(tensors)
         if bad:
             raise CheckpointError(f"{f}: tensors {bad[:5]} contain NaN or inf")
         out[name] = tensors

@@ -158,12 +158,17 @@ def agree(*flags: bool) -> list[bool]:
     return [bool(v) for v in t.tolist()]
 
 
-def check_loss(loss: float, step: int, kept: str) -> None:
-    """Raise :class:`NonFiniteLoss` when ``loss`` (of update ``step``) is NaN or infinite; ``kept`` says which
-    saved state is the last good one."""
+def check_loss(loss: float, step: int, kept: str, grad_norm: float = 0.0) -> None:
+    """Raise :class:`NonFiniteLoss` when ``loss`` (of update ``step``) or its gradients' norm is NaN or infinite;
+    ``kept`` says which saved state is the last good one."""
     if not math.isfinite(loss):
-        raise NonFiniteLoss(f"training stopped at step {step}: the loss is {loss}; no update was applied, {kept} "
-                            "(lower the learning rate or check the data for NaN / outliers, then --resume)")
+        what = f"the loss is {loss}"
+    elif not math.isfinite(grad_norm):
+        what = f"the loss is {loss:.4g} but its gradients' norm is {grad_norm}"
+    else:
+        return
+    raise NonFiniteLoss(f"training stopped at step {step}: {what}; no update was applied, {kept} "
+                        "(lower the learning rate or check the data for NaN / outliers, then --resume)")
 
 
 def setup_distributed() -> tuple[int, int]:
@@ -227,13 +232,14 @@ def optimise(step: int, total: int, batch_loss: Callable[[int], torch.Tensor | d
                 optimizer.zero_grad(set_to_none=True)
                 loss.backward()
                 value = loss.item()
-                bad, stop_now = agree(not math.isfinite(value), stop.requested)
-                if bad:
-                    check_loss(value if not math.isfinite(value) else math.nan, step + 1,
+                # the gradients clipped to norm grad_clip (0: measured only): a finite loss can have NaN gradients
+                norm = float(torch.nn.utils.clip_grad_norm_(params, grad_clip or math.inf))
+                ok = math.isfinite(value) and math.isfinite(norm)
+                bad, stop_now = agree(not ok, stop.requested)
+                if bad:  # this rank's values, or a NaN loss where another rank's were not finite
+                    check_loss(value if not ok else math.nan, step + 1,
                                f"{state} holds step {saved}, the last good state" if saved is not None
-                               else "no state had been saved yet")
-                if grad_clip:
-                    torch.nn.utils.clip_grad_norm_(params, grad_clip)
+                               else "no state had been saved yet", norm)
                 optimizer.step()
                 scheduler.step()
                 step += 1

@@ -38,7 +38,7 @@ from controltac_il.config import STRICT
 from hardware.fields import Float, Int, Problems
 from hardware.interfaces import (ACTION_DIM, GRIPPER, POSE_DIM, Arm, ArmState, Clock, FrameSource, Gripper, HardwareError,
                                  WallClock)
-from hardware.safety import SafetyCounts, SafetyFilter, SafetyLimits, Watchdog, WatchdogTimeout
+from hardware.safety import SafetyCounts, SafetyFilter, SafetyLimits, SafetyViolation, Watchdog, WatchdogTimeout
 from hardware.temporal_ensembling import TemporalEnsembler
 
 
@@ -296,6 +296,8 @@ class ControlLoop:
         """Observation dict and the arm state it was built from; feeds frame timestamps to the watchdog."""
         state = self.arm.state()
         grip = self.gripper.state().position if self.gripper is not None else self._last_grip
+        if not np.isfinite(grip):  # else the policy's NaN output would be blamed
+            raise SafetyViolation(f"measured gripper position must be a finite number, got {grip!r}")
         obs = {"qpos": np.append(np.asarray(state.pose, dtype=np.float32), np.float32(grip))}
         for kind, sources in (("images", self.cameras), ("tactile", self.tactile)):
             for name, src in sources.items():

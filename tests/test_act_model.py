@@ -175,7 +175,14 @@ def test_corrupted_or_mismatched_checkpoints_are_refused(tmp_path):
         load_checkpoint(ckpt)
     with torch.no_grad():
         model.action_head.bias.fill_(float("nan"))
-    save_checkpoint(ckpt, model)
+    with pytest.raises(CheckpointError, match=r"not saved: model.safetensors tensors \['action_head.bias'\] hold NaN"):
+        save_checkpoint(ckpt, model)
+    from safetensors.torch import save_file
+
+    from controltac_il.checkpoint import sign
+
+    save_file({k: v.contiguous() for k, v in model.state_dict().items()}, str(ckpt / "model.safetensors"))
+    sign(ckpt)  # NaN weights written by another tool, and signed
     with pytest.raises(CheckpointError, match=r"model.safetensors: tensors \['action_head.bias'\] contain NaN"):
         load_checkpoint(ckpt)
 

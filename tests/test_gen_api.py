@@ -144,13 +144,31 @@ def test_a_samples_bytes_do_not_depend_on_its_batch_mates_or_the_batch_size(gen,
         np.testing.assert_array_equal(gen.generate(refs[[k, 3, 9]], df[[k, 3, 9]], steps=STEPS, seed=[k, 3, 9])[0], big[k])
 
 
-def test_bfloat16_agrees_with_float32(contacts):
-    """Tolerance: bf16 keeps 8 mantissa bits; we accept an MSE below 4 grey levels² between the two."""
+@pytest.mark.parametrize("dtype", [torch.bfloat16, torch.float16])
+def test_half_precision_agrees_with_float32(contacts, dtype):
+    """Tolerance: bf16 keeps 8 mantissa bits (fp16 11, with a range to 65504); we accept an MSE below 4 grey
+    levels² between the two."""
     ref, _ = contacts
     df = np.tile([[0.0, 0.0, 3.0]], (len(ref), 1))
     a = ForceGenerator.from_pretrained().generate(ref, df, seed=0)
-    b = ForceGenerator.from_pretrained(dtype=torch.bfloat16).generate(ref, df, seed=0)
+    b = ForceGenerator.from_pretrained(dtype=dtype).generate(ref, df, seed=0)
     assert np.all(mse(a, b) < 4.0), mse(a, b)
+
+
+def test_an_output_that_is_not_finite_is_refused_never_a_black_frame(gen, contacts, monkeypatch):
+    from controltac_il.generator.pipeline import NonFiniteOutput
+
+    ref, _ = contacts
+    decode = gen._decode
+
+    def nan_pixel(z_ref, d):  # one NaN pixel decoded (the detail gate spreads it)
+        target, recon = decode(z_ref, d)
+        target[0, 5, 7, 1] = np.nan
+        return target, recon
+
+    monkeypatch.setattr(gen, "_decode", nan_pixel)
+    with pytest.raises(NonFiniteOutput, match=r"^the generator's output holds \d+ NaN or inf values \(float32 on cpu\)"):
+        gen.generate(ref[:2], np.tile([[0.0, 0.0, 3.0]], (2, 1)), steps=STEPS)
 
 
 def test_other_resolutions_come_back_at_their_size(gen, contacts):

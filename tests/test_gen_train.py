@@ -217,6 +217,35 @@ def test_nonfinite_loss_stops_before_updating_and_ctrl_c_saves_the_step(tmp_path
     assert saved == [3]
 
 
+@pytest.mark.parametrize("grad_clip", [1.0, 0.0])
+def test_a_finite_loss_with_nan_gradients_stops_before_updating(grad_clip):
+    """sqrt(w * 0) at w = 0: the loss is 0, its gradient 0 * inf = NaN."""
+    from controltac_il.training import NonFiniteLoss, lr_schedule, optimise
+
+    w = torch.nn.Parameter(torch.tensor([0.5, 0.5]))
+    opt = torch.optim.AdamW([w], lr=1e-2)
+
+    before = []
+
+    def batch_loss(step):
+        before.append(w.detach().clone())
+        return (w - 1.0).pow(2).sum() if step < 2 else (w * 0).sqrt().sum()
+
+    with pytest.raises(NonFiniteLoss, match=r"step 3: the loss is 0 but its gradients' norm is nan; no update"):
+        optimise(0, 5, batch_loss, opt, lr_schedule(opt, [1e-2], 5, 0, 1e-3), [w], None, 0, "t", grad_clip=grad_clip)
+    assert len(before) == 3 and not torch.equal(before[2], before[0]) and torch.equal(w.detach(), before[2])
+
+
+def test_weights_that_are_not_finite_are_never_saved(tmp_path):
+    from controltac_il.checkpoint import CheckpointError, save_folder
+
+    for weights, dtype, says in (({"w": torch.tensor([1.0, float("nan")])}, None, "hold NaN or inf$"),
+                                 ({"w": torch.tensor([1e5])}, torch.float16, "hold NaN or inf as float16$")):
+        with pytest.raises(CheckpointError, match="not saved: m.safetensors tensors \\['w'\\] " + says):
+            save_folder(tmp_path / "ckpt", {}, {"m.safetensors": weights}, dtype=dtype)
+        assert not (tmp_path / "ckpt").exists() and list(tmp_path.iterdir()) == []
+
+
 def _nothing():
     pass
 

@@ -13,7 +13,7 @@ import pytest
 from controltac_il.config import one_line
 from hardware.control_loop import ControlLoop, ControlLoopConfig, LoopTiming, PolicyError, PolicyLateError
 from hardware.fakes import FakeArm, FakeGripper, SyntheticFrameSource
-from hardware.interfaces import ArmFault, SensorError, VirtualClock
+from hardware.interfaces import ArmFault, GripperState, SensorError, VirtualClock
 from hardware.safety import SafetyLimits, SafetyViolation, WatchdogTimeout
 from hardware.temporal_ensembling import TemporalEnsembler
 
@@ -210,6 +210,16 @@ def test_nan_action_is_a_safety_violation():
     with pytest.raises(PolicyError, match="NaN or inf"):
         loop.run(max_steps=10)
     assert len(commands(log)) == 2
+    assert_stopped_after_last_command(log)
+
+
+def test_a_nan_gripper_reading_is_a_safety_violation_naming_the_gripper_not_the_policy():
+    loop, arm, log = make(VirtualClock(), RampPolicy())
+    readings = iter([0.0, 0.0, 0.0])  # the warm-up's and two steps' readings, then NaN
+    loop.gripper.state = lambda: GripperState(next(readings, float("nan")), loop.clock.now())
+    with pytest.raises(SafetyViolation, match=r"^measured gripper position must be a finite number, got nan$"):
+        loop.run(max_steps=10)
+    assert len(commands(log)) == 2 and ("gripper-stop", None) in log
     assert_stopped_after_last_command(log)
 
 

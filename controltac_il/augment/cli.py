@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from controltac_il.augment.config import ForceAugmentConfig
+from controltac_il.cli import RunFault
 from controltac_il.config import one_line
 
 if TYPE_CHECKING:  # the job's modules (torch, h5py) are imported inside it: --help stays light
@@ -271,7 +272,8 @@ def _open_dataset(root: Path, keys: list[str] | None = None):
 
 
 def main(argv=None) -> int:
-    """Run the command; returns the exit status (0, 2 for a validation error, 130 when interrupted)."""
+    """Run the command; returns the exit status (0, 2 for a validation error, 1 for a fault of the run, 130 when
+    interrupted)."""
     try:
         args = parser().parse_args(argv)
         aug = _setup(args)
@@ -290,6 +292,9 @@ def main(argv=None) -> int:
     except OSError as exc:  # e.g. --out under a file, a full disk
         print(f"{PROG}: error: {one_line(exc)}", file=sys.stderr)
         return 2
+    except RunFault as exc:  # e.g. the generator's output not finite
+        print(f"{PROG}: error: {one_line(exc)}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted; every chunk written so far is complete: re-run the same command to resume",
               file=sys.stderr)

@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 import torch
 
+from controltac_il.cli import RunFault
 from controltac_il.generator.adapter import PoseAdapter, PoseControlledDenoiser, masks_to_model
 from controltac_il.generator.autoencoder import TactileAutoencoder
 from controltac_il.generator.checkpoint import ADAPTER_FILE, checkpoint_hash, load_adapter, load_checkpoint
@@ -53,6 +54,10 @@ GENERATION_CHUNK = 4
 def residual_to_unit(residual: torch.Tensor) -> torch.Tensor:
     """uint8 residual (B, H, W, 3) -> float (B, 3, H, W), 127 -> 0, scale 1/128."""
     return (residual.permute(0, 3, 1, 2).float() - RESIDUAL_OFFSET) / 128.0
+
+
+class NonFiniteOutput(RunFault):
+    """The generator's output held NaN or inf (a checkpoint trained into NaN, or beyond its dtype's range)."""
 
 
 @dataclass
@@ -431,6 +436,10 @@ class ForceGenerator:
         y = target + RESIDUAL_OFFSET
         if recon is not None:  # the reference's detail (reference - its reconstruction), gated
             y = y + keep * (ref.astype(np.float32) - RESIDUAL_OFFSET - recon)
+        bad = int(y.size - np.isfinite(y).sum())
+        if bad:  # uint8 would make NaN a black pixel, silently
+            raise NonFiniteOutput(f"the generator's output holds {bad} NaN or inf values ({str(self.dtype).removeprefix('torch.')} "
+                                  f"on {self.device}); nothing was returned: check the checkpoint, or run in float32")
         return np.clip(np.round(y), 0, 255).astype(np.uint8)
 
     def generate_images(self, images, background, delta_force, **kwargs) -> np.ndarray:
