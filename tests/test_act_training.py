@@ -131,6 +131,24 @@ def test_train_on_folder_end_to_end(tmp_path):
     assert not any(p.name.endswith(".json") for p in root.iterdir())  # the user's data folder is untouched
 
 
+def test_a_run_without_validation_writes_standard_json_and_resumes(tmp_path):
+    """No validation episode: best_val_l1 is null, never Infinity (not JSON), and --resume reads it back."""
+    root = write_tiny_episodes(tmp_path / "demos", n=2)
+    kwargs = dict(preset="cpu", val_fraction=0.0, stats_path=tmp_path / "stats.json", progress=False, **TINY)
+    first = train_on_folder(root, tmp_path / "run", train_config=ACTTrainConfig(steps=2, batch_size=2), **kwargs)
+    assert first["best_val_l1"] is None
+
+    def strict(name):
+        raise ValueError(f"{name} is not JSON")
+
+    for f in (tmp_path / "run").rglob("*.json"):
+        assert json.loads(f.read_text(), parse_constant=strict) is not None, f
+    assert json.loads((tmp_path / "run" / "train_log.json").read_text())["best_val_l1"] is None
+    again = train_on_folder(root, tmp_path / "run", train_config=ACTTrainConfig(steps=3, batch_size=2), resume=True,
+                            **kwargs)
+    assert again["steps"] == 3 and again["best_val_l1"] is None
+
+
 def test_train_cli_reports_bad_input(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("CONTROLTAC_CACHE", str(tmp_path / "cache"))  # normalisation stats go there
     sys.path.insert(0, str(REPO))  # train_act.py lives at the repository root

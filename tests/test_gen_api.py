@@ -287,6 +287,21 @@ def test_bad_residuals_are_refused(gen, contacts, bad, match):
         gen.generate(bad(ref), np.zeros((len(ref), 3)))
 
 
+@pytest.mark.parametrize("call, name", [
+    (lambda g, r, bad: g.generate(r, bad), "delta_force"),
+    (lambda g, r, bad: g.generate(r, np.zeros((len(r), 3)), reference_force=bad), "reference_force"),
+    (lambda g, r, bad: g.generate_at(r, bad, np.tile([[0.0, 0.0, 5.0]], (len(r), 1))), "reference_force"),
+    (lambda g, r, bad: g.generate_at(r, np.tile([[0.0, 0.0, 5.0]], (len(r), 1)), bad), "target_force"),
+])
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
+def test_a_force_that_is_not_finite_is_refused_naming_the_argument(gen, contacts, call, name, value):
+    ref = contacts[0][:2]
+    bad = np.tile([[0.0, 0.0, 4.0]], (2, 1))
+    bad[1, 2] = value
+    with pytest.raises(ValueError, match=f"^{name} contains NaN or infinite values$"):
+        call(gen, ref, bad)
+
+
 def test_bad_forces_and_options_are_refused(gen, contacts):
     ref, _ = contacts
     with pytest.raises(ValueError, match="NaN"):

@@ -177,7 +177,8 @@ def _resume(out_dir: Path, model: ACT, optimizer: torch.optim.Optimizer, act_con
                               "use a new --out folder or the same --augment options and generator")
     model.load_state_dict(loaded.state_dict())
     schedule_state = load_optimizer_state(out_dir / "last", optimizer)
-    return (int(last_meta.get("step", 0)), float(last_meta.get("best_val_l1", math.inf)),
+    best = last_meta.get("best_val_l1")  # None: no validation yet (JSON has no infinity)
+    return (int(last_meta.get("step", 0)), math.inf if best is None else float(best),
             last_meta.get("log", {"train": [], "val": []}), schedule_state)
 
 
@@ -262,7 +263,7 @@ def train(act_config: ACTConfig, train_config: ACTTrainConfig, train_set: Datase
             save_checkpoint(snapshot_path(out_dir, at), model, backgrounds=backgrounds, meta={**run_meta, "step": at})
 
     def save(at: int, loss: float) -> None:
-        m = {**run_meta, "step": at, "best_val_l1": best_l1[0], "log": log}
+        m = {**run_meta, "step": at, "best_val_l1": best_l1[0] if math.isfinite(best_l1[0]) else None, "log": log}
         save_checkpoint(out_dir / "last", model, backgrounds=backgrounds, meta=m, optimizer=optimizer, scheduler=scheduler)
         write_json(out_dir / "train_log.json", m)  # with last/: the curve up to the step it holds
 
