@@ -314,6 +314,28 @@ def test_stale_cache_is_never_reused(data, gen, tmp_path):
         aug(grown, gen, tmp_path)
 
 
+class NaNLabel(Dataset):
+    """An item dataset whose one contact frame carries a NaN Fz label (a LeRobot column, not an HDF5 file)."""
+
+    def __init__(self, data, index):
+        self.data, self.index = data, index
+
+    def __len__(self):
+        return len(self.data)
+
+    def __getitem__(self, i):
+        item = dict(self.data[i])
+        if i == self.index:
+            item["observation.force.left"] = item["observation.force.left"].clone()
+            item["observation.force.left"][2] = float("nan")
+        return item
+
+
+def test_a_nan_force_label_is_refused_naming_the_label_never_read_as_no_contact(data, gen, tmp_path):
+    with pytest.raises(ValueError, match=r"^observation.force.left: force label \[0.3\d*, -0.2\d*, nan\] is not finite"):
+        aug(NaNLabel(data, 5), gen, tmp_path, copies=1, steps=1).build_cache()
+
+
 class LeRobotLike(Dataset):
     """Map-style dataset of dict items, float [0, 1] CHW tactile, no background or force keys."""
 

@@ -360,6 +360,40 @@ def test_a_corrupt_tactile_png_read_through_lerobot_episodes_is_refused_naming_i
     assert message == f"{LEFT}: an image of {path} (episode 1, frame 2) is not a readable PNG", message
 
 
+def _edited_column(folder, root, key, edit):
+    """A copy of ``folder`` at ``root`` whose column ``key`` in file-000 (episodes 0 and 1) is ``edit(rows)``."""
+    shutil.copytree(folder, root)
+    path = root / "data" / "chunk-000" / "file-000.parquet"
+    table = pq.read_table(path)
+    i = table.schema.get_field_index(key)
+    rows = edit(table.column(key).to_pylist())
+    pq.write_table(table.set_column(i, table.schema.field(i), pa.array(rows, table.schema.field(i).type)), path)
+
+
+@pytest.mark.parametrize("key", ["observation.state", "action", FORCE])
+def test_a_nan_in_the_state_the_actions_or_a_force_label_is_refused_naming_episode_and_frame(folder, tmp_path, key):
+    from controltac_il.datasets.lerobot_episodes import LeRobotEpisodes
+
+    def nan_at_episode_1_frame_2(rows):
+        rows[7][-1] = float("nan")
+        return rows
+
+    _edited_column(folder, tmp_path / "nan", key, nan_at_episode_1_frame_2)
+    with pytest.raises(ValueError, match=rf"^nan: {key} holds NaN or inf \(first at episode 1, frame 2\); it must be finite$"):
+        LeRobotEpisodes(tmp_path / "nan", chunk_size=2, tactile_keys=[LEFT])
+
+
+def test_force_labels_in_mn_or_pulling_are_refused_as_an_hdf5_episodes_are(folder, tmp_path):
+    from controltac_il.datasets.lerobot_episodes import LeRobotEpisodes
+
+    _edited_column(folder, tmp_path / "mn", FORCE, lambda rows: [[1000 * v for v in r] for r in rows])
+    with pytest.raises(ValueError, match=rf"^mn: {FORCE} reaches .*are the labels in mN"):
+        LeRobotEpisodes(tmp_path / "mn", chunk_size=2, tactile_keys=[LEFT])
+    _edited_column(folder, tmp_path / "pull", FORCE, lambda rows: [[-v for v in r] for r in rows])
+    with pytest.raises(ValueError, match="negative median Fz in contact"):
+        LeRobotEpisodes(tmp_path / "pull", chunk_size=2, tactile_keys=[LEFT])
+
+
 def test_force_augment_wraps_a_folder_with_windows_and_labels(folder, tmp_path):
     from controltac_il.augment import ForceAugment
     from test_aug_force_augment import tiny_generator

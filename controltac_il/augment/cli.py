@@ -289,7 +289,7 @@ def main(argv=None) -> int:
     except UsageError as exc:
         print(f"{PROG}: error: {exc.flag + ': ' if exc.flag else ''}{exc}", file=sys.stderr)
         return 2
-    except OSError as exc:  # e.g. --out under a file, a full disk
+    except (OSError, ValueError) as exc:  # e.g. --out under a file, a full disk, a NaN force label in the data
         print(f"{PROG}: error: {one_line(exc)}", file=sys.stderr)
         return 2
     except RunFault as exc:  # e.g. the generator's output not finite

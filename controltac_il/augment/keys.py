@@ -51,7 +51,10 @@ class KeyMap:
         if lk is None:
             return None
         value = as_array(item[lk]).astype(np.float64)
-        return value if value.ndim == 1 else value[self.label_offsets[lk].index(0)]
+        value = value if value.ndim == 1 else value[self.label_offsets[lk].index(0)]
+        if not np.isfinite(value).all():  # else NaN Fz reads as "no contact" and the NaN label is copied on
+            raise ValueError(f"{lk}: force label {value.tolist()} is not finite; labels must be finite [Fx, Fy, Fz] N")
+        return value
 
     def background(self, item: dict, key: str) -> np.ndarray | None:
         bk = self.backgrounds[key]

@@ -38,9 +38,8 @@ def _require(f: h5py.File, path: Path, key: str) -> h5py.Dataset:
     return f[key]
 
 
-def check_force_labels(path: Path, name: str, force: np.ndarray) -> None:
-    """Refuse labels that are not finite, look like mN, or press with a negative Fz."""
-    where = f"{path.name}: /observations/force/{name}"
+def check_force_labels(where: str, force: np.ndarray) -> None:
+    """Refuse labels (T, 3) that are not finite, look like mN, or press with a negative Fz; ``where`` names them."""
     if not np.isfinite(force).all():
         bad = int(np.flatnonzero(~np.isfinite(force).all(axis=1))[0])
         raise ValueError(f"{where} holds NaN or inf (first at frame {bad}); labels must be finite [Fx, Fy, Fz] N")
@@ -75,7 +74,7 @@ def check_episode(f: h5py.File, path: Path) -> int:
             bad = int(np.flatnonzero(~np.isfinite(values.reshape(T, -1)).all(axis=1))[0])
             raise ValueError(f"{path.name}: /{key} holds NaN or inf (first at frame {bad})")
     for name in streams(f, "force"):
-        check_force_labels(path, name, f[f"observations/force/{name}"][()])
+        check_force_labels(f"{path.name}: /observations/force/{name}", f[f"observations/force/{name}"][()])
     return T
 
 

@@ -31,6 +31,7 @@ from tqdm import tqdm
 
 from controltac_il.datasets.act_dataset import STD_FLOOR
 from controltac_il.datasets.background import estimate_background
+from controltac_il.datasets.checks import check_force_labels
 from controltac_il.datasets.lerobot_v3 import LeRobotFolder, decode_png, numbers, read_info
 
 TACTILE_WORDS = ("gelsight", "tactile", "digit")
@@ -41,9 +42,17 @@ def _name(key: str) -> str:
 
 
 def _numeric(root: Path, key: str) -> np.ndarray:
-    """Column ``key`` of every data file, in row order, as float64 (N, D)."""
-    return np.concatenate([numbers(pq.read_table(p, columns=[key]).column(key)).astype(np.float64)
-                           for p in sorted((root / "data").glob("*/*.parquet"))])
+    """Column ``key`` of every data file, in row order, as float64 (N, D); ValueError naming the episode and frame
+    of the first row that is not finite."""
+    tables = [pq.read_table(p, columns=[key, "episode_index", "frame_index"])
+              for p in sorted((root / "data").glob("*/*.parquet"))]
+    values = np.concatenate([numbers(t.column(key)).astype(np.float64) for t in tables])
+    bad = ~np.isfinite(values.reshape(len(values), -1)).all(axis=1)
+    if bad.any():
+        i = int(np.argmax(bad))
+        e, f = (int(np.concatenate([t.column(c).to_numpy() for t in tables])[i]) for c in ("episode_index", "frame_index"))
+        raise ValueError(f"{root.name}: {key} holds NaN or inf (first at episode {e}, frame {f}); it must be finite")
+    return values
 
 
 class LeRobotEpisodes(Dataset):
@@ -84,6 +93,8 @@ class LeRobotEpisodes(Dataset):
         self.stats = {name: {"mean": v.mean(0).astype(np.float32), "std": np.maximum(v.std(0), STD_FLOOR).astype(np.float32)}
                       for name, v in (("qpos", _numeric(self.root, "observation.state")),
                                       ("action", _numeric(self.root, "action")))}
+        for key in self.force_keys.values():  # finite, in N, Fz > 0 pressing, as an HDF5 episode's labels
+            check_force_labels(f"{self.root.name}: {key}", _numeric(self.root, key))
         self.backgrounds = self._backgrounds()
 
     @staticmethod
