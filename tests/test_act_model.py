@@ -105,8 +105,9 @@ def test_bad_batches_are_named():
     batch["observation.qpos"] = batch["observation.qpos"][:, :3]
     with pytest.raises(ValueError, match="qpos"):
         model.predict(batch)
-    with pytest.raises(ValueError, match="std"):
-        model.set_stats({"qpos": {"mean": [0] * 5, "std": [0] * 5}, "action": {"mean": [0] * 5, "std": [1] * 5}})
+    for bad in ([0] * 5, [1, 1, float("inf"), 1, 1], [1, float("nan"), 1, 1, 1]):  # inf would zero that input
+        with pytest.raises(ValueError, match="^normalisation stats 'qpos': mean must be finite and std finite and > 0$"):
+            model.set_stats({"qpos": {"mean": [0] * 5, "std": bad}, "action": {"mean": [0] * 5, "std": [1] * 5}})
     with pytest.raises(ValueError, match="expected 5"):
         model.set_stats({"qpos": {"mean": [0] * 4, "std": [1] * 4}, "action": {"mean": [0] * 5, "std": [1] * 5}})
 

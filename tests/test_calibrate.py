@@ -98,6 +98,14 @@ def test_held_out_poses_never_split_a_pose_and_need_two():
         held_out_poses({("cross", 0): [0, 1]}, 0.1)
 
 
+def test_the_adapters_cross_validation_needs_two_grasps_before_fitting_anything():
+    from controltac_il.calibrate.bundle import cross_validated
+
+    residuals, fz = np.zeros((4, 8, 8, 3), np.uint8), np.array([1.0, 2.0, 3.0, 4.0])
+    with pytest.raises(ValueError, match=r"^--presses: one contact pose only; at least two are needed"):
+        cross_validated(None, residuals, fz, np.zeros(4, int), steps=1)  # never reaches the base estimator
+
+
 def test_a_stopped_calibration_resumes_to_the_same_estimator(bases, tmp_path, capsys):
     tmp, presses = bases
     out = tmp_path / "lab"

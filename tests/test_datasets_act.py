@@ -68,6 +68,29 @@ def test_items_and_padded_chunks(folder, tmp_path):
     assert ep_idx.tolist() == [0] * 9 + [1] * 4 and fr_idx.tolist() == list(range(9)) + list(range(4))
 
 
+def test_a_constant_state_dimension_and_a_one_frame_episode_give_finite_items(tmp_path):
+    """std 0 (a joint that never moved) is floored, never a division by zero; T = 1 pads its whole chunk."""
+    from act_fixtures import tiny_config
+
+    from controltac_il.datasets.act_dataset import STD_FLOOR
+    from policies.act import ACT
+
+    root = tmp_path / "demos"
+    for i, T in enumerate((9, 1)):
+        ep = synthetic_episode(T, i)
+        ep.qpos[:, 2] = 0.5
+        write_episode(root / f"episode_{i}.hdf5", ep)
+    ds = EpisodeDataset(root, chunk_size=4, stats_path=tmp_path / "stats.json")
+    assert ds.stats["qpos"]["std"][2] == pytest.approx(STD_FLOOR) and len(ds) == 10
+    last = ds[9]  # the one-frame episode
+    assert last["action_is_pad"].tolist() == [False, True, True, True]
+    assert all(torch.isfinite(v).all() for v in last.values() if torch.is_tensor(v) and v.is_floating_point())
+    model = ACT(tiny_config(state_dim=4, action_dim=3))
+    model.set_stats(ds.stats)
+    normalised = (last["observation.qpos"] - model.qpos_mean) / model.qpos_std  # as ACT's forward
+    assert torch.isfinite(normalised).all() and normalised[2] == 0
+
+
 def test_stats_computed_once_and_saved_outside_data(folder, tmp_path):
     os.environ["CONTROLTAC_CACHE"] = str(tmp_path / "cache")
     try:

@@ -21,6 +21,17 @@ def physics_env():
     env.close()
 
 
+@pytest.mark.parametrize("value", [float("nan"), 1e12])
+def test_a_diverging_simulation_stops_the_episode_in_one_line(value):
+    """NaN or a huge velocity (what a bad contact or timestep produces): the step raises, never returns NaN."""
+    env = PegInHoleEnv(PegInHoleConfig(cameras=(), tactile=False))
+    env.reset(seed=0)
+    env.data.qvel[:] = value
+    with pytest.raises(RuntimeError, match=r"^simulation became unstable at step 1 \(MuJoCo warnings: \[\(1, "):
+        env.step(env.command)
+    env.close()
+
+
 def test_random_actions_stay_finite_without_warnings(physics_env):
     env = physics_env
     rng = np.random.default_rng(0)

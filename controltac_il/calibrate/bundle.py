@@ -54,6 +54,9 @@ def cross_validated(base, residuals: np.ndarray, fz: np.ndarray, grasps: np.ndar
     from controltac_il.estimators.few_shot import ColourFit, fit_colour_adapter, held_out_mae
 
     ids = np.unique(grasps)
+    if len(ids) < 2:  # one fold holding every frame would fit the adapter on none
+        raise ValueError("--presses: one contact pose only; at least two are needed (each is scored by an adapter "
+                         "fitted without it)")
     folds = np.random.default_rng(0).permutation(len(ids)) % min(FOLDS, len(ids))
     pred, const = np.empty(len(fz)), np.empty(len(fz))
     for k in range(folds.max() + 1):

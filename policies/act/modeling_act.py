@@ -83,8 +83,8 @@ class ACT(nn.Module):
             if mean.numel() != dim or std.numel() != dim:
                 raise ValueError(f"normalisation stats {key!r}: expected {dim} values, got mean {mean.numel()}, "
                                  f"std {std.numel()}")
-            if not torch.isfinite(mean).all() or not (std > 0).all():
-                raise ValueError(f"normalisation stats {key!r}: mean must be finite and std > 0")
+            if not torch.isfinite(mean).all() or not ((std > 0) & torch.isfinite(std)).all():
+                raise ValueError(f"normalisation stats {key!r}: mean must be finite and std finite and > 0")
             getattr(self, f"{key}_mean").copy_(mean)
             getattr(self, f"{key}_std").copy_(std)
 
