@@ -22,8 +22,9 @@ def physics_env():
 
 
 @pytest.mark.parametrize("value", [float("nan"), 1e12])
-def test_a_diverging_simulation_stops_the_episode_in_one_line(value):
+def test_a_diverging_simulation_stops_the_episode_in_one_line(value, tmp_path, monkeypatch):
     """NaN or a huge velocity (what a bad contact or timestep produces): the step raises, never returns NaN."""
+    monkeypatch.chdir(tmp_path)  # MuJoCo logs its warning to MUJOCO_LOG.TXT in the working directory
     env = PegInHoleEnv(PegInHoleConfig(cameras=(), tactile=False))
     env.reset(seed=0)
     env.data.qvel[:] = value
