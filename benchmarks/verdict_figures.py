@@ -13,10 +13,6 @@ from pathlib import Path
 LINK = "[experiments](docs/experiments.md#the-verdict-v2)"
 
 
-def pct(x: float) -> str:
-    return f"{x * 100:.0f}"
-
-
 def points(c: dict) -> str:
     """A paired difference and its interval, in points."""
     return f"{c['diff'] * 100:+.1f} [{c['ci95'][0] * 100:+.1f}, {c['ci95'][1] * 100:+.1f}]"
@@ -29,7 +25,7 @@ def setting_label(doc: dict, setting: str) -> str:
     return f"{setting} ({lo:g}–{hi:g} N{stress})"
 
 
-def success_table(doc: dict, table) -> str:
+def success_table(doc: dict, rf) -> str:
     """Test success per variant (rows) and setting (columns) over the seeds, at each variant's chosen step."""
     settings, steps = list(doc["protocol"]["settings"]), doc.get("steps", {})
     by = {(r["variant"], r["setting"]): r for r in doc["table"]}
@@ -39,56 +35,59 @@ def success_table(doc: dict, table) -> str:
             return "pending"
         below = r["below_real_worst"]
         k = "" if below is None else f", {round(below * len(r['per_seed']))}/{len(r['per_seed'])} below real's worst"
-        return f"{pct(r['mean'])} % [{pct(r['ci95'][0])}, {pct(r['ci95'][1])}], SD {pct(r['sd_over_seeds'])}{k}"
+        return f"{rf.pct(r['mean'])} % [{rf.pct(r['ci95'][0])}, {rf.pct(r['ci95'][1])}], SD {rf.pct(r['sd_over_seeds'])}{k}"
 
     rows = [[v, steps[v]["step"] if v in steps else "pending", *(cell(by.get((v, st))) for st in settings)]
             for v in doc["protocol"]["variants"]]
-    return table(["variant", "step", *(setting_label(doc, st) for st in settings)], rows)
+    return rf.table(["variant", "step", *(setting_label(doc, st) for st in settings)], rows)
 
 
-def comparisons_table(doc: dict, table) -> str:
+def comparisons_table(doc: dict, rf) -> str:
     """Every comparison with real, the primary ones (Holm, a verdict) first."""
     comps = sorted(doc["comparisons"], key=lambda c: not c["primary"])
     rows = [[f"{c['variant']} vs real", setting_label(doc, c["setting"]), points(c), f"{c['p_sign_flip']:.3g}",
              f"{c['p_t']:.3g}", f"{c['p_holm']:.3g}" if c["p_holm"] is not None else "–",
              f"**{c['verdict']}**" if c["verdict"] else ("secondary" if not c["primary"] else "pending")] for c in comps]
-    return table(["comparison", "setting", "points [95 % CI]", "p sign-flip (seeds)", "p paired t", "p Holm",
+    return rf.table(["comparison", "setting", "points [95 % CI]", "p sign-flip (seeds)", "p paired t", "p Holm",
                   "verdict"], rows) if rows else "Comparisons: pending (no test unit yet)."
 
 
-def validation_table(doc: dict, table) -> str:
+def validation_table(doc: dict, rf) -> str:
     """Mean validation success over the seeds per snapshot; the chosen step in bold."""
     snaps = doc["protocol"]["recipe"]["snapshots"]
     rows = []
     for v, s in doc.get("steps", {}).items():
-        rows.append([v, *(f"**{pct(s['curve'][str(k)]['mean'])}**" if k == s["step"] else pct(s["curve"][str(k)]["mean"])
+        rows.append([v, *(f"**{rf.pct(s['curve'][str(k)]['mean'])}**" if k == s["step"] else rf.pct(s["curve"][str(k)]["mean"])
                           for k in snaps)])
-    return table(["validation success, %", *(f"step {k}" for k in snaps)], rows) if rows else ""
+    return rf.table(["validation success, %", *(f"step {k}" for k in snaps)], rows) if rows else ""
 
 
-def augment_table(doc: dict, table) -> str:
+def augment_table(doc: dict, rf) -> str:
     """Each ForceAugment variant's clamped share of contact frames and its requested target Fz."""
     rows = [[v, f"{c['clamped_fraction_of_contact'] * 100:.1f} %",
              " / ".join(f"{q:.1f}" for q in c["requested_fz_quantiles"]), c["regenerated"]]
             for v, c in doc.get("force_augment_counts", {}).items()]
-    return table(["variant", "clamped (of contact frames)", "requested Fz, 5 / 50 / 95 % (N)", "frames regenerated"], rows)
+    return rf.table(["variant", "clamped (of contact frames)", "requested Fz, 5 / 50 / 95 % (N)", "frames regenerated"], rows)
 
 
-def block(doc: dict, table, source: str) -> str:
+def block(doc: dict, rf, source: str) -> str:
     """The docs block: power, success, comparisons, validation curves, ForceAugment's targets, the source line."""
-    parts = [f"*Power, stated before any result: {doc['power_statement']}.*", success_table(doc, table),
-             comparisons_table(doc, table), validation_table(doc, table), augment_table(doc, table), source]
+    parts = [f"*Power, stated before any result: {doc['power_statement']}.*", success_table(doc, rf),
+             comparisons_table(doc, rf), validation_table(doc, rf), augment_table(doc, rf), source]
     return "\n\n".join(p for p in parts if p)
 
 
 def headline_rows(doc: dict, source: str) -> list[list[str]]:
     """One README row per primary variant: its paired differences in every setting, their intervals and verdicts."""
-    seeds, rows = len(doc["protocol"]["train_seeds"]), []
-    what = {"fa2": "2 copies, the paper's offsets", "fa2_range": "2 copies, targets over 1–10 N"}
+    protocol = doc["protocol"]
+    seeds, rows = len(protocol["train_seeds"]), []
     for v in dict.fromkeys(c["variant"] for c in doc["comparisons"] if c["primary"]):
         cs = [c for c in doc["comparisons"] if c["variant"] == v]
         where = " / ".join(setting_label(doc, c["setting"]) for c in cs)
-        rows.append([f"the verdict (v2): ACT with ForceAugment `{v}` ({what.get(v, v)}) vs ACT on the real demos, "
+        span = protocol["force_settings"].get(v, {}).get("target_range")
+        what = f"{protocol['copies'][v]} copies, " + (f"targets over {span[0]:g}–{span[1]:g} N" if span
+                                                      else "the paper's offsets")
+        rows.append([f"the verdict (v2): ACT with ForceAugment `{v}` ({what}) vs ACT on the real demos, "
                      f"{seeds} paired training seeds",
                      " / ".join(f"{c['diff'] * 100:+.1f}" for c in cs) + f" points ({where}): "
                      + " / ".join(f"**{c['verdict'] or 'pending'}**" for c in cs),
@@ -99,9 +98,6 @@ def headline_rows(doc: dict, source: str) -> list[list[str]]:
 
 
 def main(argv=None) -> int:
-    from benchmarks.readme_figures import table
-    from benchmarks.touch_il_verdict_v2 import choose_step
-
     p = argparse.ArgumentParser(description="Print the verdict v2's docs block and README rows from a (running) "
                                             "grid's --out JSON.")
     p.add_argument("json", type=Path, help="the grid's --out JSON")
@@ -109,6 +105,18 @@ def main(argv=None) -> int:
     doc = json.loads(args.json.read_text())
     if not isinstance(doc, dict) or doc.get("benchmark") != "touch_il_verdict_v2":
         raise ValueError(f"{args.json}: not the JSON of python -m benchmarks.touch_il_verdict_v2")
+    try:
+        show(doc, args.json)
+    except (KeyError, TypeError, IndexError) as exc:
+        raise ValueError(f"{args.json}: incomplete or malformed ({type(exc).__name__}: {exc})") from None
+    return 0
+
+
+def show(doc: dict, path: Path) -> None:
+    """Print the block and the README rows of ``doc``; steps by the protocol's rule where the grid has none yet."""
+    from benchmarks import readme_figures as rf
+    from benchmarks.touch_il_verdict_v2 import choose_step
+
     train = [u for u in doc["units"] if u["kind"] == "train"]
     note = f"{len(train)} train and {len(doc['units']) - len(train)} test units done"
     if "steps" not in doc:  # the rule applied to the seeds trained so far
@@ -116,9 +124,8 @@ def main(argv=None) -> int:
         doc["steps"] = {v: choose_step([u for u in train if u["variant"] == v], snaps)
                         for v in doc["protocol"]["variants"] if any(u["variant"] == v for u in train)}
         note += "; steps provisional: not every seed is trained"
-    print(block(doc, table, f"*{args.json}: {note}.*"))
-    print("\n" + table(["what", "measured", "error or interval", "details", "source"], headline_rows(doc, str(args.json))))
-    return 0
+    print(block(doc, rf, f"*{path}: {note}.*"))
+    print("\n" + rf.table(["what", "measured", "error or interval", "details", "source"], headline_rows(doc, str(path))))
 
 
 if __name__ == "__main__":

@@ -394,6 +394,18 @@ def test_force_labels_in_mn_or_pulling_are_refused_as_an_hdf5_episodes_are(folde
         LeRobotEpisodes(tmp_path / "pull", chunk_size=2, tactile_keys=[LEFT])
 
 
+def test_a_force_feature_found_by_name_must_be_three_forces(folder, tmp_path):
+    from controltac_il.datasets.lerobot_episodes import LeRobotEpisodes
+
+    root = tmp_path / "fz_only"
+    shutil.copytree(folder, root)
+    info = json.loads((root / "meta" / "info.json").read_text())
+    info["features"][FORCE]["shape"] = [1]  # e.g. a load cell's Fz alone
+    (root / "meta" / "info.json").write_text(json.dumps(info))
+    with pytest.raises(ValueError, match=rf"^force_keys: \['{FORCE} \(1,\)'\] are not \(3,\) \[Fx, Fy, Fz\] N features"):
+        LeRobotEpisodes(root, chunk_size=2, tactile_keys=[LEFT])
+
+
 def test_force_augment_wraps_a_folder_with_windows_and_labels(folder, tmp_path):
     from controltac_il.augment import ForceAugment
     from test_aug_force_augment import tiny_generator

@@ -390,17 +390,20 @@ def test_ctrl_c_while_the_staging_folder_is_removed_is_finished_by_the_rerun(wri
     from controltac_il.augment import to_lerobot
 
     root, clean, _, reference = written
-    out, real_discard = tmp_path / "out", to_lerobot.discard
+    out, real_rmtree = tmp_path / "out", shutil.rmtree
 
-    def interrupted(staging):  # the cache removed, then Ctrl-C: dataset/ is published, the rest of OUT.partial left
-        shutil.rmtree(staging / "cache")
+    def interrupted(path, *args, **kwargs):  # Ctrl-C once rmtree has removed the cache's manifest, not its chunks
+        if Path(path).name != "cache.removing":
+            return real_rmtree(path, *args, **kwargs)
+        (Path(path) / "manifest.json").unlink()
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(to_lerobot, "discard", interrupted)
+    monkeypatch.setattr(to_lerobot.shutil, "rmtree", interrupted)
     with pytest.raises(KeyboardInterrupt):
         write_lerobot(augment(root, out, generator=reference.generator), LeRobotFolder(root), out, progress=False)
     assert read_record(out) is not None and (staging_dir(out) / "write.json").is_file()
-    monkeypatch.setattr(to_lerobot, "discard", real_discard)
+    assert (staging_dir(out) / "cache.removing" / "chunks").is_dir() and not (staging_dir(out) / "cache").exists()
+    monkeypatch.setattr(to_lerobot.shutil, "rmtree", real_rmtree)
     again = write_lerobot(augment(root, out, generator=reference.generator), LeRobotFolder(root), out, progress=False)
     assert again["already"] and again["published"] and not staging_dir(out).exists()
     assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == \

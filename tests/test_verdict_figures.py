@@ -8,7 +8,7 @@ import pytest
 from benchmarks import touch_il_verdict_v2 as v2
 from benchmarks import verdict_figures as vf
 from benchmarks import verdict_report as vr
-from benchmarks.readme_figures import table
+from benchmarks import readme_figures as rf
 
 SEEDS = list(range(10))
 SETTINGS = list(v2.SETTINGS)
@@ -28,6 +28,7 @@ def _doc(tests: bool = True) -> dict:
     test = [{"kind": "test", "variant": v, "seed": s, "test": {st: _outcomes(rate[v]) for st in SETTINGS}}
             for s in SEEDS for v in v2.VARIANTS] if tests else []
     protocol = {"settings": {k: list(b) for k, b in v2.SETTINGS.items()}, "stress_test": v2.STRESS,
+                "copies": v2.COPIES, "force_settings": {v: {k: list(x) for k, x in f.items()} for v, f in v2.FORCE_SETTINGS.items()},
                 "variants": list(v2.VARIANTS), "train_seeds": SEEDS, "recipe": {"snapshots": list(v2.SNAPSHOTS)}}
     doc = {"benchmark": "touch_il_verdict_v2", "protocol": protocol, "units": train + test, "power_statement": "stated first",
            "force_augment_counts": {"fa2_range": {"clamped_fraction_of_contact": 0.068, "regenerated": 6016,
@@ -40,7 +41,7 @@ def _doc(tests: bool = True) -> dict:
 
 def test_the_block_reports_each_variant_at_its_step_with_its_spread_and_the_primary_verdicts_first():
     doc = _doc()
-    text = vf.block(doc, table, "*source*")
+    text = vf.block(doc, rf, "*source*")
     rows = {}  # the success table's row of each variant: the first table naming it
     for line in text.splitlines():
         if line.startswith("| "):
@@ -63,6 +64,7 @@ def test_the_readme_rows_are_one_per_primary_variant_in_setting_order():
     assert [r[0].split("`")[1] for r in rows] == ["fa2", "fa2_range"]
     assert rows[0][1].startswith("+40.0 / +40.0 / +40.0 points (nominal (4–7 N) / ")
     assert rows[0][1].endswith("**helps** / **helps** / **helps**") and "10 paired training seeds" in rows[0][0]
+    assert "(2 copies, the paper's offsets)" in rows[0][0] and "(2 copies, targets over 1–10 N)" in rows[1][0]
     assert rows[1][1].endswith(" / ".join(["**no detectable effect**"] * 3))
 
 
@@ -76,7 +78,8 @@ def test_a_running_grid_prints_provisional_steps_and_pending_tests(tmp_path, cap
 
 
 @pytest.mark.parametrize("content, says", [(None, "No such file"), ("{", "Expecting"),
-                                           ('{"benchmark": "touch_il_verdict"}', "not the JSON of")])
+                                           ('{"benchmark": "touch_il_verdict"}', "not the JSON of"),
+                                           ('{"benchmark": "touch_il_verdict_v2"}', "incomplete or malformed (KeyError")])
 def test_a_missing_or_foreign_json_is_one_line_and_exit_2(tmp_path, content, says):
     import subprocess
     import sys

@@ -103,11 +103,15 @@ def claimed(staging: Path, sig: dict) -> bool:
 
 
 def discard(staging: Path) -> None:
-    """Remove a published write's staging folder (the cache with it), its claim ``write.json`` last: a removal
-    that Ctrl-C stopped is finished by the next run of the same write."""
+    """Remove a published write's staging folder, its claim ``write.json`` last: a removal that Ctrl-C stopped is
+    finished by the next run of the same write. The cache is first renamed out of ForceAugment's sight (half
+    removed, it would read as a stale cache and stop that run)."""
+    if (staging / "cache").is_dir():
+        os.replace(staging / "cache", staging / "cache.removing")
     for child in staging.iterdir():
         if child.name != "write.json":
-            shutil.rmtree(child) if child.is_dir() and not child.is_symlink() else child.unlink()
+            shutil.rmtree(child, ignore_errors=True) if child.is_dir() and not child.is_symlink() \
+                else child.unlink(missing_ok=True)
     (staging / "write.json").unlink(missing_ok=True)
     staging.rmdir()
 
@@ -194,13 +198,13 @@ def write_lerobot(aug, source, out: Path, *, rank: int | None = None, world_size
         raise ValueError("source: pass a LeRobotFolder of its own (LeRobotFolder(root)), not the one ForceAugment "
                          "reads: the export reads it while the cache is built")
     staging, sig = staging_dir(out), signature(aug, source)
-    if check_destination(source.root, out):
-        done = published(out, aug, source)
-        if claimed(staging, sig):  # a publish that Ctrl-C stopped while it removed its staging folder
-            discard(staging)
-        return {"published": done, "already": True, "marker": read_record(out)}
     rank = int(os.environ.get("RANK", 0)) if rank is None else int(rank)
     world_size = int(os.environ.get("WORLD_SIZE", 1)) if world_size is None else int(world_size)
+    if check_destination(source.root, out):
+        done = published(out, aug, source)
+        if rank == 0 and claimed(staging, sig):  # a publish that Ctrl-C stopped while it removed its staging folder
+            discard(staging)
+        return {"published": done, "already": True, "marker": read_record(out)}
     claim(staging, sig)
     export = LeRobotExport(aug, source, staging / "dataset", staging / "done", round_trip)
     built, written = build_and_export(aug, export, rank, world_size, progress, stop_after, poll_s)

@@ -24,6 +24,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.parquet as pq
 import torch
 from torch.utils.data import Dataset
@@ -44,13 +45,13 @@ def _name(key: str) -> str:
 def _numeric(root: Path, key: str) -> np.ndarray:
     """Column ``key`` of every data file, in row order, as float64 (N, D); ValueError naming the episode and frame
     of the first row that is not finite."""
-    tables = [pq.read_table(p, columns=[key, "episode_index", "frame_index"])
-              for p in sorted((root / "data").glob("*/*.parquet"))]
-    values = np.concatenate([numbers(t.column(key)).astype(np.float64) for t in tables])
+    files = sorted((root / "data").glob("*/*.parquet"))
+    values = np.concatenate([numbers(pq.read_table(p, columns=[key]).column(key)).astype(np.float64) for p in files])
     bad = ~np.isfinite(values.reshape(len(values), -1)).all(axis=1)
     if bad.any():
         i = int(np.argmax(bad))
-        e, f = (int(np.concatenate([t.column(c).to_numpy() for t in tables])[i]) for c in ("episode_index", "frame_index"))
+        where = pa.concat_tables([pq.read_table(p, columns=["episode_index", "frame_index"]) for p in files])
+        e, f = (int(where.column(c)[i].as_py()) for c in ("episode_index", "frame_index"))
         raise ValueError(f"{root.name}: {key} holds NaN or inf (first at episode {e}, frame {f}); it must be finite")
     return values
 
@@ -101,7 +102,12 @@ class LeRobotEpisodes(Dataset):
     def _forces(tactile: list[str], force_keys, features: dict) -> dict[str, str]:
         if force_keys is None:
             found = {_name(k): f"observation.{_name(k)}.force" for k in tactile}
-            return {s: f for s, f in found.items() if f in features}
+            found = {s: f for s, f in found.items() if f in features}
+            odd = [f"{f} {features[f]['shape']}" for f in found.values() if tuple(features[f]["shape"]) != (3,)]
+            if odd:
+                raise ValueError(f"force_keys: {odd} are not (3,) [Fx, Fy, Fz] N features; pass force_keys= naming "
+                                 "the right ones")
+            return found
         bad = [f for k, f in force_keys.items() if k not in tactile or f not in features or
                tuple(features[f]["shape"]) != (3,)]
         if bad:
