@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.response import DELTAS, MAX_DROP_PP, contact_area_pct, real_references
+from benchmarks.response import DELTAS, MAX_DROP_PP, area_drops, contact_area_pct, real_references
 from controltac_il.generator.shipped import FRONTIER_SIZES
 from controltac_il.metrics import mse
 
@@ -39,7 +39,7 @@ def real_checks(predict) -> dict | None:
     tf[:, 2] += np.tile(DELTAS, n)
     area = contact_area_pct(predict(np.repeat(frames, len(DELTAS), 0), np.repeat(rf, len(DELTAS), 0), tf))
     area = area.reshape(n, len(DELTAS))
-    drop = float((area[:, :-1] - area[:, 1:]).max(initial=0.0))
+    drop = float(area_drops(area).max(initial=0.0))
     return {"frames": list(refs), "identity_mse": float(identity.mean()), "identity_mse_max": float(identity.max()),
             "max_drop_pp": round(drop, 3), "monotone": drop <= MAX_DROP_PP,
             "growth_pp": round(float((area[:, -1] - area[:, list(DELTAS).index(0.0)]).min()), 3)}

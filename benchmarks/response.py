@@ -53,6 +53,11 @@ def fine_detail(residual: np.ndarray, size: tuple[int, int]) -> float:
     return float(((x - back) ** 2).mean())
 
 
+def area_drops(area: np.ndarray) -> np.ndarray:
+    """The fall (pp) of the contact area between neighbouring ΔFz steps along the last axis (> 0: it shrank)."""
+    return area[..., :-1] - area[..., 1:]
+
+
 def response(gen, reference: np.ndarray, deltas: np.ndarray, seed: int = 0) -> dict:
     """Areas (%) of ``gen``'s outputs for one reference residual (H, W, 3) at each ΔFz, with the drop and growth,
     and (references larger than the model) the share of fine detail kept at ΔFz = +2 N."""
@@ -66,7 +71,7 @@ def response(gen, reference: np.ndarray, deltas: np.ndarray, seed: int = 0) -> d
     ref_detail = fine_detail(reference, model) if larger else None
     detail = round(fine_detail(out[at2], model) / ref_detail, 3) if larger and deltas[at2] == 2.0 else None
     zero = int(np.argmin(np.abs(deltas)))
-    drops = area[:-1] - area[1:]
+    drops = area_drops(area)
     worst = int(np.argmax(drops))
     max_drop = float(drops.max(initial=0.0))
     return {"reference_area_pct": round(float(contact_area_pct(reference[None])[0]), 3),
