@@ -38,7 +38,6 @@ ALPHAS = np.logspace(-2, 4, 13)  # ridge penalties tried by leave-one-grasp-out
 OPTICS = ("polynomial", "three_light", "three_light_rot")
 METHODS = ("constant", "zero_shot", "stat_monotone", "ship_monotone", "ship_affine", "stats_ridge", "frozen_ridge",
            "colour_adapter")
-GATE = 8.0  # grey levels: a pixel deviating more is contact (the shipped estimator's gate threshold)
 
 
 def ramp(n: int, fmax: float) -> np.ndarray:
@@ -96,9 +95,10 @@ def render_grasp(sensor, obj: str, rng: np.random.Generator, crop_w: int = CROP_
 
 def frame_features(est, residuals: np.ndarray) -> dict:
     """Per-frame features of residuals (N, H, W, 3): the shipped Fz (N,) N (gated), its penultimate activations
-    (N, 128), contact area (share of pixels > GATE) and summed residual (mean grey levels above GATE)."""
+    (N, 128), contact area (share of pixels > AREA_GATE) and summed residual (``contact_signal``)."""
     import torch
 
+    from controltac_il.calibrate.recordings import AREA_GATE, contact_signal
     from controltac_il.estimators.estimator import preprocess
     from controltac_il.tactile.residual import residual_magnitude
 
@@ -111,8 +111,7 @@ def frame_features(est, residuals: np.ndarray) -> dict:
             hidden.append(est.model.head[1](est.model.head[0](pooled)).numpy())
     mag = residual_magnitude(residuals)
     return {"fz_ship": fz, "hidden": np.concatenate(hidden).astype(np.float64),
-            "area": (mag > GATE).mean(axis=(1, 2)).astype(np.float64),
-            "summag": np.maximum(mag - GATE, 0).mean(axis=(1, 2)).astype(np.float64)}
+            "area": (mag > AREA_GATE).mean(axis=(1, 2)).astype(np.float64), "summag": contact_signal(residuals)}
 
 
 @dataclass

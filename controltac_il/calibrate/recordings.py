@@ -120,10 +120,10 @@ def shift(forces: np.ndarray, lag: int) -> np.ndarray:
     return forces[idx]
 
 
-def contact_signal(residual: np.ndarray) -> float:
-    """The contact signal ``lag="auto"`` aligns with the force: the mean residual above AREA_GATE (grey levels) of a
-    uint8 (H, W, 3) residual, contact area weighted by depth."""
-    return float(np.maximum(residual_magnitude(residual) - AREA_GATE, 0).mean())
+def contact_signal(residual: np.ndarray) -> np.ndarray:
+    """The contact signal ``lag="auto"`` aligns with the force: the mean residual above AREA_GATE (grey levels) of
+    uint8 (..., H, W, 3) residuals, contact area weighted by depth; float64 (...)."""
+    return np.maximum(residual_magnitude(residual) - AREA_GATE, 0).mean(axis=(-2, -1)).astype(np.float64)
 
 
 def best_lag(signal: np.ndarray, fz: np.ndarray, max_lag: int = MAX_LAG) -> int:
