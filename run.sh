@@ -41,7 +41,8 @@ setup() {
 setup
 case "${1:-main}" in
     main) shift || true; exec "$PY" -m controltac_il "$@" ;;
-    # two pytest-xdist workers: 141 s -> 98 s on the 2-core machine (idle, measured 2026-11-26); TEST_WORKERS=0: in this process
+    # two pytest-xdist workers, one torch thread each: 141 s -> 87 s idle on the 2-core machine (2026-11-26);
+    # TEST_WORKERS=0 runs it in this process
     test) shift; exec "$PY" -m pytest -q -n "${TEST_WORKERS:-2}" "$@" ;;
     -*) exec "$PY" -m controltac_il "$@" ;;  # options of the main job, e.g. ./run.sh --sensor-only
     *) exec "$@" ;;

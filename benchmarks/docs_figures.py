@@ -90,7 +90,8 @@ def force_scaling() -> str:
 
 # -- the README's one table of headline figures ----------------------------------------------------------------
 
-def _ci(c: dict) -> str:
+def ci_points(c: dict) -> str:
+    """A comparison's 95 % interval in points: ``[-26.0, +19.2]``."""
     return f"[{c['ci95'][0] * 100:+.1f}, {c['ci95'][1] * 100:+.1f}]"
 
 
@@ -106,7 +107,7 @@ def _verdict_row(ver: dict) -> list[str]:
     return [f"the verdict (v1): ACT with ForceAugment (2 copies) vs ACT on the real demos, {seeds} paired training seeds",
             " / ".join(f"{c['diff'] * 100:+.1f}" for c in fa2) + f" points ({' / '.join(where)}): **"
             + " / ".join(dict.fromkeys(c["verdict"] for c in fa2)) + "**",
-            " / ".join(_ci(c) for c in fa2) + " (95 % CI)"]
+            " / ".join(ci_points(c) for c in fa2) + " (95 % CI)"]
 
 
 def _calibration_row(cal: dict, source: str) -> list[str]:
@@ -145,7 +146,7 @@ def headline() -> str:
         _calibration_row(cal, src["calibration.json"]),
         [*_verdict_row(ver), verdict_link, src["touch_il_verdict.json"]],
         ["touch matters: ACT without its tactile streams vs with them, grip as in the demos",
-         f"{vis['diff'] * 100:+.1f} points: **{vis['verdict']}**", _ci(vis) + " (95 % CI)", verdict_link,
+         f"{vis['diff'] * 100:+.1f} points: **{vis['verdict']}**", ci_points(vis) + " (95 % CI)", verdict_link,
          src["touch_il_verdict.json"]],
         [f"MuJoCo scene speed ({full['setting']} rendered)", f"{full['realtime_factor']:.1f}× real time "
          f"({full['ms_per_step']:.1f} ms per 100 ms step); scripted expert {expert['successes']}/{expert['episodes']}",

@@ -280,7 +280,7 @@ def touch_il_verdict() -> str:
     policies = [u for u in doc["units"] if u["kind"] == "policy"]
     grip = {st: policies[0]["settings"].get(st) for st in settings}
     header = ["variant", *(f"{st} ({'–'.join(f'{g:g}' for g in grip[st])} N)" if grip[st] else st for st in settings)]
-    comps = [[c["variant"], c["setting"], f"{c['diff'] * 100:+.1f} [{c['ci95'][0] * 100:+.1f}, {c['ci95'][1] * 100:+.1f}]",
+    comps = [[c["variant"], c["setting"], f"{c['diff'] * 100:+.1f} {docs_figures.ci_points(c)}",
               f"{c['p_holm']:.3g}", f"{c['p_sign_flip']:.3g}", f"**{c['verdict']}**"] for c in doc["comparisons"]]
     chead = ["variant", "setting", "vs real, points [95 % CI]", "p (CMH, Holm)", "p (sign-flip, seeds)", "verdict"]
     return (table(header, rows) + "\n\n" + table(chead, comps) + "\n\n"

@@ -10,12 +10,14 @@ import argparse
 import json
 from pathlib import Path
 
+from benchmarks.docs_figures import ci_points
+
 LINK = "[experiments](docs/experiments.md#the-verdict-v2)"
 
 
 def points(c: dict) -> str:
     """A paired difference and its interval, in points."""
-    return f"{c['diff'] * 100:+.1f} [{c['ci95'][0] * 100:+.1f}, {c['ci95'][1] * 100:+.1f}]"
+    return f"{c['diff'] * 100:+.1f} {ci_points(c)}"
 
 
 def setting_label(doc: dict, setting: str) -> str:
@@ -35,7 +37,8 @@ def success_table(doc: dict, rf) -> str:
             return "pending"
         below = r["below_real_worst"]
         k = "" if below is None else f", {round(below * len(r['per_seed']))}/{len(r['per_seed'])} below real's worst"
-        return f"{rf.pct(r['mean'])} % [{rf.pct(r['ci95'][0])}, {rf.pct(r['ci95'][1])}], SD {rf.pct(r['sd_over_seeds'])}{k}"
+        lo, hi = (rf.pct(x) for x in r["ci95"])
+        return f"{rf.pct(r['mean'])} % [{lo}, {hi}], SD {rf.pct(r['sd_over_seeds'])}{k}"
 
     rows = [[v, steps[v]["step"] if v in steps else "pending", *(cell(by.get((v, st))) for st in settings)]
             for v in doc["protocol"]["variants"]]
@@ -49,7 +52,7 @@ def comparisons_table(doc: dict, rf) -> str:
              f"{c['p_t']:.3g}", f"{c['p_holm']:.3g}" if c["p_holm"] is not None else "–",
              f"**{c['verdict']}**" if c["verdict"] else ("secondary" if not c["primary"] else "pending")] for c in comps]
     return rf.table(["comparison", "setting", "points [95 % CI]", "p sign-flip (seeds)", "p paired t", "p Holm",
-                  "verdict"], rows) if rows else "Comparisons: pending (no test unit yet)."
+                     "verdict"], rows) if rows else "Comparisons: pending (no test unit yet)."
 
 
 def validation_table(doc: dict, rf) -> str:
@@ -57,8 +60,8 @@ def validation_table(doc: dict, rf) -> str:
     snaps = doc["protocol"]["recipe"]["snapshots"]
     rows = []
     for v, s in doc.get("steps", {}).items():
-        rows.append([v, *(f"**{rf.pct(s['curve'][str(k)]['mean'])}**" if k == s["step"] else rf.pct(s["curve"][str(k)]["mean"])
-                          for k in snaps)])
+        means = {k: rf.pct(s["curve"][str(k)]["mean"]) for k in snaps}
+        rows.append([v, *(f"**{means[k]}**" if k == s["step"] else means[k] for k in snaps)])
     return rf.table(["validation success, %", *(f"step {k}" for k in snaps)], rows) if rows else ""
 
 
@@ -67,7 +70,8 @@ def augment_table(doc: dict, rf) -> str:
     rows = [[v, f"{c['clamped_fraction_of_contact'] * 100:.1f} %",
              " / ".join(f"{q:.1f}" for q in c["requested_fz_quantiles"]), c["regenerated"]]
             for v, c in doc.get("force_augment_counts", {}).items()]
-    return rf.table(["variant", "clamped (of contact frames)", "requested Fz, 5 / 50 / 95 % (N)", "frames regenerated"], rows)
+    return rf.table(["variant", "clamped (of contact frames)", "requested Fz, 5 / 50 / 95 % (N)",
+                     "frames regenerated"], rows)
 
 
 def block(doc: dict, rf, source: str) -> str:
@@ -91,7 +95,7 @@ def headline_rows(doc: dict, source: str) -> list[list[str]]:
                      f"{seeds} paired training seeds",
                      " / ".join(f"{c['diff'] * 100:+.1f}" for c in cs) + f" points ({where}): "
                      + " / ".join(f"**{c['verdict'] or 'pending'}**" for c in cs),
-                     " / ".join(f"[{c['ci95'][0] * 100:+.1f}, {c['ci95'][1] * 100:+.1f}]" for c in cs)
+                     " / ".join(ci_points(c) for c in cs)
                      + " (95 % CI); Holm p " + " / ".join(f"{c['p_holm']:.2g}" if c["p_holm"] is not None else "–"
                                                           for c in cs), LINK, source])
     return rows

@@ -5,8 +5,8 @@ ForceAugment settings, the source, the writer format), ``cache/`` (the ForceAugm
 being written) and ``done/`` (one meta row per finished episode). Re-running the same command resumes; each rank
 builds its share of the cache (torchrun: every rank) while a thread of it writes its share of the episodes, each
 copy as soon as the cache holds its chunk (``ChunkGate``: the export's codecs and parquet work beside the
-generator), and rank 0 writes ``meta/`` and publishes: ``dataset/`` is renamed to OUT, and ``OUT.partial`` removed (``write.json``
-last: a removal Ctrl-C stopped is finished by the next run of the command). OUT
+generator), and rank 0 writes ``meta/`` and publishes: ``dataset/`` is renamed to OUT, and ``OUT.partial`` removed
+(``write.json`` last: a removal Ctrl-C stopped is finished by the next run of the command). OUT
 is never the source (nor inside it, nor around it) and never a folder this tool did not write
 (``check_destination``).
 
@@ -85,8 +85,7 @@ def claim(staging: Path, sig: dict) -> None:
     """Start or resume a write in ``staging``; ValueError naming ``out`` when it holds another write."""
     path = staging / "write.json"
     if path.is_file():
-        held = json.loads(path.read_text())
-        if held.get("digest") != _digest(sig):
+        if not claimed(staging, sig):
             raise ValueError(f"out: {staging} holds an unfinished write of other settings or another source; "
                              "re-run that command to finish it, or delete the folder")
         return

@@ -438,8 +438,9 @@ class ForceGenerator:
             y = y + keep * (ref.astype(np.float32) - RESIDUAL_OFFSET - recon)
         bad = int(y.size - np.isfinite(y).sum())
         if bad:  # uint8 would make NaN a black pixel, silently
-            raise NonFiniteOutput(f"the generator's output holds {bad} NaN or inf values ({str(self.dtype).removeprefix('torch.')} "
-                                  f"on {self.device}); nothing was returned: check the checkpoint, or run in float32")
+            dtype = str(self.dtype).removeprefix("torch.")
+            raise NonFiniteOutput(f"the generator's output holds {bad} NaN or inf values ({dtype} on {self.device}); "
+                                  "nothing was returned: check the checkpoint, or run in float32")
         return np.clip(np.round(y), 0, 255).astype(np.uint8)
 
     def generate_images(self, images, background, delta_force, **kwargs) -> np.ndarray:
