@@ -9,11 +9,12 @@ import pytest
 import torch
 
 from controltac_il.calibrate import main
+from controltac_il.calibrate.bundle import subset_presses
 from controltac_il.estimators import EstimatorConfig, ForceEstimator
 from controltac_il.generator import ForceGenerator
 from controltac_il.generator.train import main as train_generator
 from controltac_il.tactile import TRAIN_OBJECTS, SensorSpec
-from controltac_il.tactile.dataset import write_dataset
+from controltac_il.tactile.dataset import load_dataset, write_dataset
 
 TINY = ["--ae-steps", "3", "--dit-steps", "3", "--ae-batch", "2", "--dit-batch", "4", "--ae-crop", "32", "40",
         "--checkpoint-every", "2", "--warmup-steps", "1", "--no-contact-frames", "2", "--threads", "1",
@@ -81,6 +82,10 @@ def test_bad_presses_and_stopped_runs_are_one_line(bases, tmp_path, capsys):
              (["--presses", str(presses), "--out", str(tmp_path / "o"), "--device", "abacus"], "--device: ")]
     (tmp_path / "s.partial").mkdir()
     cases.append((["--presses", str(presses), "--out", str(tmp_path / "s")], "--resume"))
+    ds = load_dataset(presses)
+    one = subset_presses(ds, next(iter(ds.pose_groups().values())), tmp_path / "one_pose")
+    cases.append((["--presses", str(one), "--out", str(tmp_path / "o")],
+                  f"--presses: {one} holds one contact pose only; at least two are needed"))
     for argv, expected in cases:
         assert main(argv) == 2
         err = capsys.readouterr().err.strip()
@@ -102,7 +107,7 @@ def test_the_adapters_cross_validation_needs_two_grasps_before_fitting_anything(
     from controltac_il.calibrate.bundle import cross_validated
 
     residuals, fz = np.zeros((4, 8, 8, 3), np.uint8), np.array([1.0, 2.0, 3.0, 4.0])
-    with pytest.raises(ValueError, match=r"^--presses: one contact pose only; at least two are needed"):
+    with pytest.raises(ValueError, match=r"^the labelled frames hold one contact pose only; at least two are needed"):
         cross_validated(None, residuals, fz, np.zeros(4, int), steps=1)  # never reaches the base estimator
 
 

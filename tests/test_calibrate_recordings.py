@@ -103,6 +103,13 @@ def test_bad_recordings_name_the_file(frames, tmp_path, case, expected):
     assert "png_session" in str(info.value) and "\n" not in str(info.value) and not (tmp_path / "out").exists()
 
 
+def test_recordings_holding_one_press_in_all_are_refused_before_anything_is_written(frames, tmp_path):
+    write(tmp_path / "rec", "png_session", frames[0][:6], [0, 0, 2, 4, 6, 0])
+    with pytest.raises(ValueError, match=r"rec: one press in all recordings; at least two are needed"):
+        recordings_to_presses(tmp_path / "rec", tmp_path / "out", RecordingOptions(size=(60, 80)))
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_recording_without_frames_beside_its_log_is_named(tmp_path):
     (tmp_path / "lonely.csv").write_text("fz\n0\n")
     with pytest.raises(ValueError, match="lonely: no frame could be read"):

@@ -32,7 +32,8 @@ def held_out_poses(groups: dict, fraction: float) -> tuple[list[int], list[int]]
     from controltac_il.estimators.data import split_by_pose
 
     if len(groups) < 2:
-        raise ValueError("--presses: one contact pose only; at least two are needed (one is held out for validation)")
+        raise ValueError("the labelled frames hold one contact pose only; at least two are needed (one is held out "
+                         "for validation)")
     train, val = split_by_pose(groups, fraction, seed=0)
     if val and train:
         return train, val
@@ -55,8 +56,8 @@ def cross_validated(base, residuals: np.ndarray, fz: np.ndarray, grasps: np.ndar
 
     ids = np.unique(grasps)
     if len(ids) < 2:  # one fold holding every frame would fit the adapter on none
-        raise ValueError("--presses: one contact pose only; at least two are needed (each is scored by an adapter "
-                         "fitted without it)")
+        raise ValueError("the labelled frames hold one contact pose only; at least two are needed (each is scored "
+                         "by an adapter fitted without it)")
     folds = np.random.default_rng(0).permutation(len(ids)) % min(FOLDS, len(ids))
     pred, const = np.empty(len(fz)), np.empty(len(fz))
     for k in range(folds.max() + 1):

@@ -85,9 +85,13 @@ def load(args: argparse.Namespace):
         source = {"recordings": str(args.recordings.resolve()), "lag": args.lag, "stride": args.stride,
                   "per_recording": recordings_to_presses(args.recordings, root, opts)}
     try:
-        return load_dataset(root), source
+        ds = load_dataset(root)
     except (ValueError, OSError) as exc:
         raise ValueError(f"--presses: not a presses folder in the FeelAnyForce layout ({' '.join(str(exc).split())})") from None
+    if len(ds.pose_groups()) < 2:
+        raise ValueError(f"--presses: {root} holds one contact pose only; at least two are needed (one is held out "
+                         "for validation)")
+    return ds, source
 
 
 def main(argv=None) -> int:

@@ -226,5 +226,8 @@ def recordings_to_presses(folder: Path, out: Path, opts: RecordingOptions = Reco
     frames kept, presses, lag)."""
     found = find_recordings(folder)
     recs = [read_recording(name, frames, forces, opts) for name, (frames, forces) in found.items()]
+    if sum(int(r.press.max()) + 1 for r in recs) < 2:
+        raise ValueError(f"{folder}: one press in all recordings; at least two are needed (one is held out for "
+                         "validation)")
     write_presses(recs, out)
     return {r.name: {"frames": len(r.frames), "presses": int(r.press.max()) + 1, "lag_frames": r.lag} for r in recs}

@@ -42,18 +42,23 @@ def _name(key: str) -> str:
     return key.rsplit(".", 1)[-1]
 
 
-def _numeric(root: Path, key: str) -> np.ndarray:
-    """Column ``key`` of every data file, in row order, as float64 (N, D); ValueError naming the episode and frame
-    of the first row that is not finite."""
+def _numeric(root: Path, keys: list[str]) -> dict[str, np.ndarray]:
+    """{key: the column of every data file, in row order, as float64 (N, D)}, all columns read in one pass;
+    ValueError naming the key, episode and frame of the first row that is not finite."""
     files = sorted((root / "data").glob("*/*.parquet"))
-    values = np.concatenate([numbers(pq.read_table(p, columns=[key]).column(key)).astype(np.float64) for p in files])
-    bad = ~np.isfinite(values.reshape(len(values), -1)).all(axis=1)
-    if bad.any():
-        i = int(np.argmax(bad))
-        where = pa.concat_tables([pq.read_table(p, columns=["episode_index", "frame_index"]) for p in files])
-        e, f = (int(where.column(c)[i].as_py()) for c in ("episode_index", "frame_index"))
-        raise ValueError(f"{root.name}: {key} holds NaN or inf (first at episode {e}, frame {f}); it must be finite")
-    return values
+    tables = [pq.read_table(p, columns=[*keys, "episode_index", "frame_index"]) for p in files]
+    out = {}
+    for key in keys:
+        values = np.concatenate([numbers(t.column(key)).astype(np.float64) for t in tables])
+        bad = ~np.isfinite(values.reshape(len(values), -1)).all(axis=1)
+        if bad.any():
+            i = int(np.argmax(bad))
+            where = pa.concat_tables([t.select(["episode_index", "frame_index"]) for t in tables])
+            e, f = (int(where.column(c)[i].as_py()) for c in ("episode_index", "frame_index"))
+            raise ValueError(f"{root.name}: {key} holds NaN or inf (first at episode {e}, frame {f}); "
+                             "it must be finite")
+        out[key] = values
+    return out
 
 
 class LeRobotEpisodes(Dataset):
@@ -91,11 +96,11 @@ class LeRobotEpisodes(Dataset):
         self.episode_ids = sorted(self.folder.episodes)
         self._position = {e: n for n, e in enumerate(self.episode_ids)}
         self.lengths = np.asarray([int(self.folder.episodes[e]["length"]) for e in self.episode_ids], np.int64)
+        columns = _numeric(self.root, list(dict.fromkeys(["observation.state", "action", *self.force_keys.values()])))
         self.stats = {name: {"mean": v.mean(0).astype(np.float32), "std": np.maximum(v.std(0), STD_FLOOR).astype(np.float32)}
-                      for name, v in (("qpos", _numeric(self.root, "observation.state")),
-                                      ("action", _numeric(self.root, "action")))}
+                      for name, v in (("qpos", columns["observation.state"]), ("action", columns["action"]))}
         for key in self.force_keys.values():  # finite, in N, Fz > 0 pressing, as an HDF5 episode's labels
-            check_force_labels(f"{self.root.name}: {key}", _numeric(self.root, key))
+            check_force_labels(f"{self.root.name}: {key}", columns[key])
         self.backgrounds = self._backgrounds()
 
     @staticmethod
