@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from contextlib import contextmanager
 import os
 from concurrent.futures import ThreadPoolExecutor
 
@@ -193,9 +194,10 @@ class PegInHoleEnv(gym.Env):
             d.qpos[self._jnt[name]] = value
         self._target = np.array([*home, closing])
         d.ctrl[:] = self._ctrl_vector(self._target)
-        mujoco.mj_forward(m, d)
-        for _ in range(cfg.substeps):  # let the peg settle on the table or in the grip
-            mujoco.mj_step(m, d)
+        with mujoco_warnings():  # counted in data.warning, checked by the first step
+            mujoco.mj_forward(m, d)
+            for _ in range(cfg.substeps):  # let the peg settle on the table or in the grip
+                mujoco.mj_step(m, d)
 
     def step(self, action) -> tuple[dict, float, bool, bool, dict]:
         """Apply one control step; returns (observation, reward, terminated, truncated, info).
@@ -211,15 +213,16 @@ class PegInHoleEnv(gym.Env):
         c0, c1 = self._ctrl_vector(self._target), self._ctrl_vector(target)
         ctrls = c0 + (c1 - c0) * (np.arange(1, n + 1) / n)[:, None]
         max_pen = 0.0
-        for k in range(n):
-            d.ctrl[:] = ctrls[k]
-            mujoco.mj_step(m, d)
-            max_pen = max(max_pen, self._peg_static_penetration())
+        with mujoco_warnings() as said:
+            for k in range(n):
+                d.ctrl[:] = ctrls[k]
+                mujoco.mj_step(m, d)
+                max_pen = max(max_pen, self._peg_static_penetration())
         self._target = target
         self._steps += 1
         if not np.isfinite(d.qpos).all() or self._warning_count() > self._warnings:
-            raise RuntimeError(f"simulation became unstable at step {self._steps} (MuJoCo warnings: "
-                               f"{[(w.number, w.lastinfo) for w in d.warning if w.number]})")
+            raise RuntimeError(f"simulation became unstable at step {self._steps} (MuJoCo: "
+                               f"{' / '.join(said) or 'a state that is not finite'})")
         success = self.is_success()
         info = {"success": success, "clipped": clipped, "grip_force_n": self.grip_force_n,
                 "insertion_mm": self.insertion_mm(), "max_penetration_mm": max_pen * 1000.0,
@@ -427,6 +430,20 @@ class PegInHoleEnv(gym.Env):
 
     def _warning_count(self) -> int:
         return int(self.data.warning.number.sum())
+
+
+@contextmanager
+def mujoco_warnings():
+    """Collect MuJoCo's warning messages in a list instead of its default handling (a line on stdout and
+    MUJOCO_LOG.TXT written into the working directory); the previous handler is restored on exit. MuJoCo's handler
+    is process-global: one simulation per thread at a time."""
+    said: list[str] = []
+    before = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(said.append)
+    try:
+        yield said
+    finally:
+        mujoco.set_mju_user_warning(before)
 
 
 # gymnasium.make("envs.peg_in_hole:PegInHole-v0", config=..., render_mode=...) imports this module and

@@ -22,15 +22,22 @@ def physics_env():
 
 
 @pytest.mark.parametrize("value", [float("nan"), 1e12])
-def test_a_diverging_simulation_stops_the_episode_in_one_line(value, tmp_path, monkeypatch):
-    """NaN or a huge velocity (what a bad contact or timestep produces): the step raises, never returns NaN."""
-    monkeypatch.chdir(tmp_path)  # MuJoCo logs its warning to MUJOCO_LOG.TXT in the working directory
+def test_a_diverging_simulation_stops_the_episode_in_one_line(value, tmp_path, monkeypatch, capfd):
+    """NaN or a huge velocity (what a bad contact or timestep produces): the step raises with MuJoCo's own words,
+    never returns NaN; MuJoCo neither prints nor writes MUJOCO_LOG.TXT, and its handler is restored."""
+    import mujoco
+
+    monkeypatch.chdir(tmp_path)  # MuJoCo's default handler logs to MUJOCO_LOG.TXT in the working directory
     env = PegInHoleEnv(PegInHoleConfig(cameras=(), tactile=False))
     env.reset(seed=0)
     env.data.qvel[:] = value
-    with pytest.raises(RuntimeError, match=r"^simulation became unstable at step 1 \(MuJoCo warnings: \[\(1, "):
+    capfd.readouterr()
+    with pytest.raises(RuntimeError, match=r"^simulation became unstable at step 1 \(MuJoCo: Nan, Inf or huge value "
+                                           r"in QVEL at DOF 0\. The simulation is unstable\. Time = [0-9.]+\.\)$"):
         env.step(env.command)
     env.close()
+    assert capfd.readouterr() == ("", "") and list(tmp_path.iterdir()) == []
+    assert mujoco.get_mju_user_warning() is None
 
 
 def test_random_actions_stay_finite_without_warnings(physics_env):
