@@ -194,10 +194,11 @@ class PegInHoleEnv(gym.Env):
             d.qpos[self._jnt[name]] = value
         self._target = np.array([*home, closing])
         d.ctrl[:] = self._ctrl_vector(self._target)
-        with mujoco_warnings():  # counted in data.warning, checked by the first step
+        with mujoco_warnings() as said:
             mujoco.mj_forward(m, d)
             for _ in range(cfg.substeps):  # let the peg settle on the table or in the grip
                 mujoco.mj_step(m, d)
+        self._check_stable(said, f"while episode {self._episode_seed} settled")
 
     def step(self, action) -> tuple[dict, float, bool, bool, dict]:
         """Apply one control step; returns (observation, reward, terminated, truncated, info).
@@ -220,9 +221,7 @@ class PegInHoleEnv(gym.Env):
                 max_pen = max(max_pen, self._peg_static_penetration())
         self._target = target
         self._steps += 1
-        if not np.isfinite(d.qpos).all() or self._warning_count() > self._warnings:
-            raise RuntimeError(f"simulation became unstable at step {self._steps} (MuJoCo: "
-                               f"{' / '.join(said) or 'a state that is not finite'})")
+        self._check_stable(said, f"at step {self._steps}", self._warnings)
         success = self.is_success()
         info = {"success": success, "clipped": clipped, "grip_force_n": self.grip_force_n,
                 "insertion_mm": self.insertion_mm(), "max_penetration_mm": max_pen * 1000.0,
@@ -306,7 +305,9 @@ class PegInHoleEnv(gym.Env):
         d.qpos[q] = tcp[0] + c * offset_m - s * across
         d.qpos[q + 1] = tcp[1] + s * offset_m + c * across
         d.qvel[:] = 0.0
-        mujoco.mj_forward(self.model, d)
+        with mujoco_warnings() as said:
+            mujoco.mj_forward(self.model, d)
+        self._check_stable(said, f"at a peg offset of {offset_m * 1000:g} mm")
 
     def insertion_mm(self) -> float:
         """How far the peg's bottom is below the rim (mm) while it is inside the hole's radius; else 0."""
@@ -431,12 +432,22 @@ class PegInHoleEnv(gym.Env):
     def _warning_count(self) -> int:
         return int(self.data.warning.number.sum())
 
+    def _check_stable(self, said: list[str], where: str, counted: int | None = None) -> None:
+        """RuntimeError naming ``where`` and MuJoCo's words if it warned (``said``, or its counters beyond
+        ``counted``) or the state is not finite."""
+        d = self.data
+        if not said and np.isfinite(d.qpos).all() and (counted is None or self._warning_count() <= counted):
+            return
+        named = ", ".join(f"{mujoco.mjtWarning(i).name} x{w.number}" for i, w in enumerate(d.warning) if w.number)
+        raise RuntimeError(f"simulation became unstable {where} (MuJoCo: "
+                           f"{' / '.join(said) or named or 'a state that is not finite'})")
+
 
 @contextmanager
 def mujoco_warnings():
     """Collect MuJoCo's warning messages in a list instead of its default handling (a line on stdout and
     MUJOCO_LOG.TXT written into the working directory); the previous handler is restored on exit. MuJoCo's handler
-    is process-global: one simulation per thread at a time."""
+    is process-global: one thread steps MuJoCo at a time."""
     said: list[str] = []
     before = mujoco.get_mju_user_warning()
     mujoco.set_mju_user_warning(said.append)

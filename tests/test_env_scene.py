@@ -40,6 +40,19 @@ def test_a_diverging_simulation_stops_the_episode_in_one_line(value, tmp_path, m
     assert mujoco.get_mju_user_warning() is None
 
 
+def test_a_scene_that_diverges_while_settling_stops_the_reset(tmp_path, monkeypatch, capfd):
+    """A timestep far too long for the contacts: reset raises naming the episode, never starts it from MuJoCo's
+    own reset pose."""
+    monkeypatch.chdir(tmp_path)
+    env = PegInHoleEnv(PegInHoleConfig(cameras=(), tactile=False))
+    env.model.opt.timestep = 5.0
+    with pytest.raises(RuntimeError, match=r"^simulation became unstable while episode 3 settled \(MuJoCo: Nan, Inf "
+                                           r"or huge value in QACC"):
+        env.reset(seed=3)
+    env.close()
+    assert capfd.readouterr().out == "" and list(tmp_path.iterdir()) == []
+
+
 def test_random_actions_stay_finite_without_warnings(physics_env):
     env = physics_env
     rng = np.random.default_rng(0)
