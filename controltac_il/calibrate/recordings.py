@@ -226,8 +226,10 @@ def recordings_to_presses(folder: Path, out: Path, opts: RecordingOptions = Reco
     frames kept, presses, lag)."""
     found = find_recordings(folder)
     recs = [read_recording(name, frames, forces, opts) for name, (frames, forces) in found.items()]
-    if sum(len(np.unique(r.press)) for r in recs) < 2:  # a ramp emptied by the range filter keeps its number
+    summary = {r.name: {"frames": len(r.frames), "presses": len(np.unique(r.press)), "lag_frames": r.lag}
+               for r in recs}  # distinct presses: a ramp emptied by the range filter keeps its number
+    if sum(v["presses"] for v in summary.values()) < 2:
         raise ValueError(f"{folder}: one press in all recordings; at least two are needed (one is held out for "
                          "validation)")
     write_presses(recs, out)
-    return {r.name: {"frames": len(r.frames), "presses": len(np.unique(r.press)), "lag_frames": r.lag} for r in recs}
+    return summary
