@@ -95,21 +95,6 @@ def ci_points(c: dict) -> str:
     return f"[{c['ci95'][0] * 100:+.1f}, {c['ci95'][1] * 100:+.1f}]"
 
 
-def _verdict_row(ver: dict) -> list[str]:
-    """ForceAugment with 2 copies against `real`, every setting of the verdict JSON."""
-    comps = {(c["variant"], c["setting"]): c for c in ver["comparisons"]}
-    settings = list(dict.fromkeys(c["setting"] for c in ver["comparisons"]))
-    grip = next(u for u in ver["units"] if u["kind"] == "policy")["settings"]
-    fa2 = [comps["fa2", st] for st in settings]
-    where = [("as in the demos, " if st == "nominal" else "") + "–".join(f"{g:g}" for g in grip[st]) + " N"
-             if grip.get(st) else st for st in settings]
-    seeds = len(next(r for r in ver["table"] if r["variant"] == "real")["per_seed"])
-    return [f"the verdict (v1): ACT with ForceAugment (2 copies) vs ACT on the real demos, {seeds} paired training seeds",
-            " / ".join(f"{c['diff'] * 100:+.1f}" for c in fa2) + f" points ({' / '.join(where)}): **"
-            + " / ".join(dict.fromkeys(c["verdict"] for c in fa2)) + "**",
-            " / ".join(ci_points(c) for c in fa2) + " (95 % CI)"]
-
-
 def _calibration_row(cal: dict, source: str) -> list[str]:
     unseen = [r for r in cal["rows"] if not r["sensor"].startswith("sim_record")]
     m, t = cal["mean"], cal["targets"]
@@ -123,12 +108,23 @@ def _calibration_row(cal: dict, source: str) -> list[str]:
             "[calibration](docs/calibration.md#calibrate-to-your-own-sensor)", source]
 
 
+def touch_il_verdict_v2() -> str:
+    """The verdict v2's docs block (``benchmarks.verdict_figures``, imported here: it imports this module)."""
+    from benchmarks import verdict_figures
+
+    rf = _rf()
+    doc = rf.load("touch_il_verdict_v2.json")
+    return verdict_figures.block(doc, rf, rf.provenance("touch_il_verdict_v2.json", doc, None))
+
+
 def headline() -> str:
     """One row per headline figure: what, the figure, its spread or interval, its docs section, its JSON."""
     rf = _rf()
+    from benchmarks.verdict_figures import headline_rows
+
     names = ("generator.json", "finetune.json", "calibration.json", "touch_il_verdict.json", "env.json", "act.json",
-             "generator_speed.json")
-    gen, fin, cal, ver, env, act, speed = docs = [rf.load(n) for n in names]
+             "generator_speed.json", "touch_il_verdict_v2.json")
+    gen, fin, cal, ver, env, act, speed, v2 = docs = [rf.load(n) for n in names]
     src = {n: f"`{n}` ({doc['machine']['git_commit']}, {doc['machine']['date_utc'][:10]})"
            + (" *History*" if _source(rf, n, doc).startswith("*History") else "") for n, doc in zip(names, docs)}
     first, last = fin["rows"][0], fin["rows"][-1]
@@ -144,7 +140,7 @@ def headline() -> str:
          f"→ {last['estimator_mae'][2]:.2f} N", f"MSE {last['mse']:.1f} ± {last['mse_sd']:.1f} SD over {last['n']} pairs",
          "[calibration](docs/calibration.md#what-calibration-buys-the-fine-tuning-curve)", src["finetune.json"]],
         _calibration_row(cal, src["calibration.json"]),
-        [*_verdict_row(ver), verdict_link, src["touch_il_verdict.json"]],
+        *headline_rows(v2, src["touch_il_verdict_v2.json"]),
         ["touch matters: ACT without its tactile streams vs with them, grip as in the demos",
          f"{vis['diff'] * 100:+.1f} points: **{vis['verdict']}**", ci_points(vis) + " (95 % CI)", verdict_link,
          src["touch_il_verdict.json"]],
@@ -265,4 +261,5 @@ def _speed(row: dict) -> str:
 
 BLOCKS = {"calibration": calibration, "calibration-methods": calibration_methods, "sensor": sensor,
           "env-speed": env_speed, "hardware": hardware, "generation-chunk": generation_chunk,
-          "force-scaling": force_scaling, "headline": headline, "generator-frontier": generator_frontier}
+          "force-scaling": force_scaling, "headline": headline, "generator-frontier": generator_frontier,
+          "touch-il-verdict-v2": touch_il_verdict_v2}
