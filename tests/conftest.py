@@ -33,6 +33,17 @@ def clock():
     c.detach()
 
 
+@pytest.fixture
+def dynamixel_latency(monkeypatch):
+    """dynamixel_sdk times a reply out after two USB latency timers (16 ms each, its FTDI default); an emulated servo
+    (``hardware.fake_serial.FakeDynamixelServo``) is a thread of the test process, which a loaded machine may not
+    schedule within 34 ms: the SDK gets a 100 ms latency timer (a reply within ~200 ms). A module global, read at
+    each packet."""
+    import dynamixel_sdk.port_handler
+
+    monkeypatch.setattr(dynamixel_sdk.port_handler, "LATENCY_TIMER", 100)
+
+
 @pytest.fixture(scope="session")
 def written(tmp_path_factory):
     """A LeRobot source folder and one clean augmented write of it (``test_lerobot_v3_write.write_clean``), shared by

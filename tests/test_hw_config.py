@@ -150,6 +150,7 @@ def test_check_cli(tmp_path, capsys):
     assert "robot.ip: required" in capsys.readouterr().err
 
 
+@pytest.mark.usefixtures("dynamixel_latency")
 def test_devices_built_from_a_file(tmp_path):
     video = str(tmp_path / "gel.avi")
     w = cv2.VideoWriter(video, cv2.VideoWriter_fourcc(*"FFV1"), 25, (160, 120))

@@ -3,11 +3,9 @@ emulated devices on a pseudo-terminal: register writes, positions, CRC both ways
 
 The emulated fingers move on a virtual clock that the tests advance, so nothing waits for them; the
 only wall-clock waits left are serial read timeouts where a test wants no reply (a silent device, a
-frame with a bad CRC, garbage). dynamixel_sdk times a reply out after two USB latency timers (16 ms
-each, its FTDI default): the emulated servo is a thread of this process, which a loaded machine may
-not schedule within 34 ms, so these tests give it a 100 ms latency timer (a reply within ~200 ms)."""
+frame with a bad CRC, garbage). dynamixel_sdk's reply timeout is raised for a loaded machine
+(conftest's ``dynamixel_latency``)."""
 
-import dynamixel_sdk.port_handler
 import pytest
 import serial
 
@@ -21,10 +19,7 @@ from hardware.fake_serial import FakeDynamixelServo, FakeRobotiq2F85, dxl_crc
 from hardware.interfaces import HardwareError, VirtualClock
 from hardware.robotiq import RobotiqGripper, crc16_modbus
 
-
-@pytest.fixture(autouse=True)
-def _loaded_machine_latency(monkeypatch):
-    monkeypatch.setattr(dynamixel_sdk.port_handler, "LATENCY_TIMER", 100)  # ms; read at each packet
+pytestmark = pytest.mark.usefixtures("dynamixel_latency")
 
 
 # -- CRCs against frames printed in the vendors' manuals --------------------------------------------
