@@ -39,13 +39,14 @@ FORCES_PER_POSE = 8
 EVAL_SEED = 2001  # held-out poses of the same sensor
 
 
-def render(root: Path, instance: str, images: int, seed: int) -> Path:
-    """A one-sensor dataset folder of about ``images`` presses of the training objects (cached)."""
+def render(root: Path, instance: str, images: int, seed: int, workers: int = 1) -> Path:
+    """A one-sensor dataset folder of about ``images`` presses of the training objects (cached; the same files
+    whatever ``workers``, the processes rendering it)."""
     if not (root / "manifest.csv").is_file():
         inst = instance_by_name(instance, SIZE)
         poses = max(1, round(images / (FORCES_PER_POSE * len(TRAIN_OBJECTS))))
         write_dataset(root, TRAIN_OBJECTS, poses_per_object=poses, forces_per_pose=FORCES_PER_POSE, seed=seed,
-                      spec=inst.spec, optics=inst.optics, progress=False)
+                      spec=inst.spec, optics=inst.optics, progress=False, workers=workers)
     return root
 
 
@@ -124,6 +125,8 @@ def main(argv=None) -> dict:
     p.add_argument("--runs", type=Path, default=Path("runs/finetune"), help="datasets and fine-tuned runs")
     p.add_argument("--resume", action="store_true", help="keep the budgets already in --out")
     p.add_argument("--device", default="cpu", help="where the generator fine-tunes: cpu (default) or cuda")
+    p.add_argument("--workers", type=int, default=1,
+                   help="processes rendering the presses (up to one per training object; default 1)")
     args = p.parse_args(argv)
     if args.quick:
         args.images, args.steps, args.ae_steps, args.pairs, args.estimator_steps = [0, 48], 4, 2, 12, 4
@@ -136,7 +139,7 @@ def main(argv=None) -> dict:
         done = {r["images"]: r for r in read_json(args.out).get("rows", [])
                 if "estimator_mae" in r and (r["images"] == 0 or (r.get("steps"), r.get("ae_steps", 0), r.get(
                     "estimator_steps")) == (args.steps, args.ae_steps, args.estimator_steps))}
-    eval_root = render(args.runs / f"{args.instance}_eval", args.instance, 288, EVAL_SEED)
+    eval_root = render(args.runs / f"{args.instance}_eval", args.instance, 288, EVAL_SEED, args.workers)
     pairs = dataset_pairs(eval_root, args.pairs)
     rows = []
     results = {"benchmark": "finetune", "instance": args.instance, "base": str(base),
@@ -152,7 +155,7 @@ def main(argv=None) -> dict:
         if n == 0:
             ckpt, est = base, None
         else:
-            data = render(args.runs / f"{args.instance}_n{n}", args.instance, n, seed=3000 + n)
+            data = render(args.runs / f"{args.instance}_n{n}", args.instance, n, 3000 + n, args.workers)
             rendered = int(read_json(data / "meta.json")["count"])
             name = f"{args.instance}_n{n}_s{args.steps}_a{args.ae_steps}_e{args.estimator_steps}"
             ckpt = est = calibrate(base, data, args.runs / name, args)
