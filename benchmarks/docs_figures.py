@@ -5,6 +5,8 @@ provenance line and ``BLOCKS`` (these join it). Each reads committed JSONs in ``
 
 from __future__ import annotations
 
+from functools import partial
+
 from controltac_il.metrics import wilson_interval
 
 
@@ -123,11 +125,12 @@ def headline() -> str:
     from benchmarks.verdict_figures import headline_rows
 
     names = ("generator.json", "finetune.json", "calibration.json", "touch_il_verdict.json", "env.json", "act.json",
-             "generator_speed.json", "touch_il_verdict_v2.json")
-    gen, fin, cal, ver, env, act, speed, v2 = docs = [rf.load(n) for n in names]
+             "generator_speed.json", "touch_il_verdict_v2.json", "finetune_quality.json")
+    gen, fin, cal, ver, env, act, speed, v2, fin_q = docs = [rf.load(n) for n in names]
     src = {n: f"`{n}` ({doc['machine']['git_commit']}, {doc['machine']['date_utc'][:10]})"
            + (" *History*" if _source(rf, n, doc).startswith("*History") else "") for n, doc in zip(names, docs)}
-    first, last = fin["rows"][0], fin["rows"][-1]
+    first, last, first_q = fin["rows"][0], fin["rows"][-1], fin_q["rows"][0]
+    last_q = next((r for r in fin_q["rows"] if r["images"] == last["images"]), None)  # None while its run goes on
     vis = next(c for c in ver["comparisons"] if (c["variant"], c["setting"]) == ("vision_only", "nominal"))
     full, expert = env["step_timing"][-1], env["expert"][0]
     lo, hi = (rf.pct(x) for x in wilson_interval(expert["successes"], expert["episodes"]))
@@ -135,10 +138,15 @@ def headline() -> str:
     verdict_link = "[experiments](docs/experiments.md#the-verdict-v1)"
     rows = [
         *(_preset_row(gen, speed, name, src) for name in ("fast", "default", "quality")),
-        [f"calibration to a held-out sensor ({last['images']:,} presses)".replace(",", " "), f"generator {last['mse_ratio_to_copy']:.3f}× a "
-         f"copy's MSE (zero-shot {first['mse_ratio_to_copy']:.3f}×); estimator Fz MAE {first['estimator_mae'][2]:.2f} "
-         f"→ {last['estimator_mae'][2]:.2f} N", f"MSE {last['mse']:.1f} ± {last['mse_sd']:.1f} SD over {last['n']} pairs",
-         "[calibration](docs/calibration.md#what-calibration-buys-the-fine-tuning-curve)", src["finetune.json"]],
+        [f"calibration to a held-out sensor ({last['images']:,} presses)".replace(",", " "), f"generator from `default` "
+         f"{last['mse_ratio_to_copy']:.3f}× a copy's MSE (zero-shot {first['mse_ratio_to_copy']:.3f}×), from `quality` "
+         + (f"{last_q['mse_ratio_to_copy']:.3f}×" if last_q else "not yet measured")
+         + f" (zero-shot {first_q['mse_ratio_to_copy']:.3f}×); estimator Fz MAE "
+         f"{first['estimator_mae'][2]:.2f} → {last['estimator_mae'][2]:.2f} N",
+         f"MSE {last['mse']:.1f} ± {last['mse_sd']:.1f}" + (f" / {last_q['mse']:.1f} ± {last_q['mse_sd']:.1f}" if last_q else "")
+         + f" SD over {last['n']} pairs",
+         "[calibration](docs/calibration.md#what-calibration-buys-the-fine-tuning-curve)",
+         f"{src['finetune.json']}, {src['finetune_quality.json']}"],
         _calibration_row(cal, src["calibration.json"]),
         *headline_rows(v2, src["touch_il_verdict_v2.json"]),
         ["touch matters: ACT without its tactile streams vs with them, grip as in the demos",
@@ -207,6 +215,48 @@ def calibration_methods() -> str:
     return rf.table(head, rows) + "\n\n" + _source(rf, "calibration_methods.json", doc)
 
 
+# -- calibration ----------------------------------------------------------------------------------------------
+
+FINETUNE = {"default": "finetune.json", "quality": "finetune_quality.json"}  # the fine-tuning curve per base preset
+
+
+def _presses(n: int) -> str:
+    return "0 (zero-shot)" if n == 0 else f"{n:,}".replace(",", " ")
+
+
+def _cells(rows: dict, budgets: list[int], fmt) -> list[str]:
+    """``fmt(row)`` per budget; a budget the run has not reached yet reads "–"."""
+    return [fmt(rows[n]) if n in rows else "–" for n in budgets]
+
+
+def _mae(row: dict) -> str:
+    return "{2:.2f} ({0:.2f} / {1:.2f})".format(*row["estimator_mae"])  # Fz (Fx / Fy), N
+
+
+def finetune() -> str:
+    """The fine-tuning curve (benchmarks.finetune) from each base preset on one held-out sensor: the generator's
+    MSE ÷ a copy's, SSIM, the estimator's MAE (fine-tuned alike in both runs) and the wall time per budget."""
+    rf = _rf()
+    docs = {name: rf.load(f) for name, f in FINETUNE.items()}
+    budgets = [r["images"] for r in docs["default"]["rows"]]
+    by = {name: {r["images"]: r for r in d["rows"]} for name, d in docs.items()}
+    alike = len({tuple(_cells(rows, budgets, _mae)) for rows in by.values()}) == 1  # the estimator owes nothing to the base
+    body = []
+    for name, rows in by.items():
+        cells = partial(_cells, rows, budgets)
+        body += [[f"`{name}` ({docs[name]['base_hash']}): MSE ÷ a copy's (MSE)",
+                  *cells(lambda r: f"{r['mse_ratio_to_copy']:.3f} ({r['mse']:.1f})")],
+                 [f"`{name}`: SSIM", *cells(lambda r: f"{r['ssim']:.3f}")],
+                 *([] if alike else [[f"`{name}`: estimator MAE Fz (Fx / Fy), N", *cells(_mae)]]),
+                 [f"`{name}`: wall time, min", *cells(lambda r: f"{r['wall_s'] / 60:.1f}")]]
+    if alike:
+        body.append(["estimator MAE Fz (Fx / Fy), N (the same in both runs)", *_cells(by["default"], budgets, _mae)])
+    copy = docs["default"]["rows"][0]
+    head = [f"presses (copy: MSE {copy['copy_mse']:.1f}, SSIM {copy['copy_ssim']:.3f})", *map(_presses, budgets)]
+    return rf.table(head, body) + "\n\n" + "\n".join(
+        rf.provenance(f, docs[name], None, f", base `{name}` {docs[name]['base_hash']}") for name, f in FINETUNE.items())
+
+
 # -- the generator's frontier ---------------------------------------------------------------------------------
 
 def _frontier_order() -> tuple[str, ...]:
@@ -262,4 +312,4 @@ def _speed(row: dict) -> str:
 BLOCKS = {"calibration": calibration, "calibration-methods": calibration_methods, "sensor": sensor,
           "env-speed": env_speed, "hardware": hardware, "generation-chunk": generation_chunk,
           "force-scaling": force_scaling, "headline": headline, "generator-frontier": generator_frontier,
-          "touch-il-verdict-v2": touch_il_verdict_v2}
+          "touch-il-verdict-v2": touch_il_verdict_v2, "finetune": finetune}

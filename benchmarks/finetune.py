@@ -3,6 +3,7 @@ the number of presses (``python -m controltac_il.calibrate``).
 
     python -m benchmarks.finetune --out finetune.json [--images 0 100 500 2000] [--steps 600] [--ae-steps 600]
     python -m benchmarks.finetune --out finetune.json --resume      # keeps the budgets already done
+    python -m benchmarks.finetune --plot finetune.json finetune_quality.json --out finetune.png  # both in one picture
 
 A lab's sensor is played by one instance of the held-out family (``--instance``, default ``unseen_00``:
 polynomial optics over the DIGIT background, brighter lighting than any training instance). For each budget N
@@ -86,21 +87,27 @@ def score(checkpoint, pairs) -> dict:
             "copy_ssim": copy["ssim"], "mse_ratio_to_copy": q["mse"] / copy["mse"], "n": q["n"]}
 
 
-def save_plot(path: Path, rows: list[dict], instance: str) -> None:
+def save_plot(path: Path, curves: dict[str, list[dict]], instance: str) -> None:
+    """The generator's error against presses, one line per base generator (name -> its rows), and the estimator's
+    MAE per axis (the first curve's: the estimator is fine-tuned alike from every base)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(9, 3.5))
-    xs = [max(r["images"], 10) for r in rows]
-    ax.plot(xs, [r["mse_ratio_to_copy"] for r in rows], marker="o")
-    for x, r in zip(xs, rows):
-        ax.annotate(f"{r['images']}", (x, r["mse_ratio_to_copy"]), textcoords="offset points", xytext=(4, 4), fontsize=7)
+    for name, rows in curves.items():
+        xs = [max(r["images"], 10) for r in rows]
+        ax.plot(xs, [r["mse_ratio_to_copy"] for r in rows], marker="o", label=f"base {name}")
+        for x, r in zip(xs, rows):
+            ax.annotate(f"{r['mse_ratio_to_copy']:.3f}", (x, r["mse_ratio_to_copy"]), textcoords="offset points",
+                        xytext=(4, 4), fontsize=7)
     ax.axhline(0.35, color="grey", lw=0.8, ls="--", label="target 0.35× copy")
     ax.set(xscale="log", xlabel="presses (0 plotted at 10)", ylabel="generator MSE / reference-copy MSE",
            title=f"generator, unseen sensor {instance}")
     ax.legend(fontsize=7)
+    rows = next(iter(curves.values()))
+    xs = [max(r["images"], 10) for r in rows]
     for k, axis in enumerate("xyz"):
         ax2.plot(xs, [r["estimator_mae"][k] for r in rows], marker="o", label=f"F{axis}")
     ax2.set(xscale="log", yscale="log", xlabel="presses (0 plotted at 10)", ylabel="estimator MAE (N)",
@@ -111,7 +118,19 @@ def save_plot(path: Path, rows: list[dict], instance: str) -> None:
     plt.close(fig)
 
 
-def main(argv=None) -> dict:
+def plot_runs(paths: list[Path], out: Path) -> None:
+    """Draw finished runs (their ``--out`` JSONs, one instance) into one picture at ``out``."""
+    missing = [str(p) for p in paths if not p.is_file()]
+    if missing:
+        raise SystemExit(f"--plot: no such run file: {', '.join(missing)}")
+    docs = [read_json(p) for p in paths]
+    if len({d["instance"] for d in docs}) != 1:
+        raise SystemExit(f"--plot: the runs were scored on different sensors ({', '.join(d['instance'] for d in docs)})")
+    save_plot(out, {Path(d["base"]).name: d["rows"] for d in docs}, docs[0]["instance"])
+    print(f"wrote {out}")
+
+
+def _parser():
     p = base_parser(__doc__.split(":", 1)[1].strip().split("\n")[0])
     p.add_argument("--images", type=int, nargs="+", default=[0, 100, 500, 2000], help="fine-tuning budgets (images)")
     p.add_argument("--steps", type=int, default=600, help="fine-tuning steps per budget (batch 64; default 600)")
@@ -127,7 +146,18 @@ def main(argv=None) -> dict:
     p.add_argument("--device", default="cpu", help="where the generator fine-tunes: cpu (default) or cuda")
     p.add_argument("--workers", type=int, default=1,
                    help="processes rendering the presses (up to one per training object; default 1)")
+    p.add_argument("--plot", type=Path, nargs="+", metavar="JSON",
+                   help="no run: draw these finished runs (their --out files) into one picture, --out (a .png)")
+    return p
+
+
+def main(argv=None) -> dict | None:
+    p = _parser()
     args = p.parse_args(argv)
+    if args.plot:
+        if args.out is None or args.out.suffix != ".png":
+            p.error("--plot needs --out FILE.png")
+        return plot_runs(args.plot, args.out)
     if args.quick:
         args.images, args.steps, args.ae_steps, args.pairs, args.estimator_steps = [0, 48], 4, 2, 12, 4
     if any(n < 0 for n in args.images) or args.steps < 1 or args.pairs < 1 or args.ae_steps < 0:
@@ -167,7 +197,7 @@ def main(argv=None) -> dict:
                        "wall_s"],
                 title=f"fine-tuning on {args.instance} (base {args.base})")
     if args.out is not None:
-        save_plot(args.out.with_suffix(".png"), rows, args.instance)
+        save_plot(args.out.with_suffix(".png"), {args.base: rows}, args.instance)
     return write_results(args.out, results)
 
 

@@ -135,22 +135,6 @@ def response() -> str:
     return table(header, rows) + "\n\n" + provenance("response.json", doc, doc["generator_hash"])
 
 
-def finetune() -> str:
-    doc = load("finetune.json")
-    rows = doc["rows"]
-    header = ["fine-tuning images", *(("0 (zero-shot)" if r["images"] == 0 else f"{r['images']:,}".replace(",", " "))
-                                      for r in rows)]
-    body = [[f"MSE (copy: {rows[0]['copy_mse']:.1f})", *(f"{r['mse']:.1f}" for r in rows)],
-            ["× a reference copy", *(f"{r['mse_ratio_to_copy']:.3f}" for r in rows)],
-            [f"SSIM (copy: {rows[0]['copy_ssim']:.3f})", *(f"{r['ssim']:.3f}" for r in rows)]]
-    if all("estimator_mae" in r for r in rows):  # the calibrate command's runs (#33) score the estimator too
-        body.append(["estimator MAE Fz (Fx / Fy), N", *(f"{r['estimator_mae'][2]:.2f} ({r['estimator_mae'][0]:.2f} / "
-                                                         f"{r['estimator_mae'][1]:.2f})" for r in rows)])
-    known = doc.get("base_hash")  # recorded since #33
-    return table(header, body) + "\n\n" + provenance(
-        "finetune.json", doc, known, f", base `{Path(doc['base']).name}`" + ("" if known else " (its hash not recorded)"))
-
-
 # -- stage 2 (benchmarks.pose) ----------------------------------------------------------------------
 
 def _pose_source(doc: dict) -> str:
@@ -391,7 +375,7 @@ def results_provenance() -> str:
 
 
 BLOCKS: dict[str, Callable[[], str]] = {
-    "generator": generator, "generator-ratios": generator_ratios, "response": response, "finetune": finetune,
+    "generator": generator, "generator-ratios": generator_ratios, "response": response,
     "pose": pose, "pose-robustness": pose_robustness, "pose-speed": pose_speed, "pose-moved": pose_moved,
     "pose-estimation": pose_estimation, "act-speed": act_speed, "act": act, "touch-il": touch_il,
     "touch-il-reruns": touch_il_reruns, "results-provenance": results_provenance,

@@ -103,6 +103,19 @@ def test_held_out_poses_never_split_a_pose_and_need_two():
         held_out_poses({("cross", 0): [0, 1]}, 0.1)
 
 
+def test_held_out_poses_hold_out_the_asked_share_when_objects_have_few_poses():
+    """100 presses of 6 objects are 2 poses each: one per object would hold out half; 0.2 of 12 poses is 2."""
+    from controltac_il.calibrate.bundle import held_out_poses
+
+    few = {(obj, p): [8 * (2 * o + p) + k for k in range(8)] for o, obj in enumerate("abcdef") for p in range(2)}
+    train, val = held_out_poses(few, 0.2)
+    assert (len(train), len(val)) == (80, 16) and sorted(train + val) == list(range(96))
+    many = {(obj, p): [10 * o + p] for o, obj in enumerate("abcdef") for p in range(10)}  # 10 poses each: per object
+    train, val = held_out_poses(many, 0.2)
+    assert len(val) == 12 and sorted({r // 10 for r in val}) == list(range(6))
+    assert held_out_poses(many, 0.2) == (train, val)  # fixed seed
+
+
 def test_the_adapters_cross_validation_needs_two_grasps_before_fitting_anything():
     from controltac_il.calibrate.bundle import cross_validated
 

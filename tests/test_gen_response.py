@@ -1,6 +1,7 @@
 """benchmarks.response: contact area against ΔFz, the drop and growth it reports, and its --quick run."""
 
 import json
+from pathlib import Path
 from types import SimpleNamespace
 
 import cv2
@@ -93,6 +94,29 @@ def test_finetune_quick_run_scores_zero_shot_and_a_fine_tune_and_resumes(tmp_pat
     again = finetune.main(["--quick", "--out", str(out), "--runs", str(runs), "--resume"])
     assert again["rows"] == doc["rows"]  # nothing retrained or rescored
     assert out.with_suffix(".png").stat().st_size > 0
+
+
+def _finetune_run(path, base: str, instance: str = "unseen_00") -> Path:
+    rows = [{"images": n, "mse_ratio_to_copy": r, "estimator_mae": [0.3, 0.3, e]}
+            for n, r, e in ((0, 0.56, 2.2), (100, 0.44, 1.0), (500, 0.40, 0.5))]
+    path.write_text(json.dumps({"instance": instance, "base": f"/x/checkpoints/{base}", "rows": rows}))
+    return path
+
+
+def test_finetune_plot_draws_finished_runs_of_one_sensor_and_refuses_a_mix(tmp_path):
+    from benchmarks import finetune
+
+    a, b = _finetune_run(tmp_path / "a.json", "default"), _finetune_run(tmp_path / "b.json", "quality")
+    assert finetune.main(["--plot", str(a), str(b), "--out", str(tmp_path / "both.png")]) is None
+    assert (tmp_path / "both.png").stat().st_size > 0
+    other = _finetune_run(tmp_path / "c.json", "quality", instance="unseen_01")
+    with pytest.raises(SystemExit, match="different sensors"):
+        finetune.main(["--plot", str(a), str(other), "--out", str(tmp_path / "mix.png")])
+    with pytest.raises(SystemExit, match="no such run file: .*nope.json"):
+        finetune.main(["--plot", str(a), str(tmp_path / "nope.json"), "--out", str(tmp_path / "x.png")])
+    with pytest.raises(SystemExit):  # argparse: --plot needs --out FILE.png
+        finetune.main(["--plot", str(a), "--out", str(tmp_path / "x.json")])
+    assert not (tmp_path / "mix.png").exists() and not (tmp_path / "x.png").exists()
 
 
 @pytest.mark.slow  # 4 s each; every preset's monotone area on real and 240x320 frames runs in the suite (test_gen_presets)

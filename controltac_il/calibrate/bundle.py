@@ -27,18 +27,22 @@ MAX_PAIRS = 96
 
 
 def held_out_poses(groups: dict, fraction: float) -> tuple[list[int], list[int]]:
-    """(train, validation) rows, whole contact poses apart: ``fraction`` of each object's poses, else (an object
-    with too few) that share of all poses, at least one; ValueError for a single pose."""
+    """(train, validation) rows, whole contact poses apart, about ``fraction`` of the poses held out: that share of
+    each object's poses where every object has at least 1 / fraction of them, else that share of all poses (at
+    least one; one per object would hold out half of two poses each); ValueError for a single pose."""
     from controltac_il.estimators.data import split_by_pose
 
     if len(groups) < 2:
         raise ValueError("the labelled frames hold one contact pose only; at least two are needed (one is held out "
                          "for validation)")
-    train, val = split_by_pose(groups, fraction, seed=0)
-    if val and train:
-        return train, val
+    per_object: dict = {}
+    for obj, _ in groups:
+        per_object[obj] = per_object.get(obj, 0) + 1
+    if min(per_object.values()) * fraction >= 1 - 1e-9:
+        return split_by_pose(groups, fraction, seed=0)
     keys = sorted(groups)
-    picked = {keys[i] for i in np.random.default_rng(0).permutation(len(keys))[:max(1, round(fraction * len(keys)))]}
+    n_held = min(max(1, round(fraction * len(keys))), len(keys) - 1)
+    picked = {keys[i] for i in np.random.default_rng(0).permutation(len(keys))[:n_held]}
     return ([r for k in keys if k not in picked for r in groups[k]], [r for k in keys if k in picked for r in groups[k]])
 
 
