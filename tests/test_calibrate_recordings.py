@@ -121,8 +121,8 @@ def test_a_recording_without_frames_beside_its_log_is_named(tmp_path):
 
 def test_colour_adapter_undoes_another_optics_colour_mix(frames):
     """Residuals of the shipped estimator's own sensor family, colour-mixed as another optics would: the adapter,
-    fitted on Fz labels alone, reads Fz better than zero-shot and than the constant; a saved and loaded copy reads
-    the same and is another estimator by hash."""
+    fitted on Fz labels alone, reads Fz better than zero-shot and than the constant, and Fx / Fy exactly as the
+    base does; it is another estimator by hash."""
     from controltac_il.estimators import ForceEstimator
     from controltac_il.estimators.few_shot import ColourFit, fit_colour_adapter
     from controltac_il.tactile.residual import OFFSET, to_residual
@@ -145,6 +145,9 @@ def test_colour_adapter_undoes_another_optics_colour_mix(frames):
     constant = np.abs(fz[:24].mean() - fz[24:]).mean()
     assert err(est) < 0.8 * min(err(base), constant), (err(est), err(base), constant)
     assert est.checkpoint_hash != base.checkpoint_hash
+    tuned, shipped = est.predict(res[24:], gate=False), base.predict(res[24:], gate=False)
+    assert np.array_equal(tuned[:, :2], shipped[:, :2])  # fitted without shear labels: Fx, Fy read the frame unmixed
+    assert np.abs(tuned[:, 2] - shipped[:, 2]).min() > 0
     with pytest.raises(ValueError, match="one finite label"):
         fit_colour_adapter(base, res[:2], np.array([1.0, np.nan]))
 

@@ -68,7 +68,7 @@ def identity(weights_hash: str, config: EstimatorConfig) -> str:
     import hashlib
     import json
 
-    text = json.dumps([weights_hash, config.input_mix, config.input_shift])
+    text = json.dumps([weights_hash, config.input_mix, config.input_shift, "mix reads Fz only"])  # since Fx, Fy unmixed
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
@@ -117,7 +117,8 @@ class ForceEstimator:
     def predict(self, residuals, batch_size: int = 256, gate: bool = True) -> np.ndarray:
         """Forces [Fx, Fy, Fz] in N, sensor frame, float32 (N, 3) for residuals (N, H, W, 3).
 
-        Any H, W is resized to the network's input size (same physical pad assumed). With
+        Any H, W is resized to the network's input size (same physical pad assumed). A colour calibration
+        (``config.input_mix``, fitted on Fz labels) applies to Fz; Fx and Fy read the unmixed frame. With
         ``gate``, frames without visible contact (see ``EstimatorConfig.contact_threshold``) read
         exactly 0 N; ``gate=False`` returns the raw network reading for every frame.
         """
@@ -125,8 +126,11 @@ class ForceEstimator:
         self.model.eval()
         out = []
         for i in range(0, len(residuals), batch_size):
-            x = mix_colours(preprocess(residuals[i : i + batch_size], self.config).to(self.device), self.config)
-            out.append(self.denormalise_forces(self.model(x)).cpu())
+            x = preprocess(residuals[i : i + batch_size], self.config).to(self.device)
+            forces = self.denormalise_forces(self.model(x))
+            if self.config.input_mix is not None:  # the colour calibration is fitted on Fz; Fx, Fy read the frame
+                forces[:, 2] = self.denormalise_forces(self.model(mix_colours(x, self.config)))[:, 2]
+            out.append(forces.cpu())
         forces = torch.cat(out).numpy().astype(np.float32)
         if gate:
             forces[~self.contact_visible(residuals)] = 0.0
