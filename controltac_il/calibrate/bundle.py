@@ -13,6 +13,7 @@ from __future__ import annotations
 import os
 import shutil
 import warnings
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -35,10 +36,7 @@ def held_out_poses(groups: dict, fraction: float) -> tuple[list[int], list[int]]
     if len(groups) < 2:
         raise ValueError("the labelled frames hold one contact pose only; at least two are needed (one is held out "
                          "for validation)")
-    per_object: dict = {}
-    for obj, _ in groups:
-        per_object[obj] = per_object.get(obj, 0) + 1
-    if min(per_object.values()) * fraction >= 1 - 1e-9:
+    if min(Counter(obj for obj, _ in groups).values()) * fraction >= 1 - 1e-9:  # poses of the sparsest object
         return split_by_pose(groups, fraction, seed=0)
     keys = sorted(groups)
     n_held = min(max(1, round(fraction * len(keys))), len(keys) - 1)
