@@ -1,6 +1,6 @@
 """The tables the docs pages gained when the README became a front door (issue 42), and the README's one table of
-headline figures: render functions for ``benchmarks.readme_figures``, which owns the markers, ``--check``, the
-provenance line and ``BLOCKS`` (these join it). Each reads committed JSONs in ``benchmarks/results/`` only.
+headline figures: render functions joined to ``benchmarks.readme_figures``' ``BLOCKS`` (which owns the markers and
+``--check``), written with ``benchmarks.figure_text``. Each reads committed JSONs in ``benchmarks/results/`` only.
 """
 
 from __future__ import annotations
@@ -9,24 +9,14 @@ from functools import partial
 
 from controltac_il.metrics import wilson_interval
 
-
-def _rf():
-    """``benchmarks.readme_figures``, imported when a block renders (it imports this module to fill BLOCKS)."""
-    from benchmarks import readme_figures
-
-    return readme_figures
-
-
-def _source(rf, name: str, doc: dict) -> str:
-    """The provenance line of a block whose JSON records no generator, or records it where rf looks for it."""
-    return rf.provenance(name, doc, rf._recorded_generator(doc))
+from benchmarks import figure_text as ft
+from benchmarks import verdict_figures
 
 
 # -- the sensor model, the scene, the robot side, the cache ---------------------------------------------------
 
 def sensor() -> str:
-    rf = _rf()
-    doc = rf.load("sensor.json")
+    doc = ft.load("sensor.json")
     speed = [[r["optics"], r["resolution"], f"{r['frames_per_s']:.0f}", f"{r['ms_per_frame']:.1f}",
               f"{r['solver_iters_median']:.0f} (max {r['solver_iters_max']})"] for r in doc["speed"]]
     labels = {"ours_three_light": "sensor model, three-light optics", "ours_polynomial": "sensor model, polynomial optics",
@@ -34,47 +24,43 @@ def sensor() -> str:
     real = [[labels[k], f"{r['max_abs']:.0f}", f"{r['p99_abs']:.0f}", f"{r['contact_fraction']:.2f}",
              f"{r['background_noise_std']:.1f}", " / ".join(f"{v:.0f}" for v in r["contact_std_rgb"])]
             for k, r in doc["realism"].items()]
-    return (rf.table(["optics", "size", "frames/s", "ms per frame", "solver iterations, median"], speed) + "\n\n"
-            + rf.table(["residuals of", "max |residual|", "p99 |residual|", "contact fraction", "bare-gel noise SD",
-                        "contact SD R / G / B"], real) + "\n\n" + _source(rf, "sensor.json", doc))
+    return (ft.table(["optics", "size", "frames/s", "ms per frame", "solver iterations, median"], speed) + "\n\n"
+            + ft.table(["residuals of", "max |residual|", "p99 |residual|", "contact fraction", "bare-gel noise SD",
+                        "contact SD R / G / B"], real) + "\n\n" + ft.source("sensor.json", doc))
 
 
 def env_speed() -> str:
-    rf = _rf()
-    doc = rf.load("env.json")
+    doc = ft.load("env.json")
     rows = [[r["setting"], f"{r['ms_per_step']:.1f}", f"{r['steps_per_s']:.0f}", f"{r['realtime_factor']:.1f}×"]
             for r in doc["step_timing"]]
     experts = "; ".join(f"Ø{e['hole_diameter_mm']:g} mm hole {e['successes']}/{e['episodes']}, median "
                         f"{e['median_steps_to_success']:.0f} steps" for e in doc["expert"])
-    return (rf.table(["rendered per 100 ms control step", "ms per step", "steps/s", "real time ×"], rows)
+    return (ft.table(["rendered per 100 ms control step", "ms per step", "steps/s", "real time ×"], rows)
             + f"\n\nTarget: ≥ {doc['targets']['realtime_factor_full']:g}× real time with everything rendered. "
-            f"Scripted expert: {experts}.\n\n" + _source(rf, "env.json", doc))
+            f"Scripted expert: {experts}.\n\n" + ft.source("env.json", doc))
 
 
 def hardware() -> str:
-    rf = _rf()
-    doc = rf.load("hardware.json")
+    doc = ft.load("hardware.json")
     rows = [[r["measure"], f"{r['p50_ms']:.2f}", f"{r['p99_ms']:.2f}", f"{r['max_ms']:.2f}", r["n"]] for r in doc["table"]]
     loop = doc["control_loop"]
-    return (rf.table(["measure", "p50 ms", "p99 ms", "max ms", "n"], rows)
+    return (ft.table(["measure", "p50 ms", "p99 ms", "max ms", "n"], rows)
             + f"\n\nDeadline misses of the {loop['rate_hz']:g} Hz loop: {loop['deadline_misses']}; load average "
-            f"{doc['load_avg_1m']:.1f} while it ran.\n\n" + _source(rf, "hardware.json", doc))
+            f"{doc['load_avg_1m']:.1f} while it ran.\n\n" + ft.source("hardware.json", doc))
 
 
 def generation_chunk() -> str:
-    rf = _rf()
-    doc = rf.load("generation_chunk.json")
+    doc = ft.load("generation_chunk.json")
     rows = [[r["pattern"], r["chunk"], r["frames"], f"{r['cpu_s']:.2f}", f"{r['frames_per_cpu_s']:.1f}",
              r["bytes_differ_from_cache_chunk"]] for r in doc["rows"]]
     header = ["pattern", "rows per forward pass", "frames", "CPU s", "frames per CPU s",
               f"bytes differing from a cache built in chunks of {doc['shipped_chunk']}"]
-    return (rf.table(header, rows) + "\n\n"
-            + rf.provenance("generation_chunk.json", doc, None, f", {doc['threads']} torch thread"))
+    return (ft.table(header, rows) + "\n\n"
+            + ft.provenance("generation_chunk.json", doc, None, f", {doc['threads']} torch thread"))
 
 
 def force_scaling() -> str:
-    rf = _rf()
-    doc = rf.load("force_scaling.json")
+    doc = ft.load("force_scaling.json")
     rows = [[r["row"], r["train_images"], f"{r['mae_n']:.2f} ± {r['sd_n']:.2f}",
              f"{r['mae_fx']:.2f} / {r['mae_fy']:.2f} / {r['mae_fz']:.2f}"] for r in doc["rows"]]
     v, pc, g = doc["verdict"], doc["physical_check"], doc["generation"]
@@ -86,16 +72,11 @@ def force_scaling() -> str:
             f"{pc['real_same_targets_sd_n']:.2f} N on the real frames they stand in for; "
             f"{g['targets_clamped_to_validated_range']} of {g['frames']} generated targets were clamped to the "
             f"validated range.")
-    return (rf.table(["training set", "images", "test MAE, N (± SD over test frames)", "Fx / Fy / Fz MAE, N"], rows)
-            + "\n\n" + text + "\n\n" + _source(rf, "force_scaling.json", doc))
+    return (ft.table(["training set", "images", "test MAE, N (± SD over test frames)", "Fx / Fy / Fz MAE, N"], rows)
+            + "\n\n" + text + "\n\n" + ft.source("force_scaling.json", doc))
 
 
 # -- the README's one table of headline figures ----------------------------------------------------------------
-
-def ci_points(c: dict) -> str:
-    """A comparison's 95 % interval in points: ``[-26.0, +19.2]``."""
-    return f"[{c['ci95'][0] * 100:+.1f}, {c['ci95'][1] * 100:+.1f}]"
-
 
 def _calibration_row(cal: dict, source: str) -> list[str]:
     unseen = [r for r in cal["rows"] if not r["sensor"].startswith("sim_record")]
@@ -111,29 +92,23 @@ def _calibration_row(cal: dict, source: str) -> list[str]:
 
 
 def touch_il_verdict_v2() -> str:
-    """The verdict v2's docs block (``benchmarks.verdict_figures``, imported here: it imports this module)."""
-    from benchmarks import verdict_figures
-
-    rf = _rf()
-    doc = rf.load("touch_il_verdict_v2.json")
-    return verdict_figures.block(doc, rf, rf.provenance("touch_il_verdict_v2.json", doc, None))
+    """The verdict v2's docs block (``benchmarks.verdict_figures``)."""
+    doc = ft.load("touch_il_verdict_v2.json")
+    return verdict_figures.block(doc, ft.provenance("touch_il_verdict_v2.json", doc, None))
 
 
 def headline() -> str:
     """One row per headline figure: what, the figure, its spread or interval, its docs section, its JSON."""
-    rf = _rf()
-    from benchmarks.verdict_figures import headline_rows
-
     names = ("generator.json", "finetune.json", "calibration.json", "touch_il_verdict.json", "env.json", "act.json",
              "generator_speed.json", "touch_il_verdict_v2.json", "finetune_quality.json")
-    gen, fin, cal, ver, env, act, speed, v2, fin_q = docs = [rf.load(n) for n in names]
+    gen, fin, cal, ver, env, act, speed, v2, fin_q = docs = [ft.load(n) for n in names]
     src = {n: f"`{n}` ({doc['machine']['git_commit']}, {doc['machine']['date_utc'][:10]})"
-           + (" *History*" if _source(rf, n, doc).startswith("*History") else "") for n, doc in zip(names, docs)}
+           + (" *History*" if ft.source(n, doc).startswith("*History") else "") for n, doc in zip(names, docs)}
     first, last, first_q = fin["rows"][0], fin["rows"][-1], fin_q["rows"][0]
     last_q = next((r for r in fin_q["rows"] if r["images"] == last["images"]), None)  # None while its run goes on
     vis = next(c for c in ver["comparisons"] if (c["variant"], c["setting"]) == ("vision_only", "nominal"))
     full, expert = env["step_timing"][-1], env["expert"][0]
-    lo, hi = (rf.pct(x) for x in wilson_interval(expert["successes"], expert["episodes"]))
+    lo, hi = (ft.pct(x) for x in wilson_interval(expert["successes"], expert["episodes"]))
     cpu = next(r for r in act["latency"] if r["preset"] == "cpu")
     verdict_link = "[experiments](docs/experiments.md#the-verdict-v1)"
     rows = [
@@ -148,9 +123,9 @@ def headline() -> str:
          "[calibration](docs/calibration.md#what-calibration-buys-the-fine-tuning-curve)",
          f"{src['finetune.json']}, {src['finetune_quality.json']}"],
         _calibration_row(cal, src["calibration.json"]),
-        *headline_rows(v2, src["touch_il_verdict_v2.json"]),
+        *verdict_figures.headline_rows(v2, src["touch_il_verdict_v2.json"]),
         ["touch matters: ACT without its tactile streams vs with them, grip as in the demos",
-         f"{vis['diff'] * 100:+.1f} points: **{vis['verdict']}**", ci_points(vis) + " (95 % CI)", verdict_link,
+         f"{vis['diff'] * 100:+.1f} points: **{vis['verdict']}**", ft.ci_points(vis) + " (95 % CI)", verdict_link,
          src["touch_il_verdict.json"]],
         [f"MuJoCo scene speed ({full['setting']} rendered)", f"{full['realtime_factor']:.1f}× real time "
          f"({full['ms_per_step']:.1f} ms per 100 ms step); scripted expert {expert['successes']}/{expert['episodes']}",
@@ -159,7 +134,7 @@ def headline() -> str:
         [f"ACT latency ({cpu['preset']} preset, {cpu['threads']} torch thread, CPU)",
          f"{cpu['ms_per_chunk']:.1f} ms per chunk of {cpu['chunk']} (target {cpu['target_ms']:.0f})",
          "one timing, no interval", "[ACT](docs/act_and_deployment.md#speed)", src["act.json"]]]
-    return rf.table(["what", "measured", "error or interval", "details", "source (`benchmarks/results/`)"], rows)
+    return ft.table(["what", "measured", "error or interval", "details", "source (`benchmarks/results/`)"], rows)
 
 
 def _preset_row(gen: dict, speed: dict, name: str, src: dict) -> list:
@@ -181,8 +156,7 @@ def _preset_row(gen: dict, speed: dict, name: str, src: dict) -> list:
 
 def calibration() -> str:
     """``calibrate`` per sensor on its test grasps, and the mean of the unseen sensors against the targets."""
-    rf = _rf()
-    doc = rf.load("calibration.json")
+    doc = ft.load("calibration.json")
     t = doc["targets"]
 
     def row(r: dict, name: str) -> list:
@@ -200,19 +174,18 @@ def calibration() -> str:
                  f"{m['generator_zero_shot_ratio']:.2f}×", f"**{m['minutes']:.1f}** (target ≤ {t['minutes']:.0f})", "", ""])
     head = ["sensor", "grasps / frames", "estimator MAE ÷ constant's (calibrated)", "zero-shot", "its own CV estimate",
             "generator MSE ÷ copy's (calibrated)", "zero-shot", "minutes", "lags found", "commit"]
-    return rf.table(head, rows) + "\n\n" + _source(rf, "calibration.json", doc)
+    return ft.table(head, rows) + "\n\n" + ft.source("calibration.json", doc)
 
 
 def calibration_methods() -> str:
     """Each estimator calibration method at every K: its test MAE's ratio to the constant's, over sensors x draws."""
-    rf = _rf()
-    doc = rf.load("calibration_methods.json")
+    doc = ft.load("calibration_methods.json")
     rows = [[r["k"], f"`{r['method']}`", f"{r['cal_frames']:.0f}", f"{r['mae']:.2f} ± {r['mae_sd']:.2f}",
              f"{r['ratio']:.2f}× ± {r['ratio_sd']:.2f}", f"{r['ratio_worst']:.2f}×",
              "" if r["corr"] is None else f"{r['corr']:.2f}", f"{r['fit_ms']:.0f}", r["n"]]
             for r in doc["summary"] if r["method"] != "constant"]
     head = ["K grasps", "method", "frames", "Fz MAE, N (± SD)", "÷ constant's (± SD)", "worst", "corr", "fit ms", "n"]
-    return rf.table(head, rows) + "\n\n" + _source(rf, "calibration_methods.json", doc)
+    return ft.table(head, rows) + "\n\n" + ft.source("calibration_methods.json", doc)
 
 
 # -- calibration ----------------------------------------------------------------------------------------------
@@ -236,8 +209,7 @@ def _mae(row: dict) -> str:
 def finetune() -> str:
     """The fine-tuning curve (benchmarks.finetune) from each base preset on one held-out sensor: the generator's
     MSE ÷ a copy's, SSIM, the estimator's MAE (fine-tuned alike in both runs) and the wall time per budget."""
-    rf = _rf()
-    docs = {name: rf.load(f) for name, f in FINETUNE.items()}
+    docs = {name: ft.load(f) for name, f in FINETUNE.items()}
     budgets = [r["images"] for r in docs["default"]["rows"]]
     by = {name: {r["images"]: r for r in d["rows"]} for name, d in docs.items()}
     alike = len({tuple(_cells(rows, budgets, _mae)) for rows in by.values()}) == 1  # the estimator owes nothing to the base
@@ -253,8 +225,8 @@ def finetune() -> str:
         body.append(["estimator MAE Fz (Fx / Fy), N (the same in both runs)", *_cells(by["default"], budgets, _mae)])
     copy = docs["default"]["rows"][0]
     head = [f"presses (copy: MSE {copy['copy_mse']:.1f}, SSIM {copy['copy_ssim']:.3f})", *map(_presses, budgets)]
-    return rf.table(head, body) + "\n\n" + "\n".join(
-        rf.provenance(f, docs[name], None, f", base `{name}` {docs[name]['base_hash']}") for name, f in FINETUNE.items())
+    return ft.table(head, body) + "\n\n" + "\n".join(
+        ft.provenance(f, docs[name], None, f", base `{name}` {docs[name]['base_hash']}") for name, f in FINETUNE.items())
 
 
 # -- the generator's frontier ---------------------------------------------------------------------------------
@@ -277,8 +249,7 @@ def generator_frontier() -> str:
     """Every size at DDIM 1 / 2 / 5: error on unseen objects at 240×320 and elsewhere (× a copy's), on real frames,
     its own validation, speed on 2 CPU threads (generator_speed.json: median and range over rounds) and on the GPU
     (generator_speed_gpu.json)."""
-    rf = _rf()
-    doc, cpu, gpu = (rf.load(n) for n in ("generator.json", "generator_speed.json", "generator_speed_gpu.json"))
+    doc, cpu, gpu = (ft.load(n) for n in ("generator.json", "generator_speed.json", "generator_speed_gpu.json"))
     copy = {k: v for k, v in next(m for m in doc["methods"] if m["kind"] == "copy").items() if isinstance(v, dict)}
     on_gpu = {(r["hash"], r["steps"]): r["img_per_s_b32"] for r in gpu["rows"] if r["frames"] == "240"}
     on_cpu = {(r["hash"], r["steps"]): r for r in cpu["rows"] if r["frames"] == "240"}
@@ -299,8 +270,8 @@ def generator_frontier() -> str:
     head = ["size", "DiT params", "DDIM", "unseen 240 MSE ÷ copy", "unseen", "unseen sensor", "real: MSE at ΔF = 0",
             "real: monotone", "its validation ÷ copy", "img/s b32 240, 2 CPU threads (range)", "img/s b32 240, H200",
             "peak MB (CPU, b32)"]
-    return (rf.table(head, rows) + "\n\n" + _source(rf, "generator.json", doc) + "\n"
-            + _source(rf, "generator_speed.json", cpu) + "\n" + _source(rf, "generator_speed_gpu.json", gpu))
+    return (ft.table(head, rows) + "\n\n" + ft.source("generator.json", doc) + "\n"
+            + ft.source("generator_speed.json", cpu) + "\n" + ft.source("generator_speed_gpu.json", gpu))
 
 
 def _speed(row: dict) -> str:

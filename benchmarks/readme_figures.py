@@ -5,7 +5,8 @@
 what ``BLOCKS[NAME]`` renders from the JSON(s) behind it; ``--check`` changes nothing and exits 1 naming each
 block that differs, and each model card whose ``benchmark`` figures differ from the JSON of the same run
 (``tests/test_readme_figures.py``). Each block appears once, in one of those files; the render functions of the
-blocks the docs pages gained with issue 42, and of the README's headline table, are in ``benchmarks.docs_figures``.
+blocks the docs pages gained with issue 42, and of the README's headline table, are in ``benchmarks.docs_figures``; the pieces all blocks share (table, provenance line) in
+``benchmarks.figure_text``.
 
 Each block ends with a line naming its file, commit, date and generator; it reads *History (not reproducible
 from committed files)* when the file was measured on a dirty tree (``-dirty`` commit) or with a generator
@@ -16,56 +17,24 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import re
 import sys
 from collections.abc import Callable
-from pathlib import Path
 from statistics import mean
 
 from controltac_il.generator.shipped import FRONTIER_SIZES, SHIPPED
 
 from benchmarks import docs_figures
+from benchmarks.figure_text import (RESULTS, ROOT, SHIPPED_GENERATOR, ci_points, load, pct, provenance,
+                                    recorded_generator, table)
 
-ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "benchmarks" / "results"
 DOCS = (ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), RESULTS / "README.md")  # every page with blocks
-SHIPPED_GENERATOR = "ded63c1c8e7216ae"  # checkpoint_hash of controltac_il/generator/checkpoints/default
 HISTORY_KEYS = ("source", "history", "history_note")  # added to a card's figures, not measured
 MARKER = re.compile(r"<!-- (/?)figures:([A-Za-z0-9_-]+) -->")
 
 
-def load(name: str) -> dict:
-    return json.loads((RESULTS / name).read_text())
-
-
-def table(header: list[str], rows: list[list]) -> str:
-    lines = [header, ["---"] * len(header), *rows]
-    return "\n".join("| " + " | ".join(str(c).replace("|", "\\|") for c in line) + " |" for line in lines)
-
-
-def provenance(name: str, doc: dict, generator: str | None, note: str = "") -> str:
-    """The line under a block: where its figures come from, and *History* when no commit reproduces them."""
-    commit, date = doc["machine"]["git_commit"], doc["machine"]["date_utc"][:10]
-    why = []
-    if commit.endswith("-dirty"):
-        why.append(f"measured on a dirty tree ({commit.removesuffix('-dirty')} plus uncommitted changes)")
-    if generator is not None and generator != SHIPPED_GENERATOR:
-        why.append(f"measured with the earlier generator {generator}, not the shipped default {SHIPPED_GENERATOR}")
-    where = f"`benchmarks/results/{name}`, commit {commit}, {date}"
-    where += f", generator {generator}{note}" if generator else note
-    if why:
-        return f"*History (not reproducible from committed files): {'; '.join(why)}. Source: {where}.*"
-    return f"*Source: {where}.*"
-
-
 def ms(s: dict) -> str:
     return f"{s['mse']:.1f} ± {s['mse_sd']:.1f}"
-
-
-def pct(x: float) -> int:
-    """x as a whole percentage, halves rounded up (the JSONs store intervals rounded to 3-4 digits)."""
-    return math.floor(x * 100 + 0.5 + 1e-9)
 
 
 def wilson(k: int, n: int, interval: list) -> str:
@@ -264,7 +233,7 @@ def touch_il_verdict() -> str:
     policies = [u for u in doc["units"] if u["kind"] == "policy"]
     grip = {st: policies[0]["settings"].get(st) for st in settings}
     header = ["variant", *(f"{st} ({'–'.join(f'{g:g}' for g in grip[st])} N)" if grip[st] else st for st in settings)]
-    comps = [[c["variant"], c["setting"], f"{c['diff'] * 100:+.1f} {docs_figures.ci_points(c)}",
+    comps = [[c["variant"], c["setting"], f"{c['diff'] * 100:+.1f} {ci_points(c)}",
               f"{c['p_holm']:.3g}", f"{c['p_sign_flip']:.3g}", f"**{c['verdict']}**"] for c in doc["comparisons"]]
     chead = ["variant", "setting", "vs real, points [95 % CI]", "p (CMH, Holm)", "p (sign-flip, seeds)", "verdict"]
     return (table(header, rows) + "\n\n" + table(chead, comps) + "\n\n"
@@ -349,22 +318,11 @@ def touch_il_reruns() -> str:
 
 # -- benchmarks/results/README.md -------------------------------------------------------------------
 
-def _recorded_generator(doc: dict) -> str | None:
-    for path in (("generator_hash",), ("settings", "generator_hash"), ("generation", "generator_hash"), ("stage1_hash",),
-                 ("settings", "checkpoints", "default", "hash")):
-        d = doc
-        for k in path:
-            d = d.get(k) if isinstance(d, dict) else None
-        if d:
-            return d
-    return None
-
-
 def results_provenance() -> str:
     rows = []
     for path in sorted(RESULTS.glob("*.json")):
         doc = json.loads(path.read_text())
-        gen = _recorded_generator(doc) or (ACT_GENERATOR[0] if path.name == "act.json" else None)
+        gen = recorded_generator(doc) or (ACT_GENERATOR[0] if path.name == "act.json" else None)
         commit = doc["machine"]["git_commit"]
         why = (["dirty tree"] if commit.endswith("-dirty") else []) + (
             ["earlier generator"] if gen is not None and gen != SHIPPED_GENERATOR else [])

@@ -10,14 +10,14 @@ import argparse
 import json
 from pathlib import Path
 
-from benchmarks.docs_figures import ci_points
+from benchmarks import figure_text as ft
 
 LINK = "[experiments](docs/experiments.md#the-verdict-v2)"
 
 
 def points(c: dict) -> str:
     """A paired difference and its interval, in points."""
-    return f"{c['diff'] * 100:+.1f} {ci_points(c)}"
+    return f"{c['diff'] * 100:+.1f} {ft.ci_points(c)}"
 
 
 def setting_label(doc: dict, setting: str) -> str:
@@ -27,7 +27,7 @@ def setting_label(doc: dict, setting: str) -> str:
     return f"{setting} ({lo:g}–{hi:g} N{stress})"
 
 
-def success_table(doc: dict, rf) -> str:
+def success_table(doc: dict) -> str:
     """Test success per variant (rows) and setting (columns) over the seeds, at each variant's chosen step."""
     settings, steps = list(doc["protocol"]["settings"]), doc.get("steps", {})
     by = {(r["variant"], r["setting"]): r for r in doc["table"]}
@@ -37,47 +37,47 @@ def success_table(doc: dict, rf) -> str:
             return "pending"
         below = r["below_real_worst"]
         k = "" if below is None else f", {round(below * len(r['per_seed']))}/{len(r['per_seed'])} below real's worst"
-        lo, hi = (rf.pct(x) for x in r["ci95"])
-        return f"{rf.pct(r['mean'])} % [{lo}, {hi}], SD {rf.pct(r['sd_over_seeds'])}{k}"
+        lo, hi = (ft.pct(x) for x in r["ci95"])
+        return f"{ft.pct(r['mean'])} % [{lo}, {hi}], SD {ft.pct(r['sd_over_seeds'])}{k}"
 
     rows = [[v, steps[v]["step"] if v in steps else "pending", *(cell(by.get((v, st))) for st in settings)]
             for v in doc["protocol"]["variants"]]
-    return rf.table(["variant", "step", *(setting_label(doc, st) for st in settings)], rows)
+    return ft.table(["variant", "step", *(setting_label(doc, st) for st in settings)], rows)
 
 
-def comparisons_table(doc: dict, rf) -> str:
+def comparisons_table(doc: dict) -> str:
     """Every comparison with real, the primary ones (Holm, a verdict) first."""
     comps = sorted(doc["comparisons"], key=lambda c: not c["primary"])
     rows = [[f"{c['variant']} vs real", setting_label(doc, c["setting"]), points(c), f"{c['p_sign_flip']:.3g}",
              f"{c['p_t']:.3g}", f"{c['p_holm']:.3g}" if c["p_holm"] is not None else "–",
              f"**{c['verdict']}**" if c["verdict"] else ("secondary" if not c["primary"] else "pending")] for c in comps]
-    return rf.table(["comparison", "setting", "points [95 % CI]", "p sign-flip (seeds)", "p paired t", "p Holm",
+    return ft.table(["comparison", "setting", "points [95 % CI]", "p sign-flip (seeds)", "p paired t", "p Holm",
                      "verdict"], rows) if rows else "Comparisons: pending (no test unit yet)."
 
 
-def validation_table(doc: dict, rf) -> str:
+def validation_table(doc: dict) -> str:
     """Mean validation success over the seeds per snapshot; the chosen step in bold."""
     snaps = doc["protocol"]["recipe"]["snapshots"]
     rows = []
     for v, s in doc.get("steps", {}).items():
-        means = {k: rf.pct(s["curve"][str(k)]["mean"]) for k in snaps}
+        means = {k: ft.pct(s["curve"][str(k)]["mean"]) for k in snaps}
         rows.append([v, *(f"**{means[k]}**" if k == s["step"] else means[k] for k in snaps)])
-    return rf.table(["validation success, %", *(f"step {k}" for k in snaps)], rows) if rows else ""
+    return ft.table(["validation success, %", *(f"step {k}" for k in snaps)], rows) if rows else ""
 
 
-def augment_table(doc: dict, rf) -> str:
+def augment_table(doc: dict) -> str:
     """Each ForceAugment variant's clamped share of contact frames and its requested target Fz."""
     rows = [[v, f"{c['clamped_fraction_of_contact'] * 100:.1f} %",
              " / ".join(f"{q:.1f}" for q in c["requested_fz_quantiles"]), c["regenerated"]]
             for v, c in doc.get("force_augment_counts", {}).items()]
-    return rf.table(["variant", "clamped (of contact frames)", "requested Fz, 5 / 50 / 95 % (N)",
+    return ft.table(["variant", "clamped (of contact frames)", "requested Fz, 5 / 50 / 95 % (N)",
                      "frames regenerated"], rows)
 
 
-def block(doc: dict, rf, source: str) -> str:
+def block(doc: dict, source: str) -> str:
     """The docs block: power, success, comparisons, validation curves, ForceAugment's targets, the source line."""
-    parts = [f"*Power, stated before any result: {doc['power_statement']}.*", success_table(doc, rf),
-             comparisons_table(doc, rf), validation_table(doc, rf), augment_table(doc, rf), source]
+    parts = [f"*Power, stated before any result: {doc['power_statement']}.*", success_table(doc),
+             comparisons_table(doc), validation_table(doc), augment_table(doc), source]
     return "\n\n".join(p for p in parts if p)
 
 
@@ -95,7 +95,7 @@ def headline_rows(doc: dict, source: str) -> list[list[str]]:
                      f"{seeds} paired training seeds",
                      " / ".join(f"{c['diff'] * 100:+.1f}" for c in cs) + f" points ({where}): "
                      + " / ".join(f"**{c['verdict'] or 'pending'}**" for c in cs),
-                     " / ".join(ci_points(c) for c in cs)
+                     " / ".join(ft.ci_points(c) for c in cs)
                      + " (95 % CI); Holm p " + " / ".join(f"{c['p_holm']:.2g}" if c["p_holm"] is not None else "–"
                                                           for c in cs), LINK, source])
     return rows
@@ -118,7 +118,6 @@ def main(argv=None) -> int:
 
 def show(doc: dict, path: Path) -> None:
     """Print the block and the README rows of ``doc``; steps by the protocol's rule where the grid has none yet."""
-    from benchmarks import readme_figures as rf
     from benchmarks.touch_il_verdict_v2 import choose_step
 
     train = [u for u in doc["units"] if u["kind"] == "train"]
@@ -128,8 +127,8 @@ def show(doc: dict, path: Path) -> None:
         doc["steps"] = {v: choose_step([u for u in train if u["variant"] == v], snaps)
                         for v in doc["protocol"]["variants"] if any(u["variant"] == v for u in train)}
         note += "; steps provisional: not every seed is trained"
-    print(block(doc, rf, f"*{path}: {note}.*"))
-    print("\n" + rf.table(["what", "measured", "error or interval", "details", "source"], headline_rows(doc, str(path))))
+    print(block(doc, f"*{path}: {note}.*"))
+    print("\n" + ft.table(["what", "measured", "error or interval", "details", "source"], headline_rows(doc, str(path))))
 
 
 if __name__ == "__main__":

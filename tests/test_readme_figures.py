@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+from benchmarks import figure_text as ft
 from benchmarks import readme_figures as rf
 
 DOCS_DIR = rf.ROOT / "docs"
@@ -173,13 +174,13 @@ def test_the_readme_keeps_ci_s_test_command_and_stays_short():
 
 def test_history_is_marked_for_a_dirty_tree_or_an_earlier_generator():
     doc = {"machine": {"git_commit": "abc1234", "date_utc": "2026-01-01T00:00:00+00:00"}}
-    assert rf.provenance("x.json", doc, rf.SHIPPED_GENERATOR).startswith("*Source:")
-    assert "History" in rf.provenance("x.json", doc, "e87cbc3c3742019b")
+    assert ft.provenance("x.json", doc, ft.SHIPPED_GENERATOR).startswith("*Source:")
+    assert "History" in ft.provenance("x.json", doc, "e87cbc3c3742019b")
     dirty = {"machine": {"git_commit": "abc1234-dirty", "date_utc": "2026-01-01T00:00:00+00:00"}}
-    assert "dirty tree" in rf.provenance("x.json", dirty, rf.SHIPPED_GENERATOR)
+    assert "dirty tree" in ft.provenance("x.json", dirty, ft.SHIPPED_GENERATOR)
 
 
 def test_the_shipped_generator_hash_is_the_default_checkpoints():
     from controltac_il.generator.checkpoint import checkpoint_hash
 
-    assert checkpoint_hash(rf.ROOT / "controltac_il/generator/checkpoints/default") == rf.SHIPPED_GENERATOR
+    assert checkpoint_hash(ft.ROOT / "controltac_il/generator/checkpoints/default") == ft.SHIPPED_GENERATOR

@@ -8,7 +8,6 @@ import pytest
 from benchmarks import touch_il_verdict_v2 as v2
 from benchmarks import verdict_figures as vf
 from benchmarks import verdict_report as vr
-from benchmarks import readme_figures as rf
 
 SEEDS = list(range(10))
 SETTINGS = list(v2.SETTINGS)
@@ -41,7 +40,7 @@ def _doc(tests: bool = True) -> dict:
 
 def test_the_block_reports_each_variant_at_its_step_with_its_spread_and_the_primary_verdicts_first():
     doc = _doc()
-    text = vf.block(doc, rf, "*source*")
+    text = vf.block(doc, "*source*")
     rows = {}  # the success table's row of each variant: the first table naming it
     for line in text.splitlines():
         if line.startswith("| "):
