@@ -219,4 +219,6 @@ def summary(rows: list[dict], args, t0: float, show: bool = False) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    from controltac_il.cli import guard
+
+    raise SystemExit(guard("python -m benchmarks.calibration", lambda: main() and 0))

@@ -372,4 +372,6 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    from controltac_il.cli import guard
+
+    raise SystemExit(guard("python -m benchmarks.calibration_methods", lambda: main() and 0))

@@ -202,4 +202,6 @@ def main(argv=None) -> dict | None:
 
 
 if __name__ == "__main__":
-    main()
+    from controltac_il.cli import guard
+
+    raise SystemExit(guard("python -m benchmarks.finetune", lambda: main() and 0))

@@ -108,4 +108,6 @@ def main(argv=None) -> Path:
 
 
 if __name__ == "__main__":
-    main()
+    from controltac_il.cli import guard
+
+    raise SystemExit(guard("python -m benchmarks.generator_frontier", lambda: main() and 0))

@@ -411,11 +411,7 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.readme_figures", description=__doc__.split("\n\n")[0])
     p.add_argument("--check", action="store_true", help="change nothing; exit 1 naming each block that differs")
     a = p.parse_args(argv)
-    try:
-        return _run(a.check)
-    except ValueError as exc:  # a malformed marker
-        print(f"benchmarks.readme_figures: error: {exc}", file=sys.stderr)
-        return 2
+    return _run(a.check)  # a malformed marker: ValueError, one line and exit 2 under guard
 
 
 def _run(check_only: bool) -> int:
@@ -436,4 +432,6 @@ def _run(check_only: bool) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from controltac_il.cli import guard
+
+    raise SystemExit(guard("python -m benchmarks.readme_figures", main))

@@ -1,6 +1,9 @@
-"""Benchmark provenance: the recorded revision says when the tree differs from the commit."""
+"""Benchmark provenance: the recorded revision says when the tree differs from the commit; every benchmark's
+command line reports a fault as one line and an exit code."""
 
+import ast
 import subprocess
+from pathlib import Path
 
 from benchmarks.common import git_revision
 
@@ -40,3 +43,21 @@ def test_a_run_that_saves_as_it_goes_keeps_the_revision_it_started_from(tmp_path
         common.machine_info.cache_clear()
     assert first["machine"]["git_commit"] == second["machine"]["git_commit"] == "abc1234"
     assert second["step"] == 2
+
+
+def _main_block_calls(path: Path) -> set[str] | None:
+    """Names called in the module's ``if __name__ == "__main__":`` block; None when it has none."""
+    for node in ast.parse(path.read_text()).body:
+        if isinstance(node, ast.If) and getattr(getattr(node.test, "left", None), "id", None) == "__name__":
+            return {getattr(c.func, "id", getattr(c.func, "attr", None)) for c in ast.walk(node) if isinstance(c, ast.Call)}
+    return None
+
+
+def test_every_benchmark_runs_its_main_under_guard():
+    """``python -m benchmarks.X`` with a bad option value or file prints ``PROG: error: ...`` and exits 2, not a
+    traceback: each entry point wraps main in controltac_il.cli.guard."""
+    root = Path(__file__).resolve().parents[1] / "benchmarks"
+    entries = {p.relative_to(root).as_posix(): calls for p in root.rglob("*.py")
+               if (calls := _main_block_calls(p)) is not None}
+    assert len(entries) >= 20
+    assert [name for name, calls in entries.items() if "guard" not in calls] == []

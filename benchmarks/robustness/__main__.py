@@ -51,4 +51,6 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    from controltac_il.cli import guard
+
+    raise SystemExit(guard("python -m benchmarks.robustness", lambda: main() and 0))
