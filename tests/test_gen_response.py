@@ -91,9 +91,27 @@ def test_finetune_quick_run_scores_zero_shot_and_a_fine_tune_and_resumes(tmp_pat
     assert "--denoiser-from" in card["command"] and card["denoiser"]["steps"] == 4
     assert card["autoencoder"]["finetune"]["step"] == 2 and rows[48]["ae_steps"] == 2
     assert len(rows[0]["estimator_mae"]) == 3 and rows[48]["estimator_mae"] != rows[0]["estimator_mae"]
+    assert rows[48]["estimator_steps"] == rows[48]["estimator_steps_requested"] == 4  # as the bundle records it
     again = finetune.main(["--quick", "--out", str(out), "--runs", str(runs), "--resume"])
     assert again["rows"] == doc["rows"]  # nothing retrained or rescored
     assert out.with_suffix(".png").stat().st_size > 0
+
+
+def test_finetune_leaves_the_estimator_steps_to_calibrate_unless_asked(tmp_path, monkeypatch):
+    """Without --estimator-steps each budget runs calibrate's own steps for the method it picks (150 for the colour
+    adapter, 1000 for the fine-tune); with it, every budget runs that many. The calibrate CLI is replaced by a
+    recorder of its arguments that fails (nothing trains)."""
+    import controltac_il.calibrate as cal
+    from benchmarks import finetune
+
+    seen = []
+    monkeypatch.setattr(cal, "main", lambda argv: seen.append(argv) or 1)
+    for extra in ([], ["--estimator-steps", "7"]):
+        args = finetune._parser().parse_args(["--out", str(tmp_path / "x.json"), *extra])
+        with pytest.raises(RuntimeError, match="calibrating on"):
+            finetune.calibrate(Path("base"), tmp_path / "data", tmp_path / "bundle", args)
+    assert "--estimator-steps" not in seen[0]
+    assert seen[1][seen[1].index("--estimator-steps") + 1] == "7"
 
 
 def _finetune_run(path, base: str, instance: str = "unseen_00") -> Path:
