@@ -24,12 +24,13 @@ import sys
 from pathlib import Path
 
 from controltac_il.app import EVAL_SEED, SCENES
+from controltac_il.cli import ArgumentParser
 
 PROG = "deploy_policy.py"
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--robot", choices=("sim", "xarm", "ur"), default="sim", help="where to run (default sim)")
     p.add_argument("--checkpoint", type=Path, required=True,
                    help="checkpoint folder, or a train_act.py --out folder (its best/, else last/)")

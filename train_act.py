@@ -22,9 +22,11 @@ import os
 import sys
 from pathlib import Path
 
+from controltac_il.cli import ArgumentParser
+
 
 def parse_args(argv=None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--dataset", type=Path, default=None,
                    help="folder of episode_<i>.hdf5 files, or a LeRobot v3.0 folder (observation.state, action; "
                         "tactile cameras are those named gelsight / tactile / digit, their force labels "

@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 from typing import Callable, Sequence
 
+from controltac_il.cli import ArgumentParser
 from controltac_il.io import write_json
 
 
@@ -102,7 +103,7 @@ def print_table(rows: Sequence[dict], columns: Sequence[str], title: str | None 
 
 def base_parser(description: str) -> argparse.ArgumentParser:
     """Argument parser with the flags every benchmark takes (``--out``, ``--quick``)."""
-    p = argparse.ArgumentParser(description=description)
+    p = ArgumentParser(description=description)
     p.add_argument("--out", type=Path, default=None, help="write the results as JSON to this file")
     p.add_argument("--quick", action="store_true", help="small version that finishes in about a minute (CI)")
     return p

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.response import DELTAS, MAX_DROP_PP, area_drops, contact_area_pct, real_references
+from controltac_il.cli import ArgumentParser
 from controltac_il.generator.shipped import FRONTIER_SIZES
 from controltac_il.metrics import mse
 
@@ -93,11 +94,10 @@ def save_frontier_plot(path: Path, methods: list[dict], speed: dict) -> None:
 def main(argv=None) -> Path:
     """Draw the frontier's picture from a ``benchmarks.generator`` JSON (errors) and a ``benchmarks.generator_speed``
     JSON (speeds), beside the first."""
-    import argparse
     import json
 
-    p = argparse.ArgumentParser(description="Draw the generator's speed-error frontier: errors from a benchmarks.generator "
-                                            "JSON, speeds from a benchmarks.generator_speed JSON.")
+    p = ArgumentParser(description="Draw the generator's speed-error frontier: errors from a benchmarks.generator "
+                       "JSON, speeds from a benchmarks.generator_speed JSON.")
     p.add_argument("errors", type=Path, help="the JSON benchmarks.generator wrote (the PNG goes beside it)")
     p.add_argument("speeds", type=Path, help="the JSON benchmarks.generator_speed wrote")
     a = p.parse_args(argv)

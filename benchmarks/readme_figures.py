@@ -15,13 +15,13 @@ other than the shipped default, so a clean re-run with the shipped models lifts 
 
 from __future__ import annotations
 
-import argparse
 import json
 import re
 import sys
 from collections.abc import Callable
 from statistics import mean
 
+from controltac_il.cli import ArgumentParser
 from controltac_il.generator.shipped import FRONTIER_SIZES, SHIPPED
 
 from benchmarks import docs_figures
@@ -408,7 +408,7 @@ def check() -> list[str]:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m benchmarks.readme_figures", description=__doc__.split("\n\n")[0])
+    p = ArgumentParser(prog="python -m benchmarks.readme_figures", description=__doc__.split("\n\n")[0])
     p.add_argument("--check", action="store_true", help="change nothing; exit 1 naming each block that differs")
     a = p.parse_args(argv)
     return _run(a.check)  # a malformed marker: ValueError, one line and exit 2 under guard

@@ -6,11 +6,11 @@ tables read "pending" until the first test unit is in).
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
 from benchmarks import figure_text as ft
+from controltac_il.cli import ArgumentParser
 
 LINK = "[experiments](docs/experiments.md#the-verdict-v2)"
 
@@ -102,8 +102,8 @@ def headline_rows(doc: dict, source: str) -> list[list[str]]:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description="Print the verdict v2's docs block and README rows from a (running) "
-                                            "grid's --out JSON.")
+    p = ArgumentParser(description="Print the verdict v2's docs block and README rows from a (running) "
+                       "grid's --out JSON.")
     p.add_argument("json", type=Path, help="the grid's --out JSON")
     args = p.parse_args(argv)
     doc = json.loads(args.json.read_text())

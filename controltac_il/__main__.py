@@ -15,6 +15,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from controltac_il.cli import ArgumentParser
+
 PROG = "python -m controltac_il"
 FLAGS = {"demos": "--demos", "copies": "--copies", "steps": "--steps", "eval_episodes": "--eval-episodes"}
 
@@ -23,8 +25,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     from controltac_il.app.job_config import PipelineConfig
 
     d = PipelineConfig()
-    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[1],
-                                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p = ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[1],
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("--out", type=Path, default=Path("out"), help="folder for the job's outputs")
     p.add_argument("--demos", type=int, default=d.demos, help="scripted demos collected in the scene")
     p.add_argument("--copies", type=int, default=d.copies, help="ForceAugment copies per demo (0 = real only)")

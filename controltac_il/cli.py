@@ -4,6 +4,7 @@ Ctrl-C)."""
 
 from __future__ import annotations
 
+import argparse
 import sys
 from typing import Callable
 
@@ -14,6 +15,14 @@ def tty_only(progress: bool = True) -> bool | None:
     """tqdm's ``disable`` for a bar shown only on a terminal: None (tqdm turns it off when stderr is not a TTY, so
     ``./run.sh > log`` holds no carriage-return updates), or True when ``progress`` is off."""
     return None if progress else True
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse's parser, but a usage error (unknown flag, bad choice, missing argument) is one line on stderr,
+    ``PROG: error: MESSAGE (see --help)``, and exit status 2: the usage block is what ``--help`` is for."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
 
 
 class RunFault(RuntimeError):

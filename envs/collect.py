@@ -23,6 +23,7 @@ import numpy as np
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 
+from controltac_il.cli import ArgumentParser  # noqa: E402
 from envs.config import CAMERAS, SCENES, SENSORS, scene_config  # noqa: E402
 
 if TYPE_CHECKING:  # MuJoCo is imported by the job, after the options: --help stays light
@@ -76,13 +77,6 @@ def record_episode(env: PegInHoleEnv, expert: ScriptedExpert, seed: int, hold_st
     return episode, success_at is not None
 
 
-class _Parser(argparse.ArgumentParser):
-    """An argument parser that reports a usage error as one line on stderr and exits 2."""
-
-    def error(self, message):
-        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
-
-
 # the scene fields the flags set: a config error names the flag
 FLAG_OF_FIELD = {"cameras": "--cameras", "camera_size": "--camera-size", "tactile_size": "--tactile-size",
                  "tactile_optics": "--optics", "tactile": "--no-tactile", "grip_force_range_n": "--grip-force",
@@ -92,7 +86,7 @@ FLAG_OF_FIELD = {"cameras": "--cameras", "camera_size": "--camera-size", "tactil
 def parse_args(argv=None) -> argparse.Namespace:
     """Parse and validate the command line; ``args.config`` is the scene. Exits 2 with one line naming
     the flag on any invalid value."""
-    p = _Parser(
+    p = ArgumentParser(
         prog="python -m envs.collect",
         description="Record scripted peg-in-hole demonstrations (cameras, tactile, forces) as ACT HDF5 "
                     "episodes episode_<i>.hdf5 in --out.",

@@ -22,14 +22,15 @@ import time
 import numpy as np
 from tqdm import tqdm
 
+from controltac_il.cli import ArgumentParser
 from controltac_il.config import one_line
 from hardware.config import ConfigError, load_setup, open_setup
 from hardware.interfaces import HardwareError
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    p = ArgumentParser(description=__doc__.split("\n\n")[0],
+                       formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     p.add_argument("config", help="setup YAML file (see hardware/configs/)")
     p.add_argument("--connect", action="store_true", help="also connect the devices and read them (no motion)")
     p.add_argument("--seconds", type=float, default=2.0, help="how long to watch the sensors with --connect (s)")

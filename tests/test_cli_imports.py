@@ -50,3 +50,34 @@ def test_progress_bars_stay_off_a_log_file(tmp_path):
     text = log.read_text()
     assert out.returncode == 0, text[-2000:]
     assert "\r" not in text and "wrote 2 episodes" in text
+
+
+USAGE_PROBE = """
+import contextlib, io, json, runpy, sys
+out = {{}}
+for target, run, args in {clis!r}:
+    sys.argv = [target, *args, "--no-such-flag"]
+    err = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(err):
+            getattr(runpy, run)(target if run == "run_module" else {repo!r} + "/" + target, run_name="__main__",
+                                **({{"alter_sys": True}} if run == "run_module" else {{}}))
+        code = None
+    except SystemExit as exc:
+        code = exc.code
+    out[" ".join((target, *args))] = [code, err.getvalue()]
+print(json.dumps(out))
+"""
+
+
+def test_a_usage_error_is_one_line_and_exit_2():
+    """A usage error (here an unknown flag, or the required flags it lacks) is ``PROG: error: ... (see --help)`` on
+    one line and exit status 2 for every CLI (argparse's own error prints the usage block first)."""
+    code = USAGE_PROBE.format(clis=CLIS, repo=str(REPO))
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert len(got) == len(CLIS)
+    bad = {cli: (c, err) for cli, (c, err) in got.items()
+           if c != 2 or len(err.strip().splitlines()) != 1 or ": error: " not in err or "(see --help)" not in err}
+    assert bad == {}

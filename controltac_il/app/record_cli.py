@@ -14,14 +14,14 @@ import argparse
 import sys
 from pathlib import Path
 
-from controltac_il.cli import RunFault, guard
+from controltac_il.cli import ArgumentParser, RunFault, guard
 
 PROG = "python -m controltac_il.calibrate record"
 PLAN_FLAGS = ("mode", "presses", "fz_max", "fz_abort", "spread_m", "seed", "fast_step", "slow_step", "max_travel")
 
 
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=PROG, description=(
+    p = ArgumentParser(prog=PROG, description=(
         "Record calibration presses: the arm presses the tactile finger onto a fixed object (--mode press, force "
         "from the wrist F/T of a UR e-series or an xArm) or the gripper squeezes an object (--mode squeeze), along "
         "a force ramp up to --fz-max, through the deployment's control loop and safety limits. Writes one "

@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 from controltac_il.calibrate import __doc__ as DOC
+from controltac_il.cli import ArgumentParser
 
 PROG = "python -m controltac_il.calibrate"
 
@@ -21,7 +22,7 @@ def _lag(text: str):
 
 
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=PROG, description=DOC.split("\n\n")[0].split(": ", 1)[1])
+    p = ArgumentParser(prog=PROG, description=DOC.split("\n\n")[0].split(": ", 1)[1])
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--presses", type=Path, help="labelled frames in the FeelAnyForce layout (read-only)")
     src.add_argument("--recordings", type=Path,

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from controltac_il.cli import ArgumentParser
 from controltac_il.config import one_line
 from controltac_il.estimators.config import EstimatorConfig, EstimatorTrainConfig
 from controltac_il.estimators.data import load_arrays, native_no_contact, split_by_pose
@@ -27,7 +28,7 @@ from controltac_il.tactile.residual import OFFSET
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = ArgumentParser(
         prog="python -m controltac_il.estimators.train",
         description="Train the compact CNN force estimator (tactile residual -> [Fx, Fy, Fz] N) on a "
         "dataset folder written by controltac_il.tactile.dataset.write_dataset (or a FeelAnyForce-style "

@@ -43,6 +43,7 @@ import sys
 import time
 from pathlib import Path
 
+from controltac_il.cli import ArgumentParser
 from controltac_il.config import one_line
 from controltac_il.generator.shipped import CHECKPOINT_ROOT, SHIPPED
 from controltac_il.generator.train_config import DIT_PRESETS, STAGES, GeneratorTrainConfig
@@ -110,7 +111,7 @@ def run(cfg: GeneratorTrainConfig) -> Path:
 
 def build_parser() -> argparse.ArgumentParser:
     d = GeneratorTrainConfig.__dataclass_fields__
-    p = argparse.ArgumentParser(
+    p = ArgumentParser(
         prog="python -m controltac_il.generator.train",
         description="Train the stage-1 force-control generator (autoencoder, then the ΔF-conditioned DiT on "
                     "cached latents) on a sensor-model dataset. Writes periodic resumable states and a final "

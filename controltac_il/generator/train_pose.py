@@ -22,11 +22,11 @@ loss: exit 1 with the last state kept; Ctrl-C: the step's state saved, exit 130.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import sys
 from pathlib import Path
 
+from controltac_il.cli import ArgumentParser
 from controltac_il.config import one_line
 from controltac_il.generator.shipped import locate_checkpoint
 from controltac_il.generator.train_config import POSE_PROG as PROG, PoseTrainConfig
@@ -48,7 +48,7 @@ def fail(message: str) -> None:
 
 def parse_args(argv=None) -> PoseTrainConfig:
     fields = {f.name: f for f in dataclasses.fields(PoseTrainConfig)}
-    p = argparse.ArgumentParser(prog=PROG, description=(
+    p = ArgumentParser(prog=PROG, description=(
         "Train the stage-2 pose adapter (contact mask at the target pose -> tactile image there) over a frozen "
         "stage-1 generator on sensor-model scenes rendered in memory. Resumable states; the fp16 adapter with its "
         "model card goes to OUT/final."))

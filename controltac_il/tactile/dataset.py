@@ -19,7 +19,6 @@ Command line (the generator's and estimator's training data)::
 
 from __future__ import annotations
 
-import argparse
 import csv
 import dataclasses
 import functools
@@ -33,6 +32,7 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 from tqdm.auto import tqdm
 
+from controltac_il.cli import ArgumentParser
 from controltac_il.io import atomic_dir
 from controltac_il.tactile.indenters import INDENTERS, TRAIN_OBJECTS, get_indenter, procedural_objects
 from controltac_il.tactile.instances import FAMILIES, sensor_instance
@@ -331,15 +331,8 @@ def load_dataset(root, fz_pressing: str = "auto") -> TactileDataset:
     return TactileDataset(root, records, read(root / "background.png"), meta, backgrounds)
 
 
-class _Parser(argparse.ArgumentParser):
-    """An argument parser that reports a usage error as one line on stderr and exits 2."""
-
-    def error(self, message):
-        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
-
-
-def _parser() -> "_Parser":
-    p = _Parser(
+def _parser() -> "ArgumentParser":
+    p = ArgumentParser(
         prog="python -m controltac_il.tactile.dataset",
         description="Render a sensor-model tactile dataset (manifest.csv, background.png, meta.json, "
                     "images/<object>/). Every image is a pure function of the arguments; the folder appears "
