@@ -304,9 +304,9 @@ class ForceGenerator:
             the model's size and back). delta_force: (B, 3) [ΔFx, ΔFy, ΔFz] N = F_target - F_reference.
         steps: DDIM steps (>= 1), default ``config.default_steps``. seed: one int (every sample uses the
             same noise, so a sample's output never depends on its batch-mates) or B ints (one per sample).
-        batch_size: samples per forward pass, rounded up to whole ``GENERATION_CHUNK`` rows (memory only: a
-            sample's bytes depend neither on it nor on its batch-mates; they do, rarely, on torch's thread count:
-            ``numerics``).
+        batch_size: samples resized, decoded and blended together, rounded up to whole ``GENERATION_CHUNK``
+            rows; the networks run one chunk at a time (memory only: a sample's bytes depend neither on it nor on
+            its batch-mates; they do, rarely, on torch's thread count: ``numerics``).
         reference_force: optional (B, 3) N; then targets outside the validated range
             (``forces.VALIDATED_RANGE``) are handled by ``out_of_range`` ("clamp" moves the target into
             range, "error" raises, "skip" returns the reference unchanged); without it the same applies
@@ -419,15 +419,16 @@ class ForceGenerator:
 
     def _forward(self, ref: np.ndarray, model_in: np.ndarray, delta: np.ndarray, noise: torch.Tensor, steps: int,
                  masks: np.ndarray | None) -> np.ndarray:
-        """One forward pass: residuals uint8 (b, H_in, W_in, 3) and their model-size copies -> residuals."""
+        """One step of ``batch_size`` rows: residuals uint8 (b, H_in, W_in, 3) and their model-size copies ->
+        residuals. The networks run on ``GENERATION_CHUNK`` rows at a time: a pass of one shape whatever the batch
+        size, so torch picks the same kernels for it (on some CPUs it picks others by batch size)."""
         H, W = self.config.image_size
         h_in, w_in = ref.shape[1:3]
-        z_ref = self.encode(torch.from_numpy(model_in))
-        df = torch.from_numpy(delta).float().to(self.device)
-        denoiser = self.denoiser if masks is None else PoseControlledDenoiser(
-            self.denoiser, self.pose_adapter, torch.from_numpy(masks_to_model(masks, (H, W))).to(self.device, self.dtype))
-        d = ddim_sample(denoiser, make_scheduler(self.config.diffusion), z_ref, df, noise.to(self.device), int(steps))
-        target, recon = self._decode(z_ref, d)
+        c = GENERATION_CHUNK
+        parts = [self._networks(model_in[i:i + c], delta[i:i + c], noise[i:i + c], steps,
+                                None if masks is None else masks[i:i + c]) for i in range(0, len(ref), c)]
+        target = np.concatenate([t for t, _ in parts])
+        recon = None if parts[0][1] is None else np.concatenate([r for _, r in parts])
         keep = None if recon is None else self._detail_weight(target, recon)
         if (h_in, w_in) != (H, W):
             target = _resize_each(target, (w_in, h_in))
@@ -442,6 +443,18 @@ class ForceGenerator:
             raise NonFiniteOutput(f"the generator's output holds {bad} NaN or inf values ({dtype} on {self.device}); "
                                   "nothing was returned: check the checkpoint, or run in float32")
         return np.clip(np.round(y), 0, 255).astype(np.uint8)
+
+    def _networks(self, model_in: np.ndarray, delta: np.ndarray, noise: torch.Tensor, steps: int,
+                  masks: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+        """Encode, sample ΔF's latent and decode one chunk: model-size residuals uint8 (c, H, W, 3), ΔF (c, 3) N,
+        noise (c, C, h, w) -> decoded target and reference (``_decode``)."""
+        H, W = self.config.image_size
+        z_ref = self.encode(torch.from_numpy(model_in))
+        df = torch.from_numpy(delta).float().to(self.device)
+        denoiser = self.denoiser if masks is None else PoseControlledDenoiser(
+            self.denoiser, self.pose_adapter, torch.from_numpy(masks_to_model(masks, (H, W))).to(self.device, self.dtype))
+        d = ddim_sample(denoiser, make_scheduler(self.config.diffusion), z_ref, df, noise.to(self.device), int(steps))
+        return self._decode(z_ref, d)
 
     def generate_images(self, images, background, delta_force, **kwargs) -> np.ndarray:
         """Raw tactile images in, raw images out: uint8 (B, H, W, 3) with a (H, W, 3) no-contact background.
