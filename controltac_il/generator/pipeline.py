@@ -304,7 +304,7 @@ class ForceGenerator:
             the model's size and back). delta_force: (B, 3) [ΔFx, ΔFy, ΔFz] N = F_target - F_reference.
         steps: DDIM steps (>= 1), default ``config.default_steps``. seed: one int (every sample uses the
             same noise, so a sample's output never depends on its batch-mates) or B ints (one per sample).
-        batch_size: samples resized, decoded and blended together, rounded up to whole ``GENERATION_CHUNK``
+        batch_size: samples resized and blended together, rounded up to whole ``GENERATION_CHUNK``
             rows; the networks run one chunk at a time (memory only: a sample's bytes depend neither on it nor on
             its batch-mates; they do, rarely, on torch's thread count: ``numerics``).
         reference_force: optional (B, 3) N; then targets outside the validated range
