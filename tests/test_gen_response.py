@@ -92,6 +92,7 @@ def test_finetune_quick_run_scores_zero_shot_and_a_fine_tune_and_resumes(tmp_pat
     assert card["autoencoder"]["finetune"]["step"] == 2 and rows[48]["ae_steps"] == 2
     assert len(rows[0]["estimator_mae"]) == 3 and rows[48]["estimator_mae"] != rows[0]["estimator_mae"]
     assert rows[48]["estimator_steps"] == rows[48]["estimator_steps_requested"] == 4  # as the bundle records it
+    assert rows[0]["cpu"] == rows[48]["cpu"] == doc["machine"]["cpu"]  # each budget names its machine (resumes may move)
     again = finetune.main(["--quick", "--out", str(out), "--runs", str(runs), "--resume"])
     assert again["rows"] == doc["rows"]  # nothing retrained or rescored
     assert out.with_suffix(".png").stat().st_size > 0
