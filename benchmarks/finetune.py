@@ -72,16 +72,16 @@ def budget(n: int, base: Path, pairs, eval_root: Path, args) -> dict:
     """One row of the curve: ``n`` presses rendered, calibrated on, and both models scored (n = 0: the bases)."""
     t0 = time.perf_counter()
     if n == 0:
-        return {"images": 0, "images_rendered": 0, "steps": 0, "ae_steps": 0, "estimator_steps": 0,
-                **score(base, pairs), **estimator_mae(None, eval_root), "wall_s": round(time.perf_counter() - t0, 1),
-                "cpu": machine_info()["cpu"]}
-    data = render(args.runs / f"{args.instance}_n{n}", args.instance, n, 3000 + n, args.workers)
-    name = f"{args.instance}_n{n}_s{args.steps}_a{args.ae_steps}_e{args.estimator_steps or 'auto'}"
-    bundle = calibrate(base, data, args.runs / name, args)
-    return {"images": n, "images_rendered": int(read_json(data / "meta.json")["count"]), "steps": args.steps,
-            "ae_steps": args.ae_steps, "estimator_steps": read_json(bundle / "calibration.json")["estimator"]["steps"],
-            "estimator_steps_requested": args.estimator_steps, **score(bundle, pairs), **estimator_mae(bundle, eval_root),
-            "wall_s": round(time.perf_counter() - t0, 1), "cpu": machine_info()["cpu"]}
+        row = {"images": 0, "images_rendered": 0, "steps": 0, "ae_steps": 0, "estimator_steps": 0,
+               **score(base, pairs), **estimator_mae(None, eval_root)}
+    else:
+        data = render(args.runs / f"{args.instance}_n{n}", args.instance, n, 3000 + n, args.workers)
+        name = f"{args.instance}_n{n}_s{args.steps}_a{args.ae_steps}_e{args.estimator_steps or 'auto'}"
+        bundle = calibrate(base, data, args.runs / name, args)
+        row = {"images": n, "images_rendered": int(read_json(data / "meta.json")["count"]), "steps": args.steps,
+               "ae_steps": args.ae_steps, "estimator_steps": read_json(bundle / "calibration.json")["estimator"]["steps"],
+               "estimator_steps_requested": args.estimator_steps, **score(bundle, pairs), **estimator_mae(bundle, eval_root)}
+    return {**row, "wall_s": round(time.perf_counter() - t0, 1), "cpu": machine_info()["cpu"]}
 
 
 def estimator_mae(path, eval_root: Path) -> dict:

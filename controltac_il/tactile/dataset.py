@@ -331,7 +331,7 @@ def load_dataset(root, fz_pressing: str = "auto") -> TactileDataset:
     return TactileDataset(root, records, read(root / "background.png"), meta, backgrounds)
 
 
-def _parser() -> "ArgumentParser":
+def _parser() -> ArgumentParser:
     p = ArgumentParser(
         prog="python -m controltac_il.tactile.dataset",
         description="Render a sensor-model tactile dataset (manifest.csv, background.png, meta.json, "
