@@ -18,7 +18,7 @@ reach below the demos' 4-7 N grip.
    Power, from v1's seed-level spread (pooled SD 0.253 of the paired per-seed differences of fa2, fa4 and
    image_aug against real; ``verdict_report.sign_flip_mde``): with 12 seeds the exact sign-flip test detects a
    mean paired difference of 31 points at Holm's strictest step (alpha 0.05 / 6) and of 23 points at alpha 0.05,
-   each with 80 % power (10 seeds: 37 and 26). Smaller effects may go undetected; the paper reports +24 points.
+   each with 80 % power (10 seeds: 37 and 26). Smaller effects may go undetected.
    Compute: 48 policies of 6000 steps and 330 episodes each, estimated 10-12 h on 2 cores (--jobs 2), over
    several sessions with --resume.
 2. Variants (``vision_only`` dropped: v1 settled it, -48 points at nominal with every seed below real):
