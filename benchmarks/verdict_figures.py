@@ -118,7 +118,7 @@ def main(argv=None) -> int:
 
 def show(doc: dict, path: Path) -> None:
     """Print the block and the README rows of ``doc``; steps by the protocol's rule where the grid has none yet."""
-    from benchmarks.touch_il_verdict_v2 import choose_step
+    from benchmarks.verdict import choose_step
 
     train = [u for u in doc["units"] if u["kind"] == "train"]
     note = f"{len(train)} train and {len(doc['units']) - len(train)} test units done"

@@ -9,9 +9,12 @@ ran); two such lists compared are paired by position (the same training seed, th
 - :func:`cmh_p`: the Cochran-Mantel-Haenszel test with one 2x2 table (variant / real x success / failure)
   per training seed. scipy has no CMH test; the statistic is six lines (Agresti, Categorical Data Analysis,
   section 6.3), so no statsmodels dependency for it.
-- :func:`sign_flip_p`: ``scipy.stats.permutation_test`` on the per-seed differences (seeds as the units; with
-  n seeds its smallest two-sided p is 2 / 2**n, 0.0625 at five).
+- :func:`sign_flip_p`: the exact sign-flip test on the per-seed differences (seeds as the units; with n seeds
+  its smallest two-sided p is 2 / 2**n, 0.0625 at five).
+- :func:`sequential_power`: the power of a group-sequential sign-flip design (looks, their alphas, a futility
+  rule) under Normal per-seed differences.
 - :func:`holm`: Holm's step-down adjustment (five lines; scipy has only Benjamini-Hochberg).
+- :func:`look_decision`, :func:`sequential_outcome`: a group-sequential design's stop at each look.
 """
 
 from __future__ import annotations
@@ -80,14 +83,29 @@ def cmh_p(a, b) -> float:
 
 
 def sign_flip_p(diffs) -> float:
-    """Two-sided exact p-value of the per-seed differences' mean under random sign flips (seeds as units)."""
-    from scipy.stats import permutation_test
-
-    d = np.asarray(diffs, dtype=np.float64)
-    if np.all(d == 0):
+    """Two-sided exact p-value of the per-seed differences' mean under random sign flips (seeds as units): the
+    share of the 2**n sign patterns whose |mean| reaches the observed one. Counted by meeting in the middle (the
+    sums of each half's 2**(n/2) patterns, one sorted): milliseconds at n = 24, where scipy's exact
+    ``permutation_test`` enumerates 2**24 patterns (4 min on the 2-core CPU) and its default resampling is random."""
+    d = np.abs(np.asarray(diffs, dtype=np.float64).reshape(-1))
+    if d.size == 0 or np.all(d == 0):
         return 1.0
-    res = permutation_test((d,), np.mean, permutation_type="samples", alternative="two-sided", n_resamples=10_000)
-    return float(res.pvalue)
+    observed = abs(float(np.sum(diffs))) - 1e-9 * float(d.sum())  # ties within rounding count as reaching it
+    if observed <= 0:
+        return 1.0
+    half = d.size // 2
+    left, right = _pattern_sums(d[:half]), np.sort(_pattern_sums(d[half:]))
+    at_least = right.size - np.searchsorted(right, observed - left, side="left")
+    at_most = np.searchsorted(right, -observed - left, side="right")
+    return float((at_least.sum() + at_most.sum()) / 2.0 ** d.size)
+
+
+def _pattern_sums(d: np.ndarray) -> np.ndarray:
+    """Sum of ``d`` under each of its 2**len(d) sign patterns."""
+    sums = np.zeros(1)
+    for x in d:
+        sums = np.concatenate([sums + x, sums - x])
+    return sums
 
 
 def paired_t_p(diffs) -> float:
@@ -101,24 +119,71 @@ def paired_t_p(diffs) -> float:
     return float(ttest_1samp(d, 0.0).pvalue)
 
 
-def _exact_sign_flip_p(d: np.ndarray) -> np.ndarray:
-    """Exact two-sided sign-flip p of each row of ``d`` (reps, n): every one of the 2**n sign patterns."""
-    n = d.shape[1]
-    signs = 1 - 2 * ((np.arange(2 ** n)[:, None] >> np.arange(n)) & 1)
-    null = np.abs(signs @ d.T) / n  # (2**n, reps)
-    observed = np.abs(d.mean(axis=1))
-    return (null >= observed[None, :] - 1e-12).mean(axis=0)
-
-
 def sign_flip_mde(sd: float, n: int, alpha: float, power: float = 0.8, reps: int = 2000, seed: int = 0) -> float:
-    """The smallest mean paired difference (0-1) that the exact sign-flip test over ``n`` seeds detects at
-    two-sided ``alpha`` with probability >= ``power``, when per-seed differences are Normal(effect, ``sd``):
-    simulated on a 0.01 grid, the same draws for every effect."""
+    """The smallest mean paired difference (0-1, on a 0.01 grid) that the exact sign-flip test over ``n`` seeds
+    detects at two-sided ``alpha`` with probability >= ``power``, when per-seed differences are Normal(effect,
+    ``sd``): the same draws for every effect, bisected on the grid (the rejection rate rises with the effect)."""
     z = np.random.default_rng(seed).normal(0.0, sd, (reps, n))
-    for effect in np.arange(0.0, 1.0001, 0.01):
-        if (_exact_sign_flip_p(z + effect) < alpha).mean() >= power:
-            return round(float(effect), 2)
-    return 1.0
+
+    def enough(cents: int) -> bool:
+        return np.mean([sign_flip_p(row) < alpha for row in z + cents / 100]) >= power
+
+    if not enough(100):
+        return 1.0
+    lo, hi = -1, 100  # enough(hi) holds, enough(lo) is taken as failing
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        lo, hi = (lo, mid) if enough(mid) else (mid, hi)
+    return round(hi / 100, 2)
+
+
+def look_decision(diffs, seeds: int, alpha: float, futility: bool, last: bool) -> dict:
+    """One look of a group-sequential sign-flip design over the first ``seeds`` per-seed differences: "efficacy"
+    (reject) when the exact sign-flip p < ``alpha``; else "futility" when ``futility`` and their mean is <= 0;
+    else "final" at the ``last`` look and "continue" before it. Returns {"p", "mean", "stop", "reject"}."""
+    d = np.asarray(diffs, dtype=np.float64)
+    if d.size < seeds:
+        raise ValueError(f"the look needs {seeds} paired seeds, got {d.size}")
+    d = d[:seeds]
+    p = sign_flip_p(d)
+    stop = ("efficacy" if p < alpha else "futility" if futility and d.mean() <= 0 and not last
+            else "final" if last else "continue")
+    return {"p": p, "mean": float(d.mean()), "stop": stop, "reject": stop == "efficacy"}
+
+
+def sequential_outcome(diffs, looks) -> dict:
+    """Where the design ``looks`` ((seeds, alpha, futility) per look, cumulative seed counts) stops on ``diffs``
+    (seed order): :func:`look_decision` at each look until one stops; adds the 1-based ``look``."""
+    for k, (seeds, alpha, futility) in enumerate(looks, start=1):
+        out = look_decision(diffs, seeds, alpha, futility, last=k == len(looks))
+        if out["stop"] != "continue":
+            return {**out, "look": k}
+    raise ValueError("looks: at least one look is needed")
+
+
+def sequential_mde(sd: float, looks, power: float = 0.8, reps: int = 2000, seed: int = 0) -> float:
+    """The smallest mean paired difference (0-1, 0.01 grid, bisected) the design ``looks`` rejects with probability
+    >= ``power`` under Normal(effect, ``sd``) per-seed differences (the same draws for every effect)."""
+    lo, hi = -1, 100
+    if sequential_power(hi / 100, sd, looks, reps, seed)["power"] < power:
+        return 1.0
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        lo, hi = (lo, mid) if sequential_power(mid / 100, sd, looks, reps, seed)["power"] >= power else (mid, hi)
+    return round(hi / 100, 2)
+
+
+def sequential_power(effect: float, sd: float, looks, reps: int = 2000, seed: int = 0) -> dict:
+    """Simulated operating characteristics of the design ``looks`` (see :func:`sequential_outcome`) when per-seed
+    differences are Normal(effect, sd): the probability of rejecting overall and of stopping at each look."""
+    n = looks[-1][0]
+    z = np.random.default_rng(seed).normal(0.0, sd, (reps, n)) + effect
+    outcomes = [sequential_outcome(row, looks) for row in z]
+    out = {"effect": effect, "sd": sd, "reps": reps, "power": float(np.mean([o["reject"] for o in outcomes]))}
+    for k in range(1, len(looks) + 1):
+        out[f"look_{k}_efficacy"] = float(np.mean([o["look"] == k and o["reject"] for o in outcomes]))
+        out[f"look_{k}_futility"] = float(np.mean([o["look"] == k and o["stop"] == "futility" for o in outcomes]))
+    return out
 
 
 def holm(pvalues: list[float]) -> list[float]:
@@ -133,16 +198,6 @@ def holm(pvalues: list[float]) -> list[float]:
     return adjusted.tolist()
 
 
-def verdict(diff: float, ci95: tuple[float, float], p_holm: float, alpha: float = 0.05) -> str:
-    """"helps" / "hurts" when the Holm-adjusted CMH p < alpha and the seed-and-episode interval excludes 0 on
-    the same side; otherwise "no detectable effect"."""
-    if p_holm < alpha and ci95[0] > 0 and diff > 0:
-        return "helps"
-    if p_holm < alpha and ci95[1] < 0 and diff < 0:
-        return "hurts"
-    return "no detectable effect"
-
-
 def seed_outcomes(units: list[dict], seeds):
     """``outcomes(variant, setting)``: the per-seed 0/1 test lists of ``units`` in ``seeds``' order, None until every
     seed of that variant is there."""
@@ -155,38 +210,7 @@ def seed_outcomes(units: list[dict], seeds):
     return outcomes
 
 
-# --- the report: summaries over seeds and the picture ------------------------------------------------------------------------------------------------------
-def summarise(policies: list[dict], variants, seeds, settings, demos: int) -> tuple[list[dict], list[dict]]:
-    """(per variant and setting: mean over seeds with its interval; per comparison with real: the paired
-    difference, its interval, CMH and sign-flip p, Holm, verdict). Only complete (variant, setting) cells."""
-    outcomes = seed_outcomes(policies, seeds)
-
-    table, comparisons = [], []
-    for setting in settings:
-        for v in variants:
-            o = outcomes(v, setting)
-            if o is not None:
-                mean, ci = seed_episode_ci(o)
-                table.append({"variant": v, "setting": setting, "mean": round(mean, 4), "ci95": [round(ci[0], 4), round(ci[1], 4)],
-                              "per_seed": [round(sum(x) / len(x), 4) for x in o]})
-        real = outcomes("real", setting)
-        for v in [x for x in variants if x != "real"]:
-            o = outcomes(v, setting)
-            if o is None or real is None:
-                continue
-            diff, ci, per_seed = paired_diff(o, real)
-            comparisons.append({"variant": v, "vs": "real", "demos": demos, "setting": setting, "diff": round(diff, 4),
-                                "ci95": [round(ci[0], 4), round(ci[1], 4)], "per_seed_diff": [round(d, 4) for d in per_seed],
-                                "p": cmh_p(o, real), "p_sign_flip": sign_flip_p(per_seed)})
-    for c, p in zip(comparisons, holm([c["p"] for c in comparisons])):
-        c["p_holm"] = p
-        c["verdict"] = verdict(c["diff"], c["ci95"], p)
-        c["sentence"] = (f"{c['variant']} vs real, {c['setting']}: {c['verdict']} "
-                         f"({c['diff'] * 100:+.1f} points, 95 % CI {c['ci95'][0] * 100:+.1f} to {c['ci95'][1] * 100:+.1f}, "
-                         f"p_holm {p:.3g})")
-    return table, comparisons
-
-
+# --- the report: summaries over seeds and the pictures ------------------------------------------------------------
 def seed_level_verdict(diff: float, p_holm: float, alpha: float = 0.05) -> str:
     """v2's rule: "helps" / "hurts" (the sign of the mean paired difference) when Holm's sign-flip p < alpha."""
     if p_holm < alpha and diff != 0:
@@ -194,14 +218,15 @@ def seed_level_verdict(diff: float, p_holm: float, alpha: float = 0.05) -> str:
     return "no detectable effect"
 
 
-def summarise_seed_level(tests: list[dict], variants, seeds, settings, primary, demos: int, reps: int = 4000
-                         ) -> tuple[list[dict], list[dict]]:
-    """v2's report from its test units (``variant``, ``seed``, ``test`` {setting: 0/1 list}). Table: per variant and
-    setting the mean over seeds, its two-level interval, the SD of per-seed success and the fraction of seeds
-    below real's worst. Comparisons with real: paired mean difference and interval, exact sign-flip p (primary),
-    paired t p, CMH p (secondary); Holm over the ``primary`` variants' comparisons once all are complete.
-    reps: bootstrap draws per interval."""
+def summarise_seed_level(tests: list[dict], variants, seeds, settings, primary, demos: int, reps: int = 4000,
+                         holm_adjust: bool = True) -> tuple[list[dict], list[dict]]:
+    """The seed-level report from test units (``variant``, ``seed``, ``test`` {setting: 0/1 list}). Table: per
+    variant and setting the mean over seeds, its two-level interval, the SD of per-seed success and the fraction
+    of seeds below real's worst. Comparisons with real: paired mean difference and interval, exact sign-flip p,
+    paired t p, CMH p (secondary). ``primary``: the (variant, setting) comparisons that get a verdict; ``holm_adjust``:
+    Holm over them once all are complete (else the caller decides them). reps: bootstrap draws per interval."""
     outcomes = seed_outcomes(tests, seeds)
+    primary = {tuple(x) for x in primary}
 
     table, comparisons = [], []
     for setting in settings:
@@ -211,31 +236,37 @@ def summarise_seed_level(tests: list[dict], variants, seeds, settings, primary, 
             o = outcomes(v, setting)
             if o is None:
                 continue
-            mean, ci = seed_episode_ci(o, reps)
-            rates = [float(np.mean(x)) for x in o]
-            table.append({"variant": v, "setting": setting, "mean": round(mean, 4), "ci95": [round(c, 4) for c in ci],
-                          "per_seed": [round(r, 4) for r in rates], "sd_over_seeds": round(float(np.std(rates, ddof=1)), 4),
-                          "below_real_worst": None if v == "real" or real_worst is None
-                          else round(float(np.mean([r < real_worst for r in rates])), 4)})
+            table.append(_success_row(v, setting, o, real_worst, reps))
             if v == "real" or real is None:
                 continue
             diff, ci, per_seed = paired_diff(o, real, reps)
-            comparisons.append({"variant": v, "vs": "real", "demos": demos, "setting": setting, "primary": v in primary,
-                                "diff": round(diff, 4), "ci95": [round(c, 4) for c in ci],
-                                "per_seed_diff": [round(d, 4) for d in per_seed], "p_sign_flip": sign_flip_p(per_seed),
-                                "p_t": paired_t_p(per_seed), "p_cmh_secondary": cmh_p(o, real), "p_holm": None})
+            comparisons.append({"variant": v, "vs": "real", "demos": demos, "setting": setting,
+                                "primary": (v, setting) in primary, "diff": round(diff, 4),
+                                "ci95": [round(c, 4) for c in ci], "per_seed_diff": [round(d, 4) for d in per_seed],
+                                "p_sign_flip": sign_flip_p(per_seed), "p_t": paired_t_p(per_seed),
+                                "p_cmh_secondary": cmh_p(o, real), "p_holm": None, "verdict": None})
     prim = [c for c in comparisons if c["primary"]]
-    if len(prim) == len(primary) * len(settings):
+    if holm_adjust and len(prim) == len(primary):
         for c, p in zip(prim, holm([c["p_sign_flip"] for c in prim])):
             c["p_holm"] = p
+            c["verdict"] = seed_level_verdict(c["diff"], p)
     for c in comparisons:
-        c["verdict"] = seed_level_verdict(c["diff"], c["p_holm"]) if c["p_holm"] is not None else None
         what = c["verdict"] or ("secondary" if not c["primary"] else "pending")
         c["sentence"] = (f"{c['variant']} vs real, {c['setting']}: {what} ({c['diff'] * 100:+.1f} points over "
                          f"{len(c['per_seed_diff'])} paired seeds, 95 % CI {c['ci95'][0] * 100:+.1f} to "
                          f"{c['ci95'][1] * 100:+.1f}, sign-flip p {c['p_sign_flip']:.3g}"
                          + (f", Holm {c['p_holm']:.3g})" if c["p_holm"] is not None else ")"))
     return table, comparisons
+
+
+def _success_row(variant: str, setting: str, outcomes, real_worst: float | None, reps: int) -> dict:
+    """One table row: mean success over seeds, its interval, per-seed rates, their SD, the share below real's worst."""
+    mean, ci = seed_episode_ci(outcomes, reps)
+    rates = [float(np.mean(x)) for x in outcomes]
+    return {"variant": variant, "setting": setting, "mean": round(mean, 4), "ci95": [round(c, 4) for c in ci],
+            "per_seed": [round(r, 4) for r in rates], "sd_over_seeds": round(float(np.std(rates, ddof=1)), 4),
+            "below_real_worst": None if variant == "real" or real_worst is None
+            else round(float(np.mean([r < real_worst for r in rates])), 4)}
 
 
 def plot(table: list[dict], path: Path, variants, settings) -> None:
@@ -264,6 +295,41 @@ def plot(table: list[dict], path: Path, variants, settings) -> None:
         ax.set_ylim(-0.03, 1.03)
         ax.grid(alpha=0.3)
     axes[0][0].set_ylabel("test success (dots: seeds; bar: 95 % CI)")
+    fig.tight_layout()
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+
+
+def plot_paired(looks: list[dict], comparisons: list[dict], path: Path) -> None:
+    """The primary comparison as the test sees it: each seed's paired difference (a dot, coloured by the look that
+    added it), their mean with its 95 % interval, and each analysed look's p against its alpha."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from controltac_il.io import atomic_path
+
+    c = next((x for x in comparisons if x["primary"]), None)
+    done = [lk for lk in looks if lk["complete"]]
+    if c is None or not done:
+        return
+    fig, ax = plt.subplots(figsize=(6.4, 3.6))
+    start = 0
+    for lk in done:
+        d = c["per_seed_diff"][start:len(lk["seeds"])]
+        x = np.arange(start, start + len(d))
+        ax.scatter(x, np.asarray(d) * 100, s=22, zorder=3, label=f"seeds of look {lk['look']} "
+                   f"(p {lk['p']:.3g} vs alpha {lk['alpha']:g}: {lk['stop']})")
+        start += len(d)
+    ax.axhline(0, color="black", lw=0.8)
+    ax.axhspan(c["ci95"][0] * 100, c["ci95"][1] * 100, color="tab:red", alpha=0.15, label="mean, 95 % CI")
+    ax.axhline(c["diff"] * 100, color="tab:red", lw=1.5)
+    ax.set_xlabel("training seed (paired)")
+    ax.set_ylabel(f"{c['variant']} - real, points ({c['setting']})")
+    ax.legend(fontsize=7, loc="lower right")
+    ax.grid(alpha=0.3)
     fig.tight_layout()
     with atomic_path(path, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=110, format="png")

@@ -5,12 +5,14 @@ import re
 
 import pytest
 
-from benchmarks import touch_il_verdict_v2 as v2
+from benchmarks import verdict
+from benchmarks import verdict_protocols as vp
 from benchmarks import verdict_figures as vf
 from benchmarks import verdict_report as vr
 
 SEEDS = list(range(10))
-SETTINGS = list(v2.SETTINGS)
+V2 = vp.PROTOCOLS["v2"]
+SETTINGS = list(V2.settings)
 
 
 def _outcomes(rate: float, episodes: int = 10) -> list[int]:
@@ -19,22 +21,22 @@ def _outcomes(rate: float, episodes: int = 10) -> list[int]:
 
 def _doc(tests: bool = True) -> dict:
     """A grid's JSON: real at 50 %, fa2 at 90 % everywhere, fa2_range = real, image_aug at 10 %; validation best at
-    step 3000. Its protocol holds the fields the tables read (the grid writes ``v2.protocol_of``)."""
+    step 3000. Its protocol holds the fields the tables read (the grid writes ``verdict_protocols.record``)."""
     rate = {"real": 0.5, "fa2": 0.9, "fa2_range": 0.5, "image_aug": 0.1}
     train = [{"kind": "train", "variant": v, "seed": s,
-              "validation": {str(k): _outcomes(0.6 if k == 3000 else 0.4) for k in v2.SNAPSHOTS}}
-             for s in SEEDS for v in v2.VARIANTS]
+              "validation": {str(k): _outcomes(0.6 if k == 3000 else 0.4) for k in V2.snapshots}}
+             for s in SEEDS for v in V2.variants]
     test = [{"kind": "test", "variant": v, "seed": s, "test": {st: _outcomes(rate[v]) for st in SETTINGS}}
-            for s in SEEDS for v in v2.VARIANTS] if tests else []
-    protocol = {"settings": {k: list(b) for k, b in v2.SETTINGS.items()}, "stress_test": v2.STRESS,
-                "copies": v2.COPIES, "force_settings": {v: {k: list(x) for k, x in f.items()} for v, f in v2.FORCE_SETTINGS.items()},
-                "variants": list(v2.VARIANTS), "train_seeds": SEEDS, "recipe": {"snapshots": list(v2.SNAPSHOTS)}}
+            for s in SEEDS for v in V2.variants] if tests else []
+    protocol = {"settings": {k: list(b) for k, b in V2.settings.items()}, "stress_test": vp.STRESS,
+                "copies": vp.COPIES, "force_settings": {v: {k: list(x) for k, x in f.items()} for v, f in vp.FORCE_SETTINGS.items()},
+                "variants": list(V2.variants), "train_seeds": SEEDS, "recipe": {"snapshots": list(V2.snapshots)}}
     doc = {"benchmark": "touch_il_verdict_v2", "protocol": protocol, "units": train + test, "power_statement": "stated first",
            "force_augment_counts": {"fa2_range": {"clamped_fraction_of_contact": 0.068, "regenerated": 6016,
                                                   "requested_fz_quantiles": [1.52, 5.22, 9.95]}}}
-    doc["table"], doc["comparisons"] = vr.summarise_seed_level(test, v2.VARIANTS, SEEDS, SETTINGS, v2.PRIMARY, 10, reps=50)
+    doc["table"], doc["comparisons"] = vr.summarise_seed_level(test, V2.variants, SEEDS, SETTINGS, V2.primary, 10, reps=50)
     if tests:
-        doc["steps"] = {v: v2.choose_step([u for u in train if u["variant"] == v], v2.SNAPSHOTS) for v in v2.VARIANTS}
+        doc["steps"] = {v: verdict.choose_step([u for u in train if u["variant"] == v], V2.snapshots) for v in V2.variants}
     return doc
 
 

@@ -1,4 +1,4 @@
-"""What the imitation-learning experiments (``benchmarks.touch_il``, ``benchmarks.touch_il_verdict``,
+"""What the imitation-learning experiments (``benchmarks.touch_il``, ``benchmarks.verdict``,
 ``benchmarks.act``) need of the scene and the policy, so that they never reach below the wiring: the
 touch-critical scene, a cpu-preset ACT trained on a folder of demos under one augmentation stage (resumable,
 with snapshots), and the checkpoint of a run at a step."""

@@ -59,7 +59,7 @@ class ACTTrainConfig:
     num_workers: DataLoader worker processes (0 = load in the training process).
     max_val_batches: cap on validation batches per evaluation (keeps validation cheap on CPU).
     snapshot_every: also keep the weights of every this many steps in ``snapshots/step_<k>/`` (0 = none), for
-        choosing the number of steps afterwards by closed-loop success (``benchmarks.touch_il_verdict``).
+        choosing the number of steps afterwards by closed-loop success (``benchmarks.verdict``).
     seed: seeds the model initialisation, the sampling order (per epoch) and, per update, dropout and the CVAE
         noise: a resumed run continues bit-identically.
     """
