@@ -412,9 +412,10 @@ def _print(results: dict) -> None:
 
 
 # --- the report --------------------------------------------------------------------------------------------------
-def report(results: dict, proto: Protocol, seeds, runs: Path, out: Path | None, picture: bool) -> None:
+def report(results: dict, proto: Protocol, seeds, runs: Path, out: Path | None, picture: bool, reps: int = 4000) -> None:
     """``looks`` (each analysed once all its seeds are tested), and the last analysed look's ``policies``,
-    ``table`` and ``comparisons``; the pictures at the end. No look's statistics exist before it is complete."""
+    ``table`` and ``comparisons``; the pictures at the end. No look's statistics exist before it is complete.
+    reps: bootstrap draws per interval."""
     from benchmarks.verdict_report import plot, plot_paired
 
     units = {u["id"]: u for u in results["units"]}
@@ -424,7 +425,7 @@ def report(results: dict, proto: Protocol, seeds, runs: Path, out: Path | None, 
     results["looks"], results["table"], results["comparisons"], results["policies"] = [], [], [], []
     looks = proto.looks or (Look(len(seeds), 0.05),)
     for k, (look, look_seeds) in enumerate(zip(looks, proto.look_seeds(seeds)), start=1):
-        entry = analyse_look(results, proto, units, k, look, look_seeds)
+        entry = analyse_look(results, proto, units, k, look, look_seeds, reps)
         results["looks"].append(entry)
         if entry["complete"] and entry["stop"] != "continue":
             break
@@ -434,7 +435,8 @@ def report(results: dict, proto: Protocol, seeds, runs: Path, out: Path | None, 
             plot_paired(results["looks"], results["comparisons"], out.with_name(out.stem + "_paired.png"))
 
 
-def analyse_look(results: dict, proto: Protocol, units: dict, k: int, look: Look, seeds: list[int]) -> dict:
+def analyse_look(results: dict, proto: Protocol, units: dict, k: int, look: Look, seeds: list[int],
+                 reps: int = 4000) -> dict:
     """Look ``k`` over ``seeds``: {"complete": False} until every (variant, seed) is tested at its step; then its
     seed-level table and comparisons (made the report's), and for a sequential protocol the primary decision."""
     from benchmarks.verdict_report import look_decision, summarise_seed_level
@@ -449,7 +451,7 @@ def analyse_look(results: dict, proto: Protocol, units: dict, k: int, look: Look
         return entry
     holm = proto.correction == "holm"
     table, comparisons = summarise_seed_level(tests, list(proto.variants), seeds, list(proto.settings), proto.primary,
-                                              results["protocol"]["demos"], holm_adjust=holm)
+                                              results["protocol"]["demos"], reps, holm_adjust=holm)
     results["table"], results["comparisons"] = table, comparisons
     results["policies"] = [{"variant": u["variant"], "train_seed": u["seed"], "setting": s, "successes": sum(o),
                             "episodes": len(o), "checkpoint_step": steps[u["variant"]], "unit": u["id"], "outcomes": o}

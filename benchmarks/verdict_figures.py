@@ -1,7 +1,10 @@
-"""The verdict v2's tables (issue 38), rendered from its JSON: the docs block (power, success per variant at its
-validated step, the seed-level comparisons, validation curves, ForceAugment's targets) and the README's headline
-rows. ``python -m benchmarks.verdict_figures RUNS.json`` prints the block of a grid still running (its test
-tables read "pending" until the first test unit is in).
+"""The verdict's tables, rendered from a grid's JSON (``benchmarks.verdict``): the docs block (power, the looks of a
+sequential design, success per variant at its validated step, the seed-level comparisons, validation curves,
+ForceAugment's targets) and the README's headline rows.
+
+``python -m benchmarks.verdict_figures RUNS.json`` prints the block of a grid still running: test tables read
+"pending" until a look is complete, and a look's statistics exist only then; ``--look K`` refuses, in one line,
+a look whose units are not all tested.
 """
 
 from __future__ import annotations
@@ -13,6 +16,8 @@ from benchmarks import figure_text as ft
 from controltac_il.cli import ArgumentParser
 
 LINK = "[experiments](docs/experiments.md#the-verdict-v2)"
+LINK_V3 = "[experiments](docs/experiments.md#the-verdict-v3-confirmatory)"
+BENCHMARKS = ("touch_il_verdict_v2", "touch_il_verdict_v3")
 
 
 def points(c: dict) -> str:
@@ -75,10 +80,24 @@ def augment_table(doc: dict) -> str:
 
 
 def block(doc: dict, source: str) -> str:
-    """The docs block: power, success, comparisons, validation curves, ForceAugment's targets, the source line."""
-    parts = [f"*Power, stated before any result: {doc['power_statement']}.*", success_table(doc),
+    """The docs block: power, the looks (a sequential design), success, comparisons, validation curves,
+    ForceAugment's targets, the source line."""
+    parts = [f"*Power, stated before any result: {doc['power_statement']}.*", looks_table(doc), success_table(doc),
              comparisons_table(doc), validation_table(doc), augment_table(doc), source]
     return "\n\n".join(p for p in parts if p)
+
+
+def looks_table(doc: dict) -> str:
+    """A sequential design's looks: seeds, the alpha it rejects below, futility, and the decision once complete."""
+    looks = doc["protocol"].get("looks") or []
+    done = {lk["look"]: lk for lk in doc.get("looks", [])}
+    rows = []
+    for k, look in enumerate(looks, start=1):
+        lk = done.get(k, {"complete": False, "tested_units": 0, "units": 2 * look["seeds"]})
+        status = (f"{lk['stop']}: p {lk['p']:.3g}, {lk['diff'] * 100:+.1f} points {ft.ci_points(lk)}"
+                  if lk["complete"] else f"pending ({lk['tested_units']} of {lk['units']} units tested)")
+        rows.append([k, look["seeds"], f"p < {look['alpha']:g}", "mean <= 0 stops" if look["futility"] else "–", status])
+    return ft.table(["look", "paired seeds", "rejects at", "futility", "decision"], rows) if rows else ""
 
 
 def headline_rows(doc: dict, source: str) -> list[list[str]]:
@@ -91,7 +110,7 @@ def headline_rows(doc: dict, source: str) -> list[list[str]]:
         span = protocol["force_settings"].get(v, {}).get("target_range")
         what = f"{protocol['copies'][v]} copies, " + (f"targets over {span[0]:g}–{span[1]:g} N" if span
                                                       else "the paper's offsets")
-        rows.append([f"the verdict (v2): ACT with ForceAugment `{v}` ({what}) vs ACT on the real demos, "
+        rows.append([f"the verdict (v2, exploratory): ACT with ForceAugment `{v}` ({what}) vs ACT on the real demos, "
                      f"{seeds} paired training seeds",
                      " / ".join(f"{c['diff'] * 100:+.1f}" for c in cs) + f" points ({where}): "
                      + " / ".join(f"**{c['verdict'] or 'pending'}**" for c in cs),
@@ -101,18 +120,48 @@ def headline_rows(doc: dict, source: str) -> list[list[str]]:
     return rows
 
 
+def headline_rows_v3(doc: dict, source: str) -> list[list[str]]:
+    """The README row of the confirmatory verdict: its primary comparison at the look where the design stopped."""
+    stopped = [lk for lk in doc.get("looks", []) if lk.get("complete") and lk["stop"] != "continue"]
+    what = (f"the verdict (v3, confirmatory): ACT with ForceAugment `fa2` (2 copies, the paper's offsets) vs ACT on "
+            f"the real demos at the demos' grip, fresh seeds")
+    if not stopped:
+        return [[what, "running: no look complete yet", "–", LINK_V3, source]]
+    lk = stopped[-1]
+    return [[f"{what}, {len(lk['seeds'])} paired (look {lk['look']})",
+             f"{lk['diff'] * 100:+.1f} points: **{lk['verdict']}**",
+             f"{ft.ci_points(lk)} (95 % CI); sign-flip p {lk['p']:.3g} against {lk['alpha']:g} ({lk['stop']})",
+             LINK_V3, source]]
+
+
 def main(argv=None) -> int:
-    p = ArgumentParser(description="Print the verdict v2's docs block and README rows from a (running) "
-                       "grid's --out JSON.")
+    p = ArgumentParser(description="Print the verdict's docs block and README rows from a (running) grid's --out "
+                       "JSON (python -m benchmarks.verdict).")
     p.add_argument("json", type=Path, help="the grid's --out JSON")
+    p.add_argument("--look", type=int, default=None, help="print look K's decision; refused until its units are tested")
     args = p.parse_args(argv)
     doc = json.loads(args.json.read_text())
-    if not isinstance(doc, dict) or doc.get("benchmark") != "touch_il_verdict_v2":
-        raise ValueError(f"{args.json}: not the JSON of python -m benchmarks.touch_il_verdict_v2")
+    if not isinstance(doc, dict) or doc.get("benchmark") not in BENCHMARKS:
+        raise ValueError(f"{args.json}: not the JSON of python -m benchmarks.verdict")
+    if args.look is not None:
+        return _show_look(p, doc, args.look)
     try:
         show(doc, args.json)
     except (KeyError, TypeError, IndexError) as exc:
         raise ValueError(f"{args.json}: incomplete or malformed ({type(exc).__name__}: {exc})") from None
+    return 0
+
+
+def _show_look(p, doc: dict, k: int) -> int:
+    """Print look ``k``'s decision, or refuse it (one line naming --look) while its units are not all tested."""
+    looks = doc["protocol"].get("looks") or []
+    if not 1 <= k <= len(looks):
+        p.error(f"--look: the protocol has {len(looks)} looks, got {k}")
+    lk = next((x for x in doc.get("looks", []) if x["look"] == k), None)
+    if lk is None or not lk["complete"]:
+        n = 0 if lk is None else lk["tested_units"]
+        p.error(f"--look: look {k} is analysed once its {2 * looks[k - 1]['seeds']} units are tested; {n} are")
+    print(f"look {k} ({len(lk['seeds'])} paired seeds): {lk['sentence']}")
     return 0
 
 
@@ -128,7 +177,8 @@ def show(doc: dict, path: Path) -> None:
                         for v in doc["protocol"]["variants"] if any(u["variant"] == v for u in train)}
         note += "; steps provisional: not every seed is trained"
     print(block(doc, f"*{path}: {note}.*"))
-    print("\n" + ft.table(["what", "measured", "error or interval", "details", "source"], headline_rows(doc, str(path))))
+    rows = headline_rows_v3(doc, str(path)) if doc["benchmark"].endswith("v3") else headline_rows(doc, str(path))
+    print("\n" + ft.table(["what", "measured", "error or interval", "details", "source"], rows))
 
 
 if __name__ == "__main__":

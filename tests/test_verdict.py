@@ -206,11 +206,11 @@ def test_a_look_is_analysed_only_when_all_its_units_are_tested_then_stops_as_wri
     v3, seeds = vp.PROTOCOLS["v3"], list(range(12, 36))
     rates = {"real": lambda s: 0.6, "fa2": lambda s: 0.8}
     res = _results(seeds[:12], rates, {"real": 6000, "fa2": 8000}, tested_seeds=seeds[:11])
-    verdict.report(res, v3, seeds, tmp_path, None, picture=False)
+    verdict.report(res, v3, seeds, tmp_path, None, picture=False, reps=50)
     assert res["looks"][0]["complete"] is False and res["looks"][0]["tested_units"] == 22
     assert res["comparisons"] == [] and "p" not in res["looks"][0]  # nothing computed before the look is complete
     res = _results(seeds[:12], rates, {"real": 6000, "fa2": 8000})
-    verdict.report(res, v3, seeds, tmp_path, None, picture=False)
+    verdict.report(res, v3, seeds, tmp_path, None, picture=False, reps=50)
     look = res["looks"][0]
     assert look["stop"] == "efficacy" and look["verdict"] == "helps" and look["p"] == pytest.approx(2 / 4096)
     assert len(res["looks"]) == 1 and {p["checkpoint_step"] for p in res["policies"]} == {6000, 8000}
@@ -220,7 +220,7 @@ def test_look_two_adds_seeds_to_look_ones_statistic_and_decides_at_its_alpha(tmp
     v3, seeds = vp.PROTOCOLS["v3"], list(range(12, 36))
     rates = {"real": lambda s: 0.6, "fa2": lambda s: 0.8 if s % 4 else 0.5}  # +20 three times, -10 once
     res = _results(seeds, rates, {"real": 8000, "fa2": 8000})
-    verdict.report(res, v3, seeds, tmp_path, None, picture=False)
+    verdict.report(res, v3, seeds, tmp_path, None, picture=False, reps=50)
     first, second = res["looks"]
     assert first["stop"] == "continue" and first["verdict"] is None
     assert second["seeds"] == seeds and second["stop"] == "efficacy" and second["p"] < 0.049

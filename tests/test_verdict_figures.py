@@ -1,7 +1,9 @@
-"""benchmarks.verdict_figures: the verdict v2's docs block and README rows from a grid's JSON, finished or running."""
+"""benchmarks.verdict_figures: the verdict's docs block and README rows (v2 and v3) from a grid's JSON, finished or
+running; a v3 look is printed only once complete."""
 
 import json
 import re
+from pathlib import Path
 
 import pytest
 
@@ -91,3 +93,38 @@ def test_a_missing_or_foreign_json_is_one_line_and_exit_2(tmp_path, content, say
     run = subprocess.run([sys.executable, "-m", "benchmarks.verdict_figures", str(path)], capture_output=True, text=True)
     assert run.returncode == 2 and run.stderr.count("\n") == 1 and says in run.stderr
     assert run.stderr.startswith("python -m benchmarks.verdict_figures: error: ")
+
+
+def _v3_doc(tested_seeds: int) -> dict:
+    """A v3 grid after its look-1 train units, ``tested_seeds`` of them tested: every seed fa2 +20 points."""
+    v3, seeds = vp.PROTOCOLS["v3"], list(range(12, 36))
+    units = [{"id": f"train-{v}-s{s}", "kind": "train", "variant": v, "seed": s, "augment_digest": "d",
+              **({"test": {k: _outcomes(0.8 if v == "fa2" else 0.6, n) for k, n in v3.test_episodes.items()}}
+                 if i < tested_seeds else {})}
+             for i, s in enumerate(seeds[:12]) for v in v3.variants]
+    looks = [{"seeds": lk.seeds, "alpha": lk.alpha, "futility": lk.futility} for lk in v3.looks]
+    doc = {"benchmark": "touch_il_verdict_v3", "units": units, "steps": {v: {"step": 8000} for v in v3.variants},
+           "protocol": {"demos": 50, "power": {"statement": "stated first"}, "looks": looks, "variants": list(v3.variants),
+                        "settings": {k: list(b) for k, b in v3.settings.items()}, "stress_test": vp.STRESS,
+                        "recipe": {"snapshots": list(v3.snapshots)}},
+           "force_augment_counts": {}}
+    verdict.report(doc, v3, seeds, Path("/nonexistent"), None, picture=False, reps=50)
+    return doc
+
+
+def test_v3_prints_a_look_only_once_complete_and_its_readme_row_says_running_until_then(tmp_path, capsys):
+    path = tmp_path / "v3.json"
+    path.write_text(json.dumps(_v3_doc(tested_seeds=11)))
+    with pytest.raises(SystemExit) as exc:
+        vf.main([str(path), "--look", "1"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and len(err) == 1 and "--look: look 1 is analysed once its 24 units are tested; 22 are" in err[0]
+    running = _v3_doc(tested_seeds=11)
+    assert vf.headline_rows_v3(running, "src")[0][1] == "running: no look complete yet"
+    assert "| 1 | 12 | p < 0.001 | mean <= 0 stops | pending (22 of 24 units tested) |" in vf.looks_table(running)
+    done = _v3_doc(tested_seeds=12)
+    path.write_text(json.dumps(done))
+    assert vf.main([str(path), "--look", "1"]) == 0
+    assert "efficacy: helps (fa2 - real at nominal: +20.0 points" in capsys.readouterr().out
+    row = vf.headline_rows_v3(done, "src")[0]
+    assert "12 paired (look 1)" in row[0] and row[1] == "+20.0 points: **helps**" and "against 0.001 (efficacy)" in row[2]
