@@ -28,12 +28,19 @@ setup() {
             (apt-get update -qq && apt-get install -y -qq libegl1 libgl1 >/dev/null) || true
         fi
     fi
+    # earlier versions of this project installed opencv-contrib-python-headless; two cv2 distributions in one
+    # environment overwrite each other's files, so it gives way to LeRobot's opencv-python-headless
+    if "$PY" -m pip show opencv-contrib-python-headless >/dev/null 2>&1; then
+        echo "[setup] replacing opencv-contrib-python-headless by opencv-python-headless"
+        "$PY" -m pip uninstall -y -q opencv-contrib-python-headless
+        "$PY" -m pip install -q --force-reinstall --no-deps "opencv-python-headless>=4.9"
+    fi
     local stamp=".setup-stamp"
     local want
     want=$(cat pyproject.toml | sha1sum | cut -d' ' -f1)
     if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ] || ! "$PY" -c "import controltac_il" 2>/dev/null; then
         echo "[setup] installing controltac-il and its dependencies"
-        "$PY" -m pip install -q -e ".[dev]"
+        "$PY" -m pip install -q -e ".[all,dev]"
         echo "$want" > "$stamp"
     fi
 }

@@ -67,7 +67,7 @@ def test_figures(bundle: Path, base_generator: str, test: list[tuple], const: fl
     """The calibrated bundle and the shipped models on the test grasps (module docstring)."""
     from controltac_il.estimators import ForceEstimator
     from controltac_il.generator import ForceGenerator
-    from controltac_il.generator.validation import generation_error
+    from controltac_il.generator.training.validation import generation_error
 
     def resized(r):
         return np.stack([cv2.resize(x, (size[1], size[0]), interpolation=cv2.INTER_AREA) for x in r])

@@ -38,7 +38,7 @@ FLAGS="--data $DATA --stage denoiser --autoencoder-from default --dit-patch 4 --
   --default-steps 1 --dit-steps $STEPS --dit-batch 128 --dit-lr 5e-4 --one-step-fraction 0.9 --warmup-steps 200
   --distinct-pairs --anchor-to-reference --detail-gate 4 --val-objects $VAL --checkpoint-every $EVERY --seed 5 --device $DEVICE"
 for size in tiny small base; do
-  python3 -m controltac_il.generator.train $FLAGS --dit-preset "$size" --out "$RUNS/$size" > "$RUNS/$size.log" 2>&1 &
+  python3 -m controltac_il.generator.training stage1 $FLAGS --dit-preset "$size" --out "$RUNS/$size" > "$RUNS/$size.log" 2>&1 &
   echo $! > "$RUNS/$size.pid"
 done
 running() { for size in tiny small base; do kill -0 "$(cat "$RUNS/$size.pid")" 2>/dev/null && return 0; done; return 1; }

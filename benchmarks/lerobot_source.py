@@ -14,10 +14,8 @@ import numpy as np
 import pyarrow as pa
 
 from controltac_il.datasets.episodes import episode_paths, read_episode
-from controltac_il.datasets.lerobot_v3 import numbers
-from controltac_il.datasets.lerobot_v3_write import (aggregate_stats, encode_video, image_stats, png_bytes,
-                                                     sample_indices, vector_stats, write_data_parquet, write_meta,
-                                                     write_parquet)
+from controltac_il.lerobot import (aggregate_stats, encode_video, image_stats, numbers, png_bytes, sample_indices,
+                                   vector_stats, write_data_parquet, write_meta, write_parquet)
 
 FPS = 10
 IMAGE, VIDEO = "observation.images.gelsight_left", "observation.images.gelsight_right"

@@ -35,9 +35,9 @@ from benchmarks.augment import load_generator
 from benchmarks.common import print_table
 from benchmarks.lerobot_source import FORCES, write_source
 from controltac_il.augment import ForceAugment
-from controltac_il.augment.lerobot_out import LeRobotExport
-from controltac_il.augment.to_lerobot import claim, finish, signature, staging_dir, write_lerobot
-from controltac_il.datasets.lerobot_v3 import LeRobotFolder
+from controltac_il.augment.provenance import chunk_done
+from controltac_il.lerobot import LeRobotExport, LeRobotFolder, staging_dir, write_lerobot
+from controltac_il.lerobot.publish import claim, finish, signature
 
 DEFAULT_ENV = {"OMP_WAIT_POLICY": None}  # OpenMP's own default: threads spin a while, then sleep
 WAIT_POLICIES = {"openmp_default": DEFAULT_ENV, "passive": {"OMP_WAIT_POLICY": "PASSIVE"}}  # the write under each
@@ -83,7 +83,7 @@ def timed_write(source, out: Path, gen, copies: int, steps, round_trip: bool) ->
     timed = TimedGenerator(gen)
     t0, c0 = time.perf_counter(), time.process_time()
     aug = _augment(source, timed, copies, steps, staging_dir(out) / "cache")
-    marker = write_lerobot(aug, source, out, progress=False, round_trip=round_trip)["marker"]
+    marker = write_lerobot(aug, source, out, chunk_done=chunk_done, progress=False, round_trip=round_trip)["marker"]
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     times = {"write_seconds": wall, "write_cpu_seconds": cpu, "generator_seconds_in_write": timed.seconds,
              "generator_cpu_seconds_in_write": timed.cpu_seconds}

@@ -2,9 +2,9 @@
 
     python -m benchmarks.pose --out benchmarks/results/pose.json [--quick] [--sheet FILE.png]
 
-Data: sensor-model scenes (``controltac_il.generator.pose_data``) on the nominal GelSight Mini at 120x160, with
-seeds the adapter never saw: "seen" = the six training objects, "unseen" = the held-out objects; every pair
-moves the contact to another pose (and another force, Fz in the validated range). The condition is the
+Data: sensor-model scenes (``controltac_il.generator.training.pose_data``) on the nominal GelSight Mini at
+120x160, with seeds the adapter never saw: "seen" = the six training objects, "unseen" = the held-out objects;
+every pair moves the contact to another pose (and another force, Fz in the validated range). The condition is the
 reference's geometric contact mask carried to the target pose (``object_mask`` + ``transform`` through the
 API); ``pose_control_image_mask`` uses the reference frame's contact pixels (``contact_mask``) instead, as a lab
 would. Metrics on images (residual + background): MSE (0-255 RGB) and SSIM, mean ± SD, beside a copy of the
@@ -38,7 +38,7 @@ from benchmarks.response import real_references, sim_references
 from benchmarks.pose_estimation import fit_cnn, fit_pca, pose_errors, predict_cnn, predict_pca
 from controltac_il.generator import ForceGenerator
 from controltac_il.generator.config import FZ_RANGE, SHEAR_MAX
-from controltac_il.generator.pose_data import POSE_SPREAD, PoseScenes, render_scenes
+from controltac_il.generator.training.pose_data import POSE_SPREAD, PoseScenes, render_scenes
 from controltac_il.generator.shipped import SHIPPED_ADAPTERS, locate_checkpoint
 from controltac_il.io import atomic_path, write_json
 from controltac_il.tactile import HELDOUT_OBJECTS, TRAIN_OBJECTS, contact_mask, from_residual

@@ -9,6 +9,7 @@ import sys
 from typing import Callable
 
 from controltac_il.config import one_line
+from controltac_il.extras import MissingExtra
 
 
 def tty_only(progress: bool = True) -> bool | None:
@@ -30,9 +31,9 @@ class RunFault(RuntimeError):
 
 
 def guard(prog: str, job: Callable[[], int | None], interrupted: str = "interrupted (Ctrl-C)") -> int:
-    """Run ``job()`` and return its exit code (None = 0). A ValueError or OSError becomes ``PROG: error: <one
-    line>`` and 2; a :class:`RunFault` the same and 1; Ctrl-C its own message (e.g. where a run can be continued)
-    or ``interrupted`` and 130."""
+    """Run ``job()`` and return its exit code (None = 0). A ValueError, OSError or a missing extra
+    (:class:`MissingExtra`) becomes ``PROG: error: <one line>`` and 2; a :class:`RunFault` the same and 1; Ctrl-C
+    its own message (e.g. where a run can be continued) or ``interrupted`` and 130."""
     try:
         return job() or 0
     except RunFault as exc:
@@ -41,6 +42,6 @@ def guard(prog: str, job: Callable[[], int | None], interrupted: str = "interrup
     except KeyboardInterrupt as exc:
         print(f"{prog}: {str(exc) or interrupted}", file=sys.stderr)
         return 130
-    except (ValueError, OSError) as exc:
+    except (ValueError, OSError, MissingExtra) as exc:
         print(f"{prog}: error: {one_line(exc)}", file=sys.stderr)
         return 2

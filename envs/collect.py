@@ -117,6 +117,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--max-attempts", type=int, default=None,
                    help="give up after this many attempts, at least --episodes (default: 2 x episodes + 10)")
     p.add_argument("--compression", default=None, choices=("gzip", "lzf"), help="HDF5 image compression (default none)")
+    p.add_argument("--quiet", action="store_true", help="no closing summary line (a caller that moves --out says where)")
     args = p.parse_args(argv)
     if args.episodes < 1:
         p.error(f"--episodes must be an int >= 1, got {args.episodes}")
@@ -183,7 +184,8 @@ def main(argv=None) -> int:
         "episodes": written, "attempts": attempts, "failed_seeds": failures,
         "config": {k: v for k, v in vars(config).items()}, "expert": vars(ExpertConfig()),
     })
-    print(f"wrote {written} episodes to {args.out} ({attempts} attempts, {len(failures)} expert failures)")
+    if not args.quiet:
+        print(f"wrote {written} episodes to {args.out} ({attempts} attempts, {len(failures)} expert failures)")
     if written < args.episodes:
         print(f"error: only {written} of {args.episodes} episodes succeeded within {max_attempts} attempts", file=sys.stderr)
         return 1

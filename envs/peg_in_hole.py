@@ -24,13 +24,15 @@ import os
 from contextlib import contextmanager
 from concurrent.futures import ThreadPoolExecutor
 
-import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
 
+from controltac_il.extras import require
+
+gym = require("gymnasium", "sim", "the MuJoCo scene")
+spaces = gym.spaces
 os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must precede the first mujoco import
 os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
-import mujoco  # noqa: E402
+mujoco = require("mujoco", "sim", "the MuJoCo scene")
 
 from envs.config import SENSORS, PegInHoleConfig  # noqa: E402
 from envs.geometry import rim_height_m  # noqa: E402

@@ -20,10 +20,12 @@ from __future__ import annotations
 
 import math
 
-import mujoco
 import numpy as np
 
+from controltac_il.extras import require
 from envs.geometry import BASE_THICKNESS_M, HAND_JOINTS, SCENE_XML, WALL_THICKNESS_M
+
+mujoco = require("mujoco", "sim", "the MuJoCo scene")
 
 ASSET = SCENE_XML
 HAND_ACTUATORS = HAND_JOINTS  # the gripper's pose servos (each named after its joint), in action order

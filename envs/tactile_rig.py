@@ -15,8 +15,11 @@ columns (right), y up the image rows, z into the sensor.
 from __future__ import annotations
 
 import cv2
-import mujoco
 import numpy as np
+
+from controltac_il.extras import require
+
+mujoco = require("mujoco", "sim", "the MuJoCo scene")
 
 MISS_MM = -10.0  # gap assigned to a ray that hits nothing (far outside the gel)
 

@@ -24,6 +24,7 @@ from tqdm import tqdm
 
 from controltac_il.cli import ArgumentParser
 from controltac_il.config import one_line
+from controltac_il.extras import MissingExtra
 from hardware.config import ConfigError, load_setup, open_setup
 from hardware.interfaces import HardwareError
 
@@ -54,6 +55,9 @@ def main(argv=None) -> int:
         print(f"device check failed: {msg if msg.startswith(str(args.config)) else f'{args.config}: {msg}'}",
               file=sys.stderr)
         return 1
+    except MissingExtra as exc:  # an adapter whose SDK is not installed: the extra to install
+        print(f"device check failed: {exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:  # the devices were closed (arm stopped first) on the way out
         print("device check interrupted (Ctrl-C); the devices were closed", file=sys.stderr)
         return 130

@@ -5,8 +5,7 @@ current-based position control, so the fingers close to a position but squeeze w
 
 from __future__ import annotations
 
-import dynamixel_sdk as dxl
-
+from controltac_il.extras import require
 from hardware.interfaces import Clock, Gripper, GripperState, HardwareError, WallClock
 
 ADDR_OPERATING_MODE = 11  # 1 byte, EEPROM (write with torque off)
@@ -18,6 +17,8 @@ ADDR_GOAL_POSITION = 116  # 4 bytes, unit 0.088 deg
 ADDR_PRESENT_CURRENT = 126  # 2 bytes
 ADDR_PRESENT_POSITION = 132  # 4 bytes
 MODE_CURRENT_BASED_POSITION = 5
+
+dxl = require("dynamixel_sdk", "dynamixel", "the Dynamixel gripper")
 
 HARDWARE_ERRORS = {0: "input voltage", 2: "overheating", 3: "motor encoder", 4: "electrical shock", 5: "overload"}
 

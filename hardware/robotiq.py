@@ -9,10 +9,11 @@ low byte first; every reply's CRC is checked.
 
 from __future__ import annotations
 
-import serial
-
 from controltac_il.config import one_line
+from controltac_il.extras import require
 from hardware.interfaces import Clock, Gripper, GripperState, HardwareError, WallClock
+
+serial = require("serial", "robotiq", "the Robotiq gripper")
 
 FAULTS = {
     0x05: "action delayed: activation must complete first",

@@ -16,6 +16,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from controltac_il.config import one_line
+from controltac_il.extras import require
 from hardware.interfaces import Arm, ArmFault, ArmState, Clock, ForceSample, ForceSensor, SensorError, WallClock
 from hardware.net import preflight, unreachable
 from hardware.pose import tool_rotation, yaw_of
@@ -61,16 +62,13 @@ class URArm(Arm):
         return ArmFault(f"UR {self.ip}: {msg}")
 
     def connect(self) -> None:
-        if self.receive is None or self.control is None:
+        if self.receive is None or self.control is None:  # the SDK first: a missing extra needs no network to say so
+            rtde_receive, rtde_control = (require(m, "ur", "the UR arm") for m in ("rtde_receive", "rtde_control"))
             preflight("UR", self.ip, self.port, self.connect_timeout_s)
         try:
             if self.receive is None:
-                import rtde_receive
-
                 self.receive = rtde_receive.RTDEReceiveInterface(self.ip)
             if self.control is None:
-                import rtde_control
-
                 self.control = rtde_control.RTDEControlInterface(self.ip)
         except (RuntimeError, OSError) as exc:  # ur-rtde raises RuntimeError when it cannot connect
             raise unreachable("UR", self.ip, one_line(exc)) from None

@@ -27,6 +27,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from controltac_il.config import one_line
+from controltac_il.extras import require
 from hardware.interfaces import (Arm, ArmFault, ArmState, Clock, ForceSample, ForceSensor, Gripper, GripperState, HardwareError,
                                  SensorError, WallClock)
 from hardware.net import preflight, unreachable
@@ -90,11 +91,10 @@ class XArm(Arm):
 
     def connect(self) -> None:
         if self.api is None:
+            wrapper = require("xarm.wrapper", "xarm", "the xArm")  # before the network: a missing extra says so
             preflight("xArm", self.ip, self.port, self.connect_timeout_s)
-            from xarm.wrapper import XArmAPI
-
             try:
-                self.api = XArmAPI(self.ip, is_radian=True)
+                self.api = wrapper.XArmAPI(self.ip, is_radian=True)
             except Exception as exc:  # noqa: BLE001 - the SDK raises a bare Exception("connect socket failed")
                 raise unreachable("xArm", self.ip, one_line(exc)) from None
         if not self.api.connected:

@@ -107,7 +107,7 @@ def test_deploy_runs_the_loop_with_the_policys_chunk(checkpoint):
 
 
 def test_deploy_cli_reports_a_corrupted_checkpoint(checkpoint, capsys):
-    import deploy_policy
+    from controltac_il.app import deploy_cli as deploy_policy
 
     (checkpoint / "model.safetensors").write_bytes(b"garbage")
     assert deploy_policy.main(["--robot", "sim", "--checkpoint", str(checkpoint), "--episodes", "1"]) == 2
@@ -119,7 +119,7 @@ def test_deploy_cli_reports_a_corrupted_checkpoint(checkpoint, capsys):
 def test_deploy_cli_runs_the_touch_critical_scene(checkpoint, tmp_path):
     import json
 
-    import deploy_policy
+    from controltac_il.app import deploy_cli as deploy_policy
 
     out = tmp_path / "result.json"
     assert deploy_policy.main(["--robot", "sim", "--scene", "touch_critical", "--checkpoint", str(checkpoint),
@@ -135,7 +135,7 @@ def test_deploy_cli_runs_the_touch_critical_scene(checkpoint, tmp_path):
     (["--grip-force", "-1", "3"], "--grip-force"),
 ])
 def test_deploy_cli_validation_errors_are_one_line_naming_the_flag(checkpoint, capsys, flags, named):
-    import deploy_policy
+    from controltac_il.app import deploy_cli as deploy_policy
 
     assert deploy_policy.main(["--robot", "sim", "--checkpoint", str(checkpoint), *flags]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -185,7 +185,7 @@ def test_an_episode_that_raises_is_reported_never_counted_as_a_failure(checkpoin
 def test_deploy_cli_exits_1_on_an_episode_that_raised_and_writes_every_error(checkpoint, tmp_path, monkeypatch, capsys):
     import json
 
-    import deploy_policy
+    from controltac_il.app import deploy_cli as deploy_policy
 
     _raising(monkeypatch, {0})
     out = tmp_path / "result.json"

@@ -54,10 +54,22 @@ def test_pipeline_config_validation():
 
 
 @pytest.mark.slow
-def test_tiny_pipeline_end_to_end(tmp_path, monkeypatch):
+def test_tiny_pipeline_end_to_end(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("CONTROLTAC_CACHE", str(tmp_path / "cache"))
     report = run_pipeline(tmp_path / "out", PipelineConfig(demos=2, copies=0, steps=4, batch_size=4,
                                                            eval_episodes=1), progress=False)
     assert report["training"]["steps"] == 4 and report["evaluation"]["episodes"] == 1
+    log = capsys.readouterr().out
+    assert f"collected 2 scripted demos in {report['demos']} (" in log and ".tmp" not in log  # the final folder
     assert set(report["seconds"]) == {"collect", "train", "deploy", "total"}
     assert json.loads((tmp_path / "out" / "pipeline.json").read_text())["evaluation"]["episodes"] == 1
+
+
+def test_the_augment_line_reads_as_a_sentence():
+    from controltac_il.app.job import augment_sentence
+
+    counts = {"tactile_frames": 2484, "no_contact": 1200, "regenerated": 1240, "clamped": 40, "skipped": 4,
+              "fraction_regenerated": 0.52}
+    assert augment_sentence(1, counts) == ("1 ForceAugment copy: 2484 tactile frames, 1280 generated (40 of them at "
+                                           "a target clamped to the validated range), 1200 without contact kept as "
+                                           "recorded, 4 skipped")

@@ -12,7 +12,7 @@ from controltac_il.calibrate import main
 from controltac_il.calibrate.bundle import subset_presses
 from controltac_il.estimators import EstimatorConfig, ForceEstimator
 from controltac_il.generator import ForceGenerator
-from controltac_il.generator.train import main as train_generator
+from controltac_il.generator.training.cli import main as train_generator
 from controltac_il.tactile import TRAIN_OBJECTS, SensorSpec
 from controltac_il.tactile.dataset import load_dataset, write_dataset
 
@@ -26,7 +26,7 @@ def bases(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("calibrate")
     presses = write_dataset(tmp / "presses", TRAIN_OBJECTS[:2], poses_per_object=5, forces_per_pose=3, seed=3,
                             spec=SensorSpec.gelsight_mini().scaled(60, 80), progress=False)
-    assert train_generator(["--data", str(presses), "--out", str(tmp / "gen"), *TINY]) == 0
+    assert train_generator(["stage1", "--data", str(presses), "--out", str(tmp / "gen"), *TINY]) == 0
     torch.manual_seed(0)
     est = ForceEstimator(EstimatorConfig(input_height=16, input_width=16, widths=(4, 4), hidden=8,
                                          force_mean=(0.0, 0.0, 4.0), force_std=(0.3, 0.3, 2.0)))

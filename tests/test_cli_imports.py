@@ -23,8 +23,9 @@ print(json.dumps({{"code": code, "heavy": sorted(m for m in {heavy!r} if m in sy
 """
 CLIS = [("deploy_policy.py", "run_path", ()), ("train_act.py", "run_path", ()),
         ("controltac_il.calibrate", "run_module", ("record",)),
+        *(("controltac_il.generator.training", "run_module", (stage,)) for stage in ("stage1", "stage2")),
         *((m, "run_module", ()) for m in ("controltac_il", "controltac_il.augment", "controltac_il.calibrate",
-                                          "controltac_il.generator.train", "controltac_il.generator.train_pose",
+                                          "controltac_il.generator.training",
                                           "controltac_il.estimators.train", "controltac_il.tactile.dataset",
                                           "controltac_il.sign", "envs.collect"))]
 

@@ -14,7 +14,7 @@ from controltac_il.generator.adapter import PoseAdapter, masks_to_model
 from controltac_il.generator.checkpoint import ADAPTER_FILE, CARD_FILE, load_adapter, save_adapter
 from controltac_il.generator.config import PoseAdapterConfig
 from controltac_il.generator.shipped import CHECKPOINT_ROOT
-from controltac_il.generator.pose_data import render_scenes, sample_pose_pairs, target_mask
+from controltac_il.generator.training.pose_data import render_scenes, sample_pose_pairs, target_mask
 from controltac_il.metrics import mse
 from controltac_il.tactile import SensorSpec, TactileSensor
 from controltac_il.tactile.pose import check_mask, move_mask, transform_between
@@ -218,15 +218,15 @@ def test_pose_pairs_are_within_scenes_and_deterministic():
             assert iou(target_mask(scenes, i, j), scenes.masks[j]) > 0.6
 
 
-def test_train_pose_cli_trains_resumes_and_guards_its_folder(tmp_path, capsys):
-    from controltac_il.generator.train_pose import main
+def test_stage2_cli_trains_resumes_and_guards_its_folder(tmp_path, capsys):
+    from controltac_il.generator.training.cli import main
 
     out = tmp_path / "run"
     args = ["--out", str(out), "--procedural", "0", "--scenes", "1", "--poses", "2", "--forces", "1", "--batch", "4",
             "--mask-channels", "8", "--head-width", "8", "--checkpoint-every", "2", "--val-objects", "1"]
-    assert main([*args, "--steps", "2"]) == 0
+    assert main(["stage2", *args, "--steps", "2"]) == 0
     assert json.loads((out / "adapter_state.json").read_text())["step"] == 2
-    assert main([*args, "--steps", "3", "--resume"]) == 0
+    assert main(["stage2", *args, "--steps", "3", "--resume"]) == 0
     assert json.loads((out / "adapter_state.json").read_text())["step"] == 3
     # its own validation split (procedural_0000, never trained on with --procedural 0), measured at each save and
     # across the resume; the best step's EMA weights are what ships
@@ -240,25 +240,25 @@ def test_train_pose_cli_trains_resumes_and_guards_its_folder(tmp_path, capsys):
     cfg, _ = load_adapter(out / "final")
     assert cfg.base_hash == ForceGenerator.from_pretrained().checkpoint_hash
     # a longer run from a trained adapter: same widths only (the shipped one is 32 / 48 wide, these runs 8 / 8)
-    assert main([*args, "--out", str(tmp_path / "more"), "--steps", "1", "--adapter-from", str(out / "final")]) == 0
+    assert main(["stage2", *args, "--out", str(tmp_path / "more"), "--steps", "1", "--adapter-from", str(out / "final")]) == 0
     card = json.loads((tmp_path / "more" / "final" / CARD_FILE).read_text())
     assert card["adapter_from"]["path"] == str(out / "final") and card["adapter_from"]["training"]["steps"] == 3
-    assert main([*args, "--out", str(tmp_path / "wide"), "--steps", "1", "--adapter-from", "pose"]) == 2
+    assert main(["stage2", *args, "--out", str(tmp_path / "wide"), "--steps", "1", "--adapter-from", "pose"]) == 2
     assert "other widths" in capsys.readouterr().err
     with pytest.raises(SystemExit) as e:
-        main([*args, "--steps", "3"])
+        main(["stage2", *args, "--steps", "3"])
     assert e.value.code == 2 and "--resume" in capsys.readouterr().err
     capsys.readouterr()
-    assert main([*args, "--steps", "4", "--resume", "--alignment-px", "5"]) == 2  # another run's data: refused
+    assert main(["stage2", *args, "--steps", "4", "--resume", "--alignment-px", "5"]) == 2  # another run's data: refused
     assert "--alignment-px" in capsys.readouterr().err
     assert json.loads((out / "adapter_state.json").read_text())["step"] == 3
     foreign = tmp_path / "mine"
     (foreign / "final").mkdir(parents=True)
     (foreign / "final" / "notes.txt").write_text("mine")
     with pytest.raises(SystemExit):
-        main(["--out", str(foreign), "--overwrite", "--steps", "1"])
+        main(["stage2", "--out", str(foreign), "--overwrite", "--steps", "1"])
     assert (foreign / "final" / "notes.txt").read_text() == "mine"
     with pytest.raises(SystemExit) as e:
-        main(["--out", str(tmp_path / "x"), "--batch", "0"])
+        main(["stage2", "--out", str(tmp_path / "x"), "--batch", "0"])
     assert e.value.code == 2 and "--batch" in capsys.readouterr().err
     shutil.rmtree(out)

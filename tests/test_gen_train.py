@@ -13,8 +13,8 @@ import pytest
 import torch
 
 from controltac_il.generator import ForceGenerator
-from controltac_il.generator.data import load_pair_data, sample_pairs
-from controltac_il.generator.train import main, parse_args
+from controltac_il.generator.training.cli import main, parse_args
+from controltac_il.generator.training.data import load_pair_data, sample_pairs
 from controltac_il.tactile import TRAIN_OBJECTS, SensorSpec
 from controltac_il.tactile.dataset import write_dataset
 
@@ -43,7 +43,7 @@ def test_pairs_stay_within_a_contact_pose(dataset):
 
 def test_train_resume_and_reuse_autoencoder(dataset, tmp_path, capsys):
     run = tmp_path / "run"
-    main(["--data", str(dataset), "--out", str(run), "--image-size", "64", "80", *TINY])
+    main(["stage1", "--data", str(dataset), "--out", str(run), "--image-size", "64", "80", *TINY])
     final = run / "final"
     card = json.loads((final / "model_card.json").read_text())
     assert card["denoiser"]["steps"] == 3 and card["data"]["images"] == 12 and card["data"]["seed"] == 0
@@ -51,14 +51,14 @@ def test_train_resume_and_reuse_autoencoder(dataset, tmp_path, capsys):
     assert gen.generate(np.full((1, 60, 80, 3), 127, np.uint8), [[0, 0, 1]], steps=1).shape == (1, 60, 80, 3)
 
     with pytest.raises(SystemExit):  # states present: refuses to start over silently
-        parse_args(["--data", str(dataset), "--out", str(run), "--image-size", "64", "80", *TINY])
+        parse_args(["stage1", "--data", str(dataset), "--out", str(run), "--image-size", "64", "80", *TINY])
     more = [a if a != "3" else "5" for a in TINY]
-    main(["--data", str(dataset), "--out", str(run), "--image-size", "64", "80", "--resume", *more])
+    main(["stage1", "--data", str(dataset), "--out", str(run), "--image-size", "64", "80", "--resume", *more])
     assert json.loads((run / "denoiser_state.json").read_text())["step"] == 5
     assert json.loads((run / "autoencoder_state.json").read_text())["step"] == 5
 
     fast = tmp_path / "fast"
-    main(["--data", str(dataset), "--out", str(fast), "--image-size", "64", "80", "--autoencoder-from", str(run),
+    main(["stage1", "--data", str(dataset), "--out", str(fast), "--image-size", "64", "80", "--autoencoder-from", str(run),
           "--stage", "denoiser", "--dit-preset", "tiny", "--prediction-type", "sample", "--default-steps", "2",
           "--dit-conv-head", "8", "--one-step-fraction", "0.5", *TINY])
     g2 = ForceGenerator.from_pretrained(fast / "final")
@@ -76,7 +76,7 @@ def test_train_resume_and_reuse_autoencoder(dataset, tmp_path, capsys):
     # fine-tuning: 0 steps from a checkpoint reproduces its DiT and keeps its latent scales
     tune = ["--data", str(dataset), "--image-size", "64", "80", "--autoencoder-from", str(run), "--stage", "denoiser",
             "--dit-preset", "tiny", "--prediction-type", "sample", "--dit-conv-head", "8"]
-    main([*tune, "--out", str(tmp_path / "tune0"), "--denoiser-from", str(fast / "final"), *TINY[:2], "--dit-steps", "0",
+    main(["stage1", *tune, "--out", str(tmp_path / "tune0"), "--denoiser-from", str(fast / "final"), *TINY[:2], "--dit-steps", "0",
           "--anchor-to-reference", "--detail-gate", "2"])
     g3 = ForceGenerator.from_pretrained(tmp_path / "tune0" / "final")
     assert g3.config.anchor_to_reference and g3.config.detail_gate == 2.0
@@ -84,7 +84,7 @@ def test_train_resume_and_reuse_autoencoder(dataset, tmp_path, capsys):
     a, b = g2.denoiser.state_dict(), g3.denoiser.state_dict()
     assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
     # from a run folder's state, then trained on: the history says where it started
-    main([*tune, "--out", str(tmp_path / "tune2"), "--denoiser-from", str(fast), *TINY])
+    main(["stage1", *tune, "--out", str(tmp_path / "tune2"), "--denoiser-from", str(fast), *TINY])
     card = json.loads((tmp_path / "tune2" / "final" / "model_card.json").read_text())
     assert card["denoiser"]["from"] == str(fast) and f"--denoiser-from {fast}" in card["command"]
     assert card["denoiser"]["history"][0]["denoiser_from"] == str(fast)
@@ -93,26 +93,26 @@ def test_train_resume_and_reuse_autoencoder(dataset, tmp_path, capsys):
     assert card["denoiser"]["lineage"] == [{"command": fast_card["command"], "data": {"path": str(dataset), "seed": 0, "images": 12},
                                             "steps": 3, "wall_s": fast_card["denoiser"]["wall_s"]}]
     from_checkpoint = [a if a != str(run) else str(fast / "final") for a in tune]  # autoencoder of a checkpoint
-    main([*from_checkpoint, "--out", str(tmp_path / "tune5"), "--denoiser-from", str(tmp_path / "tune2" / "final"), *TINY])
+    main(["stage1", *from_checkpoint, "--out", str(tmp_path / "tune5"), "--denoiser-from", str(tmp_path / "tune2" / "final"), *TINY])
     card5 = json.loads((tmp_path / "tune5" / "final" / "model_card.json").read_text())
     assert card5["autoencoder"]["trained_by"] == ae_made_by and card5["autoencoder"]["steps"] == 5
     chain = card5["denoiser"]["lineage"]
     assert [e["command"] for e in chain] == [fast_card["command"], card["command"]]
     assert fast_card["denoiser"]["lineage"] == []
     capsys.readouterr()
-    assert main([*tune[:-2], "--out", str(tmp_path / "tune3"), "--denoiser-from", str(fast), *TINY]) == 2
+    assert main(["stage1", *tune[:-2], "--out", str(tmp_path / "tune3"), "--denoiser-from", str(fast), *TINY]) == 2
     assert re.search("another dit config.*conv_head_width", capsys.readouterr().err)
-    assert main([*tune, "--out", str(tmp_path / "tune4"), "--denoiser-from", str(tmp_path), *TINY]) == 2
+    assert main(["stage1", *tune, "--out", str(tmp_path / "tune4"), "--denoiser-from", str(tmp_path), *TINY]) == 2
     assert "denoiser_from" in capsys.readouterr().err
 
 
 def test_autoencoder_fine_tune_starts_from_the_reused_one_and_the_dit_follows(dataset, tmp_path):
     base = tmp_path / "base"
-    main(["--data", str(dataset), "--out", str(base), "--image-size", "64", "80", *TINY])
+    main(["stage1", "--data", str(dataset), "--out", str(base), "--image-size", "64", "80", *TINY])
     tune = ["--data", str(dataset), "--image-size", "64", "80", "--autoencoder-from", str(base / "final"),
             "--denoiser-from", str(base / "final"), "--stage", "denoiser", "--ae-finetune-steps", "3", "--ae-lr", "1e-3",
             *TINY]
-    main([*tune, "--out", str(tmp_path / "tuned")])
+    main(["stage1", *tune, "--out", str(tmp_path / "tuned")])
     g0, g1 = (ForceGenerator.from_pretrained(p) for p in (base / "final", tmp_path / "tuned" / "final"))
     a0, a1 = g0.autoencoder.state_dict(), g1.autoencoder.state_dict()
     moved = [k for k in a0 if not torch.equal(a0[k], a1[k])]
@@ -122,13 +122,13 @@ def test_autoencoder_fine_tune_starts_from_the_reused_one_and_the_dit_follows(da
     assert g1.config.latent_scale == g0.config.latent_scale and g1.config.delta_scale == g0.config.delta_scale
     card = json.loads((tmp_path / "tuned" / "final" / "model_card.json").read_text())
     assert card["autoencoder"]["finetune"]["step"] == 3 and "--ae-finetune-steps 3" in card["command"]
-    main([*[a if a != "3" else "5" for a in tune], "--out", str(tmp_path / "tuned"), "--resume"])
+    main(["stage1", *[a if a != "3" else "5" for a in tune], "--out", str(tmp_path / "tuned"), "--resume"])
     assert json.loads((tmp_path / "tuned" / "autoencoder_finetune_state.json").read_text())["step"] == 5
 
 
 def _exit(argv) -> int:
     try:
-        return main(argv)
+        return main(["stage1", *argv])
     except SystemExit as e:
         return e.code
 
@@ -179,14 +179,14 @@ def test_a_previous_run_needs_resume_or_overwrite(dataset, tmp_path, capsys):
     run = tmp_path / "run"
     args = ["--data", str(dataset), "--out", str(run), "--image-size", "64", "80", *TINY[:2], "--dit-steps", "1",
             *TINY[4:]]
-    assert main(args) == 0
+    assert main(["stage1", *args]) == 0
     (run / "my_notes.txt").write_text("mine")
     before = _tree(run)
     capsys.readouterr()
     assert _exit(args) == 2
     err = capsys.readouterr().err
     assert "--resume" in err and "--overwrite" in err and _tree(run) == before
-    assert main([*args, "--overwrite"]) == 0
+    assert main(["stage1", *args, "--overwrite"]) == 0
     assert json.loads((run / "denoiser_state.json").read_text())["step"] == 1 and (run / "my_notes.txt").is_file()
 
 
@@ -255,7 +255,7 @@ def test_torchrun_two_processes_gloo(dataset, tmp_path):
     run = tmp_path / "ddp"
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2",
-           "-m", "controltac_il.generator.train", "--data", str(dataset), "--out", str(run), "--image-size", "64", "80", *TINY]
+           "-m", "controltac_il.generator.training", "stage1", "--data", str(dataset), "--out", str(run), "--image-size", "64", "80", *TINY]
     subprocess.run(cmd, check=True, env=env, cwd=Path(__file__).resolve().parents[1], timeout=600)
     card = json.loads((run / "final" / "model_card.json").read_text())
     assert card["world_size"] == 2 and card["denoiser"]["steps"] == 3
@@ -263,16 +263,15 @@ def test_torchrun_two_processes_gloo(dataset, tmp_path):
 
 def test_shipped_checkpoints_are_named_as_fine_tuning_sources(tmp_path):
     from controltac_il.generator.shipped import CHECKPOINT_ROOT
-    from controltac_il.generator.train import parse_args
 
     (tmp_path / "presses").mkdir()
-    cfg = parse_args(["--data", str(tmp_path / "presses"), "--out", str(tmp_path / "tuned"), "--stage", "denoiser",
+    cfg = parse_args(["stage1", "--data", str(tmp_path / "presses"), "--out", str(tmp_path / "tuned"), "--stage", "denoiser",
                       "--autoencoder-from", "default", "--denoiser-from", "default"])
     assert cfg.autoencoder_from == cfg.denoiser_from == str(CHECKPOINT_ROOT / "default")
 
 
 def test_distinct_pairs_never_pair_a_frame_with_itself():
-    from controltac_il.generator.data import PairData, sample_pairs
+    from controltac_il.generator.training.data import PairData, sample_pairs
 
     data = PairData(np.zeros((7, 8, 8, 3), np.uint8), np.arange(21, dtype=np.float32).reshape(7, 3),
                     [np.array([0, 1, 2]), np.array([3, 4]), np.array([5]), np.array([6])], np.zeros(0, np.int64))

@@ -8,10 +8,10 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from controltac_il.generator.data import load_pair_data
 from controltac_il.generator.forces import VALIDATED_RANGE
-from controltac_il.generator.train import main
-from controltac_il.generator.validation import hold_out_objects
+from controltac_il.generator.training.cli import main
+from controltac_il.generator.training.data import load_pair_data
+from controltac_il.generator.training.validation import hold_out_objects
 from controltac_il.tactile import TRAIN_OBJECTS, SensorSpec
 from controltac_il.tactile.dataset import load_dataset, write_dataset
 
@@ -47,7 +47,7 @@ def test_held_out_objects_are_never_trained_on_and_pairs_stay_within_their_poses
 
 def test_the_shipped_weights_are_the_best_validation_step(dataset, tmp_path):
     run = tmp_path / "run"
-    main(["--data", str(dataset), "--out", str(run), "--image-size", "64", "80", "--ae-steps", "2", "--dit-steps", "4",
+    main(["stage1", "--data", str(dataset), "--out", str(run), "--image-size", "64", "80", "--ae-steps", "2", "--dit-steps", "4",
           "--ae-batch", "2", "--dit-batch", "4", "--ae-crop", "32", "40", "--checkpoint-every", "1", "--warmup-steps", "1",
           "--no-contact-frames", "2", "--threads", "1", "--dit-lr", "0.05", "--val-objects", "1", "--default-steps", "1"])
     card = json.loads((run / "final" / "model_card.json").read_text())

@@ -257,13 +257,16 @@ def closed_loopback_port() -> int:
 @pytest.mark.parametrize("make", [lambda port: XArm("127.0.0.1", port=port), lambda port: URArm("127.0.0.1", port=port)])
 def test_preflight_refuses_an_address_where_nothing_answers(monkeypatch, make):
     sdk = RecordingSDK()
+    made = []  # the UR SDK's interfaces constructed: none may be, the address answers nothing
     monkeypatch.setitem(sys.modules, "xarm.wrapper", sdk)
-    monkeypatch.setitem(sys.modules, "rtde_receive", None)  # importing it would fail the test
+    for name in ("rtde_receive", "rtde_control"):
+        interface = "RTDEReceiveInterface" if name == "rtde_receive" else "RTDEControlInterface"
+        monkeypatch.setitem(sys.modules, name, types.SimpleNamespace(**{interface: made.append}))
     port = closed_loopback_port()
     with pytest.raises(ArmFault, match=rf"127\.0\.0\.1: cannot connect to the controller \(nothing answers on TCP port "
                                        rf"{port}: .*\); check that it is powered on and reachable at 127\.0\.0\.1"):
         make(port).connect()
-    assert sdk.made == []
+    assert sdk.made == [] and made == []
 
 
 def test_preflight_timeout_is_bounded(monkeypatch):

@@ -11,13 +11,11 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from test_lerobot_v3_write import LEFT, LENGTHS, RIGHT, WRIST, augment
+from test_lerobot_v3_write import LEFT, LENGTHS, RIGHT, WRIST, augment, write_lerobot
 
-from controltac_il.augment.lerobot_out import LeRobotExport
-from controltac_il.augment.provenance import PROVENANCE, chunk_dir
-from controltac_il.augment.to_lerobot import ChunkGate, staging_dir, write_lerobot
-from controltac_il.datasets.lerobot_v3 import LeRobotFolder, read_episode_stats
-from controltac_il.datasets.lerobot_v3_write import STAT_NAMES
+from controltac_il.augment.provenance import PROVENANCE, chunk_dir, chunk_done
+from controltac_il.lerobot import (STAT_NAMES, ChunkGate, LeRobotExport, LeRobotFolder, read_episode_stats,
+                                   staging_dir)
 
 EPISODES_META = "meta/episodes/chunk-000/file-000.parquet"
 
@@ -85,7 +83,7 @@ def test_an_export_error_stops_the_build_at_its_next_chunk(written, tmp_path, mo
 
 
 def test_the_gate_opens_on_a_chunk_or_the_builds_end(tmp_path):
-    gate = ChunkGate(tmp_path)
+    gate = ChunkGate(tmp_path, chunk_done)
     for e, k in ((3, 1), (3, 2), (7, 1)):
         chunk_dir(tmp_path, e, k).mkdir(parents=True)
         (chunk_dir(tmp_path, e, k) / PROVENANCE).write_text("{}")
@@ -144,7 +142,7 @@ def test_a_sources_complete_stats_are_reused_for_unchanged_features(written, tmp
 
 
 def test_only_complete_plausible_stats_count_as_given():
-    from controltac_il.datasets.lerobot_v3_write import complete_stats, image_stats, vector_stats
+    from controltac_il.lerobot import complete_stats, image_stats, vector_stats
 
     camera = {"dtype": "video", "shape": (4, 4, 3)}
     frames = np.random.default_rng(0).integers(0, 256, (5, 4, 4, 3), dtype=np.uint8)

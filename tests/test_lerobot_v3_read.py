@@ -24,9 +24,8 @@ import pytest
 import torch
 
 from controltac_il.augment.items import index_columns
-from controltac_il.datasets.lerobot_v3 import LeRobotFolder
-from controltac_il.datasets.lerobot_v3_video import FrameTimestampError
 from controltac_il.datasets.stage import FrameTable
+from controltac_il.lerobot import FrameTimestampError, LeRobotFolder
 
 FPS = 10
 LENGTHS = (5, 4, 6)
@@ -344,7 +343,7 @@ def test_unreadable_files_are_refused_in_one_line_naming_them(folder, tmp_path):
 
 
 def test_a_corrupt_tactile_png_read_through_lerobot_episodes_is_refused_naming_its_file(folder, tmp_path):
-    from controltac_il.datasets.lerobot_episodes import LeRobotEpisodes
+    from controltac_il.lerobot import LeRobotEpisodes
 
     root = (tmp_path / "episodes_png").resolve()  # LeRobotEpisodes names the resolved path
     shutil.copytree(folder, root)
@@ -372,7 +371,7 @@ def _edited_column(folder, root, key, edit):
 
 @pytest.mark.parametrize("key", ["observation.state", "action", FORCE])
 def test_a_nan_in_the_state_the_actions_or_a_force_label_is_refused_naming_episode_and_frame(folder, tmp_path, key):
-    from controltac_il.datasets.lerobot_episodes import LeRobotEpisodes
+    from controltac_il.lerobot import LeRobotEpisodes
 
     def nan_at_episode_1_frame_2(rows):
         rows[7][-1] = float("nan")
@@ -384,7 +383,7 @@ def test_a_nan_in_the_state_the_actions_or_a_force_label_is_refused_naming_episo
 
 
 def test_force_labels_in_mn_or_pulling_are_refused_as_an_hdf5_episodes_are(folder, tmp_path):
-    from controltac_il.datasets.lerobot_episodes import LeRobotEpisodes
+    from controltac_il.lerobot import LeRobotEpisodes
 
     _edited_column(folder, tmp_path / "mn", FORCE, lambda rows: [[1000 * v for v in r] for r in rows])
     with pytest.raises(ValueError, match=rf"^mn: {FORCE} reaches .*are the labels in mN"):
@@ -395,7 +394,7 @@ def test_force_labels_in_mn_or_pulling_are_refused_as_an_hdf5_episodes_are(folde
 
 
 def test_a_force_feature_found_by_name_must_be_three_forces(folder, tmp_path):
-    from controltac_il.datasets.lerobot_episodes import LeRobotEpisodes
+    from controltac_il.lerobot import LeRobotEpisodes
 
     root = tmp_path / "fz_only"
     shutil.copytree(folder, root)

@@ -15,6 +15,7 @@ its video features have ``info`` dicts (0.4.4's spelling for the wrist, main's f
 import json
 import shutil
 from fractions import Fraction
+from functools import partial
 from pathlib import Path
 
 import av
@@ -28,15 +29,15 @@ import torch
 from test_aug_force_augment import tiny_generator
 
 from controltac_il.augment import STATUS, ForceAugment, main
-from controltac_il.augment.to_lerobot import read_record, staging_dir, write_lerobot
-from controltac_il.datasets.lerobot_v3 import LeRobotFolder
-from controltac_il.datasets.lerobot_v3_write import (INFO_KEYS, QUANTILES, STAT_NAMES, frame_histograms, image_stats,
-                                                     sample_indices, write_data_parquet)
+from controltac_il.augment.provenance import chunk_done
+from controltac_il.lerobot import (INFO_KEYS, QUANTILES, STAT_NAMES, LeRobotFolder, frame_histograms, image_stats,
+                                   publish, read_record, sample_indices, staging_dir, write_data_parquet)
 
 FPS, LENGTHS, CONTACT = 10, (6, 5), ((1, 2, 3, 4), (2, 3))
 LEFT, RIGHT, WRIST = "observation.images.gelsight_left", "observation.images.gelsight_right", "observation.images.wrist"
 FORCES = {LEFT: "observation.gelsight_left.force", RIGHT: "observation.gelsight_right.force"}
 H = W = 32
+write_lerobot = partial(publish.write_lerobot, chunk_done=chunk_done)  # the cache's test, as the augment CLI wires it
 
 
 def tactile(g: int, right: bool) -> np.ndarray:
@@ -256,7 +257,7 @@ def test_per_episode_and_dataset_stats_equal_recomputing_them_from_the_frames_wr
 
 
 def test_a_copys_tactile_stats_from_reused_histograms_equal_recomputing_them():
-    from controltac_il.augment.lerobot_out import _tactile_stats
+    from controltac_il.lerobot.export import _tactile_stats
 
     rng = np.random.default_rng(1)
     L = 130  # >= 100 frames: the stats read 100 of them; 300 px wide: every 2nd pixel of every 2nd row
@@ -365,21 +366,19 @@ def test_interrupted_and_shared_writes_equal_one_clean_write(written, tmp_path):
 
 def test_ctrl_c_while_meta_is_written_publishes_nothing_and_the_rerun_equals_a_clean_write(written, tmp_path,
                                                                                           monkeypatch):
-    from controltac_il.augment import to_lerobot
-
     root, clean, _, reference = written
-    out, real_write_meta = tmp_path / "out", to_lerobot.write_meta
+    out, real_write_meta = tmp_path / "out", publish.write_meta
 
     def interrupted(folder, info, rows, stats):  # meta/episodes written, then Ctrl-C before stats and info.json
         real_write_meta(folder, info, rows, stats)
         (folder / "meta" / "info.json").unlink()
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(to_lerobot, "write_meta", interrupted)
+    monkeypatch.setattr(publish, "write_meta", interrupted)
     with pytest.raises(KeyboardInterrupt):
         write_lerobot(augment(root, out, generator=reference.generator), LeRobotFolder(root), out, progress=False)
     assert not out.exists() and staging_dir(out).is_dir()  # nothing half-written where the user looks
-    monkeypatch.setattr(to_lerobot, "write_meta", real_write_meta)
+    monkeypatch.setattr(publish, "write_meta", real_write_meta)
     done = write_lerobot(augment(root, out, generator=reference.generator), LeRobotFolder(root), out, progress=False)
     assert done["published"] and not staging_dir(out).exists()
     assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == \
@@ -387,8 +386,6 @@ def test_ctrl_c_while_meta_is_written_publishes_nothing_and_the_rerun_equals_a_c
 
 
 def test_ctrl_c_while_the_staging_folder_is_removed_is_finished_by_the_rerun(written, tmp_path, monkeypatch):
-    from controltac_il.augment import to_lerobot
-
     root, clean, _, reference = written
     out, real_rmtree = tmp_path / "out", shutil.rmtree
 
@@ -398,12 +395,12 @@ def test_ctrl_c_while_the_staging_folder_is_removed_is_finished_by_the_rerun(wri
         (Path(path) / "manifest.json").unlink()
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(to_lerobot.shutil, "rmtree", interrupted)
+    monkeypatch.setattr(publish.shutil, "rmtree", interrupted)
     with pytest.raises(KeyboardInterrupt):
         write_lerobot(augment(root, out, generator=reference.generator), LeRobotFolder(root), out, progress=False)
     assert read_record(out) is not None and (staging_dir(out) / "write.json").is_file()
     assert (staging_dir(out) / "cache.removing" / "chunks").is_dir() and not (staging_dir(out) / "cache").exists()
-    monkeypatch.setattr(to_lerobot.shutil, "rmtree", real_rmtree)
+    monkeypatch.setattr(publish.shutil, "rmtree", real_rmtree)
     again = write_lerobot(augment(root, out, generator=reference.generator), LeRobotFolder(root), out, progress=False)
     assert again["already"] and again["published"] and not staging_dir(out).exists()
     assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == \
@@ -472,7 +469,7 @@ def test_cli_writes_and_refuses_in_one_line_naming_the_flag(written, tmp_path, c
 
 @pytest.mark.parametrize("values", [[7], [0, 255], [3] * 5, list(range(256)) * 3 + [9], "random"])
 def test_camera_stats_from_the_histogram_equal_numpys(values):
-    from controltac_il.datasets.lerobot_v3_write import _channel_stats
+    from controltac_il.lerobot.stats import _channel_stats
 
     v = np.random.default_rng(0).integers(0, 256, 4099) if values == "random" else np.asarray(values)
     st = _channel_stats(np.bincount(v, minlength=256))
@@ -494,7 +491,7 @@ def test_train_act_takes_a_lerobot_folder_and_its_augmented_copy(written, tmp_pa
     import sys
     from pathlib import Path
 
-    from controltac_il.datasets.lerobot_episodes import LeRobotEpisodes
+    from controltac_il.lerobot import LeRobotEpisodes
     from controltac_il.generator.checkpoint import save_checkpoint
 
     root, out, _, reference = written
@@ -510,7 +507,7 @@ def test_train_act_takes_a_lerobot_folder_and_its_augmented_copy(written, tmp_pa
                                                                      for i in range(len(ds))]).mean(0), rtol=1e-6)
     monkeypatch.setenv("CONTROLTAC_CACHE", str(tmp_path / "cache"))
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-    import train_act
+    from controltac_il.app import train_cli as train_act
 
     g = reference.generator
     ckpt = save_checkpoint(tmp_path / "gen", g.config, g.autoencoder, g.denoiser)
@@ -530,7 +527,7 @@ def test_train_act_names_a_lerobot_folders_tactile_cameras(written, tmp_path, mo
     root = written[0]
     monkeypatch.setenv("CONTROLTAC_CACHE", str(tmp_path / "cache"))
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-    import train_act
+    from controltac_il.app import train_cli as train_act
 
     flags = ["--steps", "1", "--batch-size", "2", "--chunk-size", "4", "--val-every", "1", "--threads", "1"]
     assert train_act.main(["--dataset", str(root), "--out", str(tmp_path / "run"), *flags, "--tactile-keys", LEFT,

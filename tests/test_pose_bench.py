@@ -7,7 +7,7 @@ import pytest
 
 from benchmarks.pose import cross_pose_pairs, main, perturbed
 from benchmarks.pose_estimation import decode_poses, encode_poses, fit_pca, pose_errors, predict_pca
-from controltac_il.generator.pose_data import render_scenes
+from controltac_il.generator.training.pose_data import render_scenes
 from controltac_il.tactile import contact_mask
 
 

@@ -52,7 +52,7 @@ def silent_xarm(monkeypatch):
 
 
 def test_deploy_cli_unreachable_robot_is_one_line_exit_1(checkpoint, tmp_path, capsys, silent_xarm):
-    import deploy_policy
+    from controltac_il.app import deploy_cli as deploy_policy
 
     setup = tmp_path / "site.yaml"
     setup.write_text(SETUP)
@@ -68,7 +68,7 @@ def test_deploy_cli_unreachable_robot_is_one_line_exit_1(checkpoint, tmp_path, c
     ("--out in a missing folder", "--out"),
 ])
 def test_deploy_cli_setup_and_output_faults_are_one_line_exit_2(checkpoint, tmp_path, capsys, silent_xarm, case, named):
-    import deploy_policy
+    from controltac_il.app import deploy_cli as deploy_policy
 
     setup, out = tmp_path / "site.yaml", []
     if case == "chunk size in the setup":
@@ -85,7 +85,7 @@ def test_deploy_cli_setup_and_output_faults_are_one_line_exit_2(checkpoint, tmp_
 def test_deploy_cli_ctrl_c_is_one_line_exit_130(checkpoint, capsys, monkeypatch):
     import importlib
 
-    import deploy_policy
+    from controltac_il.app import deploy_cli as deploy_policy
 
     app = importlib.import_module("controltac_il.app.deploy")  # (controltac_il.app.deploy is also the function)
 
@@ -116,7 +116,7 @@ def test_main_job_cli_faults_are_one_line(tmp_path, capsys, monkeypatch):
 
 
 def test_train_cli_unwritable_out_is_one_line_exit_2(tmp_path, capsys):
-    import train_act
+    from controltac_il.app import train_cli as train_act
     from benchmarks.robustness.harness import demo_episodes
 
     (tmp_path / "a_file").write_text("the user's")

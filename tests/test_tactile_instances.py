@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from controltac_il.generator.data import load_pair_data
+from controltac_il.generator.training.data import load_pair_data
 from controltac_il.tactile import SensorSpec, TactileSensor
 from controltac_il.tactile import dataset as tds
 from controltac_il.tactile.instances import instance_by_name, sensor_instance

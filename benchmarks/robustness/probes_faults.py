@@ -202,7 +202,7 @@ def _(tmp):
     return judge_fault(res, code=130)
 
 
-# -- python -m controltac_il.generator.train / train_pose ----------------------------------------------------
+# -- python -m controltac_il.generator.training stage1 / stage2 ---------------------------------------------
 
 def _corrupt_manifest(tmp: Path) -> Path:
     data = _sensor_dataset(tmp)
@@ -210,44 +210,44 @@ def _corrupt_manifest(tmp: Path) -> Path:
     return data
 
 
-@fault("generator.train", "a corrupt manifest.csv in --data")
+@fault("generator.training stage1", "a corrupt manifest.csv in --data")
 def _(tmp):
-    res = run_cli(["-m", "controltac_il.generator.train", "--data", str(_corrupt_manifest(tmp)), "--out", str(tmp / "g"),
-                   "--ae-steps", "1", "--dit-steps", "1"])
+    res = run_cli(["-m", "controltac_il.generator.training", "stage1", "--data", str(_corrupt_manifest(tmp)), "--out",
+                   str(tmp / "g"), "--ae-steps", "1", "--dit-steps", "1"])
     return judge_fault(res, "manifest", code=2)
 
 
-@fault("generator.train", "--out under a regular file (cannot be written)")
+@fault("generator.training stage1", "--out under a regular file (cannot be written)")
 def _(tmp):
-    res = run_cli(["-m", "controltac_il.generator.train", "--data", str(_sensor_dataset(tmp)), "--out",
+    res = run_cli(["-m", "controltac_il.generator.training", "stage1", "--data", str(_sensor_dataset(tmp)), "--out",
                    str(_under_a_file(tmp)), "--ae-steps", "1", "--dit-steps", "1"])
     return judge_fault(res, "a_file", code=2)
 
 
-@fault("generator.train", "Ctrl-C during training")
+@fault("generator.training stage1", "Ctrl-C during training")
 def _(tmp):
-    res = run_cli_interrupted(["-m", "controltac_il.generator.train", "--data", str(_sensor_dataset(tmp)), "--out",
-                               str(tmp / "g"), "--ae-steps", "100000", "--dit-steps", "1", "--ae-batch", "2"],
+    res = run_cli_interrupted(["-m", "controltac_il.generator.training", "stage1", "--data", str(_sensor_dataset(tmp)),
+                               "--out", str(tmp / "g"), "--ae-steps", "100000", "--dit-steps", "1", "--ae-batch", "2"],
                               wait_for=BAR, after_s=3)
     return judge_fault(res, code=130)
 
 
-POSE = ["-m", "controltac_il.generator.train_pose", "--scenes", "1", "--poses", "2", "--forces", "2", "--size", "60",
-        "80", "--batch", "2"]
+POSE = ["-m", "controltac_il.generator.training", "stage2", "--scenes", "1", "--poses", "2", "--forces", "2", "--size",
+        "60", "80", "--batch", "2"]
 
 
-@fault("generator.train_pose", "--base checkpoint that does not exist")
+@fault("generator.training stage2", "--base checkpoint that does not exist")
 def _(tmp):
     res = run_cli([*POSE, "--out", str(tmp / "p"), "--steps", "1", "--base", str(tmp / "nowhere")])
     return judge_fault(res, "nowhere", code=2)
 
 
-@fault("generator.train_pose", "--out under a regular file (cannot be written)")
+@fault("generator.training stage2", "--out under a regular file (cannot be written)")
 def _(tmp):
     return judge_fault(run_cli([*POSE, "--out", str(_under_a_file(tmp)), "--steps", "1"]), "a_file", code=2)
 
 
-@fault("generator.train_pose", "Ctrl-C during training")
+@fault("generator.training stage2", "Ctrl-C during training")
 def _(tmp):
     res = run_cli_interrupted([*POSE, "--out", str(tmp / "p"), "--steps", "100000"], wait_for=BAR, after_s=3)
     return judge_fault(res, code=130)

@@ -108,24 +108,25 @@ def _(tmp):
                                            steps=1), "residual")
 
 
-@probe("generator.train", "--data that does not exist")
+@probe("generator.training stage1", "--data that does not exist")
 def _(tmp):
-    res = run_cli(["-m", "controltac_il.generator.train", "--data", str(tmp / "nowhere"), "--out", str(tmp / "g")])
+    res = run_cli(["-m", "controltac_il.generator.training", "stage1", "--data", str(tmp / "nowhere"), "--out",
+                   str(tmp / "g")])
     return judge_cli(res, "nowhere")
 
 
-@probe("generator.train", "--dit-steps 0")
+@probe("generator.training stage1", "--dit-steps 0")
 def _(tmp):
     data = _sensor_dataset(tmp)
-    res = run_cli(["-m", "controltac_il.generator.train", "--data", str(data), "--out", str(tmp / "g"),
+    res = run_cli(["-m", "controltac_il.generator.training", "stage1", "--data", str(data), "--out", str(tmp / "g"),
                    "--dit-steps", "0", "--ae-steps", "1"])
     return judge_cli(res, "dit")
 
 
-@probe("generator.train", "--ema-decay 1.5")
+@probe("generator.training stage1", "--ema-decay 1.5")
 def _(tmp):
     data = _sensor_dataset(tmp)
-    res = run_cli(["-m", "controltac_il.generator.train", "--data", str(data), "--out", str(tmp / "g"),
+    res = run_cli(["-m", "controltac_il.generator.training", "stage1", "--data", str(data), "--out", str(tmp / "g"),
                    "--ema-decay", "1.5"])
     return judge_cli(res, "ema")
 

@@ -44,7 +44,11 @@ def default_demos(episodes: int = 20, seed: int = 0, root: str | Path | None = N
         except (OSError, json.JSONDecodeError):
             pass
     with atomic_dir(folder) as tmp:
-        code = collect.main(["--episodes", str(episodes), "--out", str(tmp), "--seed", str(seed), "--scene", scene])
+        code = collect.main(["--episodes", str(episodes), "--out", str(tmp), "--seed", str(seed), "--scene", scene,
+                             "--quiet"])
         if code != 0:
             raise RuntimeError(f"demo collection failed (exit code {code}); see the messages above")
+    done = json.loads(info.read_text())
+    print(f"collected {done['episodes']} scripted demos in {folder} ({done['attempts']} attempts, "
+          f"{len(done['failed_seeds'])} expert failures)")
     return folder

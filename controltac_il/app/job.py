@@ -54,8 +54,7 @@ def run_pipeline(out: str | Path = "out/pipeline", config: PipelineConfig | None
                         generator=cfg.generator, progress=progress)
     if summary.get("augment"):
         times["augment"] = summary["augment"]["summary"]["seconds"]
-        print(f"[augment] {cfg.copies} ForceAugment cop{'y' if cfg.copies == 1 else 'ies'}: "
-              f"{summary['augment']['summary']} ({times['augment']:.1f} s)")
+        print(f"[augment] {augment_sentence(cfg.copies, summary['augment']['summary'])} ({times['augment']:.1f} s)")
     times["train"] = time.perf_counter() - t - times.get("augment", 0.0)
     print(f"[train] {summary['steps']} steps, {summary['samples_per_s']:.1f} samples/s ({times['train']:.1f} s)")
 
@@ -70,3 +69,11 @@ def run_pipeline(out: str | Path = "out/pipeline", config: PipelineConfig | None
     write_json(out / "pipeline.json", report)
     print("time per stage (s): " + ", ".join(f"{k} {v:.1f}" for k, v in report["seconds"].items()))
     return report
+
+
+def augment_sentence(copies: int, counts: dict) -> str:
+    """ForceAugment's summary counts (``ForceAugment.summary``) as a sentence."""
+    return (f"{copies} ForceAugment cop{'y' if copies == 1 else 'ies'}: {counts['tactile_frames']} tactile frames, "
+            f"{counts['regenerated'] + counts['clamped']} generated ({counts['clamped']} of them at a target clamped "
+            f"to the validated range), {counts['no_contact']} without contact kept as recorded, "
+            f"{counts['skipped']} skipped")

@@ -114,13 +114,13 @@ def _report(aug: ForceAugment, counts: dict) -> None:
 
 
 def _write(aug: ForceAugment, out: Path, root: Path, round_trip: bool) -> dict:
-    from controltac_il.augment.provenance import StaleCacheError
-    from controltac_il.augment.to_lerobot import write_lerobot
-    from controltac_il.datasets.lerobot_v3 import LeRobotFolder
+    from controltac_il.augment.provenance import StaleCacheError, chunk_done
+    from controltac_il.lerobot import LeRobotFolder, write_lerobot
 
     try:
         # every feature (aug reads the tactile ones alone); decoder threads: nothing forks while writing
-        return write_lerobot(aug, LeRobotFolder(root, video_threads=0), out, round_trip=round_trip)
+        return write_lerobot(aug, LeRobotFolder(root, video_threads=0), out, chunk_done=chunk_done,
+                             round_trip=round_trip)
     except ValueError as exc:
         if isinstance(exc, StaleCacheError):
             raise
@@ -181,7 +181,7 @@ def _setup(args) -> ForceAugment:
         kwargs["force_keys"] = _force_keys(args.force_keys)
     lerobot = args.lerobot = (args.dataset / "meta" / "info.json").is_file()
     if lerobot:
-        from controltac_il.augment.to_lerobot import check_destination
+        from controltac_il.lerobot import check_destination
 
         try:
             check_destination(args.dataset, args.out)
@@ -193,7 +193,7 @@ def _setup(args) -> ForceAugment:
     dataset = _open_dataset(args.dataset, _needed_keys(kwargs) if lerobot else None)
     generator, estimator = _models(args, bool(kwargs.get("pose_offset")))
     if lerobot:
-        from controltac_il.augment.to_lerobot import staging_dir
+        from controltac_il.lerobot import staging_dir
     cache_dir = staging_dir(args.out) / "cache" if lerobot else args.out
     try:
         return ForceAugment(dataset, generator, cache_dir=cache_dir, estimator=estimator, build="manual",
@@ -259,7 +259,7 @@ def _open_dataset(root: Path, keys: list[str] | None = None):
     episodes."""
     try:
         if (root / "meta" / "info.json").is_file():
-            from controltac_il.datasets.lerobot_v3 import LeRobotFolder, read_info
+            from controltac_il.lerobot import LeRobotFolder, read_info
 
             known = read_info(root)["features"]  # an unknown key is the wrapper's to name (its flag)
             return LeRobotFolder(root, keys=None if keys is None else [k for k in keys if k in known],

@@ -168,9 +168,9 @@ def held_out_pairs(ds, rows: list[int]) -> tuple:
 def generator_part(args, ds, staging: Path) -> dict:
     """Fine-tune the base generator on the training grasps into ``staging / "generator"``; error on held-out ones."""
     from controltac_il.generator import ForceGenerator
-    from controltac_il.generator.finetune import fine_tune
+    from controltac_il.generator.training.finetune import fine_tune
     from controltac_il.generator.shipped import locate_checkpoint
-    from controltac_il.generator.validation import generation_error
+    from controltac_il.generator.training.validation import generation_error
 
     base = locate_checkpoint(args.base_generator)
     train, val = held_out_poses(ds.pose_groups(), args.val_fraction)

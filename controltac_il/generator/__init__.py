@@ -2,10 +2,11 @@
 
 Modules: ``config`` (pydantic dataclasses), ``autoencoder`` (compact residual codec), ``dit`` (ΔF-conditioned
 diffusion transformer), ``sampler`` (DDIM via diffusers), ``checkpoint`` (safetensors + JSON + model card,
-``controltac_il.checkpoint``), ``pipeline`` (``ForceGenerator``, the inference API), ``data``, ``objectives`` (the
-denoiser's training objective and EMA, stage 1 and 2 alike), ``stages`` (autoencoder, latents, DiT of a run),
-``shipped`` (the shipped checkpoints by name), ``train_config`` and ``train`` (the training CLI). Stage 2, the pose-control adapter over a frozen stage 1: ``adapter``, ``pose_data``
-and ``train_pose`` (its training CLI, the job in ``pose_training``); ``ForceGenerator.generate(..., mask=...)`` uses it.
+``controltac_il.checkpoint``), ``pipeline`` (``ForceGenerator``, the inference API), ``forces`` (the validated
+force range), ``shipped`` (the shipped checkpoints by name), ``training`` (the package that trains both stages, one
+CLI: ``python -m controltac_il.generator.training stage1|stage2``). Stage 2, the pose-control adapter over a frozen
+stage 1: ``adapter`` (its network; its data and job in ``training``); ``ForceGenerator.generate(..., mask=...)``
+uses it.
 """
 
 from controltac_il.lazy import exports

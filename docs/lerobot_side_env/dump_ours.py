@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from controltac_il.datasets.lerobot_v3 import LeRobotFolder
+from controltac_il.lerobot import LeRobotFolder
 
 ds, work = LeRobotFolder(sys.argv[1]), Path(sys.argv[2])
 cameras = [k for k in ds.features if k.startswith("observation.images.")]

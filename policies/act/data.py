@@ -13,7 +13,7 @@ import numpy as np
 from torch.utils.data import Dataset
 
 from controltac_il.datasets import EpisodeDataset, EpisodeSubset
-from controltac_il.datasets.lerobot_episodes import LeRobotEpisodes
+from controltac_il.lerobot import LeRobotEpisodes
 from policies.act.configuration_act import ACTConfig
 
 

@@ -1,6 +1,20 @@
-"""The stage-2 pose adapter's training job (``python -m controltac_il.generator.train_pose`` parses the options
-and calls ``run``): scenes rendered and encoded once, the adapter fitted over the frozen stage-1 DiT, validated on
-its own held-out shapes, saved with its model card."""
+"""The stage-2 training job: the pose adapter over a frozen stage-1 generator, on sensor-model scenes.
+
+``run`` takes a parsed ``PoseTrainConfig`` (``python -m controltac_il.generator.training stage2``). Data:
+``pose_data.render_scenes`` (the six training objects plus ``--procedural`` random shapes, each in ``--scenes``
+scenes on random training sensor instances, ``--poses`` x ``--forces`` frames per scene), rendered in memory and
+encoded once by the frozen autoencoder. Pairs within a scene; the condition is the reference's contact mask carried
+to the target pose with the paper's alignment noise (±3 px, ±1°). Loss as stage 1's (0.5 L1 + 0.5 MSE on the
+normalised latent change, ``--one-step-fraction`` at the last timestep); AdamW with warm-up and cosine decay; the
+EMA of the adapter is shipped (fp16, ``OUT/final``): that of the state save with the lowest error on
+``--val-objects`` procedural shapes it never trains on (its own validation split; the benchmark's held-out objects
+are never looked at). The stage-1 weights are never changed.
+
+Run folder: ``train_config.json``, ``adapter_state.{safetensors,json}`` (periodic, atomic), ``adapter_best.safetensors``
+(the best validation step's EMA weights), ``final/``. ``--resume`` continues with the saved run's data and model
+(only ``--steps``, ``--checkpoint-every``, ``--threads``, ``--device`` may change; anything else, or another
+``--base``, is refused).
+"""
 
 from __future__ import annotations
 
@@ -18,14 +32,14 @@ from controltac_il.checkpoint import read_json
 from controltac_il.generator.adapter import PoseAdapter, masks_to_model
 from controltac_il.generator.checkpoint import checkpoint_hash, load_adapter, load_checkpoint, save_adapter
 from controltac_il.generator.config import PoseAdapterConfig
-from controltac_il.generator.objectives import ema_weights, noised_batch, prediction_loss, restore_ema
 from controltac_il.generator.pipeline import ForceGenerator, residual_to_unit
-from controltac_il.generator.pose_data import render_scenes, sample_pose_pairs, target_mask
 from controltac_il.generator.sampler import make_scheduler
 from controltac_il.generator.shipped import SHIPPED_ADAPTERS, locate_checkpoint
-from controltac_il.generator.train_config import POSE_PROG as PROG, RESUMABLE_CHANGES, PoseTrainConfig
-from controltac_il.generator.validation import (VAL_PAIRS, BestOnValidation, Validation, distinct_pairs,
-                                                generation_error)
+from controltac_il.generator.training.config import STAGE2_PROG as PROG, RESUMABLE_CHANGES, PoseTrainConfig
+from controltac_il.generator.training.objectives import ema_weights, noised_batch, prediction_loss, restore_ema
+from controltac_il.generator.training.pose_data import render_scenes, sample_pose_pairs, target_mask
+from controltac_il.generator.training.validation import (VAL_PAIRS, BestOnValidation, Validation, distinct_pairs,
+                                                         generation_error)
 from controltac_il.io import write_json
 from controltac_il.run_state import load_run_state, save_run_state
 from controltac_il.tactile.indenters import TRAIN_OBJECTS, procedural_objects

@@ -1,5 +1,5 @@
-"""The training objective of the generator's denoiser, shared by stage 1 (``train``) and the stage-2 pose adapter
-(``train_pose``): a noised batch of latent changes, the 0.5 L1 + 0.5 MSE prediction loss, and the EMA of the
+"""The training objective of the generator's denoiser, shared by stage 1 (``stage1``) and the stage-2 pose adapter
+(``stage2``): a noised batch of latent changes, the 0.5 L1 + 0.5 MSE prediction loss, and the EMA of the
 weights that both ship."""
 
 from __future__ import annotations

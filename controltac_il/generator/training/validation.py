@@ -16,7 +16,7 @@ from diffusers.training_utils import EMAModel
 from safetensors.torch import load_file, save_file
 from tqdm.auto import tqdm
 
-from controltac_il.generator.data import PairData
+from controltac_il.generator.training.data import PairData
 from controltac_il.generator.forces import VALIDATED_RANGE
 from controltac_il.io import atomic_path
 

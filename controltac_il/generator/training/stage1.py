@@ -1,35 +1,60 @@
-"""The stages of a generator training run (``python -m controltac_il.generator.train`` drives them): the
-autoencoder (trained, reused or fine-tuned), the latents it gives the dataset (cached), and the DiT denoiser on
-them; each resumable from its run state in the run folder, under torchrun ranks alike."""
+"""The stage-1 training job: the force-control generator's autoencoder, then its DiT on cached latents.
+
+``run`` takes a parsed ``GeneratorTrainConfig`` (``python -m controltac_il.generator.training stage1``) through three
+parts, each resumable from its state in the run folder and alike on every torchrun rank: the autoencoder (trained,
+reused or fine-tuned), the latents it gives the dataset (cached), and the DiT denoiser on them.
+
+Run folder (never the dataset folder)::
+
+    train_config.json                      the arguments
+    autoencoder_state.{safetensors,json}   autoencoder + AdamW + LR-schedule state, step (periodic, atomic)
+    autoencoder_finetune_state.{...}       the same for a reused autoencoder's fine-tune (--ae-finetune-steps)
+    latents.safetensors                    the dataset encoded once (the DiT trains on these)
+    denoiser_state.{safetensors,json}      DiT + EMA + AdamW + LR-schedule state, step (periodic, atomic)
+    denoiser_best.safetensors              with --val-objects: the EMA weights of the best validation step so far
+    final/                                 the inference checkpoint (fp16) + model_card.json
+
+The autoencoder: L1 + MSE + image-gradient L1 on random crops of residuals in [-1, 1].
+The DiT: pairs of the same contact pose; x0 = (z_target - z_ref) / delta_scale, noised by the DDPM schedule; loss
+0.5 L1 + 0.5 MSE on the noise (or on x0 for ``--prediction-type sample``); AdamW, linear warm-up then cosine decay
+to ``min_lr_ratio`` of the peak (torch schedulers, ``controltac_il.training.lr_schedule``); EMA weights (diffusers'
+``EMAModel``) are shipped: with ``--val-objects N``, those of the periodic save with the lowest error on N held-out
+objects (the run's own validation split; the benchmark's unseen objects and sensor are never looked at), else the
+last step's.
+"""
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
+import torch.distributed as dist
 from diffusers.training_utils import EMAModel
 from safetensors.torch import load_file, save_file
 from tqdm.auto import tqdm
 
 from controltac_il.checkpoint import read_json
 from controltac_il.generator.autoencoder import TactileAutoencoder, autoencoder_loss
-from controltac_il.generator.checkpoint import load_checkpoint
-from controltac_il.generator.config import AutoencoderConfig, GeneratorConfig
-from controltac_il.generator.data import PairData, crop_batch, sample_pairs
+from controltac_il.generator.checkpoint import load_checkpoint, save_checkpoint
+from controltac_il.generator.config import AutoencoderConfig, DiffusionConfig, GeneratorConfig
 from controltac_il.generator.dit import ForceDiT
-from controltac_il.generator.objectives import ema_weights, noised_batch, prediction_loss, restore_ema
-from controltac_il.generator.pipeline import residual_to_unit
+from controltac_il.generator.pipeline import ForceGenerator, residual_to_unit
 from controltac_il.generator.sampler import make_scheduler
-from controltac_il.generator.train_config import (GeneratorTrainConfig, legacy_provenance, provenance)
-from controltac_il.generator.validation import BestOnValidation, Validation
-from controltac_il.io import atomic_path
+from controltac_il.generator.training.config import (DIT_PRESETS, GeneratorTrainConfig, legacy_provenance, model_card,
+                                                     provenance)
+from controltac_il.generator.training.data import PairData, crop_batch, load_pair_data, sample_pairs
+from controltac_il.generator.training.objectives import ema_weights, noised_batch, prediction_loss, restore_ema
+from controltac_il.generator.training.validation import (BestOnValidation, Validation, generation_error,
+                                                         hold_out_objects)
+from controltac_il.io import atomic_path, write_json
 from controltac_il.run_state import load_run_state, save_run_state
-from controltac_il.training import barrier, lr_schedule, optimise, wrap
+from controltac_il.training import barrier, lr_schedule, optimise, setup_distributed, wrap
 
 
-# -- stage 1: autoencoder ----------------------------------------------------------------------
+# -- the autoencoder ---------------------------------------------------------------------------
 
 def fit_autoencoder(cfg: GeneratorTrainConfig, ae: TactileAutoencoder, data: PairData, out: Path, rank: int, world: int,
                     steps: int, state: str, stream: int, desc: str, extra: dict) -> dict:
@@ -136,7 +161,7 @@ def cached_latents(cfg: GeneratorTrainConfig, ae: TactileAutoencoder, data: Pair
     return z
 
 
-# -- stage 2: DiT ------------------------------------------------------------------------------
+# -- the DiT -----------------------------------------------------------------------------------
 
 def source_denoiser(src: Path) -> tuple[GeneratorConfig, dict[str, torch.Tensor]]:
     """(config, float32 DiT weights) of a run folder's latest state (its EMA) or of a checkpoint folder."""
@@ -238,3 +263,46 @@ def autoencoder_for(cfg: GeneratorTrainConfig, data: PairData, out: Path, rank: 
     if cfg.stage in ("all", "autoencoder"):
         return train_autoencoder(cfg, data, out, rank, world)
     return reuse_autoencoder(out)
+
+
+def run(cfg: GeneratorTrainConfig) -> Path:
+    """Train per ``cfg``; returns the final checkpoint folder (``<out>/final``)."""
+    rank, world = setup_distributed()
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    out = Path(cfg.out)
+    if rank == 0:
+        out.mkdir(parents=True, exist_ok=True)
+        write_json(out / "train_config.json", {**dataclasses.asdict(cfg), "world_size": world})
+    barrier(world)
+    t_start = time.perf_counter()
+    data = load_pair_data(cfg.data, cfg.image_size, cfg.no_contact_frames, cfg.seed, progress=rank == 0)
+    train_data, split = hold_out_objects(data, cfg.val_objects, cfg.seed)
+    ae, ae_meta = autoencoder_for(cfg, train_data, out, rank, world)
+    if cfg.stage == "autoencoder":
+        return out
+
+    z = cached_latents(cfg, ae, data, out, rank, world)
+    source, init = (None, None) if cfg.denoiser_from is None else source_denoiser(Path(cfg.denoiser_from))
+    lat, dsc = latent_scales(z, train_data, cfg.seed) if source is None else (source.latent_scale, source.delta_scale)
+    gcfg = GeneratorConfig(
+        autoencoder=ae.config,
+        dit=DIT_PRESETS[cfg.dit_preset](in_channels=ae.config.latent_channels, patch_size=cfg.dit_patch,
+                                        conv_head_width=cfg.dit_conv_head),
+        diffusion=DiffusionConfig(prediction_type=cfg.prediction_type, default_steps=cfg.default_steps),
+        latent_scale=lat, delta_scale=dsc, anchor_to_reference=cfg.anchor_to_reference, detail_gate=cfg.detail_gate,
+    )
+    if source is not None:
+        check_same_models(Path(cfg.denoiser_from), source, gcfg)
+    validate = None if split is None else Validation(split.objects, len(split.ref), lambda d: generation_error(
+        ForceGenerator(gcfg, ae, d, device=cfg.device), data.residuals[split.ref], data.residuals[split.tgt], split.delta))
+    dit, dit_meta = train_denoiser(cfg, gcfg, z, train_data, out, rank, world, init, validate)
+    final, ae, dit = out / "final", ae.cpu(), dit.cpu()
+    if rank == 0:
+        card = model_card(cfg, train_data, ae, ae_meta, dit, dit_meta, world, time.perf_counter() - t_start)
+        save_checkpoint(final, gcfg, ae, dit, dtype=torch.float16, model_card=card)
+        print(f"wrote {final}")
+    barrier(world)
+    if world > 1:
+        dist.destroy_process_group()
+    return final

@@ -1,4 +1,5 @@
-"""``write_lerobot``: a LeRobot v3.0 folder in, an augmented LeRobot v3.0 folder out (``lerobot_out``).
+"""Publishes an augmented LeRobot v3.0 folder (``write_lerobot``): staged, resumable, written by ``export`` beside
+the cache build.
 
 Everything is written under ``OUT.partial`` (``staging_dir``): ``write.json`` (what is being written: the
 ForceAugment settings, the source, the writer format), ``cache/`` (the ForceAugment cache), ``dataset/`` (the folder
@@ -14,6 +15,9 @@ The record of a write (``finish``: settings, source, counts, and with ``round_tr
 the re-encoded videos' regenerated frames, else None) lives in ``meta/info.json`` as
 ``features["augment.copy"]["info"]["controltac_il_augment"]``: LeRobot's edit tools (0.4.4 and main) rebuild
 info.json from the feature dicts, dropping unknown top-level keys (main) and any other file under ``meta/``.
+
+Whether the cache holds a chunk is the cache's to say: the caller passes its ``chunk_done(cache_dir, episode,
+copy)`` (``controltac_il.augment.provenance.chunk_done``, as ``python -m controltac_il.augment`` does).
 """
 
 from __future__ import annotations
@@ -26,16 +30,18 @@ import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
-from controltac_il.augment.lerobot_out import PREFIX, LeRobotExport
-from controltac_il.augment.provenance import chunk_done
-from controltac_il.datasets.lerobot_v3_write import aggregate_stats, write_meta
 from controltac_il.io import write_json
+from controltac_il.lerobot.export import PREFIX, LeRobotExport
+from controltac_il.lerobot.stats import aggregate_stats
+from controltac_il.lerobot.writer import write_meta
 
 WRITER_FORMAT = 2  # bump when what is written changes
 RECORD_FEATURE, RECORD_KEY = f"{PREFIX}.copy", "controltac_il_augment"  # where a published folder says what wrote it
+ChunkDone = Callable[[Path, int, int], bool]  # (cache_dir, episode, copy) -> whether the cache holds that chunk
 
 
 def staging_dir(out: Path) -> Path:
@@ -127,11 +133,11 @@ def published(out: Path, aug, source) -> bool:
 class ChunkGate:
     """Lets the export wait for a chunk while the build writes them: ``built`` after each chunk, ``close`` when the
     build ends (``aborted``: it failed); ``wait(e, k)`` returns True once chunk (episode ``e``, copy ``k``) is in
-    the cache, False when the build ended without it or failed. ``error``: the export's exception, once it failed
-    (``fail``)."""
+    the cache (``chunk_done``), False when the build ended without it or failed. ``error``: the export's exception,
+    once it failed (``fail``)."""
 
-    def __init__(self, cache_dir: Path):
-        self.cache_dir = Path(cache_dir)
+    def __init__(self, cache_dir: Path, chunk_done: ChunkDone):
+        self.cache_dir, self.chunk_done = Path(cache_dir), chunk_done
         self._changed, self._open, self._aborted, self.error = threading.Condition(), True, False, None
 
     def fail(self, error: BaseException) -> None:
@@ -148,14 +154,15 @@ class ChunkGate:
 
     def wait(self, episode: int, copy: int) -> bool:
         with self._changed:
-            self._changed.wait_for(lambda: not self._open or chunk_done(self.cache_dir, episode, copy))
-            return not self._aborted and chunk_done(self.cache_dir, episode, copy)
+            self._changed.wait_for(lambda: not self._open or self.chunk_done(self.cache_dir, episode, copy))
+            return not self._aborted and self.chunk_done(self.cache_dir, episode, copy)
 
 
-def build_and_export(aug, export: LeRobotExport, rank: int, world_size: int, progress: bool, stop_after, poll_s):
+def build_and_export(aug, export: LeRobotExport, rank: int, world_size: int, progress: bool, stop_after, poll_s,
+                     chunk_done: ChunkDone):
     """Build this rank's chunks while a thread exports this rank's episodes as their chunks arrive (``ChunkGate``);
     an export error stops the build at its next chunk and is raised. Returns (build counts, export counts)."""
-    gate = ChunkGate(aug.cache_dir)
+    gate = ChunkGate(aug.cache_dir, chunk_done)
 
     def export_episodes() -> dict:
         try:
@@ -183,14 +190,14 @@ def build_and_export(aug, export: LeRobotExport, rank: int, world_size: int, pro
             raise
 
 
-def write_lerobot(aug, source, out: Path, *, rank: int | None = None, world_size: int | None = None,
-                  progress: bool = True, stop_after: int | None = None, poll_s: float = 2.0,
-                  round_trip: bool = False) -> dict:
+def write_lerobot(aug, source, out: Path, *, chunk_done: ChunkDone, rank: int | None = None,
+                  world_size: int | None = None, progress: bool = True, stop_after: int | None = None,
+                  poll_s: float = 2.0, round_trip: bool = False) -> dict:
     """Write the augmented folder ``out`` of ``source`` (a LeRobotFolder, not the object ``aug`` reads: the two
     are read at once) through ``aug`` (a ForceAugment of it in cache mode whose ``cache_dir`` is
-    ``staging_dir(out) / "cache"``). round_trip: decode every re-encoded
-    video back and record the codec's round trip error over the episodes written with it on (data and videos
-    are the same either way). Returns the counts of this run and, once published, the
+    ``staging_dir(out) / "cache"``). chunk_done: the cache's test of a chunk (module docstring). round_trip: decode
+    every re-encoded video back and record the codec's round trip error over the episodes written with it on (data
+    and videos are the same either way). Returns the counts of this run and, once published, the
     record of the write (``marker``; ``published``: True)."""
     out = Path(out)
     if source is aug.dataset:
@@ -206,7 +213,7 @@ def write_lerobot(aug, source, out: Path, *, rank: int | None = None, world_size
         return {"published": done, "already": True, "marker": read_record(out)}
     claim(staging, sig)
     export = LeRobotExport(aug, source, staging / "dataset", staging / "done", round_trip)
-    built, written = build_and_export(aug, export, rank, world_size, progress, stop_after, poll_s)
+    built, written = build_and_export(aug, export, rank, world_size, progress, stop_after, poll_s, chunk_done)
     counts = {"cache": built, **written, "published": False}
     if rank != 0 or (stop_after is not None and export.missing()):
         return counts

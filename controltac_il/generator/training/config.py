@@ -1,5 +1,8 @@
-"""Arguments of a generator training run (``GeneratorTrainConfig``, a pydantic dataclass saved as ``train_config.json``;
-``PoseTrainConfig`` for the stage-2 adapter's) and the provenance a run records: the command that reproduces it, its dataset, the model card."""
+"""Arguments of a generator training run and the provenance it records.
+
+``GeneratorTrainConfig`` (stage 1) and ``PoseTrainConfig`` (the stage-2 adapter) are pydantic dataclasses saved as a
+run's ``train_config.json``; a stage-1 run also records the command that reproduces it, its dataset and its model
+card."""
 
 from __future__ import annotations
 
@@ -19,9 +22,11 @@ from controltac_il.generator.forces import VALIDATED_RANGE
 
 if TYPE_CHECKING:
     from controltac_il.generator.autoencoder import TactileAutoencoder
-    from controltac_il.generator.data import PairData
+    from controltac_il.generator.training.data import PairData
     from controltac_il.generator.dit import ForceDiT
 
+PROG = "python -m controltac_il.generator.training"
+STAGE1_PROG, STAGE2_PROG = PROG + " stage1", PROG + " stage2"
 DIT_PRESETS = {"small": DiTConfig.small, "tiny": DiTConfig.tiny, "base": DiTConfig.base}
 STAGES = ("all", "autoencoder", "denoiser")
 Count = Annotated[int, Field(ge=0)]
@@ -30,7 +35,7 @@ Share = Annotated[float, Field(ge=0, lt=1)]
 
 @dataclass(config=STRICT)
 class GeneratorTrainConfig:
-    """Arguments of one training run.
+    """Arguments of one stage-1 training run.
 
     data: dataset folder written by ``controltac_il.tactile.dataset.write_dataset``.
     out: run folder (states, latents, final checkpoint).
@@ -151,7 +156,7 @@ def provenance(cfg: GeneratorTrainConfig) -> dict:
     """The command that reproduces ``cfg`` and its dataset (path, seed, image count from its meta.json)."""
     meta_path = Path(cfg.data) / "meta.json"
     meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
-    return {"command": "python -m controltac_il.generator.train " + " ".join(cli_args(cfg)),
+    return {"command": STAGE1_PROG + " " + " ".join(cli_args(cfg)),
             "data": {"path": str(cfg.data), "seed": meta.get("seed"), "images": meta.get("count")}}
 
 
@@ -192,7 +197,7 @@ def model_card(cfg: GeneratorTrainConfig, data: PairData, ae: TactileAutoencoder
     meta = read_json(Path(cfg.data) / "meta.json") if (Path(cfg.data) / "meta.json").is_file() else {}
     return {
         "model": "controltac-il stage-1 force-control generator (tactile autoencoder + ΔF-conditioned DiT + DDIM)",
-        "command": "python -m controltac_il.generator.train " + " ".join(cli_args(cfg)),
+        "command": STAGE1_PROG + " " + " ".join(cli_args(cfg)),
         "data": {"path": str(cfg.data), "seed": meta.get("seed"), "objects": meta.get("objects"),
                  "images": int(len(data.residuals) - len(data.no_contact)), "pose_groups": len(data.groups),
                  "no_contact_frames": int(len(data.no_contact)), "fz_range": meta.get("fz_range"),
@@ -213,9 +218,6 @@ def model_card(cfg: GeneratorTrainConfig, data: PairData, ae: TactileAutoencoder
         "weights_dtype": "float16",
         "validated_range": VALIDATED_RANGE.card(),
     }
-
-
-POSE_PROG = "python -m controltac_il.generator.train_pose"
 
 
 @dataclass(config=STRICT)

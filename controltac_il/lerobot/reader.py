@@ -1,6 +1,6 @@
-"""A LeRobot v3.0 dataset folder read without LeRobot (pyarrow for parquet, PyAV for mp4).
+"""Reads a LeRobot v3.0 dataset folder without LeRobot (pyarrow for parquet, PyAV for mp4).
 
-    from controltac_il.datasets.lerobot_v3 import LeRobotFolder
+    from controltac_il.lerobot import LeRobotFolder
     dataset = LeRobotFolder("you/peg_in_hole", delta_timestamps={"observation.images.gelsight_left": [-0.1, 0.0]})
 
 Items are what ``LeRobotDataset(repo_id, root=...)`` (lerobot 0.4.4) returns, key for key and in its order:
@@ -19,7 +19,7 @@ bool (T,) marks them (a video key with one offset stays (3, H, W), as in LeRobot
 Memory: at open, the episode, frame and timestamp of every frame (20 bytes a frame) and the episode table
 without its stats; the other columns are read per parquet row group (LeRobot writes one per
 episode) into a per-process LRU bounded by ``cache_mb``, images kept as PNG bytes and decoded per item.
-Videos: ``lerobot_v3_video`` (one open file per video key and file per process, forward decoding without
+Videos: ``video`` (one open file per video key and file per process, forward decoding without
 seeking). Nothing stays open across pickling or a fork: DataLoader workers open their own files. A file that
 cannot be read (parquet, mp4, the PNG bytes of an image) is refused in one ValueError line naming it.
 """
@@ -42,7 +42,7 @@ import pyarrow.parquet as pq
 import torch
 from torch.utils.data import Dataset
 
-from controltac_il.datasets.lerobot_v3_video import TOLERANCE_S, VideoFrames
+from controltac_il.lerobot.video import TOLERANCE_S, VideoFrames
 
 INDEX_COLUMNS = ("episode_index", "frame_index", "index", "timestamp")  # held in memory, read at open
 CACHE_MB = 256  # default bound on the decoded row groups kept per process, MB
@@ -52,7 +52,7 @@ PNG_START, PNG_END = b"\x89PNG\r\n\x1a\n", b"IEND\xaeB`\x82"  # signature; IEND 
 
 
 @contextmanager
-def readable(path: Path):
+def readable_parquet(path: Path):
     """pyarrow's errors reading the parquet ``path`` as one ValueError line naming it."""
     try:
         yield
@@ -87,7 +87,7 @@ def read_tasks(root: Path, name: str = "tasks") -> list[str]:
     path = root / "meta" / f"{name}.parquet"
     if not path.is_file():
         raise ValueError(f"root: {root} has no meta/{name}.parquet")
-    with readable(path):
+    with readable_parquet(path):
         table = pq.read_table(path)
     pandas = json.loads((table.schema.metadata or {}).get(b"pandas", b"{}"))
     named = [c for c in pandas.get("index_columns", []) if isinstance(c, str)]
@@ -104,7 +104,7 @@ def read_episodes(root: Path) -> dict[int, dict]:
         raise ValueError(f"root: {root} has no meta/episodes/*/*.parquet")
     episodes = {}
     for p in paths:
-        with readable(p):
+        with readable_parquet(p):
             names = [n for n in pq.read_schema(p).names if not n.startswith("stats/")]
             rows = pq.read_table(p, columns=names).to_pylist()
         for row in rows:
@@ -117,7 +117,7 @@ def read_episode_stats(root: Path, keys) -> dict[int, dict]:
     the features ``keys``, as stored (nested lists; a null cell left out)."""
     keys, out = set(keys), {}
     for p in sorted((root / "meta" / "episodes").glob("*/*.parquet")):
-        with readable(p):
+        with readable_parquet(p):
             names = [n for n in pq.read_schema(p).names
                      if n.startswith("stats/") and n[len("stats/"):].rsplit("/", 1)[0] in keys]
             rows = pq.read_table(p, columns=["episode_index", *names]).to_pylist()
@@ -199,7 +199,7 @@ class _RowGroups:
             self._reset()
         entry = self._cache.pop((file, group), None)
         if entry is None:
-            with readable(self.paths[file]):
+            with readable_parquet(self.paths[file]):
                 if file not in self._files:
                     self._files[file] = pq.ParquetFile(self.paths[file])
                 table = self._files[file].read_row_group(group)
@@ -249,7 +249,7 @@ def _index_data(root: Path, features: dict):
     wanted = [k for k, ft in features.items() if ft["dtype"] != "video"]
     groups, starts, parts = [], [0], {k: [] for k in INDEX_COLUMNS}
     for f, path in enumerate(paths):
-        with readable(path):
+        with readable_parquet(path):
             pf = pq.ParquetFile(path)
             missing = [k for k in (*INDEX_COLUMNS, *wanted) if k not in pf.schema_arrow.names]
             if missing:
@@ -371,7 +371,7 @@ class LeRobotFolder(Dataset):
         parts = []
         for g in range(first, last + 1):
             file, group = (int(x) for x in self._groups[g])
-            with readable(self._rows.paths[file]):
+            with readable_parquet(self._rows.paths[file]):
                 table = pq.ParquetFile(self._rows.paths[file]).read_row_group(group)
             lo, hi = max(a - int(self._starts[g]), 0), min(b, int(self._starts[g + 1])) - int(self._starts[g])
             parts.append(table.slice(lo, hi - lo))

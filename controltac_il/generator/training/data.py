@@ -1,4 +1,4 @@
-"""Training data of the generator: sensor-model residuals at the model size, pose groups, force pairs.
+"""Stage-1 training data of the generator: sensor-model residuals at the model size, pose groups, force pairs.
 
 Pairs are formed between images of the same contact pose (the paper's rule): reference i and target
 j of one (object, pose_id) group, ΔF = F_j - F_i. A small share of pairs are no-contact frames

@@ -1,5 +1,5 @@
 """Fine-tuning a generator on one sensor's presses: its autoencoder, then its DiT on the moved latents
-(``python -m controltac_il.generator.train --stage denoiser --autoencoder-from BASE --ae-finetune-steps A
+(``python -m controltac_il.generator.training stage1 --stage denoiser --autoencoder-from BASE --ae-finetune-steps A
 --denoiser-from BASE`` with the base's own DiT flags). Used by ``python -m controltac_il.calibrate`` and
 ``benchmarks.finetune``."""
 
@@ -27,13 +27,13 @@ def fine_tune(base: Path, data: Path, out: Path, steps: int, lr: float, ae_steps
     dataset folder ``data`` into the run folder ``out`` on ``device`` (resumed where a run stopped; kept when
     done); returns the checkpoint ``out / "final"``. RuntimeError when the training stops with an error."""
     from controltac_il.generator import ForceGenerator
-    from controltac_il.generator.train import main as train
+    from controltac_il.generator.training.cli import main as train
 
     base, out = Path(base), Path(out)
     if not (out / "final" / "model_card.json").is_file():
         config = ForceGenerator.from_pretrained(base).config
         gate, size = config.detail_gate, [str(v) for v in config.image_size]
-        argv = ["--data", str(data), "--out", str(out), "--image-size", *size, "--stage", "denoiser",
+        argv = ["stage1", "--data", str(data), "--out", str(out), "--image-size", *size, "--stage", "denoiser",
                 "--autoencoder-from", str(base),
                 "--denoiser-from", str(base), *base_flags(base), "--dit-steps", str(steps), "--dit-batch", str(batch),
                 "--dit-lr", str(lr), "--warmup-steps", str(min(20, max(steps // 5, 1))), "--detail-gate", str(gate),

@@ -1,4 +1,4 @@
-"""A LeRobot v3.0 folder as ACT's training data: ``EpisodeDataset``'s items and attributes, so that
+"""Serves a LeRobot v3.0 folder as ACT's training data: ``EpisodeDataset``'s items and attributes, so that
 ``train_act.py --dataset ROOT`` (and ForceAugment on the training split) take it directly.
 
 Per item, from the folder's (``LeRobotFolder``, without LeRobot)::
@@ -33,7 +33,7 @@ from tqdm import tqdm
 from controltac_il.datasets.act_dataset import STD_FLOOR
 from controltac_il.datasets.background import estimate_background
 from controltac_il.datasets.checks import check_force_labels
-from controltac_il.datasets.lerobot_v3 import LeRobotFolder, decode_png, numbers, read_info
+from controltac_il.lerobot.reader import LeRobotFolder, decode_png, numbers, read_info
 
 TACTILE_WORDS = ("gelsight", "tactile", "digit")
 

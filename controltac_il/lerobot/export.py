@@ -1,10 +1,10 @@
-"""An augmented LeRobot v3.0 folder from a built ForceAugment cache over a ``LeRobotFolder``.
+"""Writes an augmented LeRobot v3.0 folder from a built ForceAugment cache over a ``LeRobotFolder``.
 
 Episodes: the source's, unchanged, first (output episode i is the source's i-th); then copy k of each, as
 episode ``k * E + i`` (E source episodes), with ``episode_index`` and ``index`` renumbered and every other
 column (``frame_index``, ``timestamp``, ``task_index``, actions, states, other cameras) copied. Copies'
 tactile frames in contact are the cache's regenerated images: PNG bytes for image features; for video
-features the episode is re-encoded with PyAV in the source's codec (``lerobot_v3_write.ENCODERS``); with
+features the episode is re-encoded with PyAV in the source's codec (``video.ENCODERS``); with
 ``round_trip`` each re-encoded file is decoded back and the codec's round trip (squared error of the decoded
 regenerated frames, uint8 units) measured (a decode of every re-encoded stream; off by default).
 
@@ -17,7 +17,7 @@ and per tactile camera ``augment.<camera>.status`` (STATUS code) and ``augment.<
 else 0). Names carry the camera's last name part, never "image" (LeRobot gives any feature named
 "image..." camera-shaped stats).
 
-Stats (``lerobot_v3_write``) are those of the frames written, and what output episodes share is computed once:
+Stats (``stats``) are those of the frames written, and what output episodes share is computed once:
 the features every copy holds unchanged (cameras, actions, states) once per source episode, or taken from the
 source's own per-episode stats where its ``meta/episodes`` holds them complete (``lerobot-record`` writes them; the
 stats of the very frames copied, so an unchanged camera is not decoded for them); a tactile camera's
@@ -26,7 +26,7 @@ from per-frame channel histograms, the source's at the sampled frames with the r
 image feature's PNGs are decoded only at the frames its stats sample (all of an episode shorter than 100 frames).
 
 Each output episode is written (data, videos) and then recorded by its meta row in ``done/`` (atomic): that
-row marks it complete, so an interrupted write resumes where it stopped; ``finish`` writes ``meta/``.
+row marks it complete, so an interrupted write resumes where it stopped; ``publish.finish`` writes ``meta/``.
 """
 
 from __future__ import annotations
@@ -44,11 +44,12 @@ import pyarrow as pa
 from tqdm import tqdm
 
 from controltac_il.cli import tty_only
-from controltac_il.datasets.lerobot_v3 import decode_png, numbers, read_episode_stats
-from controltac_il.datasets.lerobot_v3_write import (STAT_NAMES, complete_stats, decode_video, encode_video,
-                                                     frame_histograms, histogram_stats, image_stats, png_bytes,
-                                                     sample_indices, vector_stats, video_codec, write_data_parquet)
 from controltac_il.io import atomic_path, write_json
+from controltac_il.lerobot.reader import decode_png, numbers, read_episode_stats
+from controltac_il.lerobot.stats import (STAT_NAMES, complete_stats, frame_histograms, histogram_stats, image_stats,
+                                         sample_indices, vector_stats)
+from controltac_il.lerobot.video import decode_video, encode_video, video_codec
+from controltac_il.lerobot.writer import png_bytes, write_data_parquet
 
 PREFIX = "augment"
 DEFAULTS = ("timestamp", "frame_index", "episode_index", "index", "task_index")
