@@ -23,6 +23,7 @@ import torch
 
 from benchmarks.common import base_parser, median_time, print_table, write_results
 from controltac_il.app.experiment import policy_meta
+from controltac_il.streams import LOOP, LOOP_STATE, background_key, image_key, tactile_key
 from policies.act.training import augment_change
 
 VARIANTS = {"real": 0, "fa1": 1, "fa2": 2, "fa4": 4}
@@ -30,12 +31,12 @@ VARIANTS = {"real": 0, "fa1": 1, "fa2": 2, "fa4": 4}
 
 def _observation(cameras=("third_view", "wrist"), camera_hw=(96, 128), tactile_hw=(120, 160), seed=0) -> dict:
     rng = np.random.default_rng(seed)
-    obs = {"qpos": rng.normal(size=5).astype(np.float32)}
+    obs = {LOOP_STATE: rng.normal(size=5).astype(np.float32)}
     for c in cameras:
-        obs[f"images/{c}"] = rng.integers(0, 256, (*camera_hw, 3), dtype=np.uint8)
+        obs[image_key(c, LOOP)] = rng.integers(0, 256, (*camera_hw, 3), dtype=np.uint8)
     for s in ("left", "right"):
-        obs[f"tactile/{s}"] = rng.integers(0, 256, (*tactile_hw, 3), dtype=np.uint8)
-        obs[f"tactile_background/{s}"] = rng.integers(0, 256, (*tactile_hw, 3), dtype=np.uint8)
+        obs[tactile_key(s, LOOP)] = rng.integers(0, 256, (*tactile_hw, 3), dtype=np.uint8)
+        obs[background_key(s, LOOP)] = rng.integers(0, 256, (*tactile_hw, 3), dtype=np.uint8)
     return obs
 
 

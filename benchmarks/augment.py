@@ -30,9 +30,11 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset, RandomSampler
 
-from benchmarks.common import base_parser, print_table, write_results
+from benchmarks.common import base_parser, load_generator, print_table, write_results
 from controltac_il.augment import ForceAugment
 from controltac_il.datasets import Episode, EpisodeDataset, write_episode
+from controltac_il.streams import (HDF5_FORCE, HDF5_IMAGES, HDF5_STATE, HDF5_TACTILE, LEROBOT, LEROBOT_STATE, force_key,
+                                   sensor_of, tactile_key)
 from controltac_il.tactile import SensorSpec, TactileSensor
 
 SENSORS = ("left", "right")
@@ -92,15 +94,15 @@ class LeRobotConvention(Dataset):
         src = self.episodes[i]
         item = {"episode_index": torch.tensor(src["episode_index"]), "frame_index": torch.tensor(src["frame_index"]),
                 "index": torch.tensor(i), "timestamp": torch.tensor(src["frame_index"] / self.fps, dtype=torch.float32),
-                "task_index": torch.tensor(0), "task": "grasp", "observation.state": src["observation.qpos"],
+                "task_index": torch.tensor(0), "task": "grasp", LEROBOT_STATE: src[HDF5_STATE],
                 "action": src["action"][0]}
         for k, v in src.items():
-            if k.startswith("observation.images."):
+            if k.startswith(HDF5_IMAGES):
                 item[k] = v.float() / 255
-            elif k.startswith("observation.tactile."):
-                item["observation.images.gelsight_" + k.rsplit(".", 1)[1]] = v.float() / 255
-            elif k.startswith("observation.force."):
-                item[f"observation.gelsight_{k.rsplit('.', 1)[1]}.force"] = v
+            elif k.startswith(HDF5_TACTILE):
+                item[tactile_key("gelsight_" + sensor_of(k), LEROBOT)] = v.float() / 255
+            elif k.startswith(HDF5_FORCE):
+                item[force_key("gelsight_" + sensor_of(k), LEROBOT)] = v
         return item
 
 
@@ -109,8 +111,8 @@ def lerobot_row(tmp: Path, gen, copies: int, steps, items: int, epochs: int, onl
     import warnings
 
     bare = LeRobotConvention(EpisodeDataset(tmp / "demos", chunk_size=1, stats_path=tmp / "stats_lerobot.json"))
-    keys = [f"observation.images.gelsight_{s}" for s in SENSORS]
-    labels = {k: f"observation.gelsight_{s}.force" for k, s in zip(keys, SENSORS)}
+    keys = [tactile_key(f"gelsight_{s}", LEROBOT) for s in SENSORS]
+    labels = {k: force_key(f"gelsight_{s}", LEROBOT) for k, s in zip(keys, SENSORS)}
     torch.set_num_threads(2)
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", ".*background estimated", UserWarning)
@@ -156,24 +158,6 @@ def items_per_s(readers: dict, items: int, rounds: int, seed: int = 0) -> dict:
             if r:
                 rates[name].append(n / (time.perf_counter() - t0))
     return {name: float(np.median(v)) for name, v in rates.items()}
-
-
-def load_generator(path: str | None):
-    """The given or shipped checkpoint; else the default architecture, randomly initialised (same speed)."""
-    from controltac_il.generator import ForceGenerator, GeneratorConfig
-
-    try:
-        return ForceGenerator.from_pretrained(path), path or "shipped default"
-    except FileNotFoundError:
-        if path is not None:
-            raise
-        from controltac_il.generator.autoencoder import TactileAutoencoder
-        from controltac_il.generator.dit import ForceDiT
-
-        torch.manual_seed(0)
-        cfg = GeneratorConfig()
-        gen = ForceGenerator(cfg, TactileAutoencoder(cfg.autoencoder), ForceDiT(cfg.dit), checkpoint_hash="random-init")
-        return gen, "default architecture, randomly initialised (no shipped checkpoint found)"
 
 
 def hdf5_row(tmp: Path, gen, args, copies: int, steps, items: int, epochs: int, online_items: int) -> dict:

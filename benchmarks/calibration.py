@@ -1,4 +1,4 @@
-"""``calibrate`` end to end on a sensor it never saw, under a lab's conditions (issue 40).
+"""``calibrate`` end to end on a sensor it never saw, under a lab's conditions.
 
     python -m benchmarks.calibration --out calibration.json [--quick]
 

@@ -1,4 +1,4 @@
-"""Calibrating the force estimator from tens of frames: which method beats the constant baseline (issue 40).
+"""Calibrating the force estimator from tens of frames: which method beats the constant baseline.
 
     python -m benchmarks.calibration_methods --out calibration_methods.json [--quick]
 

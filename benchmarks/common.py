@@ -116,3 +116,23 @@ def write_results(out: Path | None, results: dict) -> dict:
         write_json(out, doc)
         print(f"\nwrote {out}")
     return doc
+
+
+def load_generator(path: str | None):
+    """The given or shipped checkpoint; else the default architecture, randomly initialised (same speed)."""
+    import torch
+
+    from controltac_il.generator import ForceGenerator, GeneratorConfig
+
+    try:
+        return ForceGenerator.from_pretrained(path), path or "shipped default"
+    except FileNotFoundError:
+        if path is not None:
+            raise
+        from controltac_il.generator.autoencoder import TactileAutoencoder
+        from controltac_il.generator.dit import ForceDiT
+
+        torch.manual_seed(0)
+        cfg = GeneratorConfig()
+        gen = ForceGenerator(cfg, TactileAutoencoder(cfg.autoencoder), ForceDiT(cfg.dit), checkpoint_hash="random-init")
+        return gen, "default architecture, randomly initialised (no shipped checkpoint found)"

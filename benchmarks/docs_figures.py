@@ -1,4 +1,4 @@
-"""The tables the docs pages gained when the README became a front door (issue 42), and the README's one table of
+"""The tables the docs pages gained when the README became a front door, and the README's one table of
 headline figures: render functions joined to ``benchmarks.readme_figures``' ``BLOCKS`` (which owns the markers and
 ``--check``), written with ``benchmarks.figure_text``. Each reads committed JSONs in ``benchmarks/results/`` only.
 """

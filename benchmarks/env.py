@@ -7,7 +7,7 @@ costs, and the scripted expert's success rate.
 Step times are measured over scripted-expert episodes (free motion and contact both count); the
 real-time factor is the control period (0.1 s) over the median step time. Wall time depends on
 what else runs on the machine, so the process CPU time per step is reported beside it.
-Targets (issue 6): >= 5x real time with both cameras at 96x128 and both tactile sensors at 120x160;
+Targets: >= 5x real time with both cameras at 96x128 and both tactile sensors at 120x160;
 expert success >= 95 % over 50 seeds.
 """
 

@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
-# #41's model sizes trained on one GPU in one call of the device tool (issue #41: "train the larger sizes there").
+# The frontier's model sizes trained side by side on one GPU, in one call of the device tool.
 #
 #   bash benchmarks/frontier_gpu.sh OUT_DIR [STEPS] [DEADLINE_S]       # the device call: `... $OUT 8000 440 2>&1`
 #
 # (No `| tail` in the device call: a command stopped at its limit loses a pipeline's output; the tool returns the
-# last 12 000 characters anyway.) The issue #41 run: STEPS 8000 took 565 s to the last checkpoint on an H200
+# last 12 000 characters anyway.) The committed run: STEPS 8000 took 565 s to the last checkpoint on an H200
 # (40 s render, 90 s reading and encoding, 296 / 327 / 424 s of DiT steps side by side; its deadline never
 # fired, the Ctrl-C of a script without job control not reaching background jobs): the default deadline, 570 s,
 # leaves it room, and the speed benchmark runs only where time is left, else in a call of its own.

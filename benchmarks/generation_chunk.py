@@ -1,6 +1,6 @@
 """What batch-independent generation costs: the shipped generator's frames/s with forward passes in whole chunks
-of ``GENERATION_CHUNK`` rows (shipped, 4) against single rows allowed (1: the arithmetic before issue 43, where a
-frame's bytes depended on its batch-mates).
+of ``GENERATION_CHUNK`` rows (shipped, 4) against single rows allowed (1: a row per pass, where torch's CPU
+kernels may differ with the batch, so a frame's bytes would depend on its batch-mates).
 
     python -m benchmarks.generation_chunk --out benchmarks/results/generation_chunk.json [--quick]
 

@@ -1,4 +1,4 @@
-"""The generator's speed–error frontier across model sizes (issue #41), for ``benchmarks.generator``: which
+"""The generator's speed–error frontier across model sizes, for ``benchmarks.generator``: which
 checkpoints it spans, their checks on real GelSight Mini frames, and its picture.
 
     python -m benchmarks.generator_frontier benchmarks/results/generator.json benchmarks/results/generator_speed.json

@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from benchmarks.common import base_parser, print_table, write_results
+from controltac_il.streams import LOOP_STATE
 
 
 def _stats_ms(values) -> dict:
@@ -39,7 +40,7 @@ def control_loop(steps: int, policy_ms: float) -> dict:
 
     def slow_hold(obs):  # any callable is a policy; this one takes policy_ms of wall time, on purpose
         time.sleep(policy_ms / 1e3)
-        return np.tile(np.r_[obs["qpos"][:4] + [0.0005, 0, 0, 0], 0.5], (20, 1))
+        return np.tile(np.r_[obs[LOOP_STATE][:4] + [0.0005, 0, 0, 0], 0.5], (20, 1))
 
     loop = ControlLoop(
         FakeArm(), slow_hold, gripper=FakeGripper(),

@@ -16,21 +16,22 @@ import pyarrow as pa
 from controltac_il.datasets.episodes import episode_paths, read_episode
 from controltac_il.lerobot import (aggregate_stats, encode_video, image_stats, numbers, png_bytes, sample_indices,
                                    vector_stats, write_data_parquet, write_meta, write_parquet)
+from controltac_il.streams import LEROBOT, LEROBOT_STATE, force_key, image_key, tactile_key
 
 FPS = 10
-IMAGE, VIDEO = "observation.images.gelsight_left", "observation.images.gelsight_right"
-FORCES = {IMAGE: "observation.gelsight_left.force", VIDEO: "observation.gelsight_right.force"}
+IMAGE, VIDEO = tactile_key("gelsight_left", LEROBOT), tactile_key("gelsight_right", LEROBOT)
+FORCES = {IMAGE: force_key("gelsight_left", LEROBOT), VIDEO: force_key("gelsight_right", LEROBOT)}
 CAMERAS = ("third_view", "wrist")
 
 
 def _features(tactile_shape, camera_shape) -> dict:
     cam = {"names": ["height", "width", "channels"]}
     scalar = {"shape": [1], "names": None}
-    return {"observation.state": {"dtype": "float32", "shape": [5], "names": None},
+    return {LEROBOT_STATE: {"dtype": "float32", "shape": [5], "names": None},
             "action": {"dtype": "float32", "shape": [5], "names": None},
             IMAGE: {"dtype": "image", "shape": list(tactile_shape), **cam},
             VIDEO: {"dtype": "video", "shape": list(tactile_shape), **cam},
-            **{f"observation.images.{c}": {"dtype": "video", "shape": list(camera_shape), **cam} for c in CAMERAS},
+            **{image_key(c, LEROBOT): {"dtype": "video", "shape": list(camera_shape), **cam} for c in CAMERAS},
             **{f: {"dtype": "float32", "shape": [3], "names": None} for f in FORCES.values()},
             "timestamp": {"dtype": "float32", **scalar},
             **{k: {"dtype": "int64", **scalar} for k in ("frame_index", "episode_index", "index", "task_index")}}
@@ -39,12 +40,12 @@ def _features(tactile_shape, camera_shape) -> dict:
 def write_source(demos: Path, root: Path) -> Path:
     """The LeRobot folder ``root`` of the ACT episodes in ``demos`` (module docstring)."""
     episodes = [read_episode(p) for p in episode_paths(demos)]
-    tables, rows, videos, start = [], [], {VIDEO: []} | {f"observation.images.{c}": [] for c in CAMERAS}, 0
+    tables, rows, videos, start = [], [], {VIDEO: []} | {image_key(c, LEROBOT): [] for c in CAMERAS}, 0
     for e, ep in enumerate(episodes):
         L = len(ep.qpos)
         frames = np.arange(L)
         tables.append(pa.table({
-            "observation.state": pa.array(list(ep.qpos), pa.list_(pa.float32(), 5)),
+            LEROBOT_STATE: pa.array(list(ep.qpos), pa.list_(pa.float32(), 5)),
             "action": pa.array(list(ep.action), pa.list_(pa.float32(), 5)),
             IMAGE: pa.array([{"bytes": png_bytes(img), "path": f"frame-{t:06d}.png"}
                              for t, img in enumerate(ep.tactile["left"])]),
@@ -55,7 +56,7 @@ def write_source(demos: Path, root: Path) -> Path:
             "task_index": pa.array(np.zeros(L, np.int64))}))
         videos[VIDEO].append(ep.tactile["right"])
         for c in CAMERAS:
-            videos[f"observation.images.{c}"].append(ep.images[c])
+            videos[image_key(c, LEROBOT)].append(ep.images[c])
         row = {"episode_index": e, "tasks": ["grasp"], "length": L, "data/chunk_index": 0, "data/file_index": 0,
                "dataset_from_index": start, "dataset_to_index": start + L}
         for key in videos:
@@ -75,7 +76,7 @@ def _episode_stats(table: pa.Table, ep) -> dict:
     """Per-episode stats of every feature (cameras at the frames LeRobot samples), as the recorder writes them."""
     picks = sample_indices(len(ep.qpos))
     images = {IMAGE: ep.tactile["left"], VIDEO: ep.tactile["right"],
-              **{f"observation.images.{c}": ep.images[c] for c in CAMERAS}}
+              **{image_key(c, LEROBOT): ep.images[c] for c in CAMERAS}}
     stats = {key: image_stats(np.asarray(frames)[picks]) for key, frames in images.items()}
     for key in table.column_names:
         if key not in images:

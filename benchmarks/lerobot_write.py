@@ -31,8 +31,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from benchmarks.augment import load_generator
-from benchmarks.common import print_table
+from benchmarks.common import load_generator, print_table
 from benchmarks.lerobot_source import FORCES, write_source
 from controltac_il.augment import ForceAugment
 from controltac_il.augment.provenance import chunk_done

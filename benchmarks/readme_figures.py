@@ -5,7 +5,7 @@
 what ``BLOCKS[NAME]`` renders from the JSON(s) behind it; ``--check`` changes nothing and exits 1 naming each
 block that differs, and each model card whose ``benchmark`` figures differ from the JSON of the same run
 (``tests/test_readme_figures.py``). Each block appears once, in one of those files; the render functions of the
-blocks the docs pages gained with issue 42, and of the README's headline table, are in ``benchmarks.docs_figures``;
+docs pages' own blocks and of the README's headline table are in ``benchmarks.docs_figures``;
 the pieces all blocks share (table, provenance line) in ``benchmarks.figure_text``.
 
 Each block ends with a line naming its file, commit, date and generator; it reads *History (not reproducible

@@ -32,13 +32,14 @@ from torch.utils.data import Dataset
 from benchmarks.common import base_parser, print_table, write_results
 from controltac_il.augment import ForceAugment
 from controltac_il.augment.reference import working_reference
+from controltac_il.streams import LEROBOT, tactile_key
 from controltac_il.tactile.residual import contact_mask, from_residual, to_residual
 
 FRAMES = Path(__file__).resolve().parents[2] / "shared" / "data" / "real_gelsight_mini"
 PRESSES = ("bead", "key", "seed")
 POLICIES = ("skip", "clip", "nominal")
 SWEEP = (-4.0, -3.0, -2.0, -1.0, 0.0, 1.0, 2.0, 3.0, 4.0)
-KEY = "observation.images.gelsight"
+KEY = tactile_key("gelsight", LEROBOT)
 
 
 class RealPresses(Dataset):

@@ -24,6 +24,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 
 from controltac_il.cli import ArgumentParser  # noqa: E402
+from controltac_il.streams import LOOP, LOOP_STATE, force_key, image_key, tactile_key  # noqa: E402
 from envs.config import CAMERAS, SCENES, SENSORS, scene_config  # noqa: E402
 
 if TYPE_CHECKING:  # MuJoCo is imported by the job, after the options: --help stays light
@@ -52,14 +53,14 @@ def record_episode(env: PegInHoleEnv, expert: ScriptedExpert, seed: int, hold_st
         if truncated:
             break
     cfg = env.config
-    tactile = {s: np.stack([f[f"tactile/{s}"] for f in frames]) for s in SENSORS} if cfg.tactile else {}
+    tactile = {s: np.stack([f[tactile_key(s, LOOP)] for f in frames]) for s in SENSORS} if cfg.tactile else {}
     episode = Episode(
-        qpos=np.stack([f["qpos"] for f in frames]),
+        qpos=np.stack([f[LOOP_STATE] for f in frames]),
         action=np.stack(actions),
-        images={c: np.stack([f[f"images/{c}"] for f in frames]) for c in cfg.cameras},
+        images={c: np.stack([f[image_key(c, LOOP)] for f in frames]) for c in cfg.cameras},
         tactile=tactile,
         tactile_background={s: env.tactile_background(s) for s in tactile},
-        force={s: np.stack([f[f"force/{s}"] for f in frames]) for s in SENSORS},
+        force={s: np.stack([f[force_key(s, LOOP)] for f in frames]) for s in SENSORS},
         sim=True,
         attrs={
             "task": "peg_in_hole",

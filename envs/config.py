@@ -262,7 +262,7 @@ class PegInHoleConfig:
 
     @classmethod
     def touch_critical(cls, **overrides) -> "PegInHoleConfig":
-        """The variant where only touch tells how to insert (issue 19; ``benchmarks.touch_il``).
+        """The variant where only touch tells how to insert (``benchmarks.touch_il``).
 
         The peg starts in the hand, held 5-8 mm off the TCP along the gel with a random sign: more
         than the Ø30 mm hole's 2.5 mm radial clearance plus its 2 mm chamfer, so inserting at the TCP

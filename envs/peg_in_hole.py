@@ -27,6 +27,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from controltac_il.extras import require
+from controltac_il.streams import LOOP, LOOP_STATE, force_key, image_key, tactile_key
 
 gym = require("gymnasium", "sim", "the MuJoCo scene")
 spaces = gym.spaces
@@ -120,14 +121,14 @@ class PegInHoleEnv(gym.Env):
         ctrl = self.model.actuator_ctrlrange[self._pose_act]
         action = spaces.Box(np.array([*ctrl[:, 0], 0.0]), np.array([*ctrl[:, 1], 1.0]), dtype=np.float64)
         inf = np.inf
-        obs = {"qpos": spaces.Box(np.array([-inf, -inf, -inf, -inf, 0.0], np.float32),
-                                  np.array([inf, inf, inf, inf, 1.0], np.float32), dtype=np.float32)}
+        obs = {LOOP_STATE: spaces.Box(np.array([-inf, -inf, -inf, -inf, 0.0], np.float32),
+                                      np.array([inf, inf, inf, inf, 1.0], np.float32), dtype=np.float32)}
         for cam in cfg.cameras:
-            obs[f"images/{cam}"] = spaces.Box(0, 255, (*cfg.camera_size, 3), dtype=np.uint8)
+            obs[image_key(cam, LOOP)] = spaces.Box(0, 255, (*cfg.camera_size, 3), dtype=np.uint8)
         for s in SENSORS:
             if cfg.tactile:
-                obs[f"tactile/{s}"] = spaces.Box(0, 255, (*cfg.tactile_size, 3), dtype=np.uint8)
-            obs[f"force/{s}"] = spaces.Box(-inf, inf, (3,), dtype=np.float32)
+                obs[tactile_key(s, LOOP)] = spaces.Box(0, 255, (*cfg.tactile_size, 3), dtype=np.uint8)
+            obs[force_key(s, LOOP)] = spaces.Box(-inf, inf, (3,), dtype=np.float32)
         return action, spaces.Dict(obs)
 
     def _init_tactile(self) -> None:
@@ -401,7 +402,7 @@ class PegInHoleEnv(gym.Env):
     def _observe(self) -> dict:
         """Observation of the current state. The tactile optics of both pads run in worker threads
         while the cameras render (ray casting, forces and GL stay on this thread: they use mjData)."""
-        obs = {"qpos": np.array([*self.tcp_pose(), self.gripper_closure()], dtype=np.float32)}
+        obs = {LOOP_STATE: np.array([*self.tcp_pose(), self.gripper_closure()], dtype=np.float32)}
         forces = self.pad_forces()
         pending = {}
         if self.config.tactile:
@@ -410,11 +411,11 @@ class PegInHoleEnv(gym.Env):
                 shear = (float(forces[s][0]), float(forces[s][1])) if pen.any() else (0.0, 0.0)
                 pending[s] = self._pool.submit(self._sensors[s].render_penetration, pen, shear, self._noise_seed(s))
         for cam in self.config.cameras:
-            obs[f"images/{cam}"] = self.render_camera(cam)
+            obs[image_key(cam, LOOP)] = self.render_camera(cam)
         for s in SENSORS:
             if s in pending:
-                obs[f"tactile/{s}"] = pending[s].result()
-            obs[f"force/{s}"] = forces[s]
+                obs[tactile_key(s, LOOP)] = pending[s].result()
+            obs[force_key(s, LOOP)] = forces[s]
         return obs
 
     def _ctrl_vector(self, target: np.ndarray) -> np.ndarray:

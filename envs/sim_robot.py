@@ -19,6 +19,7 @@ import math
 
 import numpy as np
 
+from controltac_il.streams import LOOP, force_key, image_key, tactile_key
 from envs.config import SENSORS, PegInHoleConfig
 from envs.expert import wrap_half_turn
 from envs.peg_in_hole import PegInHoleEnv
@@ -123,7 +124,7 @@ class SimPadForce(ForceSensor):
         obs = self._robot.observation
         if obs is None:
             raise SensorError(f"sim {self.name}: no reading (the robot is closed)")
-        return ForceSample(float(obs[f"force/{self._sensor}"][2]), self._robot.frame_time)
+        return ForceSample(float(obs[force_key(self._sensor, LOOP)][2]), self._robot.frame_time)
 
 
 class SimRobot:
@@ -147,9 +148,9 @@ class SimRobot:
         self.command = self.env.command  # hold what the scene starts with (a held peg stays held)
         self.arm, self.gripper = SimArm(self), SimGripper(self)
         cfg = self.env.config
-        self.cameras = {c: SimFrameSource(self, c, f"images/{c}") for c in cfg.cameras}
-        self.tactile = ({s: SimFrameSource(self, s, f"tactile/{s}", self.env.tactile_background(s)) for s in SENSORS}
-                        if cfg.tactile else {})
+        self.cameras = {c: SimFrameSource(self, c, image_key(c, LOOP)) for c in cfg.cameras}
+        self.tactile = ({s: SimFrameSource(self, s, tactile_key(s, LOOP), self.env.tactile_background(s))
+                         for s in SENSORS} if cfg.tactile else {})
         self.limits = SafetyLimits(workspace_min=cfg.workspace_low[:3], workspace_max=cfg.workspace_high[:3],
                                    yaw_min=cfg.workspace_low[3], yaw_max=cfg.workspace_high[3],
                                    max_step_m=MAX_STEP_M, max_rotation_rad=MAX_ROTATION_RAD)

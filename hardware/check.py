@@ -25,6 +25,7 @@ from tqdm import tqdm
 from controltac_il.cli import ArgumentParser
 from controltac_il.config import one_line
 from controltac_il.extras import MissingExtra
+from controltac_il.streams import LOOP, image_key, tactile_key
 from hardware.config import ConfigError, load_setup, open_setup
 from hardware.interfaces import HardwareError
 
@@ -69,8 +70,8 @@ def _connect_and_report(cfg, seconds: float) -> None:
         print(f"arm pose [x, y, z, yaw]: {np.round(setup.arm.state().pose, 4).tolist()}")
         if setup.gripper is not None:
             print(f"gripper closing: {setup.gripper.state().position:.3f}")
-        sources = {**{f"images/{k}": v for k, v in setup.cameras.items()},
-                   **{f"tactile/{k}": v for k, v in setup.tactile.items()}}
+        sources = {**{image_key(k, LOOP): v for k, v in setup.cameras.items()},
+                   **{tactile_key(k, LOOP): v for k, v in setup.tactile.items()}}
         first = {k: s.latest() for k, s in sources.items()}
         end = time.monotonic() + seconds
         with tqdm(total=seconds, desc="watching sensors", unit="s", disable=None) as bar:

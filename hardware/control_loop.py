@@ -35,6 +35,7 @@ from pydantic import Field, model_validator
 from pydantic.dataclasses import dataclass as pydantic_dataclass
 
 from controltac_il.config import STRICT
+from controltac_il.streams import LOOP, LOOP_STATE, background_key, image_key, tactile_key
 from hardware.fields import Float, Int, Problems
 from hardware.interfaces import (ACTION_DIM, GRIPPER, POSE_DIM, Arm, ArmState, Clock, FrameSource, Gripper, HardwareError,
                                  WallClock)
@@ -298,14 +299,15 @@ class ControlLoop:
         grip = self.gripper.state().position if self.gripper is not None else self._last_grip
         if not np.isfinite(grip):  # else the policy's NaN output would be blamed
             raise SafetyViolation(f"measured gripper position must be a finite number, got {grip!r}")
-        obs = {"qpos": np.append(np.asarray(state.pose, dtype=np.float32), np.float32(grip))}
-        for kind, sources in (("images", self.cameras), ("tactile", self.tactile)):
+        obs = {LOOP_STATE: np.append(np.asarray(state.pose, dtype=np.float32), np.float32(grip))}
+        for key_of, sources in ((image_key, self.cameras), (tactile_key, self.tactile)):
             for name, src in sources.items():
                 frame = src.latest()
-                watchdog.feed(f"frame:{kind}/{name}", frame.timestamp)
-                obs[f"{kind}/{name}"] = frame.image
-                if kind == "tactile" and src.background is not None:
-                    obs[f"tactile_background/{name}"] = src.background
+                key = key_of(name, LOOP)
+                watchdog.feed(f"frame:{key}", frame.timestamp)
+                obs[key] = frame.image
+                if key_of is tactile_key and src.background is not None:
+                    obs[background_key(name, LOOP)] = src.background
         return obs, state
 
     # -- stopping ----------------------------------------------------------------------------

@@ -179,7 +179,7 @@ def test_torchrun_two_process_gloo_smoke(tmp_path):
     assert meta["world_size"] == 2 and meta["step"] == 3
 
 
-# -- #20: never destroy what the user owns, never compute on garbage ---------------------------------
+# -- never destroy what the user owns, never compute on garbage ---------------------------------
 
 def _tree(root: Path) -> dict[str, bytes]:
     return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}

@@ -63,3 +63,16 @@ def test_tests_import_this_package_instead_of_skipping_it():
     offenders = [p.name for p in (REPO / "tests").glob("*.py")
                  if any(f'importorskip("{pkg}' in p.read_text() for pkg in (*PACKAGES, "benchmarks"))]
     assert offenders == []
+
+
+def test_no_module_imports_a_private_name_from_another_package():
+    """A leading underscore means "this package's own": the library, the benchmarks and the tests import only
+    public names across packages (a test reaches a unit through a public name or the behaviour)."""
+    found = []
+    for path in [p for d in (*PACKAGES, "benchmarks", "tests") for p in (REPO / d).rglob("*.py")]:
+        package = ".".join(path.relative_to(REPO).with_suffix("").parts[:-1])
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.rsplit(".", 1)[0] != package:
+                private = [a.name for a in node.names if a.name.startswith("_") and not a.name.startswith("__")]
+                found += [f"{path.relative_to(REPO)}: {node.module}.{name}" for name in private]
+    assert found == []

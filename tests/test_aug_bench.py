@@ -18,12 +18,12 @@ def test_quick_run_counts_add_up_and_name_the_shipped_generator(tmp_path):
                                         + counts["no_contact"])
     assert res["cache_build"]["frames_generated"] == counts["regenerated"] + counts["clamped"]
     # skip mode draws the same offsets and jitter, so it keeps real exactly the frames clamp mode clamped,
-    # and in both modes the frames whose reference force lies outside the validated range (#20)
+    # and in both modes the frames whose reference force lies outside the validated range
     assert res["skipped_in_skip_mode"] == counts["clamped"] + counts["skipped"] and counts["clamped"] > 0
     assert res["generator_hash"] == ForceGenerator.from_pretrained().checkpoint_hash
     assert set(res["items_per_s"]) == {"bare", "cached", "online"}
     assert all(v > 0 for v in res["items_per_s"].values())
-    # the LeRobot-convention row (#22): same episodes as float CHW cameras, estimated backgrounds, labels by
+    # the LeRobot-convention row: same episodes as float CHW cameras, estimated backgrounds, labels by
     # force_keys: the same frames are in contact and get the same draws as on our HDF5 layout
     lerobot = res["lerobot"]
     assert set(lerobot["items_per_s"]) == {"bare", "cached", "online"} and all(v > 0 for v in lerobot["items_per_s"].values())

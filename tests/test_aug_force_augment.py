@@ -170,7 +170,7 @@ def test_resolve_target_clamps_or_skips():
     assert s == STATUS["clamped"] and t.tolist() == [0.2, 0.0, 1.0]
     t, s = resolve_target(np.array([0.2, 0.0, 9.0]), 3.0, "clamp")
     assert s == STATUS["clamped"] and t.tolist() == [0.2, 0.0, 10.0]
-    # a reference the generator was not validated on (1.5 N shear) cannot be moved: kept real (#20)
+    # a reference the generator was not validated on (1.5 N shear) cannot be moved: kept real
     t, s = resolve_target(np.array([1.5, 0.0, 3.0]), 0.0, "clamp")
     assert s == STATUS["skipped"] and t.tolist() == [1.5, 0.0, 3.0]
     _, s = resolve_target(np.array([0.0, 0.0, 9.5]), 1.0, "skip")
@@ -418,7 +418,7 @@ def test_items_without_indices_or_background(gen, tmp_path):
     eps = [synthetic_episode(6, 0, range(1, 4), labels=False)]
     with pytest.raises(ValueError, match="episode_index"):
         ForceAugment(LeRobotLike(eps, with_index=False), gen, copies=1, cache_dir=tmp_path / "c")
-    # online mode needs no background key any more (#22): estimated per episode, as the cache does
+    # online mode needs no background key: the background is estimated per episode, as the cache does
     with pytest.warns(UserWarning, match="background estimated"):
         on = ForceAugment(LeRobotLike(eps), gen, copies=1, mode="online", estimator=tiny_estimator(), progress=False)
     assert on[len(on) - 1]["observation.images.tactile_left"].dtype == torch.float32
@@ -488,7 +488,7 @@ def test_the_generator_alone_decides_out_of_range_targets(data, gen, tmp_path):
         np.testing.assert_allclose(want[2], r["reference_force"][2] + r["offset"] + r["jitter"])
 
 
-# -- a cache is used only when it provably matches (issue #20) --------------------------------------
+# -- a cache is used only when it provably matches --------------------------------------
 
 def test_cache_without_its_manifest_is_refused(data, gen, tmp_path):
     a = aug(data, gen, tmp_path, copies=2)
@@ -640,7 +640,7 @@ def test_reference_outside_the_validated_range_is_kept_real(tmp_path, gen):
 def test_target_range_spreads_each_copy_around_its_draw_and_online_matches_cache(data, gen, tmp_path):
     """target_range: offset = U[low, high] - the episode's median contact Fz, so each copy's median requested
     target is its draw (jitter is symmetric); online mode (episode tables) asks the generator the same."""
-    from controltac_il.augment.draws import _stream
+    from controltac_il.augment.draws import draw_stream
 
     a = aug(data, gen, tmp_path, copies=4, steps=1, target_range=(1.0, 10.0), out_of_range="skip")
     assert list(a.settings()["target_range"]) == [1.0, 10.0]  # a setting of the cache
@@ -650,7 +650,7 @@ def test_target_range_spreads_each_copy_around_its_draw_and_online_matches_cache
         median = float(np.median(contact))
         for k in range(1, 5):
             mine = [r for r in recs if (r["episode"], r["copy"]) == (e, k)]
-            draw = float(_stream(0, e, k, 0).uniform(1.0, 10.0))
+            draw = float(draw_stream(0, e, k, 0).uniform(1.0, 10.0))
             offsets = {r["offset"] for r in mine}
             assert len(offsets) == 1 and offsets.pop() == pytest.approx(draw - median)
             asked = [r["reference_force"][2] + r["offset"] + r["jitter"] for r in mine]

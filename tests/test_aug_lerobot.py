@@ -1,4 +1,4 @@
-"""ForceAugment on LeRobot-convention datasets (issue #22), without LeRobot (it cannot be installed here).
+"""ForceAugment on LeRobot-convention datasets, without LeRobot (it cannot be installed here).
 
 ``LeRobotLike`` returns items as ``LeRobotDataset.__getitem__`` does: ``episode_index``, ``frame_index``,
 ``index``, ``timestamp`` (0-d tensors), ``task_index``, ``task`` (str), ``observation.state``, ``action``,
@@ -294,8 +294,9 @@ def test_online_equals_cache_exactly_at_any_batch_size_on_real_looking_frames(tm
         torch.set_num_threads(threads)
 
 
-def test_the_issue_call_that_crashed(gen, est, tmp_path):
-    """#22: tactile_keys=("observation.images.gelsight",) read the image as its own force label and crashed."""
+def test_a_tactile_image_key_is_never_read_as_its_own_force_label(gen, est, tmp_path):
+    """tactile_keys=("observation.images.gelsight",) on a dataset without force labels: the image key is the
+    tactile stream, not a label, in both modes."""
     ds = LeRobotLike(episodes(labels=False))
     for mode in ("online", "cache"):
         with warnings.catch_warnings():

@@ -57,7 +57,7 @@ def test_bundle_loads_by_name_everywhere_and_moved_from_its_bases(bases, tmp_pat
     from test_aug_lerobot import GEL, LeRobotLike, episodes
 
     from controltac_il.augment import ForceAugment
-    from controltac_il.augment.cli import _models, parser
+    from controltac_il.augment.cli import load_models, parser
 
     # the tiny random base cannot beat the constant: the bundle says so and ForceAugment takes the nominal reference
     assert record["estimator"]["use_estimator"] is False
@@ -67,7 +67,7 @@ def test_bundle_loads_by_name_everywhere_and_moved_from_its_bases(bases, tmp_pat
     assert (aug.generator.checkpoint_hash, aug.estimator.checkpoint_hash) == (gen.checkpoint_hash, "nominal")
     cli = parser().parse_args(["--dataset", str(tmp_path), "--out", str(tmp_path / "c"), "--generator", str(out)])
     with pytest.warns(UserWarning, match="does not beat the constant baseline"):
-        g, e = _models(cli, pose=False)
+        g, e = load_models(cli, pose=False)
     assert (g.checkpoint_hash, e.checkpoint_hash) == (gen.checkpoint_hash, "nominal")
 
 
@@ -143,7 +143,7 @@ def test_a_stopped_calibration_resumes_to_the_same_estimator(bases, tmp_path, ca
 
 @pytest.mark.slow  # 6 s on the 2-core machine, most of it the 9.9 M DiT's fine-tune and loads: with -m slow
 def test_calibration_starts_from_the_quality_preset(bases, tmp_path):
-    """``--base-generator quality`` (#41): the bundle's generator is the 9.9 M-parameter DiT fine-tuned, its base
+    """``--base-generator quality``: the bundle's generator is the 9.9 M-parameter DiT fine-tuned, its base
     recorded by hash (2 + 2 steps at batch 4: the plumbing, not the curve of benchmarks.finetune)."""
     tmp, presses = bases
     out = tmp_path / "from_quality"

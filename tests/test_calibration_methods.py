@@ -1,4 +1,4 @@
-"""benchmarks.calibration_methods: grasp-wise splits, label lag, the monotone fit and the --quick run (issue 40)."""
+"""benchmarks.calibration_methods: grasp-wise splits, label lag, the monotone fit and the --quick run."""
 
 import numpy as np
 import pytest

@@ -1,4 +1,4 @@
-"""Every CLI answers ``--help`` without importing torch, diffusers or MuJoCo (issue 42): behaviour, checked in a
+"""Every CLI answers ``--help`` without importing torch, diffusers or MuJoCo: behaviour, checked in a
 fresh interpreter's ``sys.modules``, not a time. The heavy modules are imported inside the jobs."""
 
 import json

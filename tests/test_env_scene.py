@@ -367,7 +367,9 @@ def test_benchmark_quick_run_writes_results(tmp_path):
     doc = json.loads(out.read_text())
     assert doc["machine"]["cores"] >= 1
     assert [r["setting"] for r in doc["step_timing"]] == list(bench.SETTINGS)
-    assert all(r["ms_per_step"] > 0 and r["steps"] > 0 for r in doc["step_timing"])
+    for r in doc["step_timing"]:  # one 100 ms control period per step: the real-time factor is 100 ms over it
+        assert r["steps"] > 0 and r["realtime_factor"] == pytest.approx(100.0 / r["ms_per_step"], rel=1e-9)
+        assert r["steps_per_s"] == pytest.approx(1000.0 / r["ms_per_step"], rel=1e-9)
     assert doc["expert"][0]["episodes"] == 2 and doc["expert"][0]["successes"] == 2
 
 

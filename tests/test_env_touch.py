@@ -1,4 +1,4 @@
-"""The touch-critical peg-in-hole variant: only touch tells where the peg sits in the hand (issue 19)."""
+"""The touch-critical peg-in-hole variant: only touch tells where the peg sits in the hand."""
 
 import numpy as np
 import pytest

@@ -173,7 +173,7 @@ def test_train_cli_writes_checkpoint_and_resumes(tmp_path, capsys):
     assert "manifest.csv" in capsys.readouterr().err
 
 
-# -- #20: never destroy what the user owns, never compute on garbage, one-line errors --------------------
+# -- never destroy what the user owns, never compute on garbage, one-line errors --------------------
 
 def _tree(root):
     return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}

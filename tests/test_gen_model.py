@@ -252,8 +252,9 @@ def test_generator_on_a_small_random_checkpoint(tmp_path):
 
 # -- training states -------------------------------------------------------------------------------
 
-def _old_lr_at(step: int, total: int, peak: float, warmup: int, min_ratio: float) -> float:
-    """The hand-written schedule lr_schedule replaced (kept here as the reference)."""
+def documented_lr(step: int, total: int, peak: float, warmup: int, min_ratio: float) -> float:
+    """``lr_schedule``'s docstring as a formula: update i < warmup gets peak * (i + 1) / warmup, then a cosine
+    from peak down to peak * min_ratio at update ``total``."""
     if step < warmup:
         return peak * (step + 1) / warmup
     p = min(1.0, (step - warmup) / max(1, total - warmup))
@@ -278,10 +279,14 @@ def _train(m, opt, sched, n, x=None):
 
 
 @pytest.mark.parametrize("warmup, total", [(10, 100), (1, 7), (0, 30), (5, 5)])
-def test_lr_schedule_matches_the_old_warmup_cosine(warmup, total):
+def test_lr_schedule_is_the_documented_warmup_then_cosine(warmup, total):
     m, opt = _adam()
     lrs = _train(m, opt, lr_schedule(opt, [1e-3], total, warmup, 1e-4), total)
-    np.testing.assert_allclose(lrs, [_old_lr_at(s, total, 1e-3, warmup, 0.1) for s in range(total)], rtol=1e-12)
+    np.testing.assert_allclose(lrs, [documented_lr(s, total, 1e-3, warmup, 0.1) for s in range(total)], rtol=1e-12)
+    if warmup < total:  # the peak right after the warm-up, then never rising, halfway down at the cosine's middle
+        assert lrs[warmup] == pytest.approx(1e-3) and all(b <= a for a, b in zip(lrs[warmup:], lrs[warmup + 1:]))
+    if (total - warmup) % 2 == 0 and warmup < total:
+        assert lrs[warmup + (total - warmup) // 2] == pytest.approx((1e-3 + 1e-4) / 2)
     m, opt = _adam()  # constant after the warm-up (ACT)
     lrs = _train(m, opt, lr_schedule(opt, [1e-3], total, warmup), total)
     np.testing.assert_allclose(lrs, [1e-3 * min(1.0, (s + 1) / warmup) if warmup else 1e-3 for s in range(total)], rtol=1e-12)
@@ -300,12 +305,12 @@ def test_run_state_restores_weights_optimizer_and_schedule(tmp_path):
     assert _train(m, opt, sched, 5, x) == _train(m2, opt2, sched2, 5, x)
     for a, b in zip(m.parameters(), m2.parameters()):
         torch.testing.assert_close(a, b)
-    # a resumed run with a longer budget follows the new schedule from its step (as the old lr_at did)
+    # a resumed run with a longer budget follows its own (longer) documented schedule from the saved step
     m3 = torch.nn.Linear(3, 2)
     opt3 = torch.optim.AdamW(m3.parameters(), lr=1.0)
     meta, _ = load_run_state(tmp_path / "s", {"m": m3}, opt3)
     lrs = _train(m3, opt3, lr_schedule(opt3, [1e-2], 40, 4, 1e-3, meta["lr_schedule"], meta["step"]), 3)
-    np.testing.assert_allclose(lrs, [_old_lr_at(s, 40, 1e-2, 4, 0.1) for s in (6, 7, 8)], rtol=1e-12)
+    np.testing.assert_allclose(lrs, [documented_lr(s, 40, 1e-2, 4, 0.1) for s in (6, 7, 8)], rtol=1e-12)
     with pytest.raises(CheckpointError, match="does not match"):
         load_run_state(tmp_path / "s", {"m": torch.nn.Linear(3, 3)})
 

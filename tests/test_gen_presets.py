@@ -1,4 +1,4 @@
-"""The shipped generator presets (fast, default, quality; issue #41): each loads with its pinned hash, grows the
+"""The shipped generator presets (fast, default, quality): each loads with its pinned hash, grows the
 contact monotonically with Fz on real GelSight Mini frames and on sensor-model frames at 240×320, and returns a
 240×320 reference at ΔF = 0."""
 
@@ -39,7 +39,7 @@ def test_every_shipped_checkpoint_is_named_and_pinned():
 
 
 def test_contact_area_never_shrinks_as_fz_grows(preset):
-    """Issue #23's check (area drop <= 0.15 pp between neighbouring 0.5 N steps), over ΔFz in [-1, 2] N and a
+    """The contact-area check (area drop <= 0.15 pp between neighbouring 0.5 N steps), over ΔFz in [-1, 2] N and a
     +6 N step, on the real GelSight Mini frames of ../shared (measured, never shipped) where present, and on a
     held-out object at 240×320 (benchmarks.response sweeps [-2, 8] N)."""
     name, gen = preset

@@ -141,7 +141,7 @@ def test_finetune_plot_draws_finished_runs_of_one_sensor_and_refuses_a_mix(tmp_p
 @pytest.mark.slow  # 4 s each; every preset's monotone area on real and 240x320 frames runs in the suite (test_gen_presets)
 @pytest.mark.parametrize("group", ["held_out", "training"])
 def test_the_shipped_default_never_shrinks_a_sensor_model_contact_as_the_force_grows(group):
-    """Issue #23's physical check on references of every object at the model's size: the contact area does not
+    """The physical check on references of every object at the model's size: the contact area does not
     fall by more than 0.15 pp between neighbouring 0.5 N steps of ΔFz in [-2, 8] N (with -m slow)."""
     from controltac_il.generator import ForceGenerator
     from controltac_il.tactile import HELDOUT_OBJECTS, TRAIN_OBJECTS

@@ -1,4 +1,4 @@
-"""Issue #20 (3): a robot never starts with an unsafe setup.
+"""A robot never starts with an unsafe setup.
 
 Physically implausible setups are refused per robot type (reach, height, speed and rotation per
 control period, gripper ranges and IDs, addresses, rates), in the file check and again when devices

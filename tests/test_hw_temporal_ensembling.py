@@ -59,10 +59,11 @@ def test_bad_chunks_are_rejected(chunk, match):
         TemporalEnsembler(chunk_size=4, action_dim=2).add_chunk(0, chunk)
 
 
-@pytest.mark.parametrize("kwargs", [dict(chunk_size=0, action_dim=1), dict(chunk_size=1, action_dim=0),
-                                    dict(chunk_size=1, action_dim=1, k=-1.0)])
-def test_bad_construction(kwargs):
-    with pytest.raises(ValueError):
+@pytest.mark.parametrize("kwargs, match", [(dict(chunk_size=0, action_dim=1), "chunk_size"),
+                                           (dict(chunk_size=1, action_dim=0), "action_dim"),
+                                           (dict(chunk_size=1, action_dim=1, k=-1.0), "k")])
+def test_bad_construction_names_the_argument(kwargs, match):
+    with pytest.raises(ValueError, match=match):
         TemporalEnsembler(**kwargs)
 
 

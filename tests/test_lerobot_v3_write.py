@@ -257,7 +257,7 @@ def test_per_episode_and_dataset_stats_equal_recomputing_them_from_the_frames_wr
 
 
 def test_a_copys_tactile_stats_from_reused_histograms_equal_recomputing_them():
-    from controltac_il.lerobot.export import _tactile_stats
+    from controltac_il.lerobot.export import tactile_stats
 
     rng = np.random.default_rng(1)
     L = 130  # >= 100 frames: the stats read 100 of them; 300 px wide: every 2nd pixel of every 2nd row
@@ -268,7 +268,7 @@ def test_a_copys_tactile_stats_from_reused_histograms_equal_recomputing_them():
     images = [rng.integers(150, 256, (12, 300, 3), dtype=np.uint8) for _ in rows]
     written = real.copy()
     written[rows] = np.stack(images)
-    got = _tactile_stats(frame_histograms(real[picks]), picks, rows, images)
+    got = tactile_stats(frame_histograms(real[picks]), picks, rows, images)
     assert got == image_stats(written[picks]) and got != image_stats(real[picks])
     pixels = written[picks][:, ::2, ::2].reshape(-1, 3).astype(np.float64) / 255
     np.testing.assert_allclose(np.ravel(got["mean"]), pixels.mean(0), rtol=1e-12)
@@ -469,10 +469,10 @@ def test_cli_writes_and_refuses_in_one_line_naming_the_flag(written, tmp_path, c
 
 @pytest.mark.parametrize("values", [[7], [0, 255], [3] * 5, list(range(256)) * 3 + [9], "random"])
 def test_camera_stats_from_the_histogram_equal_numpys(values):
-    from controltac_il.lerobot.stats import _channel_stats
+    from controltac_il.lerobot.stats import channel_stats
 
     v = np.random.default_rng(0).integers(0, 256, 4099) if values == "random" else np.asarray(values)
-    st = _channel_stats(np.bincount(v, minlength=256))
+    st = channel_stats(np.bincount(v, minlength=256))
     np.testing.assert_allclose([st[f"q{round(q * 100):02d}"] for q in QUANTILES], np.quantile(v, QUANTILES))
     np.testing.assert_allclose([st["min"], st["max"], st["mean"], st["std"]], [v.min(), v.max(), v.mean(), v.std()])
 

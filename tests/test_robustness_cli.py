@@ -1,4 +1,4 @@
-"""Issue #31 (13): a runtime fault a user can cause or meet ends a CLI with one line on stderr and an exit code,
+"""A runtime fault a user can cause or meet ends a CLI with one line on stderr and an exit code,
 never a traceback. The cheap cases, in-process (no training, no scene): an unreachable robot, a setup that does
 not fit the policy, an output that cannot be written, Ctrl-C. The whole table, with real processes, training runs
 and Ctrl-C sent as a signal: ``python -m benchmarks.robustness --faults``; its judge is checked here too."""

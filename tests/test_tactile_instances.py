@@ -1,4 +1,4 @@
-"""Sensor randomisation: the instance families and datasets rendered across instances (issue #23)."""
+"""Sensor randomisation: the instance families and datasets rendered across instances."""
 
 import numpy as np
 import pytest

@@ -232,7 +232,7 @@ def test_unknown_or_malformed_object_names_are_refused(name):
 
 
 def test_no_procedural_shape_is_a_bumpy_cap_the_held_out_beads_family():
-    """By construction (#33): bumps are never drawn on a shape with a spherical cap, so no training shape is in
+    """By construction: bumps are never drawn on a shape with a spherical cap, so no training shape is in
     textured_bead's family (a bumpy cap); procedural_0057 was one (cap r 2.51 mm, bumps every 0.92 mm)."""
     shapes = [procedural_indenter(k) for k in range(3000)]
     assert not [s.name for s in shapes if "cap" in s.description and "bumps" in s.description]

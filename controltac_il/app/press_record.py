@@ -36,6 +36,7 @@ from pydantic.dataclasses import dataclass
 from controltac_il.config import STRICT
 from controltac_il.generator.forces import VALIDATED_RANGE
 from controltac_il.io import atomic_dir, write_json
+from controltac_il.streams import LOOP, LOOP_STATE, tactile_key
 from hardware.control_loop import ControlLoop, ControlLoopConfig
 from hardware.interfaces import GRIPPER, POSE_DIM, ForceSensor, HardwareError, SensorError
 from hardware.safety import SafetyLimits
@@ -165,7 +166,7 @@ class PressController:
         if not np.isfinite(self.force_n):  # never pressed on blind: the loop stops the arm
             raise SensorError(f"{self.force.name}: the force reads {self.force_n}")
         if self.phase == "approach":
-            self._approach(np.asarray(observation["qpos"], dtype=np.float64))
+            self._approach(np.asarray(observation[LOOP_STATE], dtype=np.float64))
         elif self.phase == "settle":
             self._k += 1
             if self._k >= self.plan.settle_frames:
@@ -263,7 +264,7 @@ def record_presses(setup, sensor: str, force: ForceSensor, plan: PressPlan, star
                                          f"(press {ctrl.press}); the arm was stopped and the finger backed out")
             finished = ctrl.press > len(recs.peaks)  # this step's frame ends the press
             if ctrl.phase in ("settle", "load", "release") or finished:
-                recs.add(obs[f"tactile/{sensor}"], float(loop.clock.now()), ctrl.force_n)
+                recs.add(obs[tactile_key(sensor, LOOP)], float(loop.clock.now()), ctrl.force_n)
             if finished:
                 recs.close_press(len(recs.peaks))
                 if progress is not None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from controltac_il.generator import ForceGenerator
+from controltac_il.streams import LOOP, force_key, tactile_key
 from controltac_il.tactile.residual import OFFSET, to_residual
 from envs.config import PegInHoleConfig
 from envs.peg_in_hole import PegInHoleEnv
@@ -74,8 +75,8 @@ def grip_response(bands: dict, seeds=range(12), generator: str | None = None) ->
         with PegInHoleEnv(cfg) as env:
             out = [env.reset(seed=s)[0] for s in seeds]
             background = env.tactile_background("left")
-        frames[name] = np.stack([to_residual(o["tactile/left"], background) for o in out])
-        forces[name] = np.stack([o["force/left"] for o in out]).astype(np.float32)
+        frames[name] = np.stack([to_residual(o[tactile_key("left", LOOP)], background) for o in out])
+        forces[name] = np.stack([o[force_key("left", LOOP)] for o in out]).astype(np.float32)
     gen = ForceGenerator.from_pretrained(generator)
     ref, f_ref = frames["nominal"], forces["nominal"]
     rows = {}

@@ -191,7 +191,7 @@ def _setup(args) -> ForceAugment:
         raise UsageError("--out", f"expected a cache folder (new, empty, or a cache of these settings); "
                                   f"{args.out} is a file")
     dataset = _open_dataset(args.dataset, _needed_keys(kwargs) if lerobot else None)
-    generator, estimator = _models(args, bool(kwargs.get("pose_offset")))
+    generator, estimator = load_models(args, bool(kwargs.get("pose_offset")))
     if lerobot:
         from controltac_il.lerobot import staging_dir
     cache_dir = staging_dir(args.out) / "cache" if lerobot else args.out
@@ -204,7 +204,7 @@ def _setup(args) -> ForceAugment:
         raise _field_error(exc, "--dataset") from exc
 
 
-def _models(args, pose: bool):
+def load_models(args, pose: bool):
     """(generator, estimator or None) of the flags; UsageError naming the flag."""
     import torch
 

@@ -13,7 +13,7 @@ from controltac_il.tactile.pose import move_mask
 from controltac_il.tactile.residual import contact_mask
 
 
-def _stream(seed: int, *key: int) -> np.random.Generator:
+def draw_stream(seed: int, *key: int) -> np.random.Generator:
     return np.random.Generator(np.random.Philox(np.random.SeedSequence(seed, spawn_key=key)))
 
 
@@ -22,10 +22,10 @@ def copy_offset(seed: int, episode: int, copy: int, offset_range: tuple[float, f
     """Normal-force offset (N) of copy ``copy`` of episode ``episode``: U[offset_range]; with ``target_range``,
     U[target_range] - ``episode_fz`` (the episode's median contact Fz, N; 0 offset when it has no contact)."""
     if target_range is None:
-        return float(_stream(seed, episode, copy, 0).uniform(*offset_range))
+        return float(draw_stream(seed, episode, copy, 0).uniform(*offset_range))
     if episode_fz is None:
         return 0.0
-    return float(_stream(seed, episode, copy, 0).uniform(*target_range)) - float(episode_fz)
+    return float(draw_stream(seed, episode, copy, 0).uniform(*target_range)) - float(episode_fz)
 
 
 def episode_contact_fz(contact: dict, reference: dict) -> float | None:
@@ -41,7 +41,7 @@ def copy_pose_offset(seed: int, episode: int, copy: int, pose_offset) -> tuple[f
     (max_dx_px, max_dy_px, max_dtheta_deg); None when pose augmentation is off."""
     if pose_offset is None:
         return None
-    u = _stream(seed, episode, copy, 3).uniform(-1.0, 1.0, 3) * np.asarray(pose_offset, np.float64)
+    u = draw_stream(seed, episode, copy, 3).uniform(-1.0, 1.0, 3) * np.asarray(pose_offset, np.float64)
     return float(u[0]), float(u[1]), float(np.radians(u[2]))
 
 
@@ -59,7 +59,7 @@ def moved_contact(residual: np.ndarray, move) -> np.ndarray | None:
 
 def frame_jitter(seed: int, episode: int, copy: int, frame: int, jitter: tuple[float, ...]) -> float:
     """Jitter (N) of one frame of a copy: uniform over the ``jitter`` values."""
-    return float(jitter[int(_stream(seed, episode, copy, 1, frame).integers(len(jitter)))])
+    return float(jitter[int(draw_stream(seed, episode, copy, 1, frame).integers(len(jitter)))])
 
 
 def noise_seed(seed: int, episode: int, copy: int, frame: int, key_index: int) -> int:

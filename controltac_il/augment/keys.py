@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from controltac_il.augment.items import as_array, to_hwc_uint8
+from controltac_il.streams import BACKGROUND, FORCE, HDF5, LEROBOT, looks_tactile, rule_key, tactile_key
 
 OFFSET_TOLERANCE = 0.01  # frames: a delta_timestamp must be this close to a whole number of frames
 
@@ -111,17 +112,17 @@ SENSOR_WORDS = ("gelsight", "digit", "tactile", "touch", "gel", "tac")
 def _tactile_keys(probe: dict, wanted) -> tuple[str, ...]:
     images = image_keys(probe)
     if wanted is None:
-        found = [k for k in probe if "tactile" in k and "tactile_background" not in k]
+        found = [k for k in probe if looks_tactile(k)]
         if not found:
             named = [k for k in images if any(w in k.lower() for w in SENSOR_WORDS)]
-            example = named or ["observation.images.<tactile camera>"]
+            example = named or [tactile_key("<tactile camera>", LEROBOT)]
             raise ValueError(f"tactile_keys: the items have no key containing 'tactile' to detect; their image keys "
                              f"are {images}; name the tactile streams, e.g. ForceAugment(dataset, "
                              f"tactile_keys={example!r})")
         return tuple(found)
     keys = []
     for k in wanted:
-        full = next((c for c in (k, f"observation.tactile.{k}", f"observation.images.{k}") if c in probe), None)
+        full = next((c for c in (k, tactile_key(k, HDF5), tactile_key(k, LEROBOT)) if c in probe), None)
         if full is None:
             raise ValueError(f"tactile_keys: unknown tactile key {k!r}; the items' image keys are {images}")
         if full not in images:
@@ -133,9 +134,9 @@ def _tactile_keys(probe: dict, wanted) -> tuple[str, ...]:
     return tuple(keys)
 
 
-def _mapped(probe: dict, key: str, given: dict | None, rule: str, name: str, tactile: tuple) -> str | None:
-    """The label or background key of tactile ``key``: ``given[key]`` when the mapping names it, else the
-    naming rule ('tactile' -> ``rule``) where the key contains 'tactile' and the item has that key."""
+def _mapped(probe: dict, key: str, given: dict | None, kind: str, name: str, tactile: tuple) -> str | None:
+    """The label (``kind`` FORCE) or background (BACKGROUND) key of tactile ``key``: ``given[key]`` when the
+    mapping names it, else the naming rule (``streams.rule_key``) where the item has that key."""
     if given is not None and key in given:
         mk = given[key]
         if mk is None:
@@ -146,10 +147,8 @@ def _mapped(probe: dict, key: str, given: dict | None, rule: str, name: str, tac
         if mk not in probe:
             raise ValueError(f"{name}: {key!r} maps to {mk!r}, which the items do not have; keys: {list(probe)}")
         return mk
-    if "tactile" not in key or "tactile_background" in key:
-        return None
-    mk = key.replace("tactile", rule, 1)
-    return mk if mk in probe else None
+    mk = rule_key(key, kind)
+    return mk if mk is not None and mk in probe else None
 
 
 def resolve_keys(probe: dict, config, dataset) -> KeyMap:
@@ -163,10 +162,10 @@ def resolve_keys(probe: dict, config, dataset) -> KeyMap:
     for k in tactile:
         shape = tuple(probe[k].shape)
         offsets[k] = window_offsets(dataset, probe, k, shape[0], config) if len(shape) == 4 else None
-        lk = _mapped(probe, k, config.force_keys, "force", "force_keys", tactile)
+        lk = _mapped(probe, k, config.force_keys, FORCE, "force_keys", tactile)
         if lk is not None:
             label_offsets.update(_check_label(dataset, probe, k, lk, config))
-        bk = _mapped(probe, k, config.background_keys, "tactile_background", "background_keys", tactile)
+        bk = _mapped(probe, k, config.background_keys, BACKGROUND, "background_keys", tactile)
         if bk is not None:
             _check_background(probe, k, bk, offsets[k] is not None)
         labels[k], backgrounds[k] = lk, bk

@@ -35,6 +35,7 @@ from controltac_il.datasets.background import estimate_background
 from controltac_il.datasets.checks import check_episode, check_same_streams, open_episode, streams
 from controltac_il.datasets.episodes import episode_index, episode_paths
 from controltac_il.io import cache_root, write_json
+from controltac_il.streams import HDF5, HDF5_STATE, background_key, force_key, image_key, tactile_key
 
 STD_FLOOR = 1e-2  # ACT's floor on the std used for normalisation (avoids dividing by ~0)
 
@@ -236,16 +237,16 @@ class EpisodeDataset(Dataset):
         item = {
             "episode_index": self.episode_ids[n],
             "frame_index": t,
-            "observation.qpos": torch.from_numpy(h["qpos"][t]),
+            HDF5_STATE: torch.from_numpy(h["qpos"][t]),
         }
         for cam in self.cameras:
-            item[f"observation.images.{cam}"] = torch.from_numpy(h[f"images.{cam}"][t]).permute(2, 0, 1)
+            item[image_key(cam, HDF5)] = torch.from_numpy(h[f"images.{cam}"][t]).permute(2, 0, 1)
         for s in self.tactile_sensors:
-            if f"observation.tactile.{s}" not in skip_keys:
-                item[f"observation.tactile.{s}"] = torch.from_numpy(h[f"tactile.{s}"][t]).permute(2, 0, 1)
-            item[f"observation.tactile_background.{s}"] = torch.from_numpy(self.backgrounds[(n, s)]).permute(2, 0, 1)
+            if tactile_key(s, HDF5) not in skip_keys:
+                item[tactile_key(s, HDF5)] = torch.from_numpy(h[f"tactile.{s}"][t]).permute(2, 0, 1)
+            item[background_key(s, HDF5)] = torch.from_numpy(self.backgrounds[(n, s)]).permute(2, 0, 1)
         for s in self.force_sensors:
-            item[f"observation.force.{s}"] = torch.from_numpy(h[f"force.{s}"][t])
+            item[force_key(s, HDF5)] = torch.from_numpy(h[f"force.{s}"][t])
         item["action"] = torch.from_numpy(np.ascontiguousarray(chunk, dtype=np.float32))
         item["action_is_pad"] = torch.from_numpy(is_pad)
         return item

@@ -1,6 +1,6 @@
 """``PhotometricAugment``: K extra copies of every episode with the tactile images photometrically jittered.
 
-The control for ForceAugment (issue 19): what a LeRobot user would do with ``image_transforms``
+The control for ForceAugment: what a LeRobot user would do with ``image_transforms``
 (brightness, contrast, blur, noise on one image tensor, knowing nothing of force or background),
 made deterministic and per trajectory like ForceAugment, so that "more varied pixels" and "force-
 conditioned pixels" can be compared at the same number of copies.
@@ -20,8 +20,7 @@ import torch
 from torch.utils.data import Dataset
 
 from controltac_il.datasets.stage import Augmented
-
-TACTILE_PREFIX = "observation.tactile."
+from controltac_il.streams import HDF5_TACTILE
 
 
 @dataclass(frozen=True)
@@ -89,7 +88,7 @@ class PhotometricAugment(Dataset):
         sigma, noise_std = traj.uniform(*j.blur_sigma_px), traj.uniform(*j.noise_std)
         frame_rng = np.random.default_rng([self.seed, episode, copy, frame])
         out = dict(item)
-        for key in sorted(k for k in item if k.startswith(TACTILE_PREFIX)):
+        for key in sorted(k for k in item if k.startswith(HDF5_TACTILE)):
             image = item[key].permute(1, 2, 0).numpy()
             noise = frame_rng.normal(0.0, noise_std, image.shape).astype(np.float32)
             out[key] = torch.from_numpy(jitter_image(image, gain, contrast, sigma, noise)).permute(2, 0, 1)

@@ -34,12 +34,10 @@ from controltac_il.datasets.act_dataset import STD_FLOOR
 from controltac_il.datasets.background import estimate_background
 from controltac_il.datasets.checks import check_force_labels
 from controltac_il.lerobot.reader import LeRobotFolder, decode_png, numbers, read_info
+from controltac_il.streams import (HDF5, LEROBOT, LEROBOT_STATE, background_key, force_key, lerobot_name,
+                                   lerobot_to_hdf5)
 
 TACTILE_WORDS = ("gelsight", "tactile", "digit")
-
-
-def _name(key: str) -> str:
-    return key.rsplit(".", 1)[-1]
 
 
 def _numeric(root: Path, keys: list[str]) -> dict[str, np.ndarray]:
@@ -78,7 +76,7 @@ class LeRobotEpisodes(Dataset):
         self.root, self.chunk_size = Path(root).resolve(), chunk_size
         info = read_info(self.root)
         features, fps = info["features"], int(info["fps"])
-        for key in ("observation.state", "action"):
+        for key in (LEROBOT_STATE, "action"):
             if key not in features:
                 raise ValueError(f"root: {self.root} has no {key!r} feature (ACT needs the state and the actions)")
         cams = [k for k, ft in features.items() if ft["dtype"] in ("image", "video")]
@@ -86,9 +84,9 @@ class LeRobotEpisodes(Dataset):
         unknown = [k for k in every if k not in cams]
         if unknown:
             raise ValueError(f"tactile_keys: {unknown} are not cameras of the dataset ({cams})")
-        tactile = [k for k in every if tactile_sensors is None or _name(k) in set(tactile_sensors)]
-        self.tactile_keys = {_name(k): k for k in tactile}
-        self.camera_keys = {_name(k): k for k in cams if k not in every}
+        tactile = [k for k in every if tactile_sensors is None or lerobot_name(k) in set(tactile_sensors)]
+        self.tactile_keys = {lerobot_name(k): k for k in tactile}
+        self.camera_keys = {lerobot_name(k): k for k in cams if k not in every}
         self.force_keys = self._forces(tactile, force_keys, features)
         self.folder = LeRobotFolder(self.root, delta_timestamps={"action": [k / fps for k in range(chunk_size)]})
         self.cameras, self.tactile_sensors = list(self.camera_keys), list(self.tactile_keys)
@@ -96,9 +94,9 @@ class LeRobotEpisodes(Dataset):
         self.episode_ids = sorted(self.folder.episodes)
         self._position = {e: n for n, e in enumerate(self.episode_ids)}
         self.lengths = np.asarray([int(self.folder.episodes[e]["length"]) for e in self.episode_ids], np.int64)
-        columns = _numeric(self.root, list(dict.fromkeys(["observation.state", "action", *self.force_keys.values()])))
+        columns = _numeric(self.root, list(dict.fromkeys([LEROBOT_STATE, "action", *self.force_keys.values()])))
         self.stats = {name: {"mean": v.mean(0).astype(np.float32), "std": np.maximum(v.std(0), STD_FLOOR).astype(np.float32)}
-                      for name, v in (("qpos", columns["observation.state"]), ("action", columns["action"]))}
+                      for name, v in (("qpos", columns[LEROBOT_STATE]), ("action", columns["action"]))}
         for key in self.force_keys.values():  # finite, in N, Fz > 0 pressing, as an HDF5 episode's labels
             check_force_labels(f"{self.root.name}: {key}", columns[key])
         self.backgrounds = self._backgrounds()
@@ -106,7 +104,7 @@ class LeRobotEpisodes(Dataset):
     @staticmethod
     def _forces(tactile: list[str], force_keys, features: dict) -> dict[str, str]:
         if force_keys is None:
-            found = {_name(k): f"observation.{_name(k)}.force" for k in tactile}
+            found = {lerobot_name(k): force_key(lerobot_name(k), LEROBOT) for k in tactile}
             found = {s: f for s, f in found.items() if f in features}
             odd = [f"{f} {features[f]['shape']}" for f in found.values() if tuple(features[f]["shape"]) != (3,)]
             if odd:
@@ -117,7 +115,7 @@ class LeRobotEpisodes(Dataset):
                tuple(features[f]["shape"]) != (3,)]
         if bad:
             raise ValueError(f"force_keys: {bad} are not (3,) force features of tactile keys of the dataset")
-        return {_name(k): f for k, f in force_keys.items()}
+        return {lerobot_name(k): f for k, f in force_keys.items()}
 
     def _backgrounds(self) -> dict:
         """{(episode position, sensor): uint8 (H, W, 3)}, each estimated from the episode's own frames."""
@@ -149,15 +147,15 @@ class LeRobotEpisodes(Dataset):
         src = self.folder[index]
         e = int(src["episode_index"])
         item = {"episode_index": e, "frame_index": int(src["frame_index"]),
-                "observation.qpos": src["observation.state"].float()}
-        for c, key in self.camera_keys.items():
-            item[f"observation.images.{c}"] = _uint8(src[key])
+                lerobot_to_hdf5(LEROBOT_STATE): src[LEROBOT_STATE].float()}
+        for key in self.camera_keys.values():
+            item[lerobot_to_hdf5(key)] = _uint8(src[key])
         for s, key in self.tactile_keys.items():
-            item[f"observation.tactile.{s}"] = _uint8(src[key])
+            item[lerobot_to_hdf5(key, tactile=True)] = _uint8(src[key])
             bg = self.backgrounds[(self._position[e], s)]
-            item[f"observation.tactile_background.{s}"] = torch.from_numpy(bg).permute(2, 0, 1)
+            item[background_key(s, HDF5)] = torch.from_numpy(bg).permute(2, 0, 1)
         for s in self.force_sensors:
-            item[f"observation.force.{s}"] = src[self.force_keys[s]].float()
+            item[force_key(s, HDF5)] = src[self.force_keys[s]].float()
         item["action"], item["action_is_pad"] = src["action"].float(), src["action_is_pad"]
         return item
 

@@ -50,6 +50,7 @@ from controltac_il.lerobot.stats import (STAT_NAMES, complete_stats, frame_histo
                                          sample_indices, vector_stats)
 from controltac_il.lerobot.video import decode_video, encode_video, video_codec
 from controltac_il.lerobot.writer import png_bytes, write_data_parquet
+from controltac_il.streams import lerobot_name
 
 PREFIX = "augment"
 DEFAULTS = ("timestamp", "frame_index", "episode_index", "index", "task_index")
@@ -57,7 +58,7 @@ DEFAULTS = ("timestamp", "frame_index", "episode_index", "index", "task_index")
 
 def provenance_names(tactile_keys) -> dict[str, str]:
     """tactile key -> the camera name of its provenance features; ValueError naming ``tactile_keys``."""
-    names = {k: k.rsplit(".", 1)[-1] for k in tactile_keys}
+    names = {k: lerobot_name(k) for k in tactile_keys}
     bad = [n for n in names.values() if "image" in n or list(names.values()).count(n) > 1]
     if bad:
         raise ValueError(f"tactile_keys: provenance features are named by each camera's last name part, which must "
@@ -283,7 +284,7 @@ class LeRobotExport:
             row.update(self._video(j, src, key, regenerated.get(key), writer))
         stats = dict(src.shared)
         for key, (rows, images) in regenerated.items():
-            stats[key] = _tactile_stats(src.histograms[key], src.picks, rows, images)
+            stats[key] = tactile_stats(src.histograms[key], src.picks, rows, images)
             writer["regenerated"] += len(rows)
         for name, value in writer.items():
             counts[name] += value
@@ -363,7 +364,7 @@ def _replace_images(table: pa.Table, key: str, rows: np.ndarray, images: list) -
     return table.set_column(i, table.schema.field(i), pa.array(cells, type=table.schema.field(i).type))
 
 
-def _tactile_stats(histograms: np.ndarray, picks: np.ndarray, rows: np.ndarray, images: list) -> dict:
+def tactile_stats(histograms: np.ndarray, picks: np.ndarray, rows: np.ndarray, images: list) -> dict:
     """Stats of a tactile camera in a copy: the source's frame histograms at ``picks`` (int64 (len(picks), 3,
     256)), those of the regenerated frames (``images`` at ``rows``) in their place."""
     where = {int(r): n for n, r in enumerate(rows)}

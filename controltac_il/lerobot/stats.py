@@ -42,12 +42,12 @@ def frame_histograms(frames: np.ndarray) -> np.ndarray:
 
 def histogram_stats(counts: np.ndarray, frames: int) -> dict:
     """Stats of ``frames`` sampled frames from their summed channel histograms int (3, 256) (``image_stats``)."""
-    stats = [_channel_stats(counts[c]) for c in range(3)]
+    stats = [channel_stats(counts[c]) for c in range(3)]
     out = {k: [[[st[k] / 255.0]] for st in stats] for k in STAT_NAMES if k != "count"}
     return {**out, "count": [int(frames)]}
 
 
-def _channel_stats(counts: np.ndarray) -> dict:
+def channel_stats(counts: np.ndarray) -> dict:
     """min, max, mean, std and quantiles (as ``np.quantile``'s linear rule) of uint8 values given by their
     256-bin histogram (256,): exact, and without sorting."""
     counts = counts.astype(np.float64)

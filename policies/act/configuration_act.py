@@ -13,6 +13,7 @@ from pydantic import AfterValidator, Field, model_validator
 from pydantic.dataclasses import dataclass
 
 from controltac_il.config import STRICT, JsonConfig
+from controltac_il.streams import HDF5, HDF5_STATE, background_key, image_key, tactile_key
 
 BACKBONES = ("resnet18", "small_cnn")
 PosInt = Annotated[int, Field(gt=0)]
@@ -121,8 +122,8 @@ class ACTConfig(JsonConfig):
     @property
     def input_keys(self) -> list[str]:
         """Batch keys the model reads (LeRobot-style names, as produced by EpisodeDataset)."""
-        keys = ["observation.qpos"]
-        keys += [f"observation.images.{c}" for c in self.camera_names]
-        keys += [f"observation.tactile.{s}" for s in self.tactile_names]
-        keys += [f"observation.tactile_background.{s}" for s in self.tactile_names]
+        keys = [HDF5_STATE]
+        keys += [image_key(c, HDF5) for c in self.camera_names]
+        keys += [tactile_key(s, HDF5) for s in self.tactile_names]
+        keys += [background_key(s, HDF5) for s in self.tactile_names]
         return keys

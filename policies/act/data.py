@@ -14,6 +14,7 @@ from torch.utils.data import Dataset
 
 from controltac_il.datasets import EpisodeDataset, EpisodeSubset
 from controltac_il.lerobot import LeRobotEpisodes
+from controltac_il.streams import LOOP, image_key, tactile_key
 from policies.act.configuration_act import ACTConfig
 
 
@@ -34,8 +35,8 @@ class DataSpec:
 
 def check_compatible(config: ACTConfig, spec: DataSpec, where: str = "dataset") -> None:
     """Raise ValueError when data described by ``spec`` lacks what ``config`` expects."""
-    missing = [f"images/{c}" for c in config.camera_names if c not in spec.camera_names]
-    missing += [f"tactile/{s}" for s in config.tactile_names if s not in spec.tactile_names]
+    missing = [image_key(c, LOOP) for c in config.camera_names if c not in spec.camera_names]
+    missing += [tactile_key(s, LOOP) for s in config.tactile_names if s not in spec.tactile_names]
     if missing:
         raise ValueError(f"{where} is missing {missing} that the checkpoint expects (it has cameras "
                          f"{list(spec.camera_names)}, tactile sensors {list(spec.tactile_names)})")

@@ -17,6 +17,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from controltac_il.streams import HDF5, HDF5_STATE, background_key, image_key, tactile_key
 from policies.act.backbone import build_backbone, sine_positions_1d, sine_positions_2d
 from policies.act.configuration_act import ACTConfig
 
@@ -101,9 +102,9 @@ class ACT(nn.Module):
         if missing:
             raise ValueError(f"batch is missing {missing}; the policy expects cameras {list(cfg.camera_names)} "
                              f"and tactile sensors {list(cfg.tactile_names)}")
-        qpos = batch["observation.qpos"]
+        qpos = batch[HDF5_STATE]
         if qpos.ndim != 2 or qpos.shape[1] != cfg.state_dim:
-            raise ValueError(f"observation.qpos must be (B, {cfg.state_dim}), got {tuple(qpos.shape)}")
+            raise ValueError(f"{HDF5_STATE} must be (B, {cfg.state_dim}), got {tuple(qpos.shape)}")
         b = qpos.shape[0]
         for k in keys[1:len(cfg.input_keys)]:
             x = batch[k]
@@ -130,15 +131,15 @@ class ACT(nn.Module):
         dtype = self.queries.dtype
         streams = []
         for i, cam in enumerate(cfg.camera_names):
-            x = batch[f"observation.images.{cam}"].to(self.queries.device, dtype) / 255.0
+            x = batch[image_key(cam, HDF5)].to(self.queries.device, dtype) / 255.0
             x = F.interpolate(x, size=cfg.camera_size, mode="bilinear", align_corners=False)
             streams.append(self._stream_tokens((x - 0.5) / 0.25, self.camera_backbone, self.camera_proj, i))
         for j, s in enumerate(cfg.tactile_names):
-            img = batch[f"observation.tactile.{s}"].to(self.queries.device, dtype)
-            bg = batch[f"observation.tactile_background.{s}"].to(self.queries.device, dtype)
+            img = batch[tactile_key(s, HDF5)].to(self.queries.device, dtype)
+            bg = batch[background_key(s, HDF5)].to(self.queries.device, dtype)
             if bg.shape != img.shape:
-                raise ValueError(f"observation.tactile_background.{s} {tuple(bg.shape)} must match "
-                                 f"observation.tactile.{s} {tuple(img.shape)}")
+                raise ValueError(f"{background_key(s, HDF5)} {tuple(bg.shape)} must match "
+                                 f"{tactile_key(s, HDF5)} {tuple(img.shape)}")
             x = F.interpolate((img - bg) / 255.0, size=cfg.tactile_size, mode="bilinear", align_corners=False)
             streams.append(self._stream_tokens(x * 4.0, self.tactile_backbone, self.tactile_proj,
                                                len(cfg.camera_names) + j))
@@ -160,7 +161,7 @@ class ACT(nn.Module):
         cfg = self.config
         b = self.check_batch(batch, training=True)
         dev, dtype = self.queries.device, self.queries.dtype
-        qpos_n = (batch["observation.qpos"].to(dev, dtype) - self.qpos_mean) / self.qpos_std
+        qpos_n = (batch[HDF5_STATE].to(dev, dtype) - self.qpos_mean) / self.qpos_std
         action_n = (batch["action"].to(dev, dtype) - self.action_mean) / self.action_std
         is_pad = batch["action_is_pad"].to(dev, torch.bool)
         seq = torch.cat([self.vae_cls.expand(b, 1, -1), self.vae_qpos_proj(qpos_n)[:, None],
@@ -181,6 +182,6 @@ class ACT(nn.Module):
         """Action chunks (B, N_a, A) in the dataset's units (z = 0)."""
         b = self.check_batch(batch, training=False)
         dev, dtype = self.queries.device, self.queries.dtype
-        qpos_n = (batch["observation.qpos"].to(dev, dtype) - self.qpos_mean) / self.qpos_std
+        qpos_n = (batch[HDF5_STATE].to(dev, dtype) - self.qpos_mean) / self.qpos_std
         z = torch.zeros(b, self.config.latent_dim, device=dev, dtype=dtype)
         return self._decode(batch, z, qpos_n) * self.action_std + self.action_mean

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from controltac_il.streams import LOOP, LOOP_STATE, background_key, image_key, loop_to_hdf5, tactile_key
 from policies.act.checkpoint import load_checkpoint
 from policies.act.configuration_act import ACTConfig
 from policies.act.modeling_act import ACT
@@ -35,26 +36,30 @@ class ACTPolicy:
     def config(self) -> ACTConfig:
         return self.model.config
 
+    def _image_keys(self) -> list[str]:
+        """The observation keys of the policy's cameras and tactile images, in the batch's order."""
+        cfg = self.config
+        return [image_key(c, LOOP) for c in cfg.camera_names] + [tactile_key(s, LOOP) for s in cfg.tactile_names]
+
     def check_observation(self, observation: dict) -> None:
         """Raise ValueError if ``observation`` lacks a stream the policy needs or has the wrong sizes."""
         cfg = self.config
-        missing = [k for k in ["qpos"] + [f"images/{c}" for c in cfg.camera_names]
-                   + [f"tactile/{s}" for s in cfg.tactile_names] if k not in observation]
-        missing += [f"tactile_background/{s}" for s in cfg.tactile_names
-                    if f"tactile_background/{s}" not in observation and s not in self.backgrounds]
+        missing = [k for k in [LOOP_STATE, *self._image_keys()] if k not in observation]
+        missing += [background_key(s, LOOP) for s in cfg.tactile_names
+                    if background_key(s, LOOP) not in observation and s not in self.backgrounds]
         if missing:
             raise ValueError(f"observation is missing {missing}; the checkpoint expects cameras "
                              f"{list(cfg.camera_names)} and tactile sensors {list(cfg.tactile_names)}")
-        qpos = np.asarray(observation["qpos"])
+        qpos = np.asarray(observation[LOOP_STATE])
         if qpos.shape != (cfg.state_dim,):
-            raise ValueError(f"observation['qpos'] must have shape ({cfg.state_dim},), got {qpos.shape}")
-        for key in [f"images/{c}" for c in cfg.camera_names] + [f"tactile/{s}" for s in cfg.tactile_names]:
+            raise ValueError(f"observation[{LOOP_STATE!r}] must have shape ({cfg.state_dim},), got {qpos.shape}")
+        for key in self._image_keys():
             img = np.asarray(observation[key])
             if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
                 raise ValueError(f"observation[{key!r}] must be uint8 (H, W, 3), got {img.dtype} {img.shape}")
 
     def _background(self, observation: dict, sensor: str) -> np.ndarray:
-        return np.asarray(observation.get(f"tactile_background/{sensor}", self.backgrounds.get(sensor)))
+        return np.asarray(observation.get(background_key(sensor, LOOP), self.backgrounds.get(sensor)))
 
     def to_batch(self, observation: dict) -> dict[str, torch.Tensor]:
         """One observation as a batch of one in the model's key layout."""
@@ -64,12 +69,13 @@ class ACTPolicy:
         def chw(a) -> torch.Tensor:
             return torch.from_numpy(np.ascontiguousarray(np.asarray(a).transpose(2, 0, 1)))[None]
 
-        batch = {"observation.qpos": torch.as_tensor(np.asarray(observation["qpos"], np.float32))[None]}
+        qpos = torch.as_tensor(np.asarray(observation[LOOP_STATE], np.float32))[None]
+        batch = {loop_to_hdf5(LOOP_STATE): qpos}
         for c in cfg.camera_names:
-            batch[f"observation.images.{c}"] = chw(observation[f"images/{c}"])
+            batch[loop_to_hdf5(image_key(c, LOOP))] = chw(observation[image_key(c, LOOP)])
         for s in cfg.tactile_names:
-            batch[f"observation.tactile.{s}"] = chw(observation[f"tactile/{s}"])
-            batch[f"observation.tactile_background.{s}"] = chw(self._background(observation, s))
+            batch[loop_to_hdf5(tactile_key(s, LOOP))] = chw(observation[tactile_key(s, LOOP)])
+            batch[loop_to_hdf5(background_key(s, LOOP))] = chw(self._background(observation, s))
         return batch
 
     def predict_chunk(self, observation: dict) -> np.ndarray:

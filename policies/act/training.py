@@ -36,6 +36,7 @@ from tqdm import tqdm
 from controltac_il.config import STRICT
 from controltac_il.io import write_json
 from controltac_il.outputs import claim_output, own_checkpoint, own_json
+from controltac_il.streams import HDF5_STATE
 from controltac_il.training import (StepBatches, barrier, lr_schedule, optimise, seed_update, setup_distributed,
                                     wrap)
 from policies.act.checkpoint import (BACKGROUND_FILE, FORMAT, WEIGHTS_FILE, CheckpointError, load_checkpoint,
@@ -245,7 +246,7 @@ def train(act_config: ACTConfig, train_config: ACTTrainConfig, train_set: Datase
     def batch_loss(at: int) -> dict:
         seed_update(train_config.seed, at, rank)  # dropout and the CVAE's noise: a function of the step
         batch = next(batches)
-        samples[0] += batch["observation.qpos"].shape[0] * world
+        samples[0] += batch[HDF5_STATE].shape[0] * world
         return ddp(batch)
 
     def after_step(at: int, out: dict) -> None:
