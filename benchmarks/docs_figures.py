@@ -97,11 +97,17 @@ def touch_il_verdict_v2() -> str:
     return verdict_figures.block(doc, ft.provenance("touch_il_verdict_v2.json", doc, None))
 
 
+def touch_il_verdict_v3() -> str:
+    """The confirmatory verdict's docs block, running or decided (``benchmarks.verdict_figures``)."""
+    doc = ft.load("touch_il_verdict_v3.json")
+    return verdict_figures.block(doc, ft.provenance("touch_il_verdict_v3.json", doc, None))
+
+
 def headline() -> str:
     """One row per headline figure: what, the figure, its spread or interval, its docs section, its JSON."""
     names = ("generator.json", "finetune.json", "calibration.json", "touch_il_verdict.json", "env.json", "act.json",
-             "generator_speed.json", "touch_il_verdict_v2.json", "finetune_quality.json")
-    gen, fin, cal, ver, env, act, speed, v2, fin_q = docs = [ft.load(n) for n in names]
+             "generator_speed.json", "touch_il_verdict_v2.json", "finetune_quality.json", "touch_il_verdict_v3.json")
+    gen, fin, cal, ver, env, act, speed, v2, fin_q, v3 = docs = [ft.load(n) for n in names]
     src = {n: f"`{n}` ({doc['machine']['git_commit']}, {doc['machine']['date_utc'][:10]})"
            + (" *History*" if ft.source(n, doc).startswith("*History") else "") for n, doc in zip(names, docs)}
     first, last, first_q = fin["rows"][0], fin["rows"][-1], fin_q["rows"][0]
@@ -123,6 +129,7 @@ def headline() -> str:
          "[calibration](docs/calibration.md#what-calibration-buys-the-fine-tuning-curve)",
          f"{src['finetune.json']}, {src['finetune_quality.json']}"],
         _calibration_row(cal, src["calibration.json"]),
+        *verdict_figures.headline_rows_v3(v3, src["touch_il_verdict_v3.json"]),
         *verdict_figures.headline_rows(v2, src["touch_il_verdict_v2.json"]),
         ["touch matters: ACT without its tactile streams vs with them, grip as in the demos",
          f"{vis['diff'] * 100:+.1f} points: **{vis['verdict']}**", ft.ci_points(vis) + " (95 % CI)", verdict_link,
@@ -288,4 +295,4 @@ def _speed(row: dict) -> str:
 BLOCKS = {"calibration": calibration, "calibration-methods": calibration_methods, "sensor": sensor,
           "env-speed": env_speed, "hardware": hardware, "generation-chunk": generation_chunk,
           "force-scaling": force_scaling, "headline": headline, "generator-frontier": generator_frontier,
-          "touch-il-verdict-v2": touch_il_verdict_v2, "finetune": finetune}
+          "touch-il-verdict-v2": touch_il_verdict_v2, "touch-il-verdict-v3": touch_il_verdict_v3, "finetune": finetune}

@@ -57,7 +57,7 @@ def comparisons_table(doc: dict) -> str:
              f"{c['p_t']:.3g}", f"{c['p_holm']:.3g}" if c["p_holm"] is not None else "–",
              f"**{c['verdict']}**" if c["verdict"] else ("secondary" if not c["primary"] else "pending")] for c in comps]
     return ft.table(["comparison", "setting", "points [95 % CI]", "p sign-flip (seeds)", "p paired t", "p Holm",
-                     "verdict"], rows) if rows else "Comparisons: pending (no test unit yet)."
+                     "verdict"], rows) if rows else "Comparisons: pending (no look complete yet)."
 
 
 def validation_table(doc: dict) -> str:
@@ -91,11 +91,13 @@ def looks_table(doc: dict) -> str:
     """A sequential design's looks: seeds, the alpha it rejects below, futility, and the decision once complete."""
     looks = doc["protocol"].get("looks") or []
     done = {lk["look"]: lk for lk in doc.get("looks", [])}
-    rows = []
+    seeds, rows = doc["protocol"]["train_seeds"], []
     for k, look in enumerate(looks, start=1):
         lk = done.get(k, {"complete": False, "tested_units": 0, "units": 2 * look["seeds"]})
+        trained = sum(u["kind"] == "train" and u["seed"] in seeds[:look["seeds"]] for u in doc["units"])
         status = (f"{lk['stop']}: p {lk['p']:.3g}, {lk['diff'] * 100:+.1f} points {ft.ci_points(lk)}"
-                  if lk["complete"] else f"pending ({lk['tested_units']} of {lk['units']} units tested)")
+                  if lk["complete"] else
+                  f"pending: {trained} of {lk['units']} units trained, {lk['tested_units']} tested at their step")
         rows.append([k, look["seeds"], f"p < {look['alpha']:g}", "mean <= 0 stops" if look["futility"] else "–", status])
     return ft.table(["look", "paired seeds", "rejects at", "futility", "decision"], rows) if rows else ""
 

@@ -105,6 +105,7 @@ def _v3_doc(tested_seeds: int) -> dict:
     looks = [{"seeds": lk.seeds, "alpha": lk.alpha, "futility": lk.futility} for lk in v3.looks]
     doc = {"benchmark": "touch_il_verdict_v3", "units": units, "steps": {v: {"step": 8000} for v in v3.variants},
            "protocol": {"demos": 50, "power": {"statement": "stated first"}, "looks": looks, "variants": list(v3.variants),
+                        "train_seeds": seeds,
                         "settings": {k: list(b) for k, b in v3.settings.items()}, "stress_test": vp.STRESS,
                         "recipe": {"snapshots": list(v3.snapshots)}},
            "force_augment_counts": {}}
@@ -121,7 +122,8 @@ def test_v3_prints_a_look_only_once_complete_and_its_readme_row_says_running_unt
     assert exc.value.code == 2 and len(err) == 1 and "--look: look 1 is analysed once its 24 units are tested; 22 are" in err[0]
     running = _v3_doc(tested_seeds=11)
     assert vf.headline_rows_v3(running, "src")[0][1] == "running: no look complete yet"
-    assert "| 1 | 12 | p < 0.001 | mean <= 0 stops | pending (22 of 24 units tested) |" in vf.looks_table(running)
+    assert ("| 1 | 12 | p < 0.001 | mean <= 0 stops | pending: 24 of 24 units trained, 22 tested at their step |"
+            in vf.looks_table(running))
     done = _v3_doc(tested_seeds=12)
     path.write_text(json.dumps(done))
     assert vf.main([str(path), "--look", "1"]) == 0
