@@ -243,8 +243,8 @@ def _protocol_commit(path: Path) -> str | None:
     return out.stdout.strip() or None
 
 
-def _load_done(args, p, signature: str) -> dict[str, dict]:
-    """Finished units of this protocol, from ``RUNS/units`` and (with --resume) the units already in --out."""
+def _load_done(args, p, signature: str, previous: dict) -> dict[str, dict]:
+    """Finished units of this protocol, from ``RUNS/units`` and (with --resume) ``previous``, the --out already there."""
     guard = args.runs / "protocol.json"
     if guard.is_file():
         if not args.resume:
@@ -252,12 +252,11 @@ def _load_done(args, p, signature: str) -> dict[str, dict]:
         if json.loads(guard.read_text()).get("signature") != signature:
             p.error(f"--runs: {args.runs} holds a grid of another protocol; choose another --runs folder")
     done = {}
-    if args.resume and args.out is not None and args.out.is_file():
-        doc = json.loads(args.out.read_text())
-        if doc.get("protocol", {}).get("signature") != signature:
+    if previous:
+        if previous.get("protocol", {}).get("signature") != signature:
             p.error(f"--out: {args.out} holds another protocol's grid (signature "
-                    f"{doc.get('protocol', {}).get('signature')}, this one {signature})")
-        done.update({u["id"]: u for u in doc.get("units", [])})
+                    f"{previous.get('protocol', {}).get('signature')}, this one {signature})")
+        done.update({u["id"]: u for u in previous.get("units", [])})
     for path in sorted((args.runs / "units").glob("*.json")):
         unit = json.loads(path.read_text())
         if unit.get("signature") == signature:
@@ -332,16 +331,18 @@ def main(argv=None) -> dict:
 
     proto: Protocol = args.protocol
     torch.set_num_threads(2 if args.jobs == 1 else 1)
-    _check_generator(p, proto)
-    protocol = record(proto, args.seeds, args.demos, args.batch_size, proto.snapshots, 200 if args.quick else 2000)
+    generator = _check_generator(p, proto)
+    protocol = record(proto, args.seeds, args.demos, args.batch_size, proto.snapshots, generator,
+                      200 if args.quick else 2000)
     signature = signature_of(protocol)
-    done = _load_done(args, p, signature)
+    previous = json.loads(args.out.read_text()) if args.resume and args.out and args.out.is_file() else {}
+    done = _load_done(args, p, signature, previous)
     write_json(args.runs / "protocol.json", {"signature": signature, **protocol})
     protocol.update(signature=signature, fixed_at_commit=_protocol_commit(Path(__file__).with_name("verdict_protocols.py")))
     demos_dir = budget_demos(default_demos(args.demos if args.quick else DEMO_SEEDS[1], seed=0, scene="touch_critical"),
                              args.runs, args.demos)
     results: dict = {"benchmark": f"touch_il_verdict_{proto.name}", "protocol": protocol}
-    earlier = json.loads(args.out.read_text()).get("wall_s", {}) if args.resume and args.out and args.out.is_file() else {}
+    earlier = previous.get("wall_s", {})
     wall = WallTime(args.runs, args.resume, earlier=[*earlier.get("earlier_invocations", []),
                                                       *([earlier["this_invocation"]] if earlier else [])])
     results["force_augment_counts"] = augment_counts(Path(demos_dir), proto.variants)
@@ -366,8 +367,8 @@ def main(argv=None) -> dict:
     return results
 
 
-def _check_generator(p, proto: Protocol) -> None:
-    """The shipped default generator must be the one the protocol pins (its hash in ``figure_text``)."""
+def _check_generator(p, proto: Protocol) -> str:
+    """The shipped default generator's hash, which must be the one the protocol pins (``figure_text``'s)."""
     from benchmarks.figure_text import SHIPPED_GENERATOR
     from controltac_il.generator.checkpoint import checkpoint_hash
     from controltac_il.generator.shipped import locate_checkpoint
@@ -375,6 +376,7 @@ def _check_generator(p, proto: Protocol) -> None:
     have = checkpoint_hash(locate_checkpoint(None))
     if have != SHIPPED_GENERATOR:
         p.error(f"--protocol: {proto.name} pins the default generator {SHIPPED_GENERATOR}; this checkout ships {have}")
+    return have
 
 
 def _grid(proto: Protocol, args, ctx: dict, results: dict, done: dict, save) -> None:

@@ -93,13 +93,25 @@ def looks_table(doc: dict) -> str:
     done = {lk["look"]: lk for lk in doc.get("looks", [])}
     seeds, rows = doc["protocol"]["train_seeds"], []
     for k, look in enumerate(looks, start=1):
-        lk = done.get(k, {"complete": False, "tested_units": 0, "units": 2 * look["seeds"]})
+        lk = done.get(k, {"complete": False, "tested_units": 0, "units": _units(doc, look)})
         trained = sum(u["kind"] == "train" and u["seed"] in seeds[:look["seeds"]] for u in doc["units"])
         status = (f"{lk['stop']}: p {lk['p']:.3g}, {lk['diff'] * 100:+.1f} points {ft.ci_points(lk)}"
                   if lk["complete"] else
                   f"pending: {trained} of {lk['units']} units trained, {lk['tested_units']} tested at their step")
         rows.append([k, look["seeds"], f"p < {look['alpha']:g}", "mean <= 0 stops" if look["futility"] else "–", status])
     return ft.table(["look", "paired seeds", "rejects at", "futility", "decision"], rows) if rows else ""
+
+
+def _units(doc: dict, look: dict) -> int:
+    """How many (variant, seed) units a look analyses."""
+    return len(doc["protocol"]["variants"]) * look["seeds"]
+
+
+def _augmentation(protocol: dict, variant: str) -> str:
+    """``2 copies, the paper's offsets`` or ``2 copies, targets over 1–10 N``: what a ForceAugment variant draws."""
+    span = protocol["force_settings"].get(variant, {}).get("target_range")
+    return f"{protocol['copies'][variant]} copies, " + (f"targets over {span[0]:g}–{span[1]:g} N" if span
+                                                         else "the paper's offsets")
 
 
 def headline_rows(doc: dict, source: str) -> list[list[str]]:
@@ -109,10 +121,8 @@ def headline_rows(doc: dict, source: str) -> list[list[str]]:
     for v in dict.fromkeys(c["variant"] for c in doc["comparisons"] if c["primary"]):
         cs = [c for c in doc["comparisons"] if c["variant"] == v]
         where = " / ".join(setting_label(doc, c["setting"]) for c in cs)
-        span = protocol["force_settings"].get(v, {}).get("target_range")
-        what = f"{protocol['copies'][v]} copies, " + (f"targets over {span[0]:g}–{span[1]:g} N" if span
-                                                      else "the paper's offsets")
-        rows.append([f"the verdict (v2, exploratory): ACT with ForceAugment `{v}` ({what}) vs ACT on the real demos, "
+        rows.append([f"the verdict (v2, exploratory): ACT with ForceAugment `{v}` ({_augmentation(protocol, v)}) "
+                     "vs ACT on the real demos, "
                      f"{seeds} paired training seeds",
                      " / ".join(f"{c['diff'] * 100:+.1f}" for c in cs) + f" points ({where}): "
                      + " / ".join(f"**{c['verdict'] or 'pending'}**" for c in cs),
@@ -125,8 +135,10 @@ def headline_rows(doc: dict, source: str) -> list[list[str]]:
 def headline_rows_v3(doc: dict, source: str) -> list[list[str]]:
     """The README row of the confirmatory verdict: its primary comparison at the look where the design stopped."""
     stopped = [lk for lk in doc.get("looks", []) if lk.get("complete") and lk["stop"] != "continue"]
-    what = (f"the verdict (v3, confirmatory): ACT with ForceAugment `fa2` (2 copies, the paper's offsets) vs ACT on "
-            f"the real demos at the demos' grip, fresh seeds")
+    variant, setting = doc["protocol"]["primary"][0]
+    what = (f"the verdict (v3, confirmatory): ACT with ForceAugment `{variant}` "
+            f"({_augmentation(doc['protocol'], variant)}) vs ACT on the real demos, {setting_label(doc, setting)}, "
+            "fresh seeds")
     if not stopped:
         return [[what, "running: no look complete yet", "–", LINK_V3, source]]
     lk = stopped[-1]
@@ -162,7 +174,7 @@ def _show_look(p, doc: dict, k: int) -> int:
     lk = next((x for x in doc.get("looks", []) if x["look"] == k), None)
     if lk is None or not lk["complete"]:
         n = 0 if lk is None else lk["tested_units"]
-        p.error(f"--look: look {k} is analysed once its {2 * looks[k - 1]['seeds']} units are tested; {n} are")
+        p.error(f"--look: look {k} is analysed once its {_units(doc, looks[k - 1])} units are tested; {n} are")
     print(f"look {k} ({len(lk['seeds'])} paired seeds): {lk['sentence']}")
     return 0
 

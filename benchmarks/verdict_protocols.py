@@ -174,11 +174,11 @@ def holm_power(n: int) -> dict:
     return p
 
 
-def record(protocol: Protocol, seeds, demos: int, batch_size: int, snapshots, power_reps: int = 2000) -> dict:
-    """The JSON record of a run of ``protocol`` (hashed into its signature; a resumed grid must match it)."""
+def record(protocol: Protocol, seeds, demos: int, batch_size: int, snapshots, generator: str,
+           power_reps: int = 2000) -> dict:
+    """The JSON record of a run of ``protocol`` with the default generator of hash ``generator`` (hashed into its
+    signature; a resumed grid must match it)."""
     from controltac_il.app.experiment import touch_scene
-    from controltac_il.generator.checkpoint import checkpoint_hash
-    from controltac_il.generator.shipped import locate_checkpoint
 
     looks = tuple(protocol.looks)
     power = (holm_power(len(seeds)) if protocol.correction == "holm"
@@ -189,7 +189,7 @@ def record(protocol: Protocol, seeds, demos: int, batch_size: int, snapshots, po
             "copies": {v: COPIES.get(v, 0) for v in protocol.variants},
             "force_settings": {v: {k: list(x) for k, x in FORCE_SETTINGS[v].items()}
                                for v in protocol.variants if v in FORCE_SETTINGS},
-            "generator": checkpoint_hash(locate_checkpoint(None)),
+            "generator": generator,
             "recipe": {"preset": "cpu", "batch_size": batch_size, "lr": "3e-4 (preset), 50 warm-up steps, constant",
                        "split_seed": 0, "snapshots": list(snapshots)},
             "checkpoint_rule": "per variant: the snapshot with the highest mean validation success over its seeds "

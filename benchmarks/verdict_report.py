@@ -122,12 +122,14 @@ def paired_t_p(diffs) -> float:
 def sign_flip_mde(sd: float, n: int, alpha: float, power: float = 0.8, reps: int = 2000, seed: int = 0) -> float:
     """The smallest mean paired difference (0-1, on a 0.01 grid) that the exact sign-flip test over ``n`` seeds
     detects at two-sided ``alpha`` with probability >= ``power``, when per-seed differences are Normal(effect,
-    ``sd``): the same draws for every effect, bisected on the grid (the rejection rate rises with the effect)."""
+    ``sd``): the same draws for every effect."""
     z = np.random.default_rng(seed).normal(0.0, sd, (reps, n))
+    return _smallest_effect(lambda cents: np.mean([sign_flip_p(row) < alpha for row in z + cents / 100]) >= power)
 
-    def enough(cents: int) -> bool:
-        return np.mean([sign_flip_p(row) < alpha for row in z + cents / 100]) >= power
 
+def _smallest_effect(enough) -> float:
+    """The smallest effect on the 0.01 grid of [0, 1] where ``enough(cents)`` holds, bisected (the rejection rate
+    rises with the effect); 1.0 when even 1.0 is not enough."""
     if not enough(100):
         return 1.0
     lo, hi = -1, 100  # enough(hi) holds, enough(lo) is taken as failing
@@ -162,15 +164,9 @@ def sequential_outcome(diffs, looks) -> dict:
 
 
 def sequential_mde(sd: float, looks, power: float = 0.8, reps: int = 2000, seed: int = 0) -> float:
-    """The smallest mean paired difference (0-1, 0.01 grid, bisected) the design ``looks`` rejects with probability
-    >= ``power`` under Normal(effect, ``sd``) per-seed differences (the same draws for every effect)."""
-    lo, hi = -1, 100
-    if sequential_power(hi / 100, sd, looks, reps, seed)["power"] < power:
-        return 1.0
-    while hi - lo > 1:
-        mid = (lo + hi) // 2
-        lo, hi = (lo, mid) if sequential_power(mid / 100, sd, looks, reps, seed)["power"] >= power else (mid, hi)
-    return round(hi / 100, 2)
+    """The smallest mean paired difference (0-1, 0.01 grid) the design ``looks`` rejects with probability >=
+    ``power`` under Normal(effect, ``sd``) per-seed differences (the same draws for every effect)."""
+    return _smallest_effect(lambda cents: sequential_power(cents / 100, sd, looks, reps, seed)["power"] >= power)
 
 
 def sequential_power(effect: float, sd: float, looks, reps: int = 2000, seed: int = 0) -> dict:
@@ -277,8 +273,6 @@ def plot(table: list[dict], path: Path, variants, settings) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from controltac_il.io import atomic_path
-
     fig, axes = plt.subplots(1, len(settings), figsize=(4.4 * len(settings), 3.6), sharey=True, squeeze=False)
     by = {(r["variant"], r["setting"]): r for r in table}
     for ax, setting in zip(axes[0], settings):
@@ -296,9 +290,7 @@ def plot(table: list[dict], path: Path, variants, settings) -> None:
         ax.grid(alpha=0.3)
     axes[0][0].set_ylabel("test success (dots: seeds; bar: 95 % CI)")
     fig.tight_layout()
-    with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    _save(fig, path)
 
 
 def plot_paired(looks: list[dict], comparisons: list[dict], path: Path) -> None:
@@ -308,8 +300,6 @@ def plot_paired(looks: list[dict], comparisons: list[dict], path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from controltac_il.io import atomic_path
 
     c = next((x for x in comparisons if x["primary"]), None)
     done = [lk for lk in looks if lk["complete"]]
@@ -331,6 +321,15 @@ def plot_paired(looks: list[dict], comparisons: list[dict], path: Path) -> None:
     ax.legend(fontsize=7, loc="lower right")
     ax.grid(alpha=0.3)
     fig.tight_layout()
+    _save(fig, path)
+
+
+def _save(fig, path: Path) -> None:
+    """Write ``fig`` as a PNG at ``path`` atomically and close it."""
+    import matplotlib.pyplot as plt
+
+    from controltac_il.io import atomic_path
+
     with atomic_path(path, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)

@@ -105,7 +105,8 @@ def _v3_doc(tested_seeds: int) -> dict:
     looks = [{"seeds": lk.seeds, "alpha": lk.alpha, "futility": lk.futility} for lk in v3.looks]
     doc = {"benchmark": "touch_il_verdict_v3", "units": units, "steps": {v: {"step": 8000} for v in v3.variants},
            "protocol": {"demos": 50, "power": {"statement": "stated first"}, "looks": looks, "variants": list(v3.variants),
-                        "train_seeds": seeds,
+                        "train_seeds": seeds, "primary": [list(x) for x in v3.primary], "copies": vp.COPIES,
+                        "force_settings": {"fa2": {}},
                         "settings": {k: list(b) for k, b in v3.settings.items()}, "stress_test": vp.STRESS,
                         "recipe": {"snapshots": list(v3.snapshots)}},
            "force_augment_counts": {}}
@@ -129,4 +130,6 @@ def test_v3_prints_a_look_only_once_complete_and_its_readme_row_says_running_unt
     assert vf.main([str(path), "--look", "1"]) == 0
     assert "efficacy: helps (fa2 - real at nominal: +20.0 points" in capsys.readouterr().out
     row = vf.headline_rows_v3(done, "src")[0]
-    assert "12 paired (look 1)" in row[0] and row[1] == "+20.0 points: **helps**" and "against 0.001 (efficacy)" in row[2]
+    assert row[0] == ("the verdict (v3, confirmatory): ACT with ForceAugment `fa2` (2 copies, the paper's offsets) vs "
+                      "ACT on the real demos, nominal (4–7 N), fresh seeds, 12 paired (look 1)")
+    assert row[1] == "+20.0 points: **helps**" and "against 0.001 (efficacy)" in row[2]
