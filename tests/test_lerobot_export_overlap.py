@@ -1,7 +1,8 @@
 """The LeRobot export beside the cache build: a copy is exported while later chunks are still being generated, with the
 same files as before (the session's ``written`` clean write, conftest); an export error stops the build at its next
 chunk; ``ChunkGate``'s rule; a source's own per-episode stats reused for the features copies hold unchanged where
-complete, computed where not. Source folder and tiny generator: ``test_lerobot_v3_write``."""
+complete, computed where not; worker processes writing the same files, a worker's error raised in one line.
+Source folder and tiny generator: ``test_lerobot_v3_write``."""
 
 import shutil
 import threading
@@ -13,7 +14,8 @@ import pytest
 
 from test_lerobot_v3_write import LEFT, LENGTHS, RIGHT, WRIST, augment, write_lerobot
 
-from controltac_il.augment.provenance import PROVENANCE, chunk_dir, chunk_done
+from controltac_il.augment import main
+from controltac_il.augment.provenance import PROVENANCE, StaleCacheError, chunk_dir, chunk_done
 from controltac_il.lerobot import (STAT_NAMES, ChunkGate, LeRobotExport, LeRobotFolder, read_episode_stats,
                                    staging_dir)
 
@@ -177,3 +179,31 @@ def test_rank_0_writes_what_another_ranks_export_left(written, tmp_path):
     last.start()
     last.join(timeout=120)
     assert finished == [True] and files(out) == files(clean)
+
+
+def test_worker_processes_write_the_same_files(written, tmp_path):
+    root, clean, _, reference = written
+    out = tmp_path / "out"
+    write_lerobot(augment(root, out, generator=reference.generator), LeRobotFolder(root), out, progress=False,
+                  export_workers=2)
+    assert files(out) == files(clean)
+
+
+def test_a_workers_error_is_raised_with_its_message(written, tmp_path):
+    root, _, _, reference = written
+    out, cache = tmp_path / "out", staging_dir(tmp_path / "out") / "cache"
+    shutil.copytree(reference.cache_dir, cache)  # a built cache of these settings
+    images = chunk_dir(cache, 1, 2) / "tactile_0.npy"
+    images.write_bytes(images.read_bytes()[:-1])  # truncated after the build
+    aug = augment(root, out, generator=reference.generator)
+    export = LeRobotExport(aug, LeRobotFolder(root), tmp_path / "dataset", tmp_path / "done", workers=2)
+    with pytest.raises(StaleCacheError, match=r"^cache chunk .*: tactile_0\.npy has \d+ bytes") as raised:
+        export.write(rank=1, world_size=2, progress=False)  # source episode 1 alone: one worker process
+    assert "\n" not in str(raised.value)
+
+
+def test_export_workers_below_one_are_refused_naming_the_flag(written, tmp_path, capsys):
+    root = written[0]
+    assert main(["--dataset", str(root), "--out", str(tmp_path / "out"), "--export-workers", "0"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("python -m controltac_il.augment: error: --export-workers: ") and err.count("\n") == 1

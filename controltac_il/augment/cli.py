@@ -97,6 +97,9 @@ def parser() -> argparse.ArgumentParser:
                    help="LeRobot: decode every re-encoded tactile video back and report the codec's round trip error "
                         "(MSE, PSNR of the regenerated frames) in the output's record; costs one decode per re-encoded "
                         "video (default off; data and videos written are the same)")
+    p.add_argument("--export-workers", type=int, default=1, metavar="N",
+                   help="LeRobot: processes encoding output episodes' videos in parallel, each owning whole episodes "
+                        "(default: 1; on a machine with many cores and the generator on a GPU, about cores - 2)")
     return p
 
 
@@ -113,14 +116,14 @@ def _report(aug: ForceAugment, counts: dict) -> None:
           f"{s['clamped']} clamped, {s['skipped']} skipped (kept real), {s['no_contact']} without contact")
 
 
-def _write(aug: ForceAugment, out: Path, root: Path, round_trip: bool) -> dict:
+def _write(aug: ForceAugment, out: Path, root: Path, round_trip: bool, workers: int) -> dict:
     from controltac_il.augment.provenance import StaleCacheError, chunk_done
     from controltac_il.lerobot import LeRobotFolder, write_lerobot
 
     try:
         # every feature (aug reads the tactile ones alone); decoder threads: nothing forks while writing
         return write_lerobot(aug, LeRobotFolder(root, video_threads=0), out, chunk_done=chunk_done,
-                             round_trip=round_trip)
+                             round_trip=round_trip, export_workers=workers)
     except ValueError as exc:
         if isinstance(exc, StaleCacheError):
             raise
@@ -165,6 +168,9 @@ def _setup(args) -> ForceAugment:
     from controltac_il.augment.dataset import ForceAugment
     from controltac_il.augment.provenance import StaleCacheError
 
+    if args.export_workers < 1:
+        raise UsageError("--export-workers", f"expected an int >= 1 (processes writing output episodes), got "
+                                             f"{args.export_workers}")
     kwargs = config_kwargs(args)
     if kwargs["copies"] < 1:
         raise UsageError("--copies", f"expected an int >= 1 (copy 0 is the real data: a cache of 0 copies holds "
@@ -281,7 +287,8 @@ def main(argv=None) -> int:
 
         try:
             if args.lerobot:
-                _report_lerobot(args.out, _write(aug, args.out, args.dataset, args.video_round_trip))
+                _report_lerobot(args.out, _write(aug, args.out, args.dataset, args.video_round_trip,
+                                                 args.export_workers))
             else:
                 _report(aug, aug.build_cache())
         except StaleCacheError as exc:  # a chunk that does not provably belong to the cache

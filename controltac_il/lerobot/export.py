@@ -27,15 +27,23 @@ image feature's PNGs are decoded only at the frames its stats sample (all of an 
 
 Each output episode is written (data, videos) and then recorded by its meta row in ``done/`` (atomic): that
 row marks it complete, so an interrupted write resumes where it stopped; ``publish.finish`` writes ``meta/``.
+With ``workers`` > 1, that many processes write them, each taking whole source episodes (the original and its
+copies share its decoded frames) once all their chunks are built; the files are the same, byte for byte.
 """
 
 from __future__ import annotations
 
+import copy
 import json
+import multiprocessing
 import os
+import queue
 import shutil
+import signal
 import sys
-from concurrent.futures import ThreadPoolExecutor
+import threading
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, ThreadPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -43,7 +51,7 @@ import numpy as np
 import pyarrow as pa
 from tqdm import tqdm
 
-from controltac_il.cli import tty_only
+from controltac_il.cli import RunFault, tty_only
 from controltac_il.io import atomic_path, write_json
 from controltac_il.lerobot.reader import decode_png, numbers, read_episode_stats
 from controltac_il.lerobot.stats import (STAT_NAMES, complete_stats, frame_histograms, histogram_stats, image_stats,
@@ -106,11 +114,15 @@ class _Source:
 class LeRobotExport:
     """Writes the augmented folder ``folder`` (module docstring) from ``aug`` (a ForceAugment in cache mode,
     its cache built) over ``source`` (the LeRobotFolder it wraps); ``done``: the per-episode meta rows;
-    ``round_trip``: decode each re-encoded video back and count its squared error (module docstring)."""
+    ``round_trip``: decode each re-encoded video back and count its squared error (module docstring);
+    ``workers``: processes writing the output episodes (1: this one)."""
 
-    def __init__(self, aug, source, folder: Path, done: Path, round_trip: bool = False):
+    def __init__(self, aug, source, folder: Path, done: Path, round_trip: bool = False, workers: int = 1):
         self.aug, self.source, self.folder, self.done = aug, source, Path(folder), Path(done)
         self.round_trip = bool(round_trip)
+        if int(workers) < 1:
+            raise ValueError(f"workers: expected an int >= 1 (processes writing output episodes), got {workers}")
+        self.workers = int(workers)
         self.tactile = tuple(aug.tactile_keys)
         check_tactile_features(source.features, self.tactile)
         self.names = provenance_names(self.tactile)
@@ -139,40 +151,91 @@ class LeRobotExport:
     def _row_path(self, j: int) -> Path:
         return self.done / f"episode-{j:06d}.json"
 
+    def _todo(self, p: int) -> list[int]:
+        """The copies of source position ``p`` whose output episode is not written yet (0: the original)."""
+        E = len(self.sources)
+        return [k for k in range(self.copies + 1) if not self._row_path(k * E + p).is_file()]
+
     def missing(self) -> list[int]:
         """Source positions with an output episode not yet written."""
-        E = len(self.sources)
-        return [p for p in range(E) if any(not self._row_path(k * E + p).is_file() for k in range(self.copies + 1))]
+        return [p for p in range(len(self.sources)) if self._todo(p)]
 
     def write(self, rank: int = 0, world_size: int = 1, progress: bool = True, stop_after: int | None = None,
               ready=None) -> dict:
         """Write this rank's share of the missing episodes (source position p belongs to rank p * world // E).
-        stop_after: stop after this many output episodes (to split a write). ready: called with (source episode,
-        copy) before what reads that chunk, returns whether it is built (False: stop here); None: the cache is built.
-        Returns counts of the run."""
-        E = len(self.sources)
-        mine = [p for p in self.missing() if p * world_size // E == rank]
-        counts = {"episodes": 0, "regenerated": 0, "video_sse": 0.0, "video_values": 0}
+        stop_after: stop after this many output episodes (to split a write; with workers, after the source
+        position that reaches it). ready: called with (source episode, copy) before what reads that chunk, returns
+        whether it is built (False: stop here); None: the cache is built. Returns counts of the run."""
+        mine = [p for p in self.missing() if p * world_size // len(self.sources) == rank]
+        counts = _counts()
         bar = tqdm(total=len(mine) * (self.copies + 1), desc=f"writing episodes (rank {rank})", unit="episode",
                    position=1, disable=tty_only(progress), file=sys.stderr)  # under the cache's bar
-        for p in mine:
-            for j in self._write_source(p, counts, ready or (lambda e, k: True)):
-                if j is None:
-                    bar.close()
-                    return counts
-                bar.update(1)
-                if stop_after is not None and counts["episodes"] >= stop_after:
-                    bar.close()
-                    return counts
-        bar.close()
+        ready = ready or (lambda e, k: True)
+        try:
+            if self.workers > 1:
+                if mine and self._ready(mine[0], ready):  # else nothing to hand out: no process is started
+                    self._write_in_workers(mine, counts, bar, stop_after, ready)
+                return counts
+            for p in mine:
+                for j in self._write_source(p, counts, ready):
+                    if j is None:
+                        return counts
+                    bar.update(1)
+                    if stop_after is not None and counts["episodes"] >= stop_after:
+                        return counts
+        finally:
+            bar.close()
         return counts
+
+    def _write_in_workers(self, mine: list[int], counts: dict, bar, stop_after: int | None, ready) -> None:
+        """Write the source positions ``mine`` in ``workers`` processes (``write``; ``bar`` advanced per output
+        episode). A worker's error is raised here, with its message; a worker that died, as a RunFault."""
+        context = multiprocessing.get_context("spawn")  # torch is loaded: never fork
+        written, stop = context.Queue(), threading.Event()
+        drain = threading.Thread(target=_advance, args=(bar, written, stop), daemon=True)
+        drain.start()
+        state = (_detached(self.aug), self.source, self.folder, self.done, self.round_trip)
+        n = min(self.workers, len(mine))
+        try:
+            with ProcessPoolExecutor(n, context, _start_worker, (state, written)) as pool:
+                try:
+                    self._hand_out(pool, n, mine, counts, stop_after, ready)
+                except BaseException:
+                    pool.shutdown(cancel_futures=True)
+                    raise
+        except BrokenProcessPool as exc:
+            raise RunFault(f"export_workers: a worker process died ({exc}); re-run to resume") from exc
+        finally:
+            stop.set()
+            drain.join()
+
+    def _hand_out(self, pool, n: int, mine: list[int], counts: dict, stop_after: int | None, ready) -> None:
+        """Start the ``n`` processes of ``pool`` (beside the build), then hand them each source position of ``mine``,
+        one each at a time, once the chunks its missing episodes read are built (``ready``; stop at the first that is
+        not, or once ``stop_after`` episodes are handed out); their counts added to ``counts``."""
+        running, handed = {pool.submit(_open_worker) for _ in range(n)}, 0
+        for p in mine:
+            running = _collect(running, counts, n - 1)
+            todo = self._todo(p)
+            if not self._ready(p, ready):
+                break
+            running.add(pool.submit(_write_position, p))
+            handed += len(todo)
+            if stop_after is not None and handed >= stop_after:
+                break
+        _collect(running, counts, 0)
+
+    def _ready(self, p: int, ready) -> bool:
+        """Whether the chunks the missing episodes of source position ``p`` read are built (``ready``; the
+        original reads copy 1's)."""
+        return all(ready(self.sources[p], k) for k in sorted({1, *self._todo(p)} - {0}))
 
     def _write_source(self, p: int, counts: dict, ready):
         """Write every missing output episode of source position ``p``, each copy once ``ready`` says its chunk is
         built (the original needs copy 1's: the reference forces); yields each output episode written, None where
         a chunk is not built."""
         e, E = self.sources[p], len(self.sources)
-        todo = [k for k in range(self.copies + 1) if not self._row_path(k * E + p).is_file()]
+        todo = self._todo(p)
         if not todo:
             return
         if not ready(e, 1):
@@ -333,6 +396,68 @@ class LeRobotExport:
         """Every output episode's meta row, in order (all written), with its ``writer`` counts (regenerated
         frames, video round trip squared error and values)."""
         return [json.loads(self._row_path(j).read_text()) for j in range(self.total)]
+
+
+def _counts() -> dict:
+    """A write's counts: output episodes, regenerated frames, video round trip squared error (uint8) and values."""
+    return {"episodes": 0, "regenerated": 0, "video_sse": 0.0, "video_values": 0}
+
+
+def _collect(jobs: set, counts: dict, most: int) -> set:
+    """Wait until at most ``most`` of ``jobs`` (worker tasks) are unfinished, adding the finished ones' counts to
+    ``counts`` (a worker's error raised, its message kept); returns the unfinished."""
+    while True:
+        for job in [job for job in jobs if job.done()]:
+            for name, value in job.result().items():
+                counts[name] += value
+            jobs.discard(job)
+        if len(jobs) <= most:
+            return jobs
+        wait(jobs, return_when=FIRST_COMPLETED)
+
+
+def _detached(aug):
+    """A copy of ``aug`` (a ForceAugment in cache mode) reading its built chunks without generator, estimator or
+    dataset (the episodes' frames the chunks are checked against read first): cheap to pickle, for the workers."""
+    aug.chunk_list()
+    view = copy.copy(aug)
+    view.generator = view.references = view.dataset = None
+    return view
+
+
+_WORKER: dict = {}  # a worker process's state: its export's arguments, its progress queue, the export once built
+
+
+def _start_worker(state: tuple, written) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's: it lets the running positions finish
+    _WORKER.update(state=state, written=written, export=None)
+
+
+def _open_worker() -> dict:
+    """A worker process's first task: its export, built here (its errors come back as this task's); no counts."""
+    if _WORKER["export"] is None:
+        _WORKER["export"] = LeRobotExport(*_WORKER["state"])
+    return _counts()
+
+
+def _write_position(p: int) -> dict:
+    """A worker process's task: every missing output episode of source position ``p`` (its chunks built), each
+    reported on the progress queue; returns their counts (``_counts``)."""
+    _open_worker()
+    counts = _counts()
+    for j in _WORKER["export"]._write_source(p, counts, lambda e, k: True):
+        _WORKER["written"].put(j)
+    return counts
+
+
+def _advance(bar, written, stop: threading.Event) -> None:
+    """Advance ``bar`` per output episode the workers report on ``written``, until ``stop`` is set and all is read."""
+    while not (stop.is_set() and written.empty()):
+        try:
+            written.get(timeout=0.1)
+        except queue.Empty:
+            continue
+        bar.update(1)
 
 
 def _parallel(fn, items) -> list:

@@ -6,7 +6,8 @@ ForceAugment settings, the source, the writer format), ``cache/`` (the ForceAugm
 being written) and ``done/`` (one meta row per finished episode). Re-running the same command resumes; each rank
 builds its share of the cache (torchrun: every rank) while a thread of it writes its share of the episodes, each
 copy as soon as the cache holds its chunk (``ChunkGate``: the export's codecs and parquet work beside the
-generator), and rank 0 writes ``meta/`` and publishes: ``dataset/`` is renamed to OUT, and ``OUT.partial`` removed
+generator; with ``export_workers`` > 1 in that many processes, each source episode once all its chunks are built),
+and rank 0 writes ``meta/`` and publishes: ``dataset/`` is renamed to OUT, and ``OUT.partial`` removed
 (``write.json`` last: a removal Ctrl-C stopped is finished by the next run of the command). OUT
 is never the source (nor inside it, nor around it) and never a folder this tool did not write
 (``check_destination``).
@@ -192,17 +193,22 @@ def build_and_export(aug, export: LeRobotExport, rank: int, world_size: int, pro
 
 def write_lerobot(aug, source, out: Path, *, chunk_done: ChunkDone, rank: int | None = None,
                   world_size: int | None = None, progress: bool = True, stop_after: int | None = None,
-                  poll_s: float = 2.0, round_trip: bool = False) -> dict:
+                  poll_s: float = 2.0, round_trip: bool = False, export_workers: int = 1) -> dict:
     """Write the augmented folder ``out`` of ``source`` (a LeRobotFolder, not the object ``aug`` reads: the two
     are read at once) through ``aug`` (a ForceAugment of it in cache mode whose ``cache_dir`` is
     ``staging_dir(out) / "cache"``). chunk_done: the cache's test of a chunk (module docstring). round_trip: decode
     every re-encoded video back and record the codec's round trip error over the episodes written with it on (data
-    and videos are the same either way). Returns the counts of this run and, once published, the
-    record of the write (``marker``; ``published``: True)."""
+    and videos are the same either way). export_workers: processes writing the output episodes, each whole source
+    episodes once all their chunks are built (1: a thread of this process; the files are the same either way).
+    Returns the counts of this run and, once published, the record of the write (``marker``; ``published``:
+    True)."""
     out = Path(out)
     if source is aug.dataset:
         raise ValueError("source: pass a LeRobotFolder of its own (LeRobotFolder(root)), not the one ForceAugment "
                          "reads: the export reads it while the cache is built")
+    if int(export_workers) < 1:
+        raise ValueError(f"export_workers: expected an int >= 1 (processes writing output episodes), got "
+                         f"{export_workers}")
     staging, sig = staging_dir(out), signature(aug, source)
     rank = int(os.environ.get("RANK", 0)) if rank is None else int(rank)
     world_size = int(os.environ.get("WORLD_SIZE", 1)) if world_size is None else int(world_size)
@@ -212,7 +218,7 @@ def write_lerobot(aug, source, out: Path, *, chunk_done: ChunkDone, rank: int | 
             discard(staging)
         return {"published": done, "already": True, "marker": read_record(out)}
     claim(staging, sig)
-    export = LeRobotExport(aug, source, staging / "dataset", staging / "done", round_trip)
+    export = LeRobotExport(aug, source, staging / "dataset", staging / "done", round_trip, export_workers)
     built, written = build_and_export(aug, export, rank, world_size, progress, stop_after, poll_s, chunk_done)
     counts = {"cache": built, **written, "published": False}
     if rank != 0 or (stop_after is not None and export.missing()):
