@@ -6,11 +6,13 @@ headline figures: render functions joined to ``benchmarks.readme_figures``' ``BL
 from __future__ import annotations
 
 from functools import partial
+from statistics import median
 
 from controltac_il.metrics import wilson_interval
 
 from benchmarks import figure_text as ft
 from benchmarks import verdict_figures
+from benchmarks.generator_frontier import b32
 
 
 # -- the sensor model, the scene, the robot side, the cache ---------------------------------------------------
@@ -258,8 +260,9 @@ def generator_frontier() -> str:
     (generator_speed_gpu.json)."""
     doc, cpu, gpu = (ft.load(n) for n in ("generator.json", "generator_speed.json", "generator_speed_gpu.json"))
     copy = {k: v for k, v in next(m for m in doc["methods"] if m["kind"] == "copy").items() if isinstance(v, dict)}
-    on_gpu = {(r["hash"], r["steps"]): r["img_per_s_b32"] for r in gpu["rows"] if r["frames"] == "240"}
-    on_cpu = {(r["hash"], r["steps"]): r for r in cpu["rows"] if r["frames"] == "240"}
+    on_gpu = {(r["hash"], r["steps"]): median(r.get("img_per_s_rounds") or [r["img_per_s_b32"]]) for r in gpu["rows"]
+              if r["frames"] == "240" and b32(r)}
+    on_cpu = {(r["hash"], r["steps"]): r for r in cpu["rows"] if r["frames"] == "240" and b32(r)}
     hashes = {k: v["hash"] for k, v in doc["settings"]["checkpoints"].items()}
     rows = []
     for kind in _frontier_order():
@@ -288,8 +291,8 @@ def _validation(val: dict) -> str:
 
 def _speed(row: dict) -> str:
     """Median img/s over rounds with the rounds' range."""
-    lo, hi = min(row["img_per_s_rounds"]), max(row["img_per_s_rounds"])
-    return f"{row['img_per_s_b32']:.1f} ({lo:.1f}–{hi:.1f})"
+    rounds = row["img_per_s_rounds"]
+    return f"{median(rounds):.1f} ({min(rounds):.1f}–{max(rounds):.1f})"
 
 
 BLOCKS = {"calibration": calibration, "calibration-methods": calibration_methods, "sensor": sensor,

@@ -46,11 +46,17 @@ def real_checks(predict) -> dict | None:
             "growth_pp": round(float((area[:, -1] - area[:, list(DELTAS).index(0.0)]).min()), 3)}
 
 
+def b32(row: dict) -> bool:
+    """A row at batch 32 in float32, the frontier's setting (rows written before the batch and dtype columns
+    existed are)."""
+    return row.get("batch", 32) == 32 and row.get("dtype", "float32") == "float32"
+
+
 def frontier_points(methods: list[dict], speed: list[dict]) -> dict[str, list[tuple[list[float], float, int]]]:
-    """{checkpoint: [(img/s at batch 32 at 240×320 per round, unseen 240×320 MSE ÷ a copy's, DDIM steps), ...]}:
+    """{checkpoint: [(img/s at batch 32 in float32 at 240×320 per round, unseen 240×320 MSE ÷ a copy's, DDIM steps), ...]}:
     the errors of ``benchmarks.generator``'s rows, the speeds of ``benchmarks.generator_speed``'s."""
     copy = next(m for m in methods if m["kind"] == "copy")["unseen_240"]["mse"]
-    rounds = {(r["checkpoint"], r["steps"]): r["img_per_s_rounds"] for r in speed if r["frames"] == "240"}
+    rounds = {(r["checkpoint"], r["steps"]): r["img_per_s_rounds"] for r in speed if r["frames"] == "240" and b32(r)}
     points: dict[str, list] = {}
     for m in methods:
         if m.get("parameters") and (m["kind"], m["steps"]) in rounds:

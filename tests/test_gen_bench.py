@@ -82,18 +82,21 @@ def test_quick_run_writes_the_table_json_targets_and_sheet(tmp_path, capsys):
 
 
 def test_speed_rounds_time_every_checkpoint_and_keep_each_rounds_figure(tmp_path, monkeypatch):
-    """benchmarks.generator_speed: one row per (checkpoint, frames, steps), the median over rounds with the rounds;
-    img/s counts the frames timed (--quick: 4), here against an injected timer of 0.5 s per call."""
+    """benchmarks.generator_speed: one row per (checkpoint, dtype, frames, steps, batch), the median over rounds with
+    the rounds; img/s counts the frames timed (--quick: batches of 4), here against an injected timer of 0.5 s per
+    call; "auto" resolves to whole chunks, at most the frames there are (--quick: 8)."""
     from benchmarks import generator_speed
 
     monkeypatch.setattr(generator_speed, "median_time", lambda fn, repeats, warmup: fn() or 0.5)
     doc = generator_speed.main(["--quick", "--rounds", "2", "--repeats", "1", "--threads", "1", "--checkpoints",
-                                "fast", "--out", str(tmp_path / "s.json")])
+                                "fast", "--batch-sizes", "32", "auto", "--pairs", "0", "--out", str(tmp_path / "s.json")])
     rows = json.loads((tmp_path / "s.json").read_text())["rows"]
-    assert rows == doc["rows"] and len(rows) == len(generator_speed.SIZES) * len(generator_speed.STEPS)
+    assert rows == doc["rows"] and len(rows) == len(generator_speed.SIZES) * len(generator_speed.STEPS) * 2
     for r in rows:
-        assert r["checkpoint"] == "fast" and len(r["img_per_s_rounds"]) == 2
-        assert r["img_per_s_rounds"] == [8.0, 8.0] and r["img_per_s_b32"] == 8.0 and r["dit_parameters"] > 0
+        assert r["checkpoint"] == "fast" and r["dtype"] == "float32" and len(r["img_per_s_rounds"]) == 2
+        frames = 4 if r["batch"] == 4 else 8
+        assert r["batch_rows"] == frames and r["img_per_s_rounds"] == [frames / 0.5] * 2 == [r["img_per_s"]] * 2
+        assert r["dit_parameters"] > 0 and r["mse_ratio_to_copy"] is None
 
 
 def test_the_frontier_joins_errors_to_timings_by_checkpoint_and_steps():

@@ -65,12 +65,12 @@ def _is_int(x) -> bool:
 def check_options(steps, seed: int | Sequence[int], batch_size, n: int, default_steps: int,
                   max_steps: int) -> tuple[int, list[int]]:
     """-> (DDIM steps in [1, max_steps], ``default_steps`` for None; one seed per sample, n ints); ValueError on a
-    bad steps, seed or batch_size (a positive int)."""
+    bad steps, seed or batch_size (a positive int or "auto")."""
     steps = default_steps if steps is None else steps
     if not _is_int(steps) or not 1 <= steps <= max_steps:
         raise ValueError(f"steps must be an int in [1, {max_steps}], got {steps!r}")
-    if not _is_int(batch_size) or batch_size < 1:
-        raise ValueError(f"batch_size must be a positive int, got {batch_size!r}")
+    if batch_size != "auto" and (not _is_int(batch_size) or batch_size < 1):
+        raise ValueError(f"batch_size must be a positive int or 'auto', got {batch_size!r}")
     if _is_int(seed):
         return int(steps), [int(seed)] * n
     seeds = [int(s) for s in seed]

@@ -23,30 +23,38 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
-import cv2
 import numpy as np
 import torch
 
 from controltac_il.cli import RunFault
 from controltac_il.generator.adapter import PoseAdapter, PoseControlledDenoiser, masks_to_model
 from controltac_il.generator.autoencoder import TactileAutoencoder
+from controltac_il.generator.batching import Footprint, free_bytes, rows_per_batch
 from controltac_il.generator.checkpoint import ADAPTER_FILE, checkpoint_hash, load_adapter, load_checkpoint
 from controltac_il.generator.config import DETAIL_GATE_SIGMA_PX, GeneratorConfig
 from controltac_il.generator.dit import ForceDiT
 from controltac_il.generator.forces import TargetDecision
 from controltac_il.generator.inputs import check_forces, check_options, check_residuals, decide_forces
 from controltac_il.generator.masks import target_masks
+from controltac_il.generator.resample import gaussian_blur, resize
 from controltac_il.generator.sampler import ddim_sample, make_scheduler, seeded_noise
 from controltac_il.generator.shipped import SHIPPED_ADAPTERS, locate_checkpoint
 from controltac_il.tactile.residual import OFFSET
 
 RESIDUAL_OFFSET = float(OFFSET)
-# Every forward pass runs whole chunks of this many rows, the last padded by repeating its last row: CPU kernels
-# round a 1-3-row product or convolution differently (the shipped DiT's conditioning, a small autoencoder's
-# convolutions), so a sample's bytes would depend on how many batch-mates it had. Costs online mode (one frame a
-# call) the chunk's compute (tests/test_gen_api.py, tests/test_aug_lerobot.py pin the equality). It stays beside the
-# loop that chunks by it (benchmarks/generation_chunk.py sets it here to measure its cost).
+# Every step of the path runs whole chunks of rows, the last padded by repeating its last row: CPU kernels round a
+# 1-3-row product or convolution differently (the shipped DiT's conditioning, a small autoencoder's convolutions),
+# and a GPU picks its kernels by shape, so a sample's bytes would depend on how many batch-mates it had. On the CPU
+# a chunk is GENERATION_CHUNK rows (online mode, one frame a call, pays 4 rows' compute; tests/test_gen_api.py,
+# tests/test_aug_lerobot.py pin the equality; benchmarks/generation_chunk.py sets it here to measure its cost); on
+# an accelerator ACCELERATOR_CHUNK rows, enough to fill it at the GelSight Mini's 240×320.
 GENERATION_CHUNK = 4
+ACCELERATOR_CHUNK = 64
+
+
+def chunk_rows(device: torch.device) -> int:
+    """Rows per step of the path on ``device``: ``GENERATION_CHUNK`` on the CPU, ``ACCELERATOR_CHUNK`` elsewhere."""
+    return GENERATION_CHUNK if device.type == "cpu" else ACCELERATOR_CHUNK
 
 
 def residual_to_unit(residual: torch.Tensor) -> torch.Tensor:
@@ -71,23 +79,17 @@ class Generation:
     decision: TargetDecision
 
 
-def _resize_each(images: np.ndarray | None, hw: tuple[int, int], interpolation: int = cv2.INTER_LINEAR):
-    """Each image of (B, H, W[, C]) resized to hw = (H', W'); None, and images already of that size, as they are.
-    A trailing channel of 1 is resized as a plain (H, W) image and kept."""
-    if images is None or images.shape[1:3] == tuple(hw):
-        return images
-    one = images.ndim == 4 and images.shape[-1] == 1
-    out = np.stack([cv2.resize(x, hw[::-1], interpolation=interpolation) for x in (images[..., 0] if one else images)])
-    return out[..., None] if one else out
-
-
 class ForceGenerator:
     """Force-control generator (autoencoder + ΔF-conditioned DiT + DDIM), with the optional stage-2 pose adapter
-    (``pose_adapter``; ``load_pose_adapter``) that moves the contact to a target pose given as a contact mask."""
+    (``pose_adapter``; ``load_pose_adapter``) that moves the contact to a target pose given as a contact mask.
+
+    Every step runs as torch ops on ``device``; the resizes and the detail gate's blur (``resample``) run OpenCV's
+    kernels on the CPU and index-select taps elsewhere; ``resample_taps=True`` runs the taps on the CPU too (the
+    accelerator's path, checked on a CPU)."""
 
     def __init__(self, config: GeneratorConfig, autoencoder: TactileAutoencoder, denoiser: ForceDiT,
                  device: str | torch.device = "cpu", dtype: torch.dtype = torch.float32, checkpoint_hash: str = "untracked",
-                 pose_adapter: PoseAdapter | None = None):
+                 pose_adapter: PoseAdapter | None = None, resample_taps: bool | None = None):
         if dtype not in (torch.float32, torch.bfloat16, torch.float16):
             raise ValueError(f"dtype must be torch.float32, torch.bfloat16 or torch.float16, got {dtype}")
         self.config = config
@@ -96,6 +98,8 @@ class ForceGenerator:
         self.autoencoder = autoencoder.to(self.device, dtype).eval()
         self.denoiser = denoiser.to(self.device, dtype).eval()
         self.checkpoint_hash = checkpoint_hash
+        self.resample_taps = resample_taps
+        self._footprints: dict[tuple[int, int], Footprint] = {}
         self.pose_adapter, self.pose_adapter_hash = None, None
         if pose_adapter is not None:
             self._check_adapter(pose_adapter.config, "the pose adapter")
@@ -106,13 +110,16 @@ class ForceGenerator:
 
     @classmethod
     def from_pretrained(cls, path: str | Path | None = None, device: str | torch.device = "cpu",
-                        dtype: torch.dtype = torch.float32, pose_adapter: str | Path | None = None) -> "ForceGenerator":
+                        dtype: torch.dtype = torch.float32, pose_adapter: str | Path | None = None,
+                        resample_taps: bool | None = None) -> "ForceGenerator":
         """Load a checkpoint folder, or a shipped preset: ``None`` or ``"default"``, ``"fast"`` (faster, twice the
         error) or ``"quality"`` (a 9.9 M-parameter DiT: the lowest error, slower); docs/generator.md has the frontier.
-        ``pose_adapter``: also load a stage-2 adapter (a folder, or ``"pose"``, shipped for the default)."""
+        ``pose_adapter``: also load a stage-2 adapter (a folder, or ``"pose"``, shipped for the default);
+        ``resample_taps``: as the constructor."""
         path = locate_checkpoint(path)
         config, ae, dit = load_checkpoint(path)
-        gen = cls(config, ae, dit, device=device, dtype=dtype, checkpoint_hash=checkpoint_hash(path))
+        gen = cls(config, ae, dit, device=device, dtype=dtype, checkpoint_hash=checkpoint_hash(path),
+                  resample_taps=resample_taps)
         return gen if pose_adapter is None else gen.load_pose_adapter(pose_adapter)
 
     def load_pose_adapter(self, path: str | Path = "pose") -> "ForceGenerator":
@@ -140,7 +147,7 @@ class ForceGenerator:
     def numerics(self) -> dict:
         """What decides the output bytes besides the inputs, the weights and the seeds: device, dtype and (CPU)
         torch's intra-op thread count, which changes a few values in a billion by one grey level. The batch does
-        not (forward passes of whole ``GENERATION_CHUNK`` rows). A ForceAugment cache records it."""
+        not (every step runs whole chunks, ``chunk_rows``). A ForceAugment cache records it."""
         threads = torch.get_num_threads() if self.device.type == "cpu" else None
         return {"device": self.device.type, "dtype": str(self.dtype).removeprefix("torch."), "intra_op_threads": threads}
 
@@ -154,9 +161,10 @@ class ForceGenerator:
             the model's size and back). delta_force: (B, 3) [ΔFx, ΔFy, ΔFz] N = F_target - F_reference.
         steps: DDIM steps (>= 1), default ``config.default_steps``. seed: one int (every sample uses the
             same noise, so a sample's output never depends on its batch-mates) or B ints (one per sample).
-        batch_size: samples resized and blended together, rounded up to whole ``GENERATION_CHUNK``
-            rows; the networks run one chunk at a time (memory only: a sample's bytes depend neither on it nor on
-            its batch-mates; they do, rarely, on torch's thread count: ``numerics``).
+        batch_size: samples moved to the device together, rounded up to whole chunks (``chunk_rows``), each
+            step running one chunk at a time (memory only: a sample's bytes depend neither on it nor on its
+            batch-mates; they do, rarely, on torch's thread count: ``numerics``); "auto": the largest batch that
+            fits in the device's free memory (``batching``); an int batch that does not fit is refused (ValueError).
         reference_force: optional (B, 3) N; then targets outside the validated range
             (``forces.VALIDATED_RANGE``) are handled by ``out_of_range`` ("clamp" moves the target into
             range, "error" raises, "skip" returns the reference unchanged); without it the same applies
@@ -248,50 +256,108 @@ class ForceGenerator:
 
     def _sample_rows(self, ref: np.ndarray, delta: np.ndarray, seeds: list[int], steps: int, batch_size: int,
                      generated: np.ndarray, masks: np.ndarray | None) -> np.ndarray:
-        """Residuals uint8 (B, H, W, 3): the rows ``generated`` (bool (B,)) selects sampled (``_sample``), the others
-        ``ref`` unchanged. Those rows are padded to whole ``GENERATION_CHUNK``s by repeating the last one and
-        sampled ``batch_size`` (rounded up to whole chunks) at a time, so a row's bytes never depend on the others."""
+        """Residuals uint8 (B, H, W, 3): the rows ``generated`` (bool (B,)) selects sampled, the others ``ref``
+        unchanged. Those rows are padded to whole chunks (``chunk_rows``) by repeating the last one and moved to
+        the device ``batch_size`` (rounded up to whole chunks) at a time, so a row's bytes never depend on the
+        others."""
         out, kept = ref.copy(), np.flatnonzero(generated)
         if len(kept) == 0:
             return out
-        rows = np.concatenate([kept, np.repeat(kept[-1:], -len(kept) % GENERATION_CHUNK)])
+        chunk = chunk_rows(self.device)
+        rows = np.concatenate([kept, np.repeat(kept[-1:], -len(kept) % chunk)])
         lh, lw = self.config.autoencoder.latent_size
         noise = seeded_noise([seeds[i] for i in rows], (self.config.autoencoder.latent_channels, lh, lw))
-        step = -(-batch_size // GENERATION_CHUNK) * GENERATION_CHUNK
+        scheduler = make_scheduler(self.config.diffusion)
+        step = rows_per_batch(batch_size, self.footprint(ref.shape[1:3]), free_bytes(self.device), chunk, len(rows))
         sampled = []
         for s in range(0, len(rows), step):
             b = rows[s:s + step]
-            sampled.append(self._sample(ref[b], delta[b], noise[s:s + step], steps, None if masks is None else masks[b]))
+            sampled.append(self._sample_batch(ref[b], delta[b], noise[s:s + step], steps, scheduler,
+                                              None if masks is None else masks[b]))
         out[kept] = np.concatenate(sampled)[:len(kept)]
         return out
 
+    def footprint(self, hw: tuple[int, int]) -> Footprint:
+        """Bytes a batch of frames (H, W) = ``hw`` takes on the device (``batching``): on the CPU counted from its
+        arrays (uint8 inputs and outputs and the noise per row; a chunk's float images, eight per row, fixed); on
+        an accelerator measured once per size, the allocator's peak over a one- and a two-chunk batch."""
+        hw = tuple(int(v) for v in hw)
+        if hw not in self._footprints:
+            chunk, image = chunk_rows(self.device), hw[0] * hw[1] * 3
+            lh, lw = self.config.autoencoder.latent_size
+            noise = 4 * self.config.autoencoder.latent_channels * lh * lw
+            self._footprints[hw] = (Footprint(chunk * 8 * 4 * image, 2 * image + noise) if self.device.type == "cpu"
+                                    else self._measured_footprint(hw))
+        return self._footprints[hw]
+
+    def _measured_footprint(self, hw: tuple[int, int]) -> Footprint:
+        """``footprint`` on CUDA: peak bytes allocated by a batch of one and of two chunks of blank frames."""
+        chunk = chunk_rows(self.device)
+        lh, lw = self.config.autoencoder.latent_size
+        ref = np.full((2 * chunk, *hw, 3), 127, np.uint8)
+        noise = torch.zeros(2 * chunk, self.config.autoencoder.latent_channels, lh, lw)
+        peaks = []
+        for rows in (chunk, 2 * chunk):
+            torch.cuda.synchronize(self.device)
+            base = torch.cuda.memory_allocated(self.device)
+            torch.cuda.reset_peak_memory_stats(self.device)
+            self._sample_batch(ref[:rows], np.zeros((rows, 3), np.float32), noise[:rows], 1,
+                               make_scheduler(self.config.diffusion), None)
+            peaks.append(torch.cuda.max_memory_allocated(self.device) - base)
+        per_row = max((peaks[1] - peaks[0]) // chunk, 2 * hw[0] * hw[1] * 3)
+        return Footprint(max(peaks[0] - chunk * per_row, 0), per_row)
+
+    def _to_device(self, a) -> torch.Tensor:
+        """An array on the generator's device; to a GPU through pinned host memory, without waiting for the copy."""
+        t = torch.as_tensor(a)
+        if self.device.type == "cpu":
+            return t
+        return t.pin_memory().to(self.device, non_blocking=True)
+
     @torch.no_grad()
-    def _sample(self, ref: np.ndarray, delta: np.ndarray, noise: torch.Tensor, steps: int,
-                masks: np.ndarray | None) -> np.ndarray:
-        """The sampling loop on whole ``GENERATION_CHUNK``s of rows: reference residuals uint8 (b, H_in, W_in, 3),
-        ΔF (b, 3) N, seeded noise (b, C, h, w), target-pose masks bool (b, H_in, W_in) or None -> residuals uint8
-        (b, H_in, W_in, 3). The networks run one chunk at a time: one shape whatever b, so the same CPU kernels."""
-        size_in = ref.shape[1:3]
-        # 1. reference residual at the model's size (area resize)
-        model_in = _resize_each(ref, self.config.image_size, cv2.INTER_AREA)
-        decoded = []
-        for c in range(0, len(ref), GENERATION_CHUNK):
-            rows = slice(c, c + GENERATION_CHUNK)
-            # 2. latent: the normalised reference latent z_ref (c, C, h, w)
-            z_ref = self.encode(torch.from_numpy(model_in[rows]))
-            # 3. DDIM over the normalised latent delta Δz from the seeded noise, conditioned on (z_ref, ΔF[, mask])
-            df = torch.from_numpy(delta[rows]).float().to(self.device)
-            dz = ddim_sample(self._denoiser(masks, rows), make_scheduler(self.config.diffusion), z_ref, df,
-                             noise[rows].to(self.device), steps)
-            # 4. decode z_ref + Δz (and z_ref alone, when anchoring): float (c, H, W, 3), grey levels about 0
-            decoded.append(self._decode(z_ref, dz))
-        target = np.concatenate([t for t, _ in decoded])
-        recon = None if decoded[0][1] is None else np.concatenate([r for _, r in decoded])
-        # 5. resize to the input's size (the detail gate weighs at the model's)
+    def _sample_batch(self, ref: np.ndarray, delta: np.ndarray, noise: torch.Tensor, steps: int, scheduler,
+                      masks: np.ndarray | None) -> np.ndarray:
+        """One batch of whole chunks, on the device: reference residuals uint8 (b, H_in, W_in, 3), ΔF (b, 3) N,
+        seeded noise (b, C, h, w), target-pose masks bool (b, H_in, W_in) or None -> residuals uint8 (b, H_in,
+        W_in, 3). Its inputs go to the device at once, its chunks are queued, its output comes back at once;
+        NonFiniteOutput rather than a NaN turned into a black pixel."""
+        chunk = chunk_rows(self.device)
+        ref_d, delta_d = self._to_device(ref), self._to_device(np.asarray(delta, np.float32))
+        noise_d = self._to_device(noise)
+        outs, worst = [], torch.zeros((), device=self.device)
+        for c in range(0, len(ref), chunk):
+            rows = slice(c, c + chunk)
+            y = self._sample(ref_d[rows], delta_d[rows], noise_d[rows], steps, scheduler,
+                             None if masks is None else masks[rows])
+            worst = torch.maximum(worst, y.abs().amax())  # NaN and inf carry through max; one check a batch
+            outs.append(y.round().clamp_(0, 255).to(torch.uint8))
+        out = torch.cat(outs)
+        out = out if self.device.type == "cpu" else out.to("cpu", non_blocking=True)
+        if not torch.isfinite(worst):  # waits for the device: the output's copy is complete after it
+            dtype = str(self.dtype).removeprefix("torch.")
+            raise NonFiniteOutput(f"the generator's output holds NaN or inf values ({dtype} on {self.device}); "
+                                  "nothing was returned: check the checkpoint, or run in float32")
+        return out.numpy()
+
+    def _sample(self, ref: torch.Tensor, delta: torch.Tensor, noise: torch.Tensor, steps: int, scheduler,
+                masks: np.ndarray | None) -> torch.Tensor:
+        """The sampling loop on one chunk, every step on the device: reference residuals uint8 (c, H_in, W_in, 3),
+        ΔF (c, 3) N, noise (c, C, h, w), masks bool (c, H_in, W_in) or None -> output grey levels float32 (c, H_in,
+        W_in, 3), not yet rounded. One shape per chunk whatever the batch: the same kernels."""
+        size_in = tuple(ref.shape[1:3])
+        # 1. latent: the reference residual at the model's size (area resize), encoded: z_ref (c, C, h, w)
+        z_ref = self.encode(resize(ref, self.config.image_size, "area", self.resample_taps))
+        # 2. DDIM over the normalised latent delta Δz from the seeded noise, conditioned on (z_ref, ΔF[, mask])
+        dz = ddim_sample(self._denoiser(masks), scheduler, z_ref, delta.float(), noise, steps)
+        # 3. decode z_ref + Δz (and z_ref alone, when anchoring): float (c, h, w, 3), grey levels about 0
+        target, recon = self._decode(z_ref, dz)
+        # 4. resize to the input's size (the detail gate weighs at the model's)
         keep = None if recon is None else self._detail_weight(target, recon)
-        target, recon, keep = (_resize_each(x, size_in) for x in (target, recon, keep))
-        # 6. detail anchoring: the reference's detail its reconstruction misses, gated; -> uint8
-        return self._anchored(ref, target, recon, keep)
+        target, recon, keep = (None if x is None else resize(x, size_in, "linear", self.resample_taps)
+                               for x in (target, recon, keep))
+        # 5. detail anchoring: + 127, plus the reference's detail its reconstruction misses, gated
+        y = target + RESIDUAL_OFFSET
+        return y if recon is None else y + keep * (ref.float() - RESIDUAL_OFFSET - recon)
 
     # -- model steps ---------------------------------------------------------------------------
     @torch.no_grad()
@@ -300,42 +366,29 @@ class ForceGenerator:
         x = residual_to_unit(residuals.to(self.device)).to(self.dtype)
         return (self.autoencoder.encode(x).float() / self._latent_scale).to(self.dtype)
 
-    def _denoiser(self, masks: np.ndarray | None, rows: slice):
-        """The stage-1 denoiser, or with target-pose masks bool (b, H_in, W_in) the pose-controlled one for ``rows``."""
+    def _denoiser(self, masks: np.ndarray | None):
+        """The stage-1 denoiser, or with target-pose masks bool (c, H_in, W_in) the pose-controlled one."""
         if masks is None:
             return self.denoiser
-        m = torch.from_numpy(masks_to_model(masks[rows], self.config.image_size)).to(self.device, self.dtype)
+        m = self._to_device(masks_to_model(masks, self.config.image_size)).to(self.dtype)
         return PoseControlledDenoiser(self.denoiser, self.pose_adapter, m)
 
-    @torch.no_grad()
-    def _decode(self, z_ref_n: torch.Tensor, delta_n: torch.Tensor) -> tuple[np.ndarray, np.ndarray | None]:
-        """Decoded target and (when anchoring) decoded reference, grey levels about 0, (b, H, W, 3) float32."""
+    def _decode(self, z_ref_n: torch.Tensor, delta_n: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Decoded target and (when anchoring) decoded reference, grey levels about 0, float32 (c, h, w, 3)."""
         def decode(z):
-            return self.autoencoder.decode(z.to(self.dtype)).float().permute(0, 2, 3, 1).cpu().numpy() * 128.0
+            return self.autoencoder.decode(z.to(self.dtype)).float().permute(0, 2, 3, 1) * 128.0
         target = decode(z_ref_n.float() * self._latent_scale + delta_n.float() * self._delta_scale)
         if not self.config.anchor_to_reference:
             return target, None
         return target, decode(z_ref_n.float() * self._latent_scale)
 
-    def _detail_weight(self, target: np.ndarray, recon: np.ndarray) -> np.ndarray:
-        """Share of the reference's detail to keep, (b, H, W, 1) in [0, 1] (see GeneratorConfig.detail_gate)."""
+    def _detail_weight(self, target: torch.Tensor, recon: torch.Tensor) -> torch.Tensor:
+        """Share of the reference's detail to keep, float32 (c, h, w, 1) in [0, 1] (GeneratorConfig.detail_gate)."""
         g = self.config.detail_gate
         if g == 0:
-            return np.ones((*target.shape[:3], 1), np.float32)
+            return torch.ones_like(target[..., :1])
         def magnitude(x):
-            return np.stack([cv2.GaussianBlur(np.abs(m).mean(-1), (0, 0), DETAIL_GATE_SIGMA_PX) for m in x])
-        return np.clip((magnitude(target) + g) / (magnitude(recon) + g), 0.0, 1.0)[..., None]
-
-    def _anchored(self, ref: np.ndarray, target: np.ndarray, recon: np.ndarray | None,
-                  keep: np.ndarray | None) -> np.ndarray:
-        """uint8 (b, H, W, 3): decoded target + 127, plus (when anchoring) ``keep`` (b, H, W, 1) of the reference's
-        detail (reference - its reconstruction); NonFiniteOutput rather than a NaN turned into a black pixel."""
-        y = target + RESIDUAL_OFFSET
-        if recon is not None:
-            y = y + keep * (ref.astype(np.float32) - RESIDUAL_OFFSET - recon)
-        bad = int(y.size - np.isfinite(y).sum())
-        if bad:
-            dtype = str(self.dtype).removeprefix("torch.")
-            raise NonFiniteOutput(f"the generator's output holds {bad} NaN or inf values ({dtype} on {self.device}); "
-                                  "nothing was returned: check the checkpoint, or run in float32")
-        return np.clip(np.round(y), 0, 255).astype(np.uint8)
+            a = x.abs()
+            return gaussian_blur((a[..., 0] + a[..., 1] + a[..., 2]) / 3, DETAIL_GATE_SIGMA_PX,
+                                 self.resample_taps)  # blur of the channel mean
+        return ((magnitude(target) + g) / (magnitude(recon) + g)).clamp(0.0, 1.0)[..., None]
