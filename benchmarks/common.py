@@ -17,6 +17,11 @@ from controltac_il.cli import ArgumentParser
 from controltac_il.io import write_json
 
 
+# Set by benchmarks/device_gpu.sh where the checkout's own .git cannot tell (the device tool's copy carries a stale
+# one): the commit whose git tree id that script found equal to the working tree's, file for file.
+VERIFIED_COMMIT = "CONTROLTAC_VERIFIED_COMMIT"
+
+
 def git_revision(path: Path) -> str | None:
     """Short commit of the repository holding ``path``, suffixed ``-dirty`` when tracked files
     differ from it (so a figure measured before its weights were committed says so); None
@@ -53,7 +58,7 @@ def machine_info() -> dict:
                 break
     except OSError:
         pass
-    commit = git_revision(Path(__file__).resolve().parent)
+    commit = os.environ.get(VERIFIED_COMMIT) or git_revision(Path(__file__).resolve().parent)
     return {
         "cpu": cpu,
         "cores": os.cpu_count(),

@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # The generator's device figures in one call of the device tool, each stage under what is left of a deadline:
 #
-#   bash benchmarks/device_gpu.sh OUT_DIR [DEADLINE_S]     # the device call: `... $OUT 480 2>&1`, carry .whl .baseline
+#   bash benchmarks/device_gpu.sh OUT_DIR [DEADLINE_S] [COMMIT TREE]   # carry .whl .baseline; COMMIT TREE from
+#       `git rev-parse --short HEAD HEAD^{tree}` here: the device's copy of .git is stale, so the JSONs name COMMIT
+#       only where the copy's files hash to TREE (CONTROLTAC_VERIFIED_COMMIT, benchmarks.common), else its describe
 #
 # 1. generator_speed_gpu.json: every shipped size (the presets and the frontier's) at 240×320 and 120×160, DDIM-1,
 #    float32, batch 32, 256 and auto, its error (MSE ÷ a copy's on the unseen-object pairs) beside each speed;
@@ -23,7 +25,12 @@ fi
 mkdir -p "$OUT"
 LOG="$OUT/driver.log"
 log() { echo "[$(date -u +%T) +${SECONDS}s] $*" | tee -a "$LOG"; }
-log "commit ${GIT_COMMIT:-unknown}; $(nproc) cores; $(nvidia-smi -L 2>/dev/null | head -1)"
+if [ -n "${4:-}" ]; then  # the files here against commit $3's tree, .git's own exclusions aside
+  here=$(export GIT_INDEX_FILE=/tmp/device_gpu.index; rm -f $GIT_INDEX_FILE
+         git add -A . && git rm -rq --cached --ignore-unmatch .whl .baseline && git write-tree)
+  [ "$here" = "$4" ] && export CONTROLTAC_VERIFIED_COMMIT=$3
+fi
+log "commit ${CONTROLTAC_VERIFIED_COMMIT:-not verified}; $(nproc) cores; $(nvidia-smi -L 2>/dev/null | head -1)"
 if [ "$DEVICE" = cpu ]; then export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"; else source benchmarks/gpu_setup.sh "$LOG" || exit $?; fi
 stage() {  # stage NAME COMMAND...: run it under what is left of the deadline
   local left=$((DEADLINE - SECONDS))

@@ -55,21 +55,23 @@ def call_rows(batch) -> int:
 
 def time_round(gens: dict, a, data: dict, order: list[str]) -> tuple[dict, dict]:
     """{(checkpoint, dtype, frames, steps, batch): img/s} of one round: every setting of every generator in
-    ``order`` once (median of ``a.repeats`` calls after one warm-up); on CUDA also {(checkpoint, dtype): peak MB}."""
+    ``order`` once (median of ``a.repeats`` calls after one warm-up); on CUDA also {(checkpoint, dtype, frames):
+    peak MB allocated by that size's settings} (the footprint measured first: it resets the peak itself)."""
     out, peaks = {}, {}
     cuda = a.device.startswith("cuda")
     for key in order:
         gen = gens[key]
-        if cuda:
-            torch.cuda.reset_peak_memory_stats()
         for size, (refs, delta) in data.items():
+            gen.footprint(refs.shape[1:3])
+            if cuda:
+                torch.cuda.reset_peak_memory_stats()
             for steps in a.steps:
                 for batch in a.batch_sizes:
                     n = min(call_rows(batch), len(refs))
                     def once():
                         gen.generate(refs[:n], delta[:n], steps=steps, seed=0, batch_size=batch)
                     out[(*key, size, steps, batch)] = n / median_time(once, repeats=a.repeats, warmup=1)
-        peaks[key] = torch.cuda.max_memory_allocated() / 2**20 if cuda else None
+            peaks[(*key, size)] = torch.cuda.max_memory_allocated() / 2**20 if cuda else None
     return out, peaks
 
 
@@ -105,7 +107,7 @@ def time_checkpoints(a, data: dict, pairs: dict | None) -> list[dict]:
                      "dit_parameters": sum(p.numel() for p in gen.denoiser.parameters()),
                      "img_per_s": float(np.median(values)), "img_per_s_rounds": values,
                      "mse_ratio_to_copy": error.get((name, dtype, size, steps)),
-                     "peak_cuda_mb": per_round[0][1][(name, dtype)]})
+                     "peak_cuda_mb": per_round[-1][1][(name, dtype, size)]})
     return rows
 
 
