@@ -260,7 +260,7 @@ def generator_frontier() -> str:
     (generator_speed_gpu.json)."""
     doc, cpu, gpu = (ft.load(n) for n in ("generator.json", "generator_speed.json", "generator_speed_gpu.json"))
     copy = {k: v for k, v in next(m for m in doc["methods"] if m["kind"] == "copy").items() if isinstance(v, dict)}
-    on_gpu = {(r["hash"], r["steps"]): median(r.get("img_per_s_rounds") or [r["img_per_s_b32"]]) for r in gpu["rows"]
+    on_gpu = {(r["hash"], r["steps"]): median(r["img_per_s_rounds"]) for r in gpu["rows"]
               if r["frames"] == "240" and b32(r)}
     on_cpu = {(r["hash"], r["steps"]): r for r in cpu["rows"] if r["frames"] == "240" and b32(r)}
     hashes = {k: v["hash"] for k, v in doc["settings"]["checkpoints"].items()}
@@ -283,6 +283,41 @@ def generator_frontier() -> str:
             + ft.source("generator_speed.json", cpu) + "\n" + ft.source("generator_speed_gpu.json", gpu))
 
 
+def generator_device() -> str:
+    """Every shipped size on the GPU (generator_speed_gpu.json): img/s at batch 32, 256 and auto with the error beside
+    it, at 240×320 and 120×160, DDIM-1; the presets in half precision (generator_speed_gpu_dtypes.json); the CPU path
+    before and after, interleaved, and its bytes (generator_cpu_change.json)."""
+    gpu, half, cpu = (ft.load(n) for n in ("generator_speed_gpu.json", "generator_speed_gpu_dtypes.json",
+                                           "generator_cpu_change.json"))
+    cell = {(r["checkpoint"], r["frames"], r["batch"]): r for r in gpu["rows"]}
+    batches = gpu["settings"]["batch_sizes"]
+    rows = [[f"`{name}`", f"{hw[0]}×{hw[1]}", *(_speed(cell[(name, size, b)]) for b in batches),
+             f"{cell[(name, size, batches[0])]['mse_ratio_to_copy']:.3f}", f"{cell[(name, size, 'auto')]['batch_rows']}",
+             f"{cell[(name, size, 'auto')]['peak_cuda_mb']:.0f}"]
+            for name in dict.fromkeys(r["checkpoint"] for r in gpu["rows"])
+            for size, hw in gpu["settings"]["frames"].items()]
+    speed = ft.table(["size", "frames", *(f"img/s, batch {b}" for b in batches), "MSE ÷ copy (unseen)",
+                      "auto picked", "peak MB"], rows)
+    f32 = {(r["checkpoint"], r["frames"]): r for r in gpu["rows"] if r["batch"] == "auto"}
+    dtype_rows = [[f"`{r['checkpoint']}`", r["frames"], r["dtype"], _speed(r), f"{r['mse_ratio_to_copy']:.4f}",
+                   _speed(f32[(r["checkpoint"], r["frames"])]), f"{f32[(r['checkpoint'], r['frames'])]['mse_ratio_to_copy']:.4f}"]
+                  for r in half["rows"]]
+    dtypes = ft.table(["size", "frames", "dtype", "img/s, auto", "MSE ÷ copy", "float32 img/s", "float32 MSE ÷ copy"],
+                      dtype_rows)
+    change = ft.table(["size", "frames", "DDIM", "before img/s (rounds)", "after img/s (rounds)", "after ÷ before"],
+                      [[f"`{r['checkpoint']}`", r["frames"], r["steps"], _rounds(r["before_img_per_s"], r["before_rounds"]),
+                        _rounds(r["after_img_per_s"], r["after_rounds"]), f"{r['after_over_before']:.2f}"]
+                       for r in cpu["speed"]])
+    same = ", ".join(f"{b['output']} {b['max_diff']} ({b['values']:,} values)" for b in cpu["bytes"])
+    return (speed + "\n\n" + ft.source("generator_speed_gpu.json", gpu) + "\n\n" + dtypes + "\n\n"
+            + ft.source("generator_speed_gpu_dtypes.json", half) + "\n\n" + change + "\n\nLargest grey-level "
+            f"difference of the outputs, after against before: {same}.\n\n" + ft.source("generator_cpu_change.json", cpu))
+
+
+def _rounds(value: float, rounds: list) -> str:
+    return f"{value:.1f} ({min(rounds):.1f}–{max(rounds):.1f})"
+
+
 def _validation(val: dict) -> str:
     """A card's best validation ratio and its step; ``fast`` was trained before runs held out validation objects."""
     best = val.get("best")
@@ -292,10 +327,11 @@ def _validation(val: dict) -> str:
 def _speed(row: dict) -> str:
     """Median img/s over rounds with the rounds' range."""
     rounds = row["img_per_s_rounds"]
-    return f"{median(rounds):.1f} ({min(rounds):.1f}–{max(rounds):.1f})"
+    return _rounds(median(rounds), rounds)
 
 
 BLOCKS = {"calibration": calibration, "calibration-methods": calibration_methods, "sensor": sensor,
           "env-speed": env_speed, "hardware": hardware, "generation-chunk": generation_chunk,
           "force-scaling": force_scaling, "headline": headline, "generator-frontier": generator_frontier,
+          "generator-device": generator_device,
           "touch-il-verdict-v2": touch_il_verdict_v2, "touch-il-verdict-v3": touch_il_verdict_v3, "finetune": finetune}
