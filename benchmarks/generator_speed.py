@@ -15,7 +15,6 @@ dtype on the device: MSE ÷ a reference copy's on ``benchmarks.generator``'s uns
 
 from __future__ import annotations
 
-from argparse import ArgumentTypeError
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +24,7 @@ from benchmarks.common import base_parser, median_time, print_table, write_resul
 from benchmarks.generator import eval_pairs
 from benchmarks.generator_frontier import FRONTIER
 from controltac_il.generator import ForceGenerator
-from controltac_il.generator.batching import AUTO, free_bytes, rows_per_batch
+from controltac_il.generator.batching import AUTO, free_bytes, parse_batch_size, rows_per_batch
 from controltac_il.generator.pipeline import chunk_rows
 from controltac_il.metrics import mse
 from controltac_il.tactile import HELDOUT_OBJECTS, SensorSpec, TactileSensor, from_residual
@@ -117,7 +116,7 @@ def main(argv=None) -> dict:
                    help="shipped names (the presets, the frontier's sizes) or checkpoint folders (default: all five)")
     p.add_argument("--device", default="cpu", help="cpu (default) or cuda")
     p.add_argument("--threads", type=int, default=2, help="torch threads on the CPU (default 2, the target machine's)")
-    p.add_argument("--batch-sizes", nargs="+", type=batch_arg, default=[32], metavar="B",
+    p.add_argument("--batch-sizes", nargs="+", type=parse_batch_size, default=[32], metavar="B",
                    help="batch sizes to time: ints and/or auto (default: 32)")
     p.add_argument("--dtypes", nargs="+", choices=list(DTYPES), default=["float32"], help="default: float32")
     p.add_argument("--steps", nargs="+", type=int, default=list(STEPS), help="DDIM steps (default 1 2 5)")
@@ -145,15 +144,6 @@ def main(argv=None) -> dict:
                                               "frames": {k: list(v) for k, v in SIZES.items()},
                                               "auto_rows": AUTO_ROWS, "call_batches": CALL_BATCHES},
                                  "rows": rows})
-
-
-def batch_arg(text: str):
-    """A --batch-sizes value: "auto" or an int >= 1."""
-    if text == AUTO:
-        return AUTO
-    if not text.isdigit() or int(text) < 1:
-        raise ArgumentTypeError(f"expected an int >= 1 or 'auto', got {text!r}")
-    return int(text)
 
 
 if __name__ == "__main__":

@@ -95,3 +95,18 @@ def test_a_batch_that_does_not_fit_is_refused_in_one_line_and_auto_gives_the_sam
     monkeypatch.setattr(pipeline, "free_bytes", lambda device: fp.bytes(1))
     with pytest.raises(ValueError, match=r"^batch_size: not even one chunk of 4 rows fits"):
         gen.generate(refs, df, batch_size="auto")
+
+
+def test_batch_size_auto_is_a_config_setting_and_a_flag_value():
+    from argparse import ArgumentTypeError
+
+    from controltac_il.augment.config import ForceAugmentConfig
+    from controltac_il.generator.batching import parse_batch_size
+
+    assert parse_batch_size("auto") == "auto" and parse_batch_size("48") == 48
+    for bad in ("0", "-3", "big", "2.5"):
+        with pytest.raises(ArgumentTypeError, match=f"^expected an int >= 1 or 'auto', got '{bad}'$"):
+            parse_batch_size(bad)
+    assert ForceAugmentConfig(batch_size="auto").batch_size == "auto"
+    with pytest.raises(ValueError, match=r"batch_size: expected an int >= 1 or 'auto' \(got 'big'\)"):
+        ForceAugmentConfig(batch_size="big")

@@ -13,6 +13,7 @@ import numpy as np
 from pydantic import field_validator
 from pydantic.dataclasses import dataclass
 
+from controltac_il.generator.batching import AUTO, parse_batch_size
 from controltac_il.generator.forces import NOMINAL_FZ
 from controltac_il.config import STRICT, one_line_errors
 
@@ -113,8 +114,9 @@ class ForceAugmentConfig:
     min_contact_area: float = _setting(
         0.002, "without force labels, a frame is in contact when at least this fraction of its pixels are "
                "contact pixels of contact_mask on the residual", type=float)
-    batch_size: int = _setting(32, "frames per generator call while building the cache (memory only: the frames "
-                                   "do not depend on it)", type=int)
+    batch_size: int | str = _setting(32, "frames per generator batch while building the cache (memory only: the "
+                                         "frames do not depend on it); 'auto': the largest the generator's device "
+                                         "holds", type=parse_batch_size)
     force_keys: dict | None = _setting(
         None, "{tactile key: item key of its force label [Fx, Fy, Fz] N, or None}; keys left out follow the rule "
               "observation.tactile.<s> -> observation.force.<s> (keys containing 'tactile' only); no label: the "
@@ -148,7 +150,11 @@ class ForceAugmentConfig:
     @field_validator("batch_size", mode="before")
     @classmethod
     def _batch(cls, v):
-        return _int(v, 1)
+        if v == AUTO:
+            return AUTO
+        if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
+            raise ValueError("expected an int >= 1 or 'auto'")
+        return int(v)
 
     @field_validator("offset_range", mode="before")
     @classmethod
