@@ -24,7 +24,8 @@ from benchmarks.common import base_parser, median_time, print_table, write_resul
 from benchmarks.generator import eval_pairs
 from benchmarks.generator_frontier import FRONTIER
 from controltac_il.generator import ForceGenerator
-from controltac_il.generator.batching import AUTO, free_bytes, parse_batch_size, rows_per_batch
+from controltac_il.config import AUTO, parse_batch_size
+from controltac_il.generator.batching import free_bytes, rows_per_batch
 from controltac_il.generator.pipeline import chunk_rows
 from controltac_il.metrics import mse
 from controltac_il.tactile import HELDOUT_OBJECTS, SensorSpec, TactileSensor, from_residual

@@ -9,11 +9,22 @@ naming the fields (or their CLI flags).
 from __future__ import annotations
 
 import functools
+from argparse import ArgumentTypeError
 from typing import Mapping
 
 from pydantic import ConfigDict, TypeAdapter, ValidationError
 
 STRICT = ConfigDict(extra="forbid")
+AUTO = "auto"  # a batch size the generator picks for its device (generator.batching)
+
+
+def parse_batch_size(text: str):
+    """A --batch-size value: "auto" or an int >= 1 (argparse's ``type``)."""
+    if text == AUTO:
+        return AUTO
+    if not text.isdigit() or int(text) < 1:
+        raise ArgumentTypeError(f"expected an int >= 1 or 'auto', got {text!r}")
+    return int(text)
 
 
 class JsonConfig:

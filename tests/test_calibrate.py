@@ -40,9 +40,15 @@ def test_bundle_loads_by_name_everywhere_and_moved_from_its_bases(bases, tmp_pat
     args = ["--presses", str(presses), "--out", str(out), "--base-generator", str(tmp / "gen" / "final"),
             "--base-estimator", str(tmp / "est"), "--estimator-steps", "6", "--ae-steps", "2", "--dit-steps", "2",
             "--batch", "4", "--threads", "1"]
-    assert main(args) == 0 and "wrote" in capsys.readouterr().out
+    assert main(args) == 0
+    said = capsys.readouterr().out
     record = json.loads((out / "calibration.json").read_text())
     assert record["images"] == 30 and record["estimator"]["held_out"]["frames"] == 30
+    held = record["estimator"]["held_out"]  # every one of the 10 grasps held out once
+    assert [r["frames"] for r in held["per_grasp"]] == [3] * 10 and held["grasps"] == 10
+    decision = held["decision"]
+    assert "wrote" in said and [line for line in said.splitlines() if line.startswith("estimator")] == [decision["why"]]
+    assert decision["why"].startswith("estimator declined") and len(decision["interval"]) == 2
     assert record["generator"]["held_out_rows"] and (out / "report.png").stat().st_size > 0
     assert not (out.parent / "my_sensor.partial").exists()
     est, base = ForceEstimator.from_pretrained(out), ForceEstimator.from_pretrained(tmp / "est")
@@ -52,7 +58,8 @@ def test_bundle_loads_by_name_everywhere_and_moved_from_its_bases(bases, tmp_pat
     assert gen.checkpoint_hash == record["generator"]["hash"] != record["generator"]["base_hash"]
     x = np.full((1, 60, 80, 3), 127, np.uint8)
     assert gen.generate(x, np.zeros((1, 3), np.float32)).shape == x.shape
-    assert "estimator Fz MAE" in (out / "README.md").read_text()
+    readme = (out / "README.md").read_text()
+    assert "estimator Fz MAE" in readme and decision["why"] in readme and "| held-out grasp | frames |" in readme
     assert main(args) == 2 and "exists" in capsys.readouterr().err  # never written over
     from test_aug_lerobot import GEL, LeRobotLike, episodes
 
@@ -85,7 +92,10 @@ def test_bad_presses_and_stopped_runs_are_one_line(bases, tmp_path, capsys):
     ds = load_dataset(presses)
     one = subset_presses(ds, next(iter(ds.pose_groups().values())), tmp_path / "one_pose")
     cases.append((["--presses", str(one), "--out", str(tmp_path / "o")],
-                  f"--presses: {one} holds one contact pose only; at least two are needed"))
+                  f"--presses: {one} holds 1 grasp (contact poses); at least 3 are needed"))
+    two = subset_presses(ds, [r for g in list(ds.pose_groups().values())[:2] for r in g], tmp_path / "two_poses")
+    cases.append((["--presses", str(two), "--out", str(tmp_path / "o")],
+                  f"--presses: {two} holds 2 grasps (contact poses); at least 3 are needed"))
     for argv, expected in cases:
         assert main(argv) == 2
         err = capsys.readouterr().err.strip()
@@ -116,12 +126,36 @@ def test_held_out_poses_hold_out_the_asked_share_when_objects_have_few_poses():
     assert held_out_poses(many, 0.2) == (train, val)  # fixed seed
 
 
-def test_the_adapters_cross_validation_needs_two_grasps_before_fitting_anything():
+def test_leaving_one_grasp_out_needs_three_grasps_before_fitting_anything():
     from controltac_il.calibrate.bundle import cross_validated
 
     residuals, fz = np.zeros((4, 8, 8, 3), np.uint8), np.array([1.0, 2.0, 3.0, 4.0])
-    with pytest.raises(ValueError, match=r"^the labelled frames hold one contact pose only; at least two are needed"):
-        cross_validated(None, residuals, fz, np.zeros(4, int), steps=1)  # never reaches the base estimator
+    with pytest.raises(ValueError, match=r"^the labelled frames hold 2 contact poses; at least 3 are needed"):
+        cross_validated(None, residuals, fz, np.array([0, 0, 1, 1]), steps=1)  # never reaches the base estimator
+
+
+def test_a_bundle_from_recordings_names_its_final_folder(bases, tmp_path):
+    """Recordings are written as presses inside OUT.partial first; the finished bundle names OUT/presses."""
+    import cv2
+
+    tmp, presses = bases
+    ds = load_dataset(presses)
+    recordings = tmp_path / "recordings"
+    for g, rows in enumerate(list(ds.pose_groups().values())[:3]):
+        rows = sorted(rows, key=lambda i: ds.forces()[i, 2])
+        frames = [ds.background_of(rows[0])] + [ds.image(i) for i in rows]
+        (recordings / f"grasp{g}").mkdir(parents=True)
+        for k, img in enumerate(frames):
+            cv2.imwrite(str(recordings / f"grasp{g}" / f"{k:03d}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+        fz = [0.0] + [float(ds.forces()[i, 2]) for i in rows]
+        (recordings / f"grasp{g}.csv").write_text("fz\n" + "\n".join(map(str, fz)) + "\n")
+    out = tmp_path / "my_sensor"
+    assert main(["--recordings", str(recordings), "--out", str(out), "--size", "60", "80", "--base-generator",
+                 str(tmp / "gen" / "final"), "--base-estimator", str(tmp / "est"), "--estimator-steps", "2",
+                 "--ae-steps", "1", "--dit-steps", "1", "--batch", "4", "--threads", "1"]) == 0
+    readme = (out / "README.md").read_text()
+    assert f"in `{(out / 'presses').resolve()}`" in readme and ".partial" not in readme
+    assert json.loads((out / "calibration.json").read_text())["presses"] == str((out / "presses").resolve())
 
 
 def test_a_stopped_calibration_resumes_to_the_same_estimator(bases, tmp_path, capsys):

@@ -106,7 +106,7 @@ def test_bad_recordings_name_the_file(frames, tmp_path, case, expected):
 def test_recordings_holding_one_press_in_all_are_refused_before_anything_is_written(frames, tmp_path):
     """A light touch below the validated range, then one press: one press counts (the touch keeps no frame)."""
     write(tmp_path / "rec", "png_session", frames[0][:10], [0, 0, 0.6, 0.8, 0, 0, 2, 4, 6, 0])
-    with pytest.raises(ValueError, match=r"rec: one press in all recordings; at least two are needed"):
+    with pytest.raises(ValueError, match=r"rec: 1 press in all recordings; at least 3 are needed"):
         recordings_to_presses(tmp_path / "rec", tmp_path / "out", RecordingOptions(size=(60, 80)))
     assert not (tmp_path / "out").exists()
 

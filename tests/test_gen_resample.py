@@ -101,7 +101,7 @@ def test_batch_size_auto_is_a_config_setting_and_a_flag_value():
     from argparse import ArgumentTypeError
 
     from controltac_il.augment.config import ForceAugmentConfig
-    from controltac_il.generator.batching import parse_batch_size
+    from controltac_il.config import parse_batch_size
 
     assert parse_batch_size("auto") == "auto" and parse_batch_size("48") == 48
     for bad in ("0", "-3", "big", "2.5"):

@@ -189,6 +189,7 @@ def test_worker_processes_write_the_same_files(written, tmp_path):
     assert files(out) == files(clean)
 
 
+@pytest.mark.slow  # a spawned worker imports torch: about 6 s on two cores
 def test_a_workers_error_is_raised_with_its_message(written, tmp_path):
     root, _, _, reference = written
     out, cache = tmp_path / "out", staging_dir(tmp_path / "out") / "cache"

@@ -13,9 +13,8 @@ import numpy as np
 from pydantic import field_validator
 from pydantic.dataclasses import dataclass
 
-from controltac_il.generator.batching import AUTO, parse_batch_size
 from controltac_il.generator.forces import NOMINAL_FZ
-from controltac_il.config import STRICT, one_line_errors
+from controltac_il.config import AUTO, STRICT, one_line_errors, parse_batch_size
 
 MODES = ("cache", "online")
 OUT_OF_RANGE = ("clamp", "skip")

@@ -2,27 +2,28 @@
 grasps, written under ``OUT.partial`` and renamed to OUT when complete.
 
 A grasp (a press) is one contact pose: (object, pose_id) of the presses layout. Below FINETUNE_FROM frames the
-estimator gets the colour adapter (``estimators.few_shot``), measured by grasp-level cross-validation (``FOLDS``
-folds, each fitted without its grasps and scored on them), then fitted on all grasps; from there on the whole
-network is fine-tuned without the held-out grasps and scored on them. The generator is fine-tuned without the held-out grasps (``--val-fraction``) and scored on pairs of
-their frames with |ΔFz| >= MIN_PAIR_DFZ, against a copy of the reference.
+estimator gets the colour adapter (``estimators.few_shot``), measured leaving one grasp out (each grasp scored by
+an adapter fitted on the others, against the others' mean Fz), then fitted on all grasps; from there on the whole
+network is fine-tuned without the held-out grasps (``--val-fraction``) and scored on them. Whether ForceAugment
+may use it is decided over those held-out grasps (``decision``). The generator is fine-tuned without the held-out
+grasps (``--val-fraction``) and scored on pairs of their frames with |ΔFz| >= MIN_PAIR_DFZ, against a copy of the
+reference.
 """
 
 from __future__ import annotations
 
 import os
 import shutil
-import warnings
 from collections import Counter
 from pathlib import Path
 
 import numpy as np
 
-FOLDS = 5  # grasp-level cross-validation folds of the estimator's table
+from controltac_il.calibrate.decision import MIN_GRASPS, decide, per_grasp
+
 FINETUNE_FROM = 500  # frames: from here "auto" fine-tunes the whole estimator (benchmarks/results/finetune.json: Fz MAE
 #                      0.40 N at 2 016 frames, the adapter 0.89 N at 480), below it fits the colour adapter
 STEPS = {"adapter": 150, "finetune": 1000}  # the estimator's default steps per method
-USEFUL_RATIO = 0.9  # the estimator is used when its held-out MAE is below this share of the constant baseline's
 MIN_PAIR_DFZ = 1.5  # N: held-out generator pairs differ at least this much in Fz
 MAX_PAIRS = 96
 
@@ -53,22 +54,31 @@ def grasp_ids(ds) -> np.ndarray:
 
 
 def cross_validated(base, residuals: np.ndarray, fz: np.ndarray, grasps: np.ndarray, steps: int) -> dict:
-    """The colour adapter's held-out Fz per frame (grasp-level folds) and its table row against the constant."""
-    from controltac_il.estimators.few_shot import ColourFit, fit_colour_adapter, held_out_mae
+    """The colour adapter's held-out Fz per frame, leaving one grasp out, and its table against the constant (the
+    other grasps' mean Fz), with the per-grasp rows and the decision (``decision``)."""
+    from controltac_il.estimators.few_shot import ColourFit, fit_colour_adapter
 
     ids = np.unique(grasps)
-    if len(ids) < 2:  # one fold holding every frame would fit the adapter on none
-        raise ValueError("the labelled frames hold one contact pose only; at least two are needed (each is scored "
-                         "by an adapter fitted without it)")
-    folds = np.random.default_rng(0).permutation(len(ids)) % min(FOLDS, len(ids))
+    if len(ids) < MIN_GRASPS:  # checked before any fit: no interval over grasps exists
+        raise ValueError(f"the labelled frames hold {len(ids)} contact poses; at least {MIN_GRASPS} are needed (each "
+                         "is scored by an adapter fitted without it)")
     pred, const = np.empty(len(fz)), np.empty(len(fz))
-    for k in range(folds.max() + 1):
-        out = np.isin(grasps, ids[folds == k])
+    for g in ids:
+        out = grasps == g
         est = fit_colour_adapter(base, residuals[~out], fz[~out], ColourFit(steps=steps))
         pred[out] = est.predict(residuals[out], gate=False)[:, 2]
         const[out] = fz[~out].mean()
-    return {**held_out_mae(pred, fz, const), "grasps": len(ids), "folds": int(folds.max() + 1),
-            "predicted_fz": pred.tolist()}
+    return held_out_table(pred, fz, const, grasps)
+
+
+def held_out_table(pred: np.ndarray, fz: np.ndarray, constant: np.ndarray, grasps: np.ndarray) -> dict:
+    """The estimator's held-out table: pred (N,) Fz N, NaN where not held out; the constant's prediction (N,) N."""
+    from controltac_il.estimators.few_shot import held_out_mae
+
+    held = np.isfinite(pred)
+    rows = per_grasp(pred, fz, constant, grasps)
+    return {**held_out_mae(pred[held], fz[held], constant[held]), "grasps": len(rows), "per_grasp": rows,
+            "decision": decide(rows), "predicted_fz": [float(v) if np.isfinite(v) else None for v in pred]}
 
 
 def estimator_method(args, frames: int) -> str:
@@ -82,8 +92,6 @@ def finetuned(args, ds, base, x, f, grasps, staging: Path):
     """(the base estimator fine-tuned on all axes, its table on held-out grasps (``--val-fraction``))."""
     from controltac_il.estimators.config import EstimatorTrainConfig
     from controltac_il.estimators.fit import fit
-    from controltac_il.estimators.few_shot import held_out_mae
-
     train, val = held_out_poses(ds.pose_groups(), args.val_fraction)  # the generator's split
     steps = args.estimator_steps
     cfg = EstimatorTrainConfig(steps=steps, lr=1e-3, min_lr=1e-5, warmup=min(50, steps // 5),
@@ -91,12 +99,9 @@ def finetuned(args, ds, base, x, f, grasps, staging: Path):
     state = staging / "estimator.train_state"
     est, _ = fit(x[train], f[train], train=cfg, val=(x[val], f[val]), state_dir=state, init=base,
                  resume=args.resume and (state / "state.json").is_file())
-    held = est.predict(x[val], gate=False)[:, 2]
-    table = held_out_mae(held, f[val, 2], float(f[train, 2].mean()))
-    pred: list = [None] * len(f)  # held-out frames only
-    for i, v in zip(val, held):
-        pred[i] = float(v)
-    return est, {**table, "grasps": len(np.unique(grasps[val])), "folds": 1, "predicted_fz": pred}
+    pred = np.full(len(f), np.nan)
+    pred[val] = est.predict(x[val], gate=False)[:, 2]
+    return est, held_out_table(pred, f[:, 2].astype(np.float64), np.full(len(f), float(f[train, 2].mean())), grasps)
 
 
 def estimator_part(args, ds, staging: Path) -> dict:
@@ -116,16 +121,12 @@ def estimator_part(args, ds, staging: Path) -> dict:
         table = cross_validated(base, x, f[:, 2].astype(np.float64), grasps, args.estimator_steps)
         est = fit_colour_adapter(base, x, f[:, 2], ColourFit(steps=args.estimator_steps))
     est.save(staging / "estimator")
-    use = table["ratio_to_constant"] < USEFUL_RATIO
-    if not use:
-        warnings.warn(f"the calibrated estimator does not beat the constant baseline on held-out grasps (Fz MAE "
-                      f"{table['mae_n']:.2f} N vs {table['constant_mae_n']:.2f} N): ForceAugment with this bundle uses "
-                      "the nominal reference force for unlabelled frames", stacklevel=2)
+    print(table["decision"]["why"])
     names = {"adapter": "colour adapter (3x3 mix + shift) before the frozen base network",
              "finetune": "the whole base network fine-tuned"}
     return {"base": str(args.base_estimator or "default"), "base_hash": str(base.checkpoint_hash),
             "method": names[method], "steps": args.estimator_steps, "images": len(x), "zero_shot_mae_n": before,
-            "held_out": table, "use_estimator": bool(use), "grasp_of_frame": grasps.tolist(),
+            "held_out": table, "use_estimator": table["decision"]["use"], "grasp_of_frame": grasps.tolist(),
             "true_fz": f[:, 2].astype(float).tolist(),
             "hash": str(ForceEstimator.from_pretrained(staging / "estimator").checkpoint_hash)}
 
@@ -204,7 +205,10 @@ def run(args, ds, source: dict | None = None) -> dict:
         torch.set_num_threads(args.threads)
     staging = args.out.with_name(args.out.name + ".partial")
     staging.mkdir(parents=True, exist_ok=True)
-    record = {"presses": str(ds.root.resolve()), "images": len(ds), "source": source,
+    presses = ds.root.resolve()  # recordings are written as presses inside the staging folder: name the final one
+    if presses.is_relative_to(staging.resolve()):
+        presses = args.out.resolve() / presses.relative_to(staging.resolve())
+    record = {"presses": str(presses), "images": len(ds), "source": source,
               "estimator": estimator_part(args, ds, staging), "generator": generator_part(args, ds, staging)}
     write_json(staging / "calibration.json", record)
     save_report(staging / "report.png", record, ds, staging / "generator")

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from controltac_il.calibrate import __doc__ as DOC
 from controltac_il.cli import ArgumentParser
+from controltac_il.calibrate.decision import MIN_GRASPS
 
 PROG = "python -m controltac_il.calibrate"
 
@@ -89,9 +90,11 @@ def load(args: argparse.Namespace):
         ds = load_dataset(root)
     except (ValueError, OSError) as exc:
         raise ValueError(f"--presses: not a presses folder in the FeelAnyForce layout ({' '.join(str(exc).split())})") from None
-    if len(ds.pose_groups()) < 2:
-        raise ValueError(f"--presses: {root} holds one contact pose only; at least two are needed (one is held out "
-                         "for validation)")
+    grasps = len(ds.pose_groups())
+    if grasps < MIN_GRASPS:
+        flag, given = ("--presses", root) if args.recordings is None else ("--recordings", args.recordings)
+        raise ValueError(f"{flag}: {given} holds {grasps} grasp{'' if grasps == 1 else 's'} (contact poses); at least "
+                         f"{MIN_GRASPS} are needed (each is held out once to decide whether the estimator is used)")
     return ds, source
 
 

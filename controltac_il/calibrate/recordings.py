@@ -31,6 +31,7 @@ import numpy as np
 from controltac_il.generator.forces import VALIDATED_RANGE
 from controltac_il.io import atomic_dir
 from controltac_il.tactile.residual import residual_magnitude, to_residual
+from controltac_il.calibrate.decision import MIN_GRASPS
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -228,8 +229,9 @@ def recordings_to_presses(folder: Path, out: Path, opts: RecordingOptions = Reco
     recs = [read_recording(name, frames, forces, opts) for name, (frames, forces) in found.items()]
     summary = {r.name: {"frames": len(r.frames), "presses": len(np.unique(r.press)), "lag_frames": r.lag}
                for r in recs}  # distinct presses: a ramp emptied by the range filter keeps its number
-    if sum(v["presses"] for v in summary.values()) < 2:
-        raise ValueError(f"{folder}: one press in all recordings; at least two are needed (one is held out for "
-                         "validation)")
+    presses = sum(v["presses"] for v in summary.values())
+    if presses < MIN_GRASPS:
+        raise ValueError(f"{folder}: {presses} press{'' if presses == 1 else 'es'} in all recordings; at least "
+                         f"{MIN_GRASPS} are needed (each is held out once to decide whether the estimator is used)")
     write_presses(recs, out)
     return summary

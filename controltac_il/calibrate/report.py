@@ -14,7 +14,7 @@ def table(record: dict) -> str:
     e, g = record["estimator"], record["generator"]
     h = e["held_out"]
     rows = ["| on held-out grasps | calibrated | before (base) | baseline |", "| --- | --- | --- | --- |",
-            f"| estimator Fz MAE, N ({h['frames']} frames, {h['grasps']} grasps, {h['folds']} folds) | "
+            f"| estimator Fz MAE, N ({h['frames']} frames, {h['grasps']} grasps held out) | "
             f"{h['mae_n']:.2f} ({h['ratio_to_constant']:.2f}x the constant) | {e['zero_shot_mae_n']:.2f} | "
             f"{h['constant_mae_n']:.2f} (training grasps' mean) |"]
     gh = g["held_out"]
@@ -23,17 +23,25 @@ def table(record: dict) -> str:
     else:
         rows.append(f"| generator MSE ÷ a copy's ({gh['pairs']} pairs, {gh['grasps']} grasps) | "
                     f"{gh['ratio_to_copy']:.2f} | {gh['zero_shot_ratio_to_copy']:.2f} | 1 (the reference copied) |")
-    return "\n".join(rows)
+    return "\n".join(rows) + "\n\n" + grasp_table(h["per_grasp"])
+
+
+def grasp_table(rows: list[dict]) -> str:
+    """The estimator per held-out grasp (markdown): its frames, Fz MAE and the constant's, their ratio."""
+    lines = ["| held-out grasp | frames | estimator Fz MAE, N | constant's, N | ratio |", "| --- | --- | --- | --- | --- |"]
+    lines += [f"| {r['grasp']} | {r['frames']} | {r['mae_n']:.2f} | {r['constant_mae_n']:.2f} | "
+              f"{r['ratio']:.2f}{'' if r['mae_n'] < r['constant_mae_n'] else ' (worse)'} |" for r in rows]
+    return "\n".join(lines)
 
 
 def card(record: dict) -> str:
     """The bundle's README.md."""
     e, g = record["estimator"], record["generator"]
-    use = ("used by ForceAugment for unlabelled frames" if e["use_estimator"] else
-           "NOT used: it does not beat the constant baseline, so ForceAugment takes the nominal reference force")
+    rule = ("used only where the upper end of the interval is below 1 and it beats the constant on most held-out "
+            "grasps")
     return (f"# Sensor calibration bundle\n\nFrom {record['images']} labelled frames in `{record['presses']}`.\n\n"
-            f"{table(record)}\n\n"
-            f"- estimator: {e['base']} ({e['base_hash']}), {e['method']}, {e['steps']} steps; {use}.\n"
+            f"**{e['held_out']['decision']['why']}** (the rule: {rule}).\n\n{table(record)}\n\n"
+            f"- estimator: {e['base']} ({e['base_hash']}), {e['method']}, {e['steps']} steps.\n"
             f"- generator: {g['base']} ({g['base_hash']}) fine-tuned on {g['train_images']} frames: autoencoder "
             f"{g['ae_steps']} steps, DiT {g['dit_steps']} steps, peak LR {g['lr']}.\n"
             "- `report.png`: estimated against true Fz per held-out grasp; real and generated frames at three ΔF.\n")

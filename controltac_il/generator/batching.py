@@ -11,13 +11,13 @@ MemAvailable) times ``HEADROOM``.
 from __future__ import annotations
 
 import os
-from argparse import ArgumentTypeError
 from dataclasses import dataclass
 
 import torch
 
+from controltac_il.config import AUTO
+
 HEADROOM = 0.8  # share of the free memory a batch may take: the allocator's fragmentation and other tensors
-AUTO = "auto"
 
 
 @dataclass(frozen=True)
@@ -67,15 +67,6 @@ def rows_per_batch(batch_size, footprint: Footprint, free: int, chunk: int, rows
         raise ValueError(f"batch_size {batch_size} does not fit: it needs {_gb(need)} and {_gb(free)} is free "
                          f"({HEADROOM:.0%} usable); {fits}")
     return step
-
-
-def parse_batch_size(text: str):
-    """A --batch-size value: "auto" or an int >= 1 (argparse's ``type``)."""
-    if text == AUTO:
-        return AUTO
-    if not text.isdigit() or int(text) < 1:
-        raise ArgumentTypeError(f"expected an int >= 1 or 'auto', got {text!r}")
-    return int(text)
 
 
 def _gb(n: float) -> str:
