@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import base_parser, print_table, write_results
+from benchmarks.generator_frontier import b32
 from controltac_il.generator.shipped import CHECKPOINT_ROOT
 
 HERE = Path(__file__).resolve().parents[1]
@@ -59,7 +60,7 @@ def speed_round(tree: Path, a, out: Path, extra: list[str]) -> dict:
                 "--rounds", "1", "--repeats", str(a.repeats), "--out", str(out), *extra])
     rows = json.loads(out.read_text())["rows"]
     return {(r["checkpoint"], r["frames"], r["steps"]): r.get("img_per_s", r.get("img_per_s_b32")) for r in rows
-            if r.get("batch", 32) == 32 and r.get("dtype", "float32") == "float32"}
+            if b32(r)}
 
 
 def byte_change(trees: dict, a, tmp: Path) -> list[dict]:

@@ -100,8 +100,8 @@ def time_checkpoints(a, data: dict, pairs: dict | None) -> list[dict]:
     for key in per_round[0][0]:
         name, dtype, size, steps, batch = key
         gen, values = gens[(name, dtype)], [r[key] for r, _ in per_round]
-        picked = (rows_per_batch(AUTO, gen.footprint(SIZES[size]), free_bytes(gen.device), chunk_rows(gen.device),
-                                 len(data[size][0])) if batch == AUTO else batch)
+        picked = rows_per_batch(batch, gen.footprint(SIZES[size]), free_bytes(gen.device), chunk_rows(gen.device),
+                                min(call_rows(batch), len(data[size][0])))  # rows a batch ran, padding included
         rows.append({"checkpoint": name, "hash": gen.checkpoint_hash, "dtype": dtype, "frames": size, "steps": steps,
                      "batch": batch, "batch_rows": picked, "chunk": chunk_rows(gen.device),
                      "dit_parameters": sum(p.numel() for p in gen.denoiser.parameters()),

@@ -89,10 +89,17 @@ def estimator_method(args, frames: int) -> str:
 
 
 def finetuned(args, ds, base, x, f, grasps, staging: Path):
-    """(the base estimator fine-tuned on all axes, its table on held-out grasps (``--val-fraction``))."""
+    """(the base estimator fine-tuned on all axes, its table on held-out grasps: ``--val-fraction`` of them, at least
+    ``MIN_GRASPS`` so that the decision has its interval; ValueError naming the method where that leaves none to
+    train on)."""
     from controltac_il.estimators.config import EstimatorTrainConfig
     from controltac_il.estimators.fit import fit
-    train, val = held_out_poses(ds.pose_groups(), args.val_fraction)  # the generator's split
+
+    groups = ds.pose_groups()
+    if len(groups) <= MIN_GRASPS:
+        raise ValueError(f"--estimator-method finetune: {len(groups)} grasps; at least {MIN_GRASPS + 1} are needed "
+                         f"({MIN_GRASPS} held out to decide whether it is used, one to train on)")
+    train, val = held_out_poses(groups, max(args.val_fraction, MIN_GRASPS / len(groups)))
     steps = args.estimator_steps
     cfg = EstimatorTrainConfig(steps=steps, lr=1e-3, min_lr=1e-5, warmup=min(50, steps // 5),
                                checkpoint_every=max(steps // 4, 1))

@@ -52,10 +52,11 @@ def decide(rows: list[dict]) -> dict:
         return {"use": False, "ratio_to_constant": None, "interval": None, "wins": None, "grasps": len(rows),
                 "why": f"estimator declined: {len(rows)} held-out grasps, fewer than the {MIN_GRASPS} an interval "
                        "over grasps needs; ForceAugment takes the nominal reference force for unlabelled frames"}
-    ratio = sum(r["mae_n"] * r["frames"] for r in rows) / sum(r["constant_mae_n"] * r["frames"] for r in rows)
+    ratio = (sum(r["mae_n"] * r["frames"] for r in rows)
+             / max(sum(r["constant_mae_n"] * r["frames"] for r in rows), 1e-12))
     low, high = ratio_interval(rows)
     wins = sum(r["mae_n"] < r["constant_mae_n"] for r in rows)
-    use = high < 1.0 and wins > len(rows) / 2
+    use = bool(high < 1.0) and wins > len(rows) / 2  # a NaN end is no evidence: declined
     mae = sum(r["mae_n"] * r["frames"] for r in rows) / sum(r["frames"] for r in rows)
     const = sum(r["constant_mae_n"] * r["frames"] for r in rows) / sum(r["frames"] for r in rows)
     figures = (f"held-out Fz MAE {mae:.2f} N against the constant's {const:.2f} N ({ratio:.2f}x, "
@@ -63,8 +64,9 @@ def decide(rows: list[dict]) -> dict:
     if use:
         why = f"estimator used for unlabelled frames: {figures}"
     else:
-        missing = " and ".join(m for m, failed in (("the interval reaches 1", high >= 1.0),
+        missing = " and ".join(m for m, failed in (("the interval reaches 1", bool(high >= 1.0)),
                                                    ("it loses on most grasps", wins <= len(rows) / 2)) if failed)
+        missing = missing or "no finite interval"
         why = (f"estimator declined ({missing}): {figures}; ForceAugment takes the nominal reference force for "
                "unlabelled frames")
     return {"use": bool(use), "ratio_to_constant": ratio, "interval": [low, high], "wins": int(wins),

@@ -98,6 +98,8 @@ class ForceGenerator:
         self.autoencoder = autoencoder.to(self.device, dtype).eval()
         self.denoiser = denoiser.to(self.device, dtype).eval()
         self.checkpoint_hash = checkpoint_hash
+        if resample_taps is False and self.device.type != "cpu":
+            raise ValueError(f"resample_taps=False runs OpenCV, on the CPU only; this generator is on {self.device}")
         self.resample_taps = resample_taps
         self._footprints: dict[tuple[int, int], Footprint] = {}
         self.pose_adapter, self.pose_adapter_hash = None, None
@@ -153,7 +155,7 @@ class ForceGenerator:
 
     # -- public API ----------------------------------------------------------------------------
     def generate(self, reference_residuals, delta_force, steps: int | None = None, seed: int | Sequence[int] = 0,
-                 batch_size: int = 32, reference_force=None, out_of_range: str = "clamp", mask=None,
+                 batch_size: int | str = 32, reference_force=None, out_of_range: str = "clamp", mask=None,
                  object_mask=None, transform=None) -> np.ndarray:
         """Residuals at the target force: uint8 (B, H, W, 3), same size as the input.
 
@@ -185,7 +187,7 @@ class ForceGenerator:
                               object_mask=object_mask, transform=transform).residuals
 
     def generate_at(self, reference_residuals, reference_force, target_force, steps: int | None = None,
-                    seed: int | Sequence[int] = 0, batch_size: int = 32, out_of_range: str = "clamp",
+                    seed: int | Sequence[int] = 0, batch_size: int | str = 32, out_of_range: str = "clamp",
                     reference_out_of_range: str | None = None, mask=None, object_mask=None,
                     transform=None) -> Generation:
         """Residuals at ``target_force`` (B, 3) N from residuals at ``reference_force`` (B, 3) N, and what was done.
@@ -278,16 +280,17 @@ class ForceGenerator:
         return out
 
     def footprint(self, hw: tuple[int, int]) -> Footprint:
-        """Bytes a batch of frames (H, W) = ``hw`` takes on the device (``batching``): on the CPU counted from its
-        arrays (uint8 inputs and outputs and the noise per row; a chunk's float images, eight per row, fixed); on
-        an accelerator measured once per size, the allocator's peak over a one- and a two-chunk batch."""
+        """Bytes a batch of frames (H, W) = ``hw`` takes on the device (``batching``): on CUDA measured once per
+        size, the allocator's peak over a one- and a two-chunk batch (which resets CUDA's peak statistics); elsewhere
+        counted from its arrays (uint8 inputs and outputs and the noise per row; a chunk's float images, eight per
+        row, fixed)."""
         hw = tuple(int(v) for v in hw)
         if hw not in self._footprints:
             chunk, image = chunk_rows(self.device), hw[0] * hw[1] * 3
             lh, lw = self.config.autoencoder.latent_size
             noise = 4 * self.config.autoencoder.latent_channels * lh * lw
-            self._footprints[hw] = (Footprint(chunk * 8 * 4 * image, 2 * image + noise) if self.device.type == "cpu"
-                                    else self._measured_footprint(hw))
+            self._footprints[hw] = (self._measured_footprint(hw) if self.device.type == "cuda"
+                                    else Footprint(chunk * 8 * 4 * image, 2 * image + noise))
         return self._footprints[hw]
 
     def _measured_footprint(self, hw: tuple[int, int]) -> Footprint:

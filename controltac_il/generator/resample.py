@@ -4,9 +4,11 @@ out (B, H, W[, C]) as torch tensors.
 On the CPU the tensors' memory goes to OpenCV itself (``cv2.resize``, ``cv2.GaussianBlur``: SIMD kernels no torch
 op matches on two cores). On an accelerator each axis is a table of taps (source index, weight) applied by
 index-select and multiply-add, built once per size in NumPy from OpenCV's definitions (INTER_AREA shrinking and
-growing, INTER_LINEAR, the float Gaussian kernel with its reflect-101 border) and kept on the device. The taps agree
-with OpenCV to float rounding; the one exception is a uint8 axis growing under INTER_AREA, where OpenCV rounds its
-weights to 11 bits (tests/test_gen_resample.py runs the taps on CPU tensors against OpenCV).
+growing, INTER_LINEAR, the float Gaussian kernel with its reflect-101 border) and kept on the device. On float images
+the taps agree with OpenCV to float rounding. On uint8 images OpenCV takes shortcuts the taps do not: an area
+shrink by integer factors rounds half up (the taps, half to even), and a growing axis (INTER_AREA up, INTER_LINEAR)
+uses 11-bit weights; the generator's one uint8 resize, the GelSight Mini's 240×320 to 128×160, takes OpenCV's
+general path and the taps give its bytes exactly (tests/test_gen_resample.py runs the taps on CPU tensors).
 """
 
 from __future__ import annotations
@@ -103,8 +105,8 @@ def _opencv(x: torch.Tensor, fn) -> torch.Tensor:
 
 
 def resize(x: torch.Tensor, hw: tuple[int, int], kind: str, taps: bool | None = None) -> torch.Tensor:
-    """(B, H, W[, C]) -> (B, H', W'[, C]) with hw = (H', W'), kind "area" or "linear"; uint8 stays uint8 (rounded
-    half to even), float stays float32. An image already of that size is returned as it is. ``taps``: True runs the
+    """(B, H, W[, C]) -> (B, H', W'[, C]) with hw = (H', W'), kind "area" or "linear"; uint8 stays uint8 (the taps
+    round half to even), float stays float32. An image already of that size is returned as it is. ``taps``: True runs the
     accelerator's kernel wherever the tensor is, None (default) OpenCV's on the CPU."""
     if tuple(x.shape[1:3]) == tuple(hw):
         return x
