@@ -273,13 +273,15 @@ class WallTime:
         self.clock = clock
         self.history_path, self.running_path = runs / "wall_s.json", runs / "wall_s_running.json"
         self.history = []
-        if resume:
-            self.history = (json.loads(self.history_path.read_text()) if self.history_path.is_file()
-                            else list(earlier or []))
-        if resume and self.running_path.is_file():
-            self.history.append(json.loads(self.running_path.read_text()))
-            write_json(self.history_path, self.history)
-            self.running_path.unlink()
+        if resume:  # the stopped invocation is in the running file and, on a machine that kept RUNS, in --out too
+            running = [json.loads(self.running_path.read_text())] if self.running_path.is_file() else []
+            if self.history_path.is_file():
+                self.history = json.loads(self.history_path.read_text()) + running
+            else:
+                self.history = list(earlier or []) or running
+            if running:
+                write_json(self.history_path, self.history)
+                self.running_path.unlink()
         self.t0 = clock()
 
     def now(self) -> dict:

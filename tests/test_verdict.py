@@ -266,6 +266,12 @@ def test_wall_time_adds_up_across_a_stopped_and_a_resumed_invocation(tmp_path):
     assert verdict.WallTime(tmp_path, resume=False).history == []  # a new grid starts from zero
     fresh = verdict.WallTime(tmp_path / "new", resume=True, clock=lambda: t[0], earlier=[7.0, 8.0])
     assert fresh.now()["total"] == 15.0  # another machine: the history the committed --out carries
+    kept = tmp_path / "kept"  # this machine again, before any invocation finished: --out and the running file agree
+    stopped = verdict.WallTime(kept, resume=False, clock=lambda: t[0])
+    t[0] += 30.0
+    assert stopped.now()["this_invocation"] == 30.0  # saved to the running file and to --out; then stopped
+    again = verdict.WallTime(kept, resume=True, clock=lambda: t[0], earlier=[30.0])
+    assert again.history == [30.0]  # counted once
 
 
 @pytest.mark.slow
