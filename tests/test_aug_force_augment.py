@@ -583,7 +583,7 @@ ForceAugment(data, tiny_generator(), copies=3, cache_dir=Path(sys.argv[3]) / "pa
 """
 
 
-@pytest.mark.parametrize("sig", ["KILL", "INT"])
+@pytest.mark.parametrize("sig", ["KILL", pytest.param("INT", marks=pytest.mark.slow)])  # INT: -m slow (the suite's time)
 def test_killed_build_leaves_nothing_and_resumes_to_the_clean_result(data, gen, tmp_path, sig):
     import subprocess
     import sys
