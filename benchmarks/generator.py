@@ -27,7 +27,10 @@ threads), and the peak resident memory of a fresh process generating one batch o
 setting only). ``autoencoder_speed``: the autoencoder's share of a batch of 32 (one encode, two decodes) for the
 shipped one and for an f8 autoencoder at 240×320, the native-resolution alternative. Beside ``--out``: the PNG
 sheet. The frontier's picture joins these errors to ``benchmarks.generator_speed``'s timings
-(``python -m benchmarks.generator_frontier``).
+(``python -m benchmarks.generator_frontier``). ``forceaugment_split``: the presets on the pairs ForceAugment asks
+for (``benchmarks.generator_fa``: held-out objects at the demos' grip, ΔF as ForceAugment draws it, broken down by
+ΔFz sign, size and object, with the noise floor and the contact split; ``--fa-pairs``), its picture beside
+``--out`` as ``generator_fa.png``.
 """
 
 from __future__ import annotations
@@ -44,6 +47,7 @@ import torch
 from tqdm.auto import tqdm
 
 from benchmarks.common import base_parser, median_time, print_table, write_results
+from benchmarks.generator_fa import measure as forceaugment_split, save_plot as save_fa_plot
 from benchmarks.generator_frontier import FRONTIER, FRONTIER_STEPS, real_checks
 from controltac_il.estimators import ForceEstimator
 from controltac_il.generator import ForceGenerator
@@ -242,6 +246,8 @@ def main(argv=None) -> dict:
     p.add_argument("--cache", type=Path, default=Path("/tmp/controltac_generator_bench"), help="evaluation data cache")
     p.add_argument("--threads", type=int, default=torch.get_num_threads(), help="torch threads")
     p.add_argument("--pairs", type=int, default=None, help="pairs per split (default 96, quick 12)")
+    p.add_argument("--fa-pairs", type=int, default=None, help="ForceAugment split: pairs per sensor and size "
+                                                               "(default 96, quick 6; 0: not measured)")
     p.add_argument("--update-model-card", action="store_true", help="write the figures into the checkpoints' model_card.json")
     a = p.parse_args(argv)
     torch.set_num_threads(a.threads)
@@ -346,7 +352,13 @@ def main(argv=None) -> dict:
         save_sheet(sheet, cases)
         print(f"wrote {sheet}")
 
+    fa_pairs = (6 if quick else 96) if a.fa_pairs is None else a.fa_pairs
+    presets = {k: gens[k] for k in ("fast", "default", "quality") if k in gens}
+    split = forceaugment_split(presets, fa_pairs, 0 if quick else 2) if fa_pairs else None
+    if split and a.out:
+        save_fa_plot(a.out.with_name("generator_fa.png"), split["rows"])
     results = {
+        "forceaugment_split": split,
         "autoencoder_speed": autoencoder_speed(gens["default"].autoencoder, repeats, 4 if quick else 32),
         "settings": {"quick": quick, "pairs_per_split": n_pairs, "render_size": list(RENDER_SIZE),
                      "splits": {k: {"objects": list(v[0]), "render_size": list(v[2]), "sensors": v[3] or "nominal"}

@@ -79,6 +79,10 @@ def test_quick_run_writes_the_table_json_targets_and_sheet(tmp_path, capsys):
     assert "unseen MSE" in capsys.readouterr().out
     sheet = cv2.imread(str(out.with_suffix(".png")))
     assert sheet.shape == (24 + 9 * 2 * bench.RENDER_SIZE[0], 4 * 2 * bench.RENDER_SIZE[1], 3)
+    split = doc["forceaugment_split"]  # the presets on ForceAugment's pairs, nominal sensor, both sizes
+    assert [(r["size"], r["sensor"]) for r in split["rows"]] == [("240", "nominal"), ("120", "nominal")]
+    assert set(split["rows"][0]["presets"]) == {"fast", "default"} and split["rows"][0]["pairs"] == 6
+    assert (tmp_path / "generator_fa.png").stat().st_size > 0
 
 
 def test_speed_rounds_time_every_checkpoint_and_keep_each_rounds_figure(tmp_path, monkeypatch):
@@ -110,3 +114,35 @@ def test_the_frontier_joins_errors_to_timings_by_checkpoint_and_steps():
     speed = [{"checkpoint": "quality", "frames": "240", "steps": 1, "img_per_s_rounds": [30.0, 32.0]},
              {"checkpoint": "quality", "frames": "120", "steps": 5, "img_per_s_rounds": [11.0]}]
     assert frontier_points(methods, speed) == {"quality": [([30.0, 32.0], 0.25, 1)]}
+
+
+def test_the_forceaugment_split_breaks_the_ratio_down_by_sign_size_and_object():
+    """Ratios of the means (not means of ratios) per cell; an empty cell is None."""
+    from benchmarks.generator_fa import breakdown
+
+    pred, copy = np.array([1.0, 2.0, 3.0, 4.0]), np.array([2.0, 2.0, 6.0, 8.0])
+    out = breakdown(pred, copy, np.array([-1.0, 1.5, 3.0, 6.0]), np.array(["a", "b", "a", "b"]))
+    assert out["all"] == {"ratio": 10 / 18, "pairs": 4} and out["increase"] == {"ratio": 9 / 16, "pairs": 3}
+    assert out["decrease"] == {"ratio": 0.5, "pairs": 1}
+    assert [out[k]["ratio"] for k in ("|dFz| 0-2 N", "|dFz| 2-5 N", "|dFz| 5-inf N")] == [0.75, 0.5, 0.5]
+    assert out["objects"] == {"a": {"ratio": 0.5, "pairs": 2}, "b": {"ratio": 0.6, "pairs": 2}}
+    assert breakdown(pred[:1], copy[:1], np.array([-1.0]), np.array(["a"]))["increase"] is None
+
+
+def test_the_forceaugment_pairs_ask_what_forceaugment_asks():
+    """Each pair's target is ForceAugment's plan for its episode and copy (the paper's offsets and jitter), clamped by
+    the generator's range decision; references at the demos' grip."""
+    from benchmarks.generator_fa import GRIP_FZ, fa_pairs
+    from controltac_il.augment.config import ForceAugmentConfig
+    from controltac_il.augment.draws import plan_frame
+    from controltac_il.generator import ForceGenerator
+    from controltac_il.generator.forces import VALIDATED_RANGE
+    from controltac_il.tactile import SensorSpec, TactileSensor
+
+    pairs = fa_pairs(TactileSensor(SensorSpec.gelsight_mini().scaled(60, 80)), ForceGenerator.from_pretrained(), 4)
+    assert pairs["ref"].shape == pairs["tgt"].shape == pairs["noise"].shape == (4, 60, 80, 3)
+    assert ((pairs["ref_f"][:, 2] >= GRIP_FZ[0]) & (pairs["ref_f"][:, 2] <= GRIP_FZ[1])).all()
+    for k in range(4):
+        asked = plan_frame(ForceAugmentConfig(), k, 1 + k % 2, 0, 0, pairs["ref_f"][k]).target[2]
+        assert pairs["tgt_f"][k, 2] == np.clip(asked, *VALIDATED_RANGE.fz)
+    assert not np.array_equal(pairs["tgt"], pairs["noise"])  # another noise draw of the same target
