@@ -256,6 +256,10 @@ def summary(rows: list[dict], args, t0: float, show: bool = False) -> dict:
         print_table([{**mean, **{f"meets_{k}": v for k, v in results["meets"].items()}}],
                     [*mean, *[f"meets_{k}" for k in TARGETS]],
                     title="mean over sensors (ratios: estimator MAE / constant's, generator MSE / a copy's)")
+        if heldout:
+            h = results["heldout_objects"]
+            columns = ["cases", "decision_accuracy", "used", "used_estimator_ratio", "generator_ratio", "minutes"]
+            print_table([h], columns, title=f"held-out objects (targets {HELDOUT_TARGETS})")
         write_results(args.out, results)
     return results
 
