@@ -26,6 +26,7 @@ from benchmarks.common import base_parser, print_table, write_results
 from benchmarks.response import real_references
 from controltac_il.augment.config import ForceAugmentConfig
 from controltac_il.augment.draws import plan_frame
+from controltac_il.metrics import mse
 from controltac_il.tactile import HELDOUT_OBJECTS, SensorSpec, TactileSensor, contact_mask, from_residual
 from controltac_il.tactile.instances import sensor_instance
 
@@ -58,9 +59,9 @@ def fa_pairs(sensor: TactileSensor, generator, n: int, seed: int = 0) -> dict:
 
 def _mse(a: np.ndarray, b: np.ndarray, bg: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
     """Per-pair MSE (grey levels², RGB) of images a and b (residuals + ``bg``), over ``mask`` (n, H, W) if given."""
-    d = (from_residual(a, bg).astype(np.float64) - from_residual(b, bg)) ** 2
     if mask is None:
-        return d.mean(axis=(1, 2, 3))
+        return mse(from_residual(a, bg), from_residual(b, bg))
+    d = (from_residual(a, bg).astype(np.float64) - from_residual(b, bg)) ** 2
     m = mask[..., None]
     return (d * m).sum(axis=(1, 2, 3)) / np.maximum(m.sum(axis=(1, 2, 3)) * 3, 1)
 

@@ -34,6 +34,7 @@ def ratio_interval(rows: list[dict]) -> tuple[float, float]:
     """LEVEL percentile bootstrap interval, over grasps resampled with replacement, of the frame-weighted MAE ratio
     sum(estimator's absolute errors) ÷ sum(the constant's)."""
     from scipy import stats
+
     est = np.array([r["mae_n"] * r["frames"] for r in rows])
     const = np.array([r["constant_mae_n"] * r["frames"] for r in rows])
 
@@ -52,13 +53,12 @@ def decide(rows: list[dict]) -> dict:
         return {"use": False, "ratio_to_constant": None, "interval": None, "wins": None, "grasps": len(rows),
                 "why": f"estimator declined: {len(rows)} held-out grasps, fewer than the {MIN_GRASPS} an interval "
                        "over grasps needs; ForceAugment takes the nominal reference force for unlabelled frames"}
-    ratio = (sum(r["mae_n"] * r["frames"] for r in rows)
-             / max(sum(r["constant_mae_n"] * r["frames"] for r in rows), 1e-12))
+    frames = sum(r["frames"] for r in rows)
+    est_sum, const_sum = (sum(r[k] * r["frames"] for r in rows) for k in ("mae_n", "constant_mae_n"))
+    ratio, mae, const = est_sum / max(const_sum, 1e-12), est_sum / frames, const_sum / frames
     low, high = ratio_interval(rows)
     wins = sum(r["mae_n"] < r["constant_mae_n"] for r in rows)
     use = bool(high < 1.0) and wins > len(rows) / 2  # a NaN end is no evidence: declined
-    mae = sum(r["mae_n"] * r["frames"] for r in rows) / sum(r["frames"] for r in rows)
-    const = sum(r["constant_mae_n"] * r["frames"] for r in rows) / sum(r["frames"] for r in rows)
     figures = (f"held-out Fz MAE {mae:.2f} N against the constant's {const:.2f} N ({ratio:.2f}x, "
                f"{LEVEL:.0%} interval {low:.2f}-{high:.2f} over {len(rows)} grasps; better on {wins} of {len(rows)})")
     if use:

@@ -22,15 +22,19 @@ import torch
 Taps = tuple[torch.Tensor, torch.Tensor]  # (index int64 (n_out, K), weight float32 (n_out, K))
 
 
+def _neighbour_taps(left: np.ndarray, frac: np.ndarray, n_in: int) -> tuple[np.ndarray, np.ndarray]:
+    """Taps blending source pixels ``left`` and ``left + 1`` with weight ``frac`` on the right one, (n_out, 2); at
+    the edges (``left`` before the first or at the last pixel) the nearest pixel alone."""
+    frac = np.where((left < 0) | (left >= n_in - 1), 0.0, frac).astype(np.float32)
+    index = np.clip(np.stack([left, left + 1], 1), 0, n_in - 1).astype(np.int64)
+    return index, np.stack([1.0 - frac, frac], 1).astype(np.float32)
+
+
 def linear_taps(n_in: int, n_out: int) -> tuple[np.ndarray, np.ndarray]:
     """Bilinear taps with half-pixel centres and edge clamping (INTER_LINEAR): (index, weight) (n_out, 2)."""
     x = (np.arange(n_out) + 0.5) * (n_in / n_out) - 0.5
     left = np.floor(x)
-    frac = (x - left).astype(np.float32)
-    frac[left < 0] = 0.0
-    frac[left >= n_in - 1] = 0.0
-    index = np.clip(np.stack([left, left + 1], 1), 0, n_in - 1).astype(np.int64)
-    return index, np.stack([1.0 - frac, frac], 1).astype(np.float32)
+    return _neighbour_taps(left, (x - left).astype(np.float32), n_in)
 
 
 def _area_up_taps(n_in: int, n_out: int) -> tuple[np.ndarray, np.ndarray]:
@@ -38,10 +42,7 @@ def _area_up_taps(n_in: int, n_out: int) -> tuple[np.ndarray, np.ndarray]:
     scale = n_in / n_out
     left = np.floor(np.arange(n_out) * scale)
     frac = (np.arange(n_out) + 1) - (left + 1) / scale
-    frac = np.where(frac <= 0, 0.0, frac - np.floor(frac)).astype(np.float32)
-    frac[left >= n_in - 1] = 0.0
-    index = np.clip(np.stack([left, left + 1], 1), 0, n_in - 1).astype(np.int64)
-    return index, np.stack([1.0 - frac, frac], 1).astype(np.float32)
+    return _neighbour_taps(left, np.where(frac <= 0, 0.0, frac - np.floor(frac)).astype(np.float32), n_in)
 
 
 def area_taps(n_in: int, n_out: int) -> tuple[np.ndarray, np.ndarray]:
