@@ -25,13 +25,8 @@ fi
 mkdir -p "$OUT"
 LOG="$OUT/driver.log"
 log() { echo "[$(date -u +%T) +${SECONDS}s] $*" | tee -a "$LOG"; }
-if [ -n "${4:-}" ]; then  # the files here against commit $3's tree, .git's own exclusions aside
-  here=$(export GIT_INDEX_FILE=/tmp/device_gpu.index; rm -f $GIT_INDEX_FILE
-         git add -A . && git rm -rq --cached --ignore-unmatch .whl .baseline && git write-tree)
-  [ "$here" = "$4" ] && export CONTROLTAC_VERIFIED_COMMIT=$3
-fi
+if [ "$DEVICE" = cpu ]; then export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"; else source benchmarks/gpu_setup.sh "$LOG" "${3:-}" "${4:-}" || exit $?; fi
 log "commit ${CONTROLTAC_VERIFIED_COMMIT:-not verified}; $(nproc) cores; $(nvidia-smi -L 2>/dev/null | head -1)"
-if [ "$DEVICE" = cpu ]; then export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"; else source benchmarks/gpu_setup.sh "$LOG" || exit $?; fi
 stage() {  # stage NAME COMMAND...: run it under what is left of the deadline
   local left=$((DEADLINE - SECONDS))
   if [ "$left" -lt 40 ]; then log "$1: skipped, ${left} s left"; return; fi
