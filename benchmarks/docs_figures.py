@@ -82,12 +82,18 @@ def force_scaling() -> str:
 
 def _calibration_row(cal: dict, source: str) -> list[str]:
     unseen = [r for r in cal["rows"] if not r["sensor"].startswith("sim_record") and "draw" not in r]
-    m, t = cal["mean"], cal["targets"]
+    m, t, h = cal["mean"], cal["targets"], cal.get("heldout_objects")
     frames = sorted({r["cal_frames"] for r in unseen})
-    return [f"few-shot calibration of {len(unseen)} simulated sensors never seen ({'-'.join(map(str, frames[::max(1, len(frames) - 1)]))}"
-            f" labelled frames each)", f"estimator Fz MAE {m['calibrated_ratio']:.2f}× the constant's (target ≤ "
-            f"{t['estimator_ratio']}×), generator {m['generator_calibrated_ratio']:.2f}× a copy's (target ≤ "
-            f"{t['generator_ratio']}×), {m['minutes']:.1f} min each", "over sensors: estimator "
+    heldout = "" if not h else (
+        f"; on objects it never saw ({h['cases']} cases): its use-or-decline decision right in "
+        f"{h['decision_accuracy']:.0%} (target ≥ {h['targets']['decision_accuracy']:.0%}), the estimator where used "
+        + ("never" if h["used_estimator_ratio"] is None else f"{h['used_estimator_ratio']:.2f}×")
+        + f" the constant's, generator {h['generator_ratio']:.2f}×")
+    return [f"few-shot calibration of {len(unseen)} simulated sensor instances never seen "
+            f"({'-'.join(map(str, frames[::max(1, len(frames) - 1)]))} labelled frames each)",
+            f"estimator Fz MAE {m['calibrated_ratio']:.2f}× the constant's (target ≤ {t['estimator_ratio']}×), generator "
+            f"{m['generator_calibrated_ratio']:.2f}× a copy's (target ≤ {t['generator_ratio']}×), "
+            f"{_minutes(m['minutes'])} min each{heldout}", "over sensors: estimator "
             f"{min(r['calibrated_ratio'] for r in unseen):.2f}-{max(r['calibrated_ratio'] for r in unseen):.2f}×, generator "
             f"{min(r['generator_calibrated_ratio'] for r in unseen):.2f}-{max(r['generator_calibrated_ratio'] for r in unseen):.2f}×",
             "[calibration](docs/calibration.md#calibrate-to-your-own-sensor)", source]
@@ -176,7 +182,7 @@ def calibration() -> str:
         lags = sum(-a == b for a, b in zip(r["lags_true"], r["lags_found"]))  # a log late by L needs the shift -L
         return [name, f"{r['grasps']} / {r['cal_frames']}", f"{r['calibrated_ratio']:.2f}× ({r['calibrated_mae_n']:.2f} N)",
                 f"{r['zero_shot_ratio']:.2f}×", f"{r['cv_ratio']:.2f}×", f"{r['generator_calibrated_ratio']:.2f}×",
-                f"{r['generator_zero_shot_ratio']:.2f}×", f"{r['minutes']:.1f}", f"{lags}/{len(r['lags_true'])}",
+                f"{r['generator_zero_shot_ratio']:.2f}×", _minutes(r["minutes"]), f"{lags}/{len(r['lags_true'])}",
                 r.get("commit", doc["machine"]["git_commit"])]
 
     m = doc["mean"]
@@ -184,10 +190,38 @@ def calibration() -> str:
     rows.append(["**mean of the unseen sensors**", "", f"**{m['calibrated_ratio']:.2f}×** (target ≤ {t['estimator_ratio']}×)",
                  f"{m['zero_shot_ratio']:.2f}×", f"{m['cv_ratio']:.2f}×",
                  f"**{m['generator_calibrated_ratio']:.2f}×** (target ≤ {t['generator_ratio']}×)",
-                 f"{m['generator_zero_shot_ratio']:.2f}×", f"**{m['minutes']:.1f}** (target ≤ {t['minutes']:.0f})", "", ""])
+                 f"{m['generator_zero_shot_ratio']:.2f}×", f"**{_minutes(m['minutes'])}** (target ≤ {t['minutes']:.0f})", "", ""])
     head = ["sensor", "grasps / frames", "estimator MAE ÷ constant's (calibrated)", "zero-shot", "its own CV estimate",
             "generator MSE ÷ copy's (calibrated)", "zero-shot", "minutes", "lags found", "commit"]
     return ft.table(head, rows) + "\n\n" + ft.source("calibration.json", doc)
+
+
+def _minutes(value: float | None) -> str:
+    """Minutes of a calibration on two CPU cores, or a dash where none were timed there."""
+    return "–" if value is None else f"{value:.1f}"
+
+
+def calibration_heldout() -> str:
+    """The held-out-object setting case by case: ``calibrate``'s own leave-one-grasp-out estimate and decision, the
+    test on objects it never saw, whether the decision was right; the summary against the targets."""
+    doc = ft.load("calibration.json")
+    h = doc["heldout_objects"]
+    rows = [[f"`{r['sensor']}`", r["draw"], f"{r['cv_ratio']:.2f}× [{r['cv_interval'][0]:.2f}, {r['cv_interval'][1]:.2f}]",
+             f"{r['cv_wins']} of {r['cv_grasps']}", "used" if r["use_estimator"] else "declined",
+             f"{r['calibrated_ratio']:.2f}×", "yes" if r["decision_right"] else "**no**",
+             f"{r['generator_calibrated_ratio']:.2f}× ({r['generator_zero_shot_ratio']:.2f}×)", _minutes(r["minutes"])]
+            for r in sorted((r for r in doc["rows"] if "draw" in r), key=lambda r: (r["sensor"], r["draw"]))]
+    t, ok = h["targets"], {k: "met" if v else "missed" for k, v in h["meets"].items()}
+    used = "–" if h["used_estimator_ratio"] is None else f"{h['used_estimator_ratio']:.2f}×"
+    summary = (f"Decision right in **{h['decision_accuracy']:.0%}** of {h['cases']} cases (target ≥ "
+               f"{t['decision_accuracy']:.0%}: {ok['decision_accuracy']}); used in {h['used']}, where the test MAE is "
+               f"**{used}** the constant's on the mean (target ≤ {t['used_estimator_ratio']}×: "
+               f"{ok['used_estimator_ratio']}); generator **{h['generator_ratio']:.2f}×** a copy's (target ≤ "
+               f"{t['generator_ratio']}×: {ok['generator_ratio']}); **{_minutes(h['minutes'])}** min a calibration on "
+               f"two cores (target ≤ {t['minutes']:.0f}).")
+    head = ["sensor", "draw", "its own held-out estimate [95 %]", "grasps won", "decision",
+            "test MAE ÷ constant's (held-out objects)", "right", "generator ÷ copy's (zero-shot)", "minutes"]
+    return ft.table(head, rows) + "\n\n" + summary + "\n\n" + ft.source("calibration.json", doc)
 
 
 def calibration_methods() -> str:
@@ -334,7 +368,8 @@ def _speed(row: dict) -> str:
     return _rounds(median(rounds), rounds)
 
 
-BLOCKS = {"calibration": calibration, "calibration-methods": calibration_methods, "sensor": sensor,
+BLOCKS = {"calibration": calibration, "calibration-heldout": calibration_heldout,
+          "calibration-methods": calibration_methods, "sensor": sensor,
           "env-speed": env_speed, "hardware": hardware, "generation-chunk": generation_chunk,
           "force-scaling": force_scaling, "headline": headline, "generator-frontier": generator_frontier,
           "generator-device": generator_device,
