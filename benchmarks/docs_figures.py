@@ -205,7 +205,9 @@ def calibration_heldout() -> str:
     """The held-out-object setting case by case: ``calibrate``'s own leave-one-grasp-out estimate and decision, the
     test on objects it never saw, whether the decision was right; the summary against the targets."""
     doc = ft.load("calibration.json")
-    h = doc["heldout_objects"]
+    h = doc.get("heldout_objects")
+    if not h:
+        return "Not yet measured: `calibration.json` holds no held-out-object case. " + ft.source("calibration.json", doc)
     rows = [[f"`{r['sensor']}`", r["draw"], f"{r['cv_ratio']:.2f}× [{r['cv_interval'][0]:.2f}, {r['cv_interval'][1]:.2f}]",
              f"{r['cv_wins']} of {r['cv_grasps']}", "used" if r["use_estimator"] else "declined",
              f"{r['calibrated_ratio']:.2f}×", "yes" if r["decision_right"] else "**no**",
