@@ -282,3 +282,49 @@ def test_distinct_pairs_never_pair_a_frame_with_itself():
     np.testing.assert_array_equal(df, data.forces[tgt] - data.forces[ref])
     r, t, _ = sample_pairs(data, 2000, np.random.default_rng(0), no_contact_prob=0.0)
     assert (r == t).mean() > 0.3  # by default self-pairs occur (the shipped checkpoints were trained so)
+
+
+def test_increase_prob_orders_that_share_of_pairs_to_press_harder_and_zero_draws_the_same_pairs():
+    """ForceAugment's targets mostly press harder: ``increase_prob`` P swaps a pair whose target presses less with
+    probability P (so P = 1 gives ΔFz >= 0 everywhere, P = 0.5 three in four), keeping every pair within its pose
+    group; P = 0 draws nothing extra, so training without the lever is unchanged."""
+    from controltac_il.generator.training.data import PairData
+
+    forces = np.zeros((6, 3), np.float32)
+    forces[:, 2] = [1, 4, 7, 2, 5, 9]
+    data = PairData(np.zeros((6, 8, 8, 3), np.uint8), forces, [np.arange(3), np.arange(3, 6)], np.zeros(0, np.int64))
+    base = sample_pairs(data, 4000, np.random.default_rng(1), no_contact_prob=0.0, distinct=True)
+    same = sample_pairs(data, 4000, np.random.default_rng(1), no_contact_prob=0.0, distinct=True, increase_prob=0.0)
+    for a, b in zip(base, same):
+        np.testing.assert_array_equal(a, b)
+    ref, tgt, df = sample_pairs(data, 4000, np.random.default_rng(1), no_contact_prob=0.0, distinct=True, increase_prob=1.0)
+    assert (df[:, 2] > 0).all() and ((ref < 3) == (tgt < 3)).all()
+    np.testing.assert_array_equal(df, forces[tgt] - forces[ref])
+    _, _, half = sample_pairs(data, 4000, np.random.default_rng(1), no_contact_prob=0.0, distinct=True, increase_prob=0.5)
+    assert (base[2][:, 2] > 0).mean() == pytest.approx(0.5, abs=0.03)
+    assert (half[:, 2] > 0).mean() == pytest.approx(0.75, abs=0.03)
+
+
+def test_new_contact_marks_the_cells_a_harder_press_adds_and_the_weighted_loss_counts_them_more():
+    """A reference disc of radius 3 px and a target disc of radius 6 px centred in 16 × 16 px: the new contact is
+    the ring between them, marked per 4 × 4 cell (every cell but the corners, whose nearest pixel lies 6.4 px out);
+    a weight of 1 + w on it makes an error there cost (1 + w) times one elsewhere."""
+    from controltac_il.generator.training.data import PairData, new_contact
+    from controltac_il.generator.training.objectives import prediction_loss
+
+    yy, xx = np.mgrid[:16, :16]
+    disc = [128 + (np.hypot(yy - 7.5, xx - 7.5) < r)[..., None] * np.full(3, 40) for r in (3, 6)]  # 128: no residual
+    data = PairData(np.stack(disc).astype(np.uint8), np.zeros((2, 3), np.float32), [np.arange(2)], np.zeros(0, np.int64))
+    new = new_contact(data, np.array([0]), np.array([1]), 4)
+    corners = np.zeros((4, 4), bool)
+    corners[::3, ::3] = True
+    assert new.shape == (1, 1, 4, 4) and (new[0, 0] == ~corners).all()
+    assert new_contact(data, np.array([1]), np.array([0]), 4).sum() == 0  # easing off adds no contact
+    weight = 1.0 + 3.0 * torch.from_numpy(new)
+    target, pred = torch.zeros(1, 2, 4, 4), torch.zeros(1, 2, 4, 4)
+    pred[0, :, 1, 1] = 1.0  # an error of 1 on one new-contact cell (both channels)
+    inside = prediction_loss(pred, target, weight)
+    pred = torch.zeros(1, 2, 4, 4)
+    pred[0, :, 0, 0] = 1.0  # the same error outside it
+    assert inside.item() == pytest.approx(4 * prediction_loss(pred, target, weight).item())
+    assert prediction_loss(pred, target).item() == pytest.approx(prediction_loss(pred, target, torch.ones(1, 1, 4, 4)).item())

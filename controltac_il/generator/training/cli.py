@@ -96,6 +96,11 @@ def stage1_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ae-crop", type=int, nargs=2, default=d["ae_crop"].default, metavar=("H", "W"))
     p.add_argument("--anchor-to-reference", action="store_true", help="output = reference + decoded change")
     p.add_argument("--distinct-pairs", action="store_true", help="never pair a frame with itself (no ΔF = 0 identity)")
+    p.add_argument("--increase-prob", type=float, default=0.0, metavar="P",
+                   help="share of pairs ordered to press harder (ΔFz >= 0), as ForceAugment's targets mostly do "
+                        "(default 0: symmetric pairs)")
+    p.add_argument("--new-contact-weight", type=float, default=0.0, metavar="W",
+                   help="extra DiT loss weight on new contact, the target's contact beyond the reference's (default 0)")
     p.add_argument("--detail-gate", type=float, default=0.0, metavar="G",
                    help="with anchoring: keep the reference's fine detail only where the target keeps its contact; "
                         "G grey levels (default 0 = always keep; the shipped default uses 4)")

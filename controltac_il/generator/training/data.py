@@ -102,10 +102,12 @@ def load_pair_data(root: str | Path, image_size: tuple[int, int], no_contact_fra
 
 
 def sample_pairs(data: PairData, batch: int, rng: np.random.Generator, no_contact_prob: float = 0.05,
-                 distinct: bool = False):
+                 distinct: bool = False, increase_prob: float = 0.0):
     """(ref_idx, tgt_idx, delta_force float32 (batch, 3)): pairs within a random pose group (``distinct``: two
-    different frames wherever the group has two); with probability ``no_contact_prob`` a no-contact pair with a
-    random ΔF instead."""
+    different frames wherever the group has two); with probability ``increase_prob`` a pair is ordered so that the
+    target presses harder (ΔFz >= 0: the direction most ForceAugment targets take); with probability
+    ``no_contact_prob`` a no-contact pair with a random ΔF instead. ``increase_prob`` 0 draws nothing extra (the
+    same pairs as without it)."""
     gi = rng.integers(0, len(data.groups), size=batch)
     ref = np.empty(batch, np.int64)
     tgt = np.empty(batch, np.int64)
@@ -115,6 +117,9 @@ def sample_pairs(data: PairData, batch: int, rng: np.random.Generator, no_contac
         if distinct and len(members) > 1 and i == j:
             j = (i + rng.integers(1, len(members))) % len(members)
         ref[k], tgt[k] = members[i], members[j]
+    if increase_prob > 0:
+        swap = (rng.random(batch) < increase_prob) & (data.forces[tgt, 2] < data.forces[ref, 2])
+        ref[swap], tgt[swap] = tgt[swap], ref[swap].copy()
     delta = data.forces[tgt] - data.forces[ref]
     if len(data.no_contact) and no_contact_prob > 0:
         nc = rng.random(batch) < no_contact_prob
@@ -124,6 +129,15 @@ def sample_pairs(data: PairData, batch: int, rng: np.random.Generator, no_contac
             tgt[nc] = rng.choice(data.no_contact, size=m)
             delta[nc] = rng.uniform(-1, 1, size=(m, 3)).astype(np.float32) * NO_CONTACT_DELTA
     return ref, tgt, delta.astype(np.float32)
+
+
+def new_contact(data: PairData, ref: np.ndarray, tgt: np.ndarray, factor: int) -> np.ndarray:
+    """float32 (B, 1, H / factor, W / factor): 1 where the target's contact (``contact_mask``) reaches beyond the
+    reference's in a factor × factor cell (the new contact a harder press shows), else 0."""
+    new = contact_mask(data.residuals[tgt]) & ~contact_mask(data.residuals[ref])
+    b, h, w = new.shape
+    cells = new[:, :h - h % factor, :w - w % factor].reshape(b, h // factor, factor, w // factor, factor)
+    return cells.any(axis=(2, 4))[:, None].astype(np.float32)
 
 
 def crop_batch(data: PairData, rng: np.random.Generator, batch: int, crop: tuple[int, int]) -> torch.Tensor:

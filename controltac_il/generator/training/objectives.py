@@ -30,8 +30,13 @@ def noised_batch(gcfg: GeneratorConfig, sched, x0: torch.Tensor, one_step_fracti
     return sched.add_noise(x0, noise, t), t, noise if gcfg.diffusion.prediction_type == "epsilon" else x0
 
 
-def prediction_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    return 0.5 * F.l1_loss(pred, target) + 0.5 * F.mse_loss(pred, target)
+def prediction_loss(pred: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
+    """0.5 L1 + 0.5 MSE; ``weight`` (broadcast to ``pred``): a weighted mean instead, sum(w · e) / sum(w)."""
+    if weight is None:
+        return 0.5 * F.l1_loss(pred, target) + 0.5 * F.mse_loss(pred, target)
+    w = weight.expand_as(pred)
+    err = 0.5 * (pred - target).abs() + 0.5 * (pred - target).square()
+    return (w * err).sum() / w.sum()
 
 
 def restore_ema(ema: EMAModel, model: torch.nn.Module, tensors: dict[str, torch.Tensor], optimization_step: int) -> None:

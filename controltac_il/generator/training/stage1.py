@@ -45,7 +45,7 @@ from controltac_il.generator.pipeline import ForceGenerator, residual_to_unit
 from controltac_il.generator.sampler import make_scheduler
 from controltac_il.generator.training.config import (DIT_PRESETS, GeneratorTrainConfig, legacy_provenance, model_card,
                                                      provenance)
-from controltac_il.generator.training.data import PairData, crop_batch, load_pair_data, sample_pairs
+from controltac_il.generator.training.data import PairData, crop_batch, load_pair_data, new_contact, sample_pairs
 from controltac_il.generator.training.objectives import ema_weights, noised_batch, prediction_loss, restore_ema
 from controltac_il.generator.training.validation import (BestOnValidation, Validation, generation_error,
                                                          hold_out_objects)
@@ -195,16 +195,21 @@ def restore_denoiser(stem: Path, dit: ForceDiT, ema: EMAModel, opt: torch.optim.
 
 def denoiser_loss(cfg: GeneratorTrainConfig, gcfg: GeneratorConfig, sched, z: torch.Tensor, data: PairData,
                   model: torch.nn.Module, rank: int, step: int, per_rank: int) -> torch.Tensor:
-    """0.5 L1 + 0.5 MSE of the DiT's prediction (noise or x0) on one batch of same-pose latent pairs;
-    ``sched``: the training noise schedule (diffusers)."""
+    """0.5 L1 + 0.5 MSE of the DiT's prediction (noise or x0) on one batch of same-pose latent pairs (a share
+    ordered to press harder, ``increase_prob``); with ``new_contact_weight`` w, latent cells of new contact weigh
+    1 + w; ``sched``: the training noise schedule (diffusers)."""
     c, dev = gcfg.autoencoder.latent_channels, z.device
     rng = np.random.default_rng([cfg.seed, 2, rank, step])
-    ref, tgt, df = sample_pairs(data, per_rank, rng, cfg.no_contact_prob, cfg.distinct_pairs)
-    ref, tgt = torch.from_numpy(ref).to(dev), torch.from_numpy(tgt).to(dev)
+    ref_i, tgt_i, df = sample_pairs(data, per_rank, rng, cfg.no_contact_prob, cfg.distinct_pairs, cfg.increase_prob)
+    ref, tgt = torch.from_numpy(ref_i).to(dev), torch.from_numpy(tgt_i).to(dev)
     x0 = (z[tgt] - z[ref]) / torch.tensor(gcfg.delta_scale, device=dev).view(1, c, 1, 1)
     zr = z[ref] / torch.tensor(gcfg.latent_scale, device=dev).view(1, c, 1, 1)
     x_t, t, target = noised_batch(gcfg, sched, x0, cfg.one_step_fraction, int(rng.integers(0, 2**62)))
-    return prediction_loss(model(x_t, zr, t, torch.from_numpy(df).to(dev)), target)
+    weight = None
+    if cfg.new_contact_weight > 0:
+        new = new_contact(data, ref_i, tgt_i, data.residuals.shape[1] // z.shape[-2])
+        weight = 1.0 + cfg.new_contact_weight * torch.from_numpy(new).to(dev)
+    return prediction_loss(model(x_t, zr, t, torch.from_numpy(df).to(dev)), target, weight)
 
 
 def train_denoiser(cfg: GeneratorTrainConfig, gcfg: GeneratorConfig, z: torch.Tensor, data: PairData, out: Path,
@@ -226,7 +231,8 @@ def train_denoiser(cfg: GeneratorTrainConfig, gcfg: GeneratorConfig, z: torch.Te
     # one entry per (re)start: resumed runs may change the step budget or the prediction target
     history = meta.get("history", []) + [{"from_step": meta["step"], "dit_steps": cfg.dit_steps, "lr": cfg.dit_lr,
                                           "prediction_type": gcfg.diffusion.prediction_type, "batch": cfg.dit_batch,
-                                          "one_step_fraction": cfg.one_step_fraction, "denoiser_from": cfg.denoiser_from}]
+                                          "one_step_fraction": cfg.one_step_fraction, "denoiser_from": cfg.denoiser_from,
+                                          "increase_prob": cfg.increase_prob, "new_contact_weight": cfg.new_contact_weight}]
     best = None if validation is None else BestOnValidation(validation, out / "denoiser_best.safetensors", meta.get("validation"))
     model, per_rank, t0 = wrap(dit, world), max(1, cfg.dit_batch // world), time.perf_counter()
     noise_sched = make_scheduler(gcfg.diffusion)
