@@ -37,14 +37,15 @@ REAL_DFZ = (-2.0, 0.0, 2.0, 4.0, 6.0)  # N
 COPIES = 2  # fa2
 
 
-def fa_pairs(sensor: TactileSensor, generator, n: int, seed: int = 0) -> dict:
-    """``n`` reference/target pairs as ForceAugment asks them of ``generator`` (module docstring): residuals uint8
-    (n, H, W, 3) ``ref`` and ``tgt``, ``noise`` (the target re-rendered with another noise draw), forces (n, 3) N
-    ``ref_f`` and ``tgt_f`` (the used target), ``objects`` (n,), the background (H, W, 3)."""
+def fa_pairs(sensor: TactileSensor, generator, n: int, seed: int = 0,
+             objects: tuple[str, ...] = HELDOUT_OBJECTS) -> dict:
+    """``n`` reference/target pairs as ForceAugment asks them of ``generator`` (module docstring), of ``objects`` in
+    turn: residuals uint8 (n, H, W, 3) ``ref`` and ``tgt``, ``noise`` (the target re-rendered with another noise
+    draw), forces (n, 3) N ``ref_f`` and ``tgt_f`` (the used target), ``objects`` (n,), the background (H, W, 3)."""
     rng, config = np.random.default_rng(seed), ForceAugmentConfig()
     out = {k: [] for k in ("ref", "tgt", "noise", "ref_f", "tgt_f", "objects")}
     for k in range(n):
-        obj = HELDOUT_OBJECTS[k % len(HELDOUT_OBJECTS)]
+        obj = objects[k % len(objects)]
         pose = (float(rng.uniform(-2, 2)), float(rng.uniform(-2, 2)), float(rng.uniform(-np.pi, np.pi)))
         ref_f = np.array([0.0, 0.0, rng.uniform(*GRIP_FZ)])
         plan = plan_frame(config, episode=k, copy=1 + k % COPIES, frame=0, key_index=0, reference=ref_f)
