@@ -239,6 +239,9 @@ def heldout_summary(rows: list[dict]) -> dict:
     ÷ the constant's where it was used, the generator's MSE ÷ a copy's, minutes; against HELDOUT_TARGETS."""
     used = [r["calibrated_ratio"] for r in rows if r["use_estimator"]]
     figures = {"cases": len(rows), "decision_accuracy": float(np.mean([r["decision_right"] for r in rows])),
+               # the two ways to be wrong: used where it loses to the constant (harm), declined where it wins
+               "false_uses": sum(r["use_estimator"] and r["calibrated_ratio"] >= 1 for r in rows),
+               "missed_uses": sum(not r["use_estimator"] and r["calibrated_ratio"] < 1 for r in rows),
                "used": len(used), "used_estimator_ratio": float(np.mean(used)) if used else None,
                "generator_ratio": float(np.mean([r["generator_calibrated_ratio"] for r in rows])),
                "minutes": cpu_minutes(rows)}

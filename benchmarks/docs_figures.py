@@ -221,7 +221,9 @@ def calibration_heldout() -> str:
     t, ok = h["targets"], {k: "met" if v else "missed" for k, v in h["meets"].items()}
     used = "–" if h["used_estimator_ratio"] is None else f"{h['used_estimator_ratio']:.2f}×"
     summary = (f"Decision right in **{h['decision_accuracy']:.0%}** of {h['cases']} cases (target ≥ "
-               f"{t['decision_accuracy']:.0%}: {ok['decision_accuracy']}); used in {h['used']}, where the test MAE is "
+               f"{t['decision_accuracy']:.0%}: {ok['decision_accuracy']}; wrong by using an estimator that loses to "
+               f"the constant in {h['false_uses']}, by declining one that beats it in {h['missed_uses']}); used in "
+               f"{h['used']}, where the test MAE is "
                f"**{used}** the constant's on the mean (target ≤ {t['used_estimator_ratio']}×: "
                f"{ok['used_estimator_ratio']}); generator **{h['generator_ratio']:.2f}×** a copy's (target ≤ "
                f"{t['generator_ratio']}×: {ok['generator_ratio']}); **{_minutes(h['minutes'])}** min a calibration on "

@@ -90,6 +90,7 @@ def test_the_heldout_object_summary_scores_each_cases_decision():
              "decision_right": u == (r < 1)} for u, r, g in cases]
     out = heldout_summary(rows)
     assert (out["cases"], out["decision_accuracy"], out["used"]) == (4, 0.5, 2)
+    assert (out["false_uses"], out["missed_uses"]) == (1, 1)  # used at 1.2x; declined at 0.9x
     assert out["used_estimator_ratio"] == pytest.approx(0.85) and out["generator_ratio"] == pytest.approx(0.395)
     assert out["meets"] == {"decision_accuracy": False, "used_estimator_ratio": False, "generator_ratio": True,
                             "minutes": True}
