@@ -264,8 +264,8 @@ def sensor_episodes():
 
 
 def test_online_equals_cache_exactly_at_any_batch_size_on_real_looking_frames(tmp_path):
-    """Issue 39: online and cache modes give the same bytes, whatever the cache's batch_size and the loader's
-    shuffling, with the shipped generator and estimator on unlabelled sensor-model frames (one torch thread in
+    """Online and cache modes give the same bytes, whatever the cache's batch_size (one frame; five, across a
+    generation chunk's boundary) and the loader's shuffling, with the shipped generator and estimator on unlabelled sensor-model frames (one torch thread in
     both: the thread count is part of a cache's settings)."""
     from controltac_il.generator import ForceGenerator
 
@@ -273,7 +273,7 @@ def test_online_equals_cache_exactly_at_any_batch_size_on_real_looking_frames(tm
     torch.set_num_threads(1)  # as in DataLoader workers
     try:
         gen, ds = ForceGenerator.from_pretrained(), LeRobotLike(sensor_episodes(), uint8_hwc=True)
-        caches = [wrap(ds, gen, None, tmp_path, f"b{bs}", batch_size=bs, copies=2) for bs in (1, 5, 32)]
+        caches = [wrap(ds, gen, None, tmp_path, f"b{bs}", batch_size=bs, copies=2) for bs in (1, 5)]
         assert len({c.cache_dir for c in caches}) == 1 or all(
             c.settings() == caches[0].settings() for c in caches)  # batch_size is not a setting of the frames
         assert caches[0].summary()["regenerated"] > 0

@@ -140,7 +140,7 @@ def test_colour_adapter_undoes_another_optics_colour_mix(frames):
         fz.append(f)
     res, fz = np.stack(res), np.array(fz)
     base = ForceEstimator.from_pretrained()
-    est = fit_colour_adapter(base, res[:24], fz[:24], ColourFit(steps=150))
+    est = fit_colour_adapter(base, res[:24], fz[:24], ColourFit(steps=40))  # 40: 0.43x the better baseline here
     err = lambda e: np.abs(e.predict(res[24:], gate=False)[:, 2] - fz[24:]).mean()  # noqa: E731
     constant = np.abs(fz[:24].mean() - fz[24:]).mean()
     assert err(est) < 0.8 * min(err(base), constant), (err(est), err(base), constant)

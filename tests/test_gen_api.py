@@ -137,9 +137,9 @@ def test_a_samples_bytes_do_not_depend_on_its_batch_mates_or_the_batch_size(gen,
     df = np.column_stack([rng.uniform(-1, 1, 13), rng.uniform(-1, 1, 13), rng.uniform(-3, 5, 13)])
     seeds = list(range(13))
     big = gen.generate(refs, df, steps=STEPS, seed=seeds, batch_size=64)
-    for bs in (1, 2, 3, 5, 8):
+    for bs in (1, 3, 5):  # one row; under a chunk; a chunk and one more
         np.testing.assert_array_equal(gen.generate(refs, df, steps=STEPS, seed=seeds, batch_size=bs), big)
-    for k in (0, 6, 12):  # alone, and among other batch-mates
+    for k in (0, 12):  # alone, and among other batch-mates
         np.testing.assert_array_equal(gen.generate(refs[k:k + 1], df[k:k + 1], steps=STEPS, seed=[k])[0], big[k])
         np.testing.assert_array_equal(gen.generate(refs[[k, 3, 9]], df[[k, 3, 9]], steps=STEPS, seed=[k, 3, 9])[0], big[k])
 

@@ -118,7 +118,7 @@ def test_bad_offset_range_names_the_flag(capsys):
 
 
 def test_a_cell_whose_episode_raised_stops_the_grid_naming_it_and_writes_nothing(tmp_path, monkeypatch):
-    """Issue 43: an episode that raises is never a failed episode: the unit stops with one line naming the cell."""
+    """An episode that raises is never a failed episode: the unit stops with one line naming the cell."""
     import torch
     from act_fixtures import tiny_config
 
