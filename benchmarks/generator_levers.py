@@ -28,11 +28,9 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-import numpy as np
-
 from benchmarks.common import base_parser, print_table, write_results
-from benchmarks.generator_fa import GRIP_FZ, SIZES, fa_pairs, score
-from controltac_il.tactile import HELDOUT_OBJECTS, SensorSpec, TactileSensor
+from benchmarks.generator_fa import GRIP_FZ, SIZES, fa_pairs, score, sensors
+from controltac_il.tactile import HELDOUT_OBJECTS
 
 VARIANTS = {"control": [], "increase": ["--increase-prob", "0.6"], "new_contact": ["--new-contact-weight", "2"],
             "both": ["--increase-prob", "0.6", "--new-contact-weight", "2"]}  # 0.6: about 80 % of pairs press harder
@@ -89,7 +87,7 @@ def train(args, variant: str, base: list[str]) -> dict:
 def split(generators: dict, objects: tuple[str, ...], n: int, seed: int) -> dict:
     """Each generator's ForceAugment split on ``n`` pairs of ``objects`` (240×320, nominal sensor), the per-pair
     lists left out."""
-    sensor = TactileSensor(SensorSpec.gelsight_mini().scaled(*SIZES["240"]))
+    sensor = sensors(0, SIZES["240"])["nominal"]
     pairs = fa_pairs(sensor, next(iter(generators.values())), n, seed=seed, objects=objects)
     out = {}
     for name, g in generators.items():
