@@ -15,6 +15,7 @@ mkdir -p "$OUT"
 LOG="$OUT/driver.log"
 source benchmarks/gpu_setup.sh "$LOG" "${3:?COMMIT}" "${4:?TREE}" || exit $?
 echo "commit ${CONTROLTAC_VERIFIED_COMMIT:-not verified}; $(nproc) cores; $(nvidia-smi -L 2>/dev/null | head -1)" >> "$LOG"
-timeout $((DEADLINE - SECONDS)) "${@:5}" 2>&1 | tee -a "$LOG"
+# SIGINT, as Ctrl-C: trainers save their state on it (--resume continues); KILL 30 s later if still running
+timeout -s INT -k 30 $((DEADLINE - SECONDS - 30)) "${@:5}" 2>&1 | tee -a "$LOG"
 echo "exit ${PIPESTATUS[0]} after ${SECONDS} s" >> "$LOG"
 pkill -f multiprocessing.spawn  # workers of a command killed at the deadline outlive it

@@ -21,3 +21,54 @@ def test_a_variant_fine_tunes_default_with_only_its_lever_added(tmp_path):
     out = control.index("--out") + 1
     assert both[out] == str(tmp_path / "r" / "both") and control[out] == str(tmp_path / "r" / "control")
     assert both[:-len(VARIANTS["both"])] == control[:out] + [both[out]] + control[out + 1:]
+
+
+def _args(tmp_path, steps=2000):
+    from types import SimpleNamespace
+
+    return SimpleNamespace(data=tmp_path / "d", runs=tmp_path / "r", steps=steps, lr=1e-4, device="cpu", threads=2)
+
+
+def _finished(tmp_path, cmd_words):
+    """A variant's folder as a finished run leaves it: the final card and the command stamp."""
+    import json
+
+    final = tmp_path / "r" / "control" / "final"
+    final.mkdir(parents=True)
+    card = {"denoiser": {"steps": 2000, "wall_s": 812.5, "validation": {"objects": ["procedural_0020"], "best": 0.3}}}
+    (final / "model_card.json").write_text(json.dumps(card))
+    (tmp_path / "r" / "control" / "levers_command.json").write_text(json.dumps(cmd_words))
+
+
+def test_a_finished_variant_is_reused_only_for_the_same_command(tmp_path):
+    import pytest
+
+    from benchmarks.generator_levers import train
+
+    _finished(tmp_path, command(_args(tmp_path, steps=2), "control", [])[2:])  # a smoke run's folder
+    with pytest.raises(SystemExit, match="holds a run of another command"):
+        train(_args(tmp_path), "control", [])
+    (tmp_path / "r" / "control" / "levers_command.json").write_text(
+        __import__("json").dumps(command(_args(tmp_path), "control", [])[2:]))
+    row = train(_args(tmp_path), "control", [])
+    assert row["trained_here"] is False and row["wall_s"] == 812.5 and row["steps"] == 2000
+
+
+def test_validation_objects_must_be_defaults_and_never_test_objects():
+    import pytest
+
+    from benchmarks.generator_levers import validation_objects
+    from controltac_il.tactile import HELDOUT_OBJECTS
+
+    card = {"denoiser": {"validation": {"objects": ["procedural_0020", "procedural_0024"]}}}
+    runs = {v: {"validation_objects": ["procedural_0020", "procedural_0024"]} for v in ("control", "both")}
+    assert validation_objects(runs, card, quick=False) == ("procedural_0020", "procedural_0024")
+    runs["both"] = {"validation_objects": ["procedural_0020", "procedural_0025"]}
+    with pytest.raises(SystemExit, match="different validation objects"):
+        validation_objects(runs, card, quick=False)
+    other = {"control": {"validation_objects": ["procedural_0001"]}}
+    with pytest.raises(SystemExit, match="not default's validation objects"):
+        validation_objects(other, card, quick=False)
+    leak = {"control": {"validation_objects": [HELDOUT_OBJECTS[0]]}}
+    with pytest.raises(SystemExit, match="are test objects"):
+        validation_objects(leak, card, quick=True)
