@@ -36,7 +36,7 @@ from controltac_il.tactile import HELDOUT_OBJECTS
 
 VARIANTS = {"control": [], "increase": ["--increase-prob", "0.6"], "new_contact": ["--new-contact-weight", "2"],
             "both": ["--increase-prob", "0.6", "--new-contact-weight", "2"]}  # 0.6: about 80 % of pairs press harder
-# the issue's targets on the held-out objects' split, 240×320, nominal sensor (MSE ÷ a copy's)
+# the targets on the held-out objects' split, 240×320, nominal sensor (MSE ÷ a copy's)
 TARGETS = {"increase": 0.40, "all": 0.30, "worst_object": 0.60}
 # the recipe's flags that each run sets itself (with their values)
 OWN_FLAGS = ("--data", "--out", "--autoencoder-from", "--denoiser-from", "--dit-steps", "--dit-lr", "--device",

@@ -36,7 +36,7 @@ DELTAS = np.arange(-2.0, 8.0 + 1e-9, 0.5)
 QUICK_DELTAS = np.arange(-1.0, 2.0 + 1e-9, 0.5)
 REFERENCE_FZ = 3.0  # N, the sensor-model references
 SIM_SIZES = ((120, 160), (240, 320))  # the model's size (about) and the GelSight Mini's
-MAX_DROP_PP = 0.15  # the tolerance between neighbouring 0.5 N steps
+MAX_DROP_PP = 0.15  # the tolerated drop between neighbouring 0.5 N steps
 
 
 def contact_area_pct(residuals: np.ndarray) -> np.ndarray:

@@ -71,7 +71,7 @@ class LoopTiming:
         VirtualClock a call takes no time unless the policy sleeps on that clock.
     warmup_timeout_s: clock seconds allowed for the first chunk (model warm-up) before the arm moves.
     stale_after_periods: a sensor frame older than this many periods, or no command sent for that long,
-        trips the watchdog (issue: two periods).
+        trips the watchdog (default two periods).
     """
 
     rate_hz: Float = Field(10.0, gt=0, le=1000)

@@ -45,7 +45,6 @@ def _sequence(form: str):
 
 Vec2 = Annotated[tuple[Float, Float], _sequence("[roll, pitch]")]
 Vec3 = Annotated[tuple[Float, Float, Float], _sequence("[x, y, z]")]
-PosInt = Annotated[Int, Field(ge=1)]
 Pixels = Annotated[Int, Field(ge=1, le=4096)]
 Size = Annotated[tuple[Pixels, Pixels], _sequence("[H, W]")]  # pixels
 

@@ -309,7 +309,7 @@ def test_a_tactile_image_key_is_never_read_as_its_own_force_label(gen, est, tmp_
 
 def test_labels_only_under_an_explicit_mapping(gen, est, tmp_path):
     ds = LeRobotLike(episodes(), labels=True)
-    plain = wrap(ds, gen, est, tmp_path, "plain")  # the crash: the image was read as its own label
+    plain = wrap(ds, gen, est, tmp_path, "plain")  # without a mapping no key is a force label, not even the image itself
     assert plain.labelled == {GEL: False} and plain.keys.backgrounds == {GEL: None}
     mapped = wrap(ds, gen, est, tmp_path, "mapped", force_keys={GEL: FORCE})
     assert mapped.labelled == {GEL: True} and mapped.settings()["force_keys"] == {GEL: FORCE}

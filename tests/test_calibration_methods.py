@@ -65,6 +65,7 @@ def test_leave_one_grasp_out_never_fits_on_the_held_out_grasp():
         return lambda q: np.zeros(len(q))
 
     cm.logo_mae(fit, x, np.zeros(20), groups)
+    assert len(seen) == 4  # one fit per held-out grasp
     for g, train in zip(range(4), seen):
         assert not train & set(np.flatnonzero(groups == g))
 

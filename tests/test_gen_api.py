@@ -326,13 +326,15 @@ def test_bad_forces_and_options_are_refused(gen, contacts):
 def test_shipped_config_mismatch_is_a_clear_error(tmp_path):
     folder = tmp_path / "ckpt"
     shutil.copytree(CHECKPOINT_ROOT / "default", folder)
-    cfg = json.loads((folder / CONFIG_FILE).read_text())
+    shipped = (folder / CONFIG_FILE).read_text()
+    cfg = json.loads(shipped)
     cfg["dit"]["depth"] += 1
     (folder / CONFIG_FILE).write_text(json.dumps(cfg))
     with pytest.raises(ValueError, match="denoiser.*does not match"):
         ForceGenerator.from_pretrained(folder)
+    (folder / CONFIG_FILE).write_text(shipped)  # the config right again: only the weights are wrong below
     (folder / DIT_FILE).write_bytes(b"not a safetensors file")
-    with pytest.raises(Exception):
+    with pytest.raises(ValueError, match=f"{DIT_FILE} is corrupted or was replaced"):
         ForceGenerator.from_pretrained(folder)
 
 

@@ -315,19 +315,20 @@ def test_run_state_restores_weights_optimizer_and_schedule(tmp_path):
         load_run_state(tmp_path / "s", {"m": torch.nn.Linear(3, 3)})
 
 
-def test_ema_model_matches_the_old_ema_update():
-    """diffusers' EMAModel with update_after_step=-1 = the old ema_update with decay min(d, (1+n)/(10+n))."""
+def test_ema_model_is_the_warmed_up_exponential_average():
+    """diffusers' EMAModel with update_after_step=-1 is an exponential average with decay min(d, (1+n)/(10+n))
+    at step n, written out here by hand."""
     m, opt = _adam()
     ema = EMAModel(m.parameters(), decay=0.9, update_after_step=-1)
-    old = [p.detach().clone() for p in m.parameters()]
+    by_hand = [p.detach().clone() for p in m.parameters()]
     for n in range(1, 40):
         opt.zero_grad()
         m(torch.randn(4, 3)).square().mean().backward()
         opt.step()
         ema.step(m.parameters())
-        for o, p in zip(old, m.parameters()):
+        for o, p in zip(by_hand, m.parameters()):
             o.lerp_(p.detach(), 1 - min(0.9, (1 + n) / (10 + n)))
-    for a, b in zip(ema.shadow_params, old):
+    for a, b in zip(ema.shadow_params, by_hand):
         torch.testing.assert_close(a, b)
 
 

@@ -72,8 +72,13 @@ def test_train_resume_and_reuse_autoencoder(dataset, tmp_path, capsys):
     ae_made_by = {"command": json.loads((final / "model_card.json").read_text())["command"],
                   "data": {"path": str(dataset), "seed": 0, "images": 12}}
     assert "--ae-steps 5 " in ae_made_by["command"] and card["autoencoder"]["trained_by"] == ae_made_by
+    _fine_tunes_of(dataset, tmp_path, run, fast, ae_made_by, capsys)
 
-    # fine-tuning: 0 steps from a checkpoint reproduces its DiT and keeps its latent scales
+
+def _fine_tunes_of(dataset, tmp_path, run, fast, ae_made_by, capsys):
+    """Fine-tunes of ``fast`` (a run folder, its autoencoder from ``run``): 0 steps reproduce its DiT and keep its
+    latent scales, the card's history and lineage say where each started, mismatched configs are refused."""
+    g2 = ForceGenerator.from_pretrained(fast / "final")
     tune = ["--data", str(dataset), "--image-size", "64", "80", "--autoencoder-from", str(run), "--stage", "denoiser",
             "--dit-preset", "tiny", "--prediction-type", "sample", "--dit-conv-head", "8"]
     main(["stage1", *tune, "--out", str(tmp_path / "tune0"), "--denoiser-from", str(fast / "final"), *TINY[:2], "--dit-steps", "0",

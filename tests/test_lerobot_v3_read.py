@@ -11,7 +11,7 @@ import json
 import os
 import pickle
 import shutil
-import time
+import signal
 import warnings
 from fractions import Fraction
 
@@ -270,13 +270,20 @@ def test_a_forked_worker_frees_the_parents_decoders_without_hanging(folder):
         ds._videos._streams.clear()
         gc.collect()
         os._exit(0)
-    deadline = time.monotonic() + 10
-    while os.waitpid(pid, os.WNOHANG) == (0, 0):
-        if time.monotonic() > deadline:
-            os.kill(pid, 9)
-            os.waitpid(pid, 0)
-            pytest.fail("the forked child hung freeing the parent's video decoders")
-        time.sleep(0.01)
+
+    def hung(*_):
+        os.kill(pid, signal.SIGKILL)
+        os.waitpid(pid, 0)
+        pytest.fail("the forked child hung freeing the parent's video decoders")
+
+    previous = signal.signal(signal.SIGALRM, hung)
+    signal.alarm(10)  # a hang is the failure: the wait is cut off, never polled
+    try:
+        _, status = os.waitpid(pid, 0)
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+    assert os.waitstatus_to_exitcode(status) == 0, "the forked child failed freeing the parent's video decoders"
 
 
 def test_bad_inputs_are_refused_in_one_line_naming_the_argument(folder, tmp_path):

@@ -16,7 +16,7 @@ FORCES = [0.0, 1e-6, 1.0, 10.0, 50.0]
 SPEC = SensorSpec.gelsight_mini().scaled(120, 160)
 QUIET = dataclasses.replace(SPEC, noise_std=0.0)
 
-# (object, pose): the hard cases plus one ordinary contact
+# (object, pose): contacts that break a naive sensor model, plus one ordinary contact
 HARD_CASES = {
     "flat face, area jumps (cube face)": ("cube_face", (0.0, 0.0, 0.2)),
     "object larger than the pad": ("big_sphere", (0.0, 0.0, 0.0)),

@@ -21,9 +21,6 @@ from controltac_il.io import atomic_dir
 from controltac_il.run_state import load_run_state, save_run_state
 from controltac_il.training import optimise
 
-STATE_DIR = "train_state"
-
-
 def force_stats(forces: np.ndarray) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """Per-axis mean and std (std floored at 0.05 N) of training labels (N, 3)."""
     mean = forces.mean(axis=0)
@@ -48,7 +45,10 @@ def _save_state(path: Path, est: ForceEstimator, opt: torch.optim.Optimizer, sch
         save_run_state(tmp / "state", {"model": est.model}, meta, opt, sched, tensors={"rng": gen.get_state()})
 
 
-def _load_state(path: Path, est: ForceEstimator, opt: torch.optim.Optimizer, gen: torch.Generator) -> dict:
+def _load_state(path: Path | None, est: ForceEstimator, opt: torch.optim.Optimizer, gen: torch.Generator) -> dict:
+    """Restore the training state saved in ``path``; its metadata (step, history, lr_schedule)."""
+    if path is None or not (path / "state.json").is_file():
+        raise FileNotFoundError(f"--resume: no training state found in {path}")
     if read_json(path / "state.json")["model"] != est.config.to_dict():
         raise ValueError(f"resume state in {path} was made for another model config; start a fresh run or use the same config")
     meta, tensors = load_run_state(path / "state", {"model": est.model}, opt)
@@ -113,13 +113,9 @@ def fit(
     x_all, y_all = _to_input(residuals, cfg), est.normalise_forces(torch.from_numpy(forces))
     opt = torch.optim.AdamW(est.model.parameters(), lr=train.lr, weight_decay=train.weight_decay)
     gen = torch.Generator().manual_seed(train.seed)
-    step, history, meta = 0, [], {}
     state_path = Path(state_dir) if state_dir is not None else None
-    if resume:
-        if state_path is None or not (state_path / "state.json").is_file():
-            raise FileNotFoundError(f"--resume: no training state found in {state_path}")
-        meta = _load_state(state_path, est, opt, gen)
-        step, history = int(meta["step"]), list(meta["history"])
+    meta = _load_state(state_path, est, opt, gen) if resume else {"step": 0, "history": []}
+    step, history = int(meta["step"]), list(meta["history"])
     sched = train.schedule(opt, meta.get("lr_schedule") if resume else None, step)
 
     def batch_loss(step: int) -> torch.Tensor:

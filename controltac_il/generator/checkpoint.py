@@ -21,7 +21,7 @@ from pathlib import Path
 
 import torch
 
-from controltac_il.checkpoint import (CARD_FILE, CONFIG_FILE, CheckpointError, load_folder, load_into, read_json,
+from controltac_il.checkpoint import (CARD_FILE, CONFIG_FILE, CheckpointError, load_folder, load_into,
                                       save_folder)
 from controltac_il.config import one_line
 from controltac_il.generator.adapter import PoseAdapter
@@ -33,7 +33,7 @@ AE_FILE = "autoencoder.safetensors"
 DIT_FILE = "denoiser.safetensors"
 WEIGHT_FILES = (AE_FILE, DIT_FILE)
 __all__ = ["ADAPTER_FILE", "AE_FILE", "CARD_FILE", "CONFIG_FILE", "DIT_FILE", "WEIGHT_FILES", "CheckpointError",
-           "checkpoint_hash", "load_adapter", "load_checkpoint", "read_config", "save_adapter", "save_checkpoint"]
+           "checkpoint_hash", "load_adapter", "load_checkpoint", "save_adapter", "save_checkpoint"]
 
 
 def _config(d: dict, where: Path) -> GeneratorConfig:
@@ -41,10 +41,6 @@ def _config(d: dict, where: Path) -> GeneratorConfig:
         return GeneratorConfig.from_dict(d)
     except ValueError as e:
         raise CheckpointError(f"{where}: invalid generator config: {one_line(e)}") from None
-
-
-def read_config(path: str | Path) -> GeneratorConfig:
-    return _config(read_json(Path(path) / CONFIG_FILE), Path(path) / CONFIG_FILE)
 
 
 def save_checkpoint(path: str | Path, config: GeneratorConfig, autoencoder: TactileAutoencoder,

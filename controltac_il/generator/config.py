@@ -109,10 +109,6 @@ class DiTConfig(JsonConfig):
                    conv_head_width=conv_head_width)
 
 
-PREDICTION_TYPES = ("epsilon", "sample")
-BETA_SCHEDULES = ("scaled_linear", "linear", "squaredcos_cap_v2")
-
-
 @dataclass(config=STRICT)
 class DiffusionConfig(JsonConfig):
     """Noise schedule and sampler defaults (diffusers' DDIMScheduler).

@@ -44,7 +44,6 @@ if TYPE_CHECKING:  # the sensor model (OpenCV) is imported where images are rend
 
 MANIFEST_FIELDS = ("image", "object", "pose_id", "x_mm", "y_mm", "theta_rad", "fx", "fy", "fz")
 SENSOR_FIELD = "sensor"  # optional: the simulated sensor instance of the row (controltac_il.tactile.instances)
-REQUIRED_FIELDS = ("image", "object", "pose_id", "fx", "fy", "fz")
 
 
 @dataclass(frozen=True)

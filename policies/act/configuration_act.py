@@ -15,7 +15,6 @@ from pydantic.dataclasses import dataclass
 from controltac_il.config import STRICT, JsonConfig
 from controltac_il.streams import HDF5, HDF5_STATE, background_key, image_key, tactile_key
 
-BACKBONES = ("resnet18", "small_cnn")
 PosInt = Annotated[int, Field(gt=0)]
 NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 Rate = Annotated[float, Field(gt=0, allow_inf_nan=False)]
