@@ -220,7 +220,12 @@ def calibration_heldout() -> str:
             for r in sorted((r for r in doc["rows"] if "draw" in r), key=lambda r: (r["sensor"], r["draw"]))]
     t, ok = h["targets"], {k: "met" if v else "missed" for k, v in h["meets"].items()}
     used = "–" if h["used_estimator_ratio"] is None else f"{h['used_estimator_ratio']:.2f}×"
-    summary = (f"Decision right in **{h['decision_accuracy']:.0%}** of {h['cases']} cases (target ≥ "
+    sensors = {r["sensor"] for r in doc["rows"] if "draw" not in r and r["sensor"].startswith("unseen_")}
+    losing = sum(r["calibrated_ratio"] >= 1 for r in doc["rows"] if "draw" in r)
+    coverage = (f"{h['cases']} of the {len(sensors) * doc['settings']['heldout_draws']} cases measured "
+                f"({len(sensors)} sensors × {doc['settings']['heldout_draws']} draws); in {losing} of them the "
+                "estimator loses to the constant on the new objects, the side where declining is right. ")
+    summary = coverage + (f"Decision right in **{h['decision_accuracy']:.0%}** of {h['cases']} cases (target ≥ "
                f"{t['decision_accuracy']:.0%}: {ok['decision_accuracy']}; wrong by using an estimator that loses to "
                f"the constant in {h['false_uses']}, by declining one that beats it in {h['missed_uses']}); used in "
                f"{h['used']}, where the test MAE is "
