@@ -138,7 +138,8 @@ def stale_runs(runs: Path, variants: list[str], generator: str | None) -> list[s
     return stale
 
 
-def main(argv=None) -> dict:
+def parse(argv) -> tuple:
+    """The command line, its --quick sizes applied; (args, variants, parser)."""
     p = base_parser(__doc__.split("\n\n")[0])
     p.add_argument("--demos", type=int, default=50, help="demos collected in the scene (default 50, the paper's)")
     p.add_argument("--steps", type=int, default=1500, help="training steps per variant (default 1500)")
@@ -159,14 +160,17 @@ def main(argv=None) -> dict:
         args.variants = "real,fa1"
         if args.runs == p.get_default("runs"):
             args.runs = Path("runs/benchmark_act_quick")
-    torch.set_num_threads(1)
     variants = [v.strip() for v in args.variants.split(",") if v.strip()]
     unknown = [v for v in variants if v not in VARIANTS]
     if unknown:
         p.error(f"--variants: unknown {unknown}; choose from {list(VARIANTS)}")
+    return args, variants, p
 
+
+def main(argv=None) -> dict:
+    args, variants, p = parse(argv)
+    torch.set_num_threads(1)
     from controltac_il.app import default_demos
-    from controltac_il.augment import ForceAugmentStage
 
     if not args.skip_experiment:
         stale = stale_runs(args.runs, variants, args.generator)
@@ -193,27 +197,42 @@ def main(argv=None) -> dict:
     save()
     if args.skip_experiment:
         return results
+    results["experiment"] = experiment(args, variants, demos, save)
+    print_table(results["experiment"], ["variant", "copies", "nominal_success", "nominal_wilson95", "shifted_success",
+                                        "shifted_wilson95", "best_val_l1", "train_s"],
+                f"Peg-in-hole success, {args.demos} demos, {args.eval_episodes} seeded episodes per setting")
+    save()
+    return results
 
-    rows = results["experiment"] = []
+
+def generator_problem(args, demos, max_copies: int) -> str | None:
+    """Why the ForceAugment variants cannot run (no usable generator), or None after building their cache once,
+    before any worker reads it."""
+    from controltac_il.augment import ForceAugmentStage
+
+    if not max_copies:
+        return None
+    try:
+        from controltac_il.app.experiment import training_split
+        from controltac_il.generator import ForceGenerator
+
+        ForceGenerator.from_pretrained(args.generator)
+        ForceAugmentStage(max_copies, args.generator, seed=0)(training_split(demos))
+    except (OSError, ValueError, ImportError) as exc:
+        print(f"ForceAugment variants skipped, no generator: {type(exc).__name__}: {exc}")
+        return f"{type(exc).__name__}: {exc}"
+    return None
+
+
+def experiment(args, variants: list[str], demos, save) -> list[dict]:
+    """Train and evaluate each variant (``--jobs`` at once); one row each, saved (``save()``) as each finishes."""
+    rows: list[dict] = []
     max_copies = max(VARIANTS[v] for v in variants)
-    generator_problem = None
-    if max_copies:
-        try:
-            from controltac_il.generator import ForceGenerator
-
-            ForceGenerator.from_pretrained(args.generator)
-            # build the ForceAugment cache once, before any worker reads it (the split train_on_folder makes below)
-            from controltac_il.app.experiment import training_split
-
-            ForceAugmentStage(max_copies, args.generator, seed=0)(training_split(demos))
-        except (OSError, ValueError, ImportError) as exc:
-            generator_problem = f"{type(exc).__name__}: {exc}"
-            print(f"ForceAugment variants skipped, no generator: {generator_problem}")
+    problem = generator_problem(args, demos, max_copies)
     for v in variants:
-        row = {"variant": v, "copies": VARIANTS[v], "status": "queued"}
-        if VARIANTS[v] and generator_problem:
-            row["status"] = f"skipped (no generator: {generator_problem})"
-        rows.append(row)
+        skipped = VARIANTS[v] and problem
+        rows.append({"variant": v, "copies": VARIANTS[v],
+                     "status": f"skipped (no generator: {problem})" if skipped else "queued"})
     todo = [row for row in rows if row["status"] == "queued"]
     job_args = dict(demos=str(demos), runs=str(args.runs), steps=args.steps, batch_size=args.batch_size,
                     eval_episodes=args.eval_episodes, shifted_grip=tuple(args.shifted_grip),
@@ -239,11 +258,7 @@ def main(argv=None) -> dict:
             save()
             row.update(run_variant(row["variant"], **job_args))
             save()
-    print_table(rows, ["variant", "copies", "nominal_success", "nominal_wilson95", "shifted_success",
-                       "shifted_wilson95", "best_val_l1", "train_s"],
-                f"Peg-in-hole success, {args.demos} demos, {args.eval_episodes} seeded episodes per setting")
-    save()
-    return results
+    return rows
 
 
 if __name__ == "__main__":

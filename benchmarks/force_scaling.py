@@ -259,7 +259,47 @@ def plot(rows: list[dict], dest: Path, setup: ScalingSetup) -> None:
     plt.close(fig)
 
 
-def main(argv=None) -> dict:
+def physical_check(est, generated: tuple, real: tuple, rows: list[dict], k: int) -> dict:
+    """The paper's physical check: the estimator trained on all real frames reads the generated frames
+    ``(images, labels)`` and the ``real`` frames they stand in for."""
+    g_err = force_mae(est.predict(generated[0], gate=False), generated[1])
+    r_err = force_mae(est.predict(real[0], gate=False), real[1])
+    return {"estimator": f"(a) real {k}/{k}",
+            "generated_mae_n": float(g_err.mean()), "generated_sd_n": float(g_err.std()),
+            "real_same_targets_mae_n": float(r_err.mean()), "real_same_targets_sd_n": float(r_err.std()),
+            "real_test_mae_n": next(r["mae_n"] for r in rows if r["row"] == f"(a) real {k}/{k}"),
+            "note": "generated frames of training poses vs the real frames they stand in for (training data "
+                    "of this estimator, so its real error here is optimistic); test MAE is on unseen poses"}
+
+
+def verdict(rows: list[dict], setup: ScalingSetup) -> dict | None:
+    """A third of the real frames against all of them, and (c) against all: None without both real rows."""
+    k = setup.forces_per_pose
+    by_kind = {r["row"]: r for r in rows}
+    full, third = by_kind.get(f"(a) real {k}/{k}"), by_kind.get(f"(a) real {setup.reference_keep}/{k}")
+    if not (full and third):
+        return None
+    out = {"full_real_mae_n": full["mae_n"], "third_real_mae_n": third["mae_n"],
+           "third_real_vs_full": third["mae_n"] / full["mae_n"]}
+    c_row = next((r for r in rows if r["kind"] == "third+generated"), None)
+    if c_row:
+        out["third_plus_generated_vs_full"] = c_row["mae_n"] / full["mae_n"]
+        out["target_c_within_10pct_of_full"] = bool(c_row["mae_n"] <= 1.10 * full["mae_n"])
+    return out
+
+
+def report(results: dict, n_test: int) -> None:
+    """The rows' table and the summaries."""
+    print_table(results["rows"], ["row", "train_images", "mae_n", "sd_n", "mae_fx", "mae_fy", "mae_fz", "seed_sd_n",
+                                  "no_contact_abs_n", "train_seconds"],
+                title=f"Force MAE on {n_test} test frames (unseen poses), N; {results['setup']['steps']} updates per row")
+    for key in ("physical_check", "verdict", "generation"):
+        if key in results:
+            print(f"{key}: {json.dumps(results[key])}")
+
+
+def parse(argv) -> tuple:
+    """The command line and the setup it asks for (quick or full, with the flags' overrides); (args, setup)."""
     p = base_parser(__doc__.split("\n")[0])
     p.add_argument("--work-dir", type=Path, default=Path(tempfile.gettempdir()) / "controltac_force_scaling",
                    help="cache of the sensor-model datasets and generated frames (default: a folder in /tmp)")
@@ -279,17 +319,21 @@ def main(argv=None) -> dict:
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     args = p.parse_args(argv)
-    if args.threads:
-        torch.set_num_threads(args.threads)
     setup = ScalingSetup.quick() if args.quick else ScalingSetup()
     over = {k: v for k, v in (("steps", args.steps), ("gen_steps", args.gen_steps), ("poses_per_object", args.poses),
                               ("keep", tuple(args.keep) if args.keep else None),
                               ("seeds", tuple(args.seeds) if args.seeds else None)) if v is not None}
     setup = ScalingSetup(**{**asdict(setup), **over})
+    return args, setup
+
+
+def main(argv=None) -> dict:
+    args, setup = parse(argv)
+    if args.threads:
+        torch.set_num_threads(args.threads)
     progress = not args.no_progress
     work = args.work_dir / ("quick" if args.quick else "full")
     work.mkdir(parents=True, exist_ok=True)
-
     t_start = time.perf_counter()
     sets = real_sets(work, setup, progress)
     ds, x, f = sets["train"]
@@ -297,15 +341,13 @@ def main(argv=None) -> dict:
     noise_std = estimate_noise_std(x)
     empty = no_contact_residuals(setup.no_contact, *x.shape[1:3], noise_std, seed=7)
     empty_test = no_contact_residuals(50, *x.shape[1:3], noise_std, seed=8)
-    groups = ds.pose_groups()
-    test = (xt, ft)
-    rows = []
+    groups, rows = ds.pose_groups(), []
 
     def add(name, kind, xs, fs):
         if kind not in args.rows:
             return None
         print(f"\n== {name}: {len(xs)} training images", flush=True)
-        row, est = train_row(name, kind, xs, fs, test, empty, empty_test, setup, progress, cache_dir=work)
+        row, est = train_row(name, kind, xs, fs, (xt, ft), empty, empty_test, setup, progress, cache_dir=work)
         rows.append(row)
         print(f"   test MAE {row['mae_n']:.3f} ± {row['sd_n']:.3f} N", flush=True)
         return est
@@ -320,11 +362,8 @@ def main(argv=None) -> dict:
     third = subset_rows(groups, setup.reference_keep)
     refs, targets = generation_plan(groups, setup.reference_keep)
     results: dict = {"setup": asdict(setup), "noise_std_grey": noise_std}
-
-    copy_f = f[targets]
     add(f"control: real {setup.reference_keep}/{K} + copies", "third+copy",
-        np.concatenate([x[third], x[refs]]), np.concatenate([f[third], copy_f]))
-
+        np.concatenate([x[third], x[refs]]), np.concatenate([f[third], f[targets]]))
     gen_kinds = {"generated", "third+generated", "full+generated", "generation"}
     if gen_kinds & set(args.rows):
         g, g_labels, info = generate_frames(work, x, f, refs, targets, setup, args.generator, progress)
@@ -334,41 +373,15 @@ def main(argv=None) -> dict:
             np.concatenate([x[third], g]), np.concatenate([f[third], g_labels]))
         add(f"(d) real {K}/{K} + generated", "full+generated", np.concatenate([x, g]), np.concatenate([f, g_labels]))
         if full_est is not None:
-            # the paper's physical check: the real-trained estimator reads generated frames
-            g_err = force_mae(full_est.predict(g, gate=False), g_labels)
-            r_err = force_mae(full_est.predict(x[targets], gate=False), f[targets])
-            results["physical_check"] = {
-                "estimator": f"(a) real {K}/{K}",
-                "generated_mae_n": float(g_err.mean()), "generated_sd_n": float(g_err.std()),
-                "real_same_targets_mae_n": float(r_err.mean()), "real_same_targets_sd_n": float(r_err.std()),
-                "real_test_mae_n": next(r["mae_n"] for r in rows if r["row"] == f"(a) real {K}/{K}"),
-                "note": "generated frames of training poses vs the real frames they stand in for (training data "
-                        "of this estimator, so its real error here is optimistic); test MAE is on unseen poses",
-            }
+            results["physical_check"] = physical_check(full_est, (g, g_labels), (x[targets], f[targets]), rows, K)
 
-    by_kind = {r["row"]: r for r in rows}
-    full = by_kind.get(f"(a) real {K}/{K}")
-    third_row = by_kind.get(f"(a) real {setup.reference_keep}/{K}")
-    c_row = next((r for r in rows if r["kind"] == "third+generated"), None)
-    if full and third_row:
-        verdict = {"full_real_mae_n": full["mae_n"], "third_real_mae_n": third_row["mae_n"],
-                   "third_real_vs_full": third_row["mae_n"] / full["mae_n"]}
-        if c_row:
-            verdict["third_plus_generated_vs_full"] = c_row["mae_n"] / full["mae_n"]
-            verdict["target_c_within_10pct_of_full"] = bool(c_row["mae_n"] <= 1.10 * full["mae_n"])
-        results["verdict"] = verdict
+    if (v := verdict(rows, setup)) is not None:
+        results["verdict"] = v
     results["rows"] = rows
     results["total_seconds"] = time.perf_counter() - t_start
-
-    print_table(rows, ["row", "train_images", "mae_n", "sd_n", "mae_fx", "mae_fy", "mae_fz", "seed_sd_n",
-                       "no_contact_abs_n", "train_seconds"],
-                title=f"Force MAE on {len(xt)} test frames (unseen poses), N; {setup.steps} updates per row")
-    for key in ("physical_check", "verdict", "generation"):
-        if key in results:
-            print(f"{key}: {json.dumps(results[key])}")
+    report(results, len(xt))
     doc = write_results(args.out, results)
-    dest = args.plot or (args.out.with_suffix(".png") if args.out else None)
-    if dest is not None:
+    if (dest := args.plot or (args.out.with_suffix(".png") if args.out else None)) is not None:
         plot(rows, dest, setup)
         print(f"wrote {dest}")
     return doc

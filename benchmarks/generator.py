@@ -235,7 +235,7 @@ def table_row(entry: dict) -> dict:
             "peak MB": entry.get("peak_rss_mb")}
 
 
-def main(argv=None) -> dict:
+def parse(argv):
     p = base_parser(__doc__.splitlines()[0])
     p.add_argument("--checkpoint", default="default", help="default generator (shipped name or folder)")
     p.add_argument("--fast", default="fast", help="faster variant (shipped name or folder; '' to skip)")
@@ -249,109 +249,149 @@ def main(argv=None) -> dict:
     p.add_argument("--fa-pairs", type=int, default=None, help="ForceAugment split: pairs per sensor and size "
                                                                "(default 96, quick 6; 0: not measured)")
     p.add_argument("--update-model-card", action="store_true", help="write the figures into the checkpoints' model_card.json")
-    a = p.parse_args(argv)
-    torch.set_num_threads(a.threads)
-    quick = a.quick
-    n_pairs = a.pairs or (12 if quick else 96)
-    steps_grid = (1, 2) if quick else STEPS
-    repeats = 2 if quick else 5
+    return p.parse_args(argv)
 
-    data = {s: eval_pairs(a.cache, s, poses=2 if quick else 8, forces=4 if quick else 6, max_pairs=n_pairs) for s in SPLITS}
-    frontier = a.frontier if a.frontier is not None else (() if quick else FRONTIER)
-    folders = {"default": a.checkpoint, **({"fast": a.fast} if a.fast else {}),
-               **{n: n for n in frontier}}
-    gens = {k: ForceGenerator.from_pretrained(v) for k, v in folders.items()}
 
+def methods_of(gens: dict, frontier, quick: bool) -> list[tuple[str, str, int | None]]:
+    """(name, kind, DDIM steps) of every row: the copy, the two bounds, each preset at its steps."""
     methods: list[tuple[str, str, int | None]] = [("reference copy", "copy", None), ("physics re-render", "rerender", None),
                                                   ("target through the model size", "roundtrip", None)]
-    methods += [(f"default DDIM-{s}", "default", s) for s in steps_grid]
+    methods += [(f"default DDIM-{s}", "default", s) for s in ((1, 2) if quick else STEPS)]
     if "fast" in gens:
         fs = gens["fast"].config.default_steps
         methods += [(f"fast DDIM-{s}", "fast", s) for s in sorted({1, fs, 2 * fs} | (set() if quick else set(FRONTIER_STEPS)))]
-    methods += [(f"{n} DDIM-{s}", n, s) for n in frontier for s in FRONTIER_STEPS]
-    estimator = ForceEstimator.from_pretrained()
-    sensors = {size: TactileSensor(SensorSpec.gelsight_mini().scaled(*size)) for size in (RENDER_SIZE, NATIVE_SIZE)}
-    model_hw = tuple(gens["default"].config.image_size)
+    return methods + [(f"{n} DDIM-{s}", n, s) for n in frontier for s in FRONTIER_STEPS]
 
-    def predictor(kind: str, steps: int | None):
-        if kind == "copy":
-            return lambda refs, rf, tf: refs.copy()
-        if kind == "rerender":
-            return lambda refs, rf, tf: np.stack([rerender(sensors[refs.shape[1:3]], r, a_, b_, noise_seed=k)
-                                                 for k, (r, a_, b_) in enumerate(zip(refs, rf, tf))])
-        g = gens[kind]
-        return lambda refs, rf, tf: g.generate(refs, tf - rf, steps=steps, seed=0, batch_size=32)
 
-    rows, per_method = [], {}
-    for name, kind, steps in tqdm(methods, desc="methods", unit="method", disable=None):
-        fn = None if kind == "roundtrip" else predictor(kind, steps)
-        entry = {"method": name, "kind": kind, "steps": steps, "preset": kind if kind in gens else None,
-                 "parameters": sum(t.numel() for t in gens[kind].denoiser.parameters()) if kind in gens else None}
-        preds = {}
-        for split, (refs, tgts, rf, tf, bg) in data.items():
-            t0 = time.perf_counter()
-            preds[split] = np.stack([through_size(t, model_hw) for t in tgts]) if fn is None else fn(refs, rf, tf)
-            wall = time.perf_counter() - t0
-            entry[split] = {**quality(preds[split], tgts, bg, refs), **readback(estimator, preds[split], tgts, tf), "wall_s": wall}
-        if fn is None:  # a bound, not a method: no speed
-            per_method[name] = (entry, preds)
-            rows.append(table_row(entry))
-            continue
-        def on(split):  # (a batch function over that split's forces, its references)
-            refs, _, rf, tf, _ = data[split]
-            return (lambda r: fn(r, np.resize(rf, (len(r), 3)), np.resize(tf, (len(r), 3)))), refs
-        if kind in gens:
-            entry["real"] = real_checks(fn)
-        default_setting = kind == "default" and steps == gens["default"].config.default_steps
-        if not quick or default_setting:  # --quick times the default setting only
-            entry.update(throughput(*on("unseen"), 1 if kind == "rerender" else repeats))
-        if kind != "rerender" and (not quick or default_setting):  # the GelSight Mini's frames, resized by the model
-            entry["img_per_s_b32_240"] = throughput(*on("unseen_240"), repeats)["img_per_s_b32"]
-        if kind == "copy":
-            entry.update(peak_rss_mb=None, batch_growth_mb=0.0)
-        elif not quick or default_setting:
-            ck = folders.get(kind)
-            entry.update(peak_memory_mb("generator" if ck else "rerender", ck, steps, a.threads))
-        per_method[name] = (entry, preds)
-        rows.append(table_row(entry))
+def predictor(kind: str, steps: int | None, gens: dict, sensors: dict):
+    """``fn(refs, ref_forces, target_forces) -> predicted frames`` of one row (not the model-size bound)."""
+    if kind == "copy":
+        return lambda refs, rf, tf: refs.copy()
+    if kind == "rerender":
+        return lambda refs, rf, tf: np.stack([rerender(sensors[refs.shape[1:3]], r, a_, b_, noise_seed=k)
+                                             for k, (r, a_, b_) in enumerate(zip(refs, rf, tf))])
+    g = gens[kind]
+    return lambda refs, rf, tf: g.generate(refs, tf - rf, steps=steps, seed=0, batch_size=32)
+
+
+def timings(entry: dict, fn, data: dict, run: dict) -> None:
+    """Speed and memory of one row into ``entry`` (--quick: the default setting only). ``run``: gens, folders,
+    quick, repeats, threads."""
+    kind, steps, gens = entry["kind"], entry["steps"], run["gens"]
+
+    def on(split):  # (a batch function over that split's forces, its references)
+        refs, _, rf, tf, _ = data[split]
+        return (lambda r: fn(r, np.resize(rf, (len(r), 3)), np.resize(tf, (len(r), 3)))), refs
+
+    if kind in gens:
+        entry["real"] = real_checks(fn)
+    timed = not run["quick"] or (kind == "default" and steps == gens["default"].config.default_steps)
+    if timed:
+        entry.update(throughput(*on("unseen"), 1 if kind == "rerender" else run["repeats"]))
+    if kind != "rerender" and timed:  # the GelSight Mini's frames, resized by the model
+        entry["img_per_s_b32_240"] = throughput(*on("unseen_240"), run["repeats"])["img_per_s_b32"]
+    if kind == "copy":
+        entry.update(peak_rss_mb=None, batch_growth_mb=0.0)
+    elif timed:
+        ck = run["folders"].get(kind)
+        entry.update(peak_memory_mb("generator" if ck else "rerender", ck, steps, run["threads"]))
+
+
+def measure(name: str, kind: str, steps: int | None, data: dict, run: dict) -> tuple[dict, dict]:
+    """One row: its error and force read-back on every split, then (a method, not the bound) its speed;
+    (entry, {split: predictions})."""
+    gens = run["gens"]
+    fn = None if kind == "roundtrip" else predictor(kind, steps, gens, run["sensors"])
+    entry = {"method": name, "kind": kind, "steps": steps, "preset": kind if kind in gens else None,
+             "parameters": sum(t.numel() for t in gens[kind].denoiser.parameters()) if kind in gens else None}
+    preds = {}
+    for split, (refs, tgts, rf, tf, bg) in data.items():
+        t0 = time.perf_counter()
+        preds[split] = np.stack([through_size(t, run["model_hw"]) for t in tgts]) if fn is None else fn(refs, rf, tf)
+        wall = time.perf_counter() - t0
+        entry[split] = {**quality(preds[split], tgts, bg, refs), **readback(run["estimator"], preds[split], tgts, tf),
+                        "wall_s": wall}
+    if fn is not None:  # the bound is not a method: no speed
+        timings(entry, fn, data, run)
+    return entry, preds
+
+
+def targets_of(per_method: dict, default_name: str) -> dict | None:
+    """The default setting's figures against the benchmark's targets (None without that row)."""
+    copy, dflt = per_method["reference copy"][0], per_method.get(default_name, (None,))[0]
+    if dflt is None:
+        return None
+    return {
+        "default_setting": default_name,
+        "unseen_mse_ratio_to_copy": dflt["unseen"]["mse"] / copy["unseen"]["mse"],
+        "unseen_mse_at_most_quarter_of_copy": dflt["unseen"]["mse"] <= 0.25 * copy["unseen"]["mse"],
+        "unseen_ssim_above_copy": dflt["unseen"]["ssim"] > copy["unseen"]["ssim"],
+        "unseen_240_mse_ratio_to_copy": dflt["unseen_240"]["mse"] / copy["unseen_240"]["mse"],
+        "unseen_240_bound_through_model_size": (per_method["target through the model size"][0]["unseen_240"]["mse"]
+                                                / copy["unseen_240"]["mse"]),
+        "unseen_240_ssim_above_copy": dflt["unseen_240"]["ssim"] > copy["unseen_240"]["ssim"],
+        "unseen_sensor_mse_ratio_to_copy": dflt["unseen_sensor"]["mse"] / copy["unseen_sensor"]["mse"],
+        **{f"{split}_readback_ratio_to_true": dflt[split]["readback_fz_mae"] / dflt[split]["true_readback_fz_mae"]
+           for split in ("seen", "unseen", "seen_240", "unseen_240")},
+        "default_img_per_s_b32": dflt["img_per_s_b32"],
+        "default_img_per_s_b32_240": dflt["img_per_s_b32_240"],
+        "default_at_least_50_img_per_s_at_240": dflt["img_per_s_b32_240"] >= 50.0,
+        "default_at_least_10_img_per_s": dflt["img_per_s_b32"] >= 10.0,
+    }
+
+
+def write_sheet(sheet: Path, data: dict, per_method: dict, default_name: str) -> None:
+    """The default setting's largest force increases and largest decrease per 120×160 split, as a PNG sheet."""
+    name = default_name if default_name in per_method else next(n for n in per_method if n.startswith("default"))
+    cases = []
+    for split in ("unseen", "seen", "unseen_sensor"):  # the 120×160 splits (one tile size)
+        refs, tgts, rf, tf, bgs = data[split]
+        order = np.argsort(-(tf[:, 2] - rf[:, 2]))  # largest force increase first
+        for k in list(order[:2]) + list(order[-1:]):
+            cases.append((split, refs[k], tgts[k], per_method[name][1][split][k], bgs[k]))
+    save_sheet(sheet, cases)
+    print(f"wrote {sheet}")
+
+
+def update_cards(gens: dict, folders: dict, doc: dict, quick: bool) -> None:
+    """Each measured checkpoint's model card gets the benchmark's figures for the copy, the re-render and itself."""
+    for key in gens:
+        ck = Path(folders[key])
+        folder = CHECKPOINT_ROOT / ck if not ck.is_dir() else ck
+        card_path = folder / "model_card.json"
+        card = json.loads(card_path.read_text()) if card_path.is_file() else {}
+        card["benchmark"] = {"command": "python -m benchmarks.generator" + (" --quick" if quick else ""),
+                             "machine": doc["machine"], "settings": doc["settings"], "targets": doc["targets"],
+                             "methods": [m for m in doc["methods"] if m["kind"] in ("copy", "rerender", key)]}
+        write_json(card_path, card)
+        print(f"updated {card_path}")
+
+
+def main(argv=None) -> dict:
+    a = parse(argv)
+    torch.set_num_threads(a.threads)
+    quick = a.quick
+    n_pairs = a.pairs or (12 if quick else 96)
+    repeats = 2 if quick else 5
+    data = {s: eval_pairs(a.cache, s, poses=2 if quick else 8, forces=4 if quick else 6, max_pairs=n_pairs) for s in SPLITS}
+    frontier = a.frontier if a.frontier is not None else (() if quick else FRONTIER)
+    folders = {"default": a.checkpoint, **({"fast": a.fast} if a.fast else {}), **{n: n for n in frontier}}
+    gens = {k: ForceGenerator.from_pretrained(v) for k, v in folders.items()}
+    run = {"gens": gens, "folders": folders, "quick": quick, "repeats": repeats, "threads": a.threads,
+           "estimator": ForceEstimator.from_pretrained(), "model_hw": tuple(gens["default"].config.image_size),
+           "sensors": {size: TactileSensor(SensorSpec.gelsight_mini().scaled(*size)) for size in (RENDER_SIZE, NATIVE_SIZE)}}
+    per_method = {}
+    for name, kind, steps in tqdm(methods_of(gens, frontier, quick), desc="methods", unit="method", disable=None):
+        per_method[name] = measure(name, kind, steps, data, run)
+    rows = [table_row(entry) for entry, _ in per_method.values()]
     print_table(rows, list(rows[0]), title=f"generator speed vs error ({'quick' if quick else 'full'}, "
                                             f"{n_pairs} pairs/split, {a.threads} torch threads)")
-
     default_name = f"default DDIM-{gens['default'].config.default_steps}"
-    copy, dflt = per_method["reference copy"][0], per_method.get(default_name, (None,))[0]
-    targets = None
-    if dflt is not None:
-        targets = {
-            "default_setting": default_name,
-            "unseen_mse_ratio_to_copy": dflt["unseen"]["mse"] / copy["unseen"]["mse"],
-            "unseen_mse_at_most_quarter_of_copy": dflt["unseen"]["mse"] <= 0.25 * copy["unseen"]["mse"],
-            "unseen_ssim_above_copy": dflt["unseen"]["ssim"] > copy["unseen"]["ssim"],
-            "unseen_240_mse_ratio_to_copy": dflt["unseen_240"]["mse"] / copy["unseen_240"]["mse"],
-            "unseen_240_bound_through_model_size": (per_method["target through the model size"][0]["unseen_240"]["mse"]
-                                                    / copy["unseen_240"]["mse"]),
-            "unseen_240_ssim_above_copy": dflt["unseen_240"]["ssim"] > copy["unseen_240"]["ssim"],
-            "unseen_sensor_mse_ratio_to_copy": dflt["unseen_sensor"]["mse"] / copy["unseen_sensor"]["mse"],
-            **{f"{split}_readback_ratio_to_true": dflt[split]["readback_fz_mae"] / dflt[split]["true_readback_fz_mae"]
-               for split in ("seen", "unseen", "seen_240", "unseen_240")},
-            "default_img_per_s_b32": dflt["img_per_s_b32"],
-            "default_img_per_s_b32_240": dflt["img_per_s_b32_240"],
-            "default_at_least_50_img_per_s_at_240": dflt["img_per_s_b32_240"] >= 50.0,
-            "default_at_least_10_img_per_s": dflt["img_per_s_b32"] >= 10.0,
-        }
+    targets = targets_of(per_method, default_name)
+    if targets is not None:
         print("\ntargets:", json.dumps(targets, indent=1))
-
     if a.sheet or a.out:
-        sheet = a.sheet or a.out.with_suffix(".png")
-        name = default_name if default_name in per_method else next(n for n in per_method if n.startswith("default"))
-        cases = []
-        for split in ("unseen", "seen", "unseen_sensor"):  # the 120×160 splits (one tile size)
-            refs, tgts, rf, tf, bgs = data[split]
-            order = np.argsort(-(tf[:, 2] - rf[:, 2]))  # largest force increase first
-            for k in list(order[:2]) + list(order[-1:]):
-                cases.append((split, refs[k], tgts[k], per_method[name][1][split][k], bgs[k]))
-        save_sheet(sheet, cases)
-        print(f"wrote {sheet}")
-
+        write_sheet(a.sheet or a.out.with_suffix(".png"), data, per_method, default_name)
     fa_pairs = (6 if quick else 96) if a.fa_pairs is None else a.fa_pairs
     presets = {k: gens[k] for k in ("fast", "default", "quality") if k in gens}
     split = forceaugment_split(presets, fa_pairs, 0 if quick else 2) if fa_pairs else None
@@ -365,21 +405,12 @@ def main(argv=None) -> dict:
                                 for k, v in SPLITS.items()},
                      "model_size": list(gens["default"].config.image_size), "threads": a.threads,
                      "checkpoints": {k: {"path": str(v), "hash": gens[k].checkpoint_hash} for k, v in folders.items()}},
-        "methods": [per_method[n][0] for n in per_method],
+        "methods": [entry for entry, _ in per_method.values()],
         "targets": targets,
     }
     doc = write_results(a.out, results)
     if a.update_model_card:
-        for key in gens:
-            ck = Path(folders[key])
-            folder = CHECKPOINT_ROOT / ck if not ck.is_dir() else ck
-            card_path = folder / "model_card.json"
-            card = json.loads(card_path.read_text()) if card_path.is_file() else {}
-            card["benchmark"] = {"command": "python -m benchmarks.generator" + (" --quick" if quick else ""),
-                                 "machine": doc["machine"], "settings": results["settings"], "targets": targets,
-                                 "methods": [m for m in results["methods"] if m["kind"] in ("copy", "rerender", key)]}
-            write_json(card_path, card)
-            print(f"updated {card_path}")
+        update_cards(gens, folders, doc, quick)
     return doc
 
 

@@ -254,6 +254,29 @@ def save_sheet(path: Path, rows: list[tuple[str, np.ndarray, np.ndarray, np.ndar
         cv2.imwrite(str(tmp), cv2.cvtColor(np.concatenate([header, *tiles], 0), cv2.COLOR_RGB2BGR))
 
 
+def report(results: dict) -> None:
+    """The run's tables: splits, mask robustness, moved contacts, speed, pose estimation."""
+    rows = [{"split": s, "method": m, "MSE": f"{r[m]['mse']:.1f} ± {r[m]['mse_sd']:.1f}", "SSIM": f"{r[m]['ssim']:.3f}",
+             "ratio to copy": r[m]["mse"] / r["copy"]["mse"]}
+            for s, r in results["splits"].items() for m in ("copy", "stage1_only", "pose_control", "pose_control_image_mask")]
+    print_table(rows, ["split", "method", "MSE", "SSIM", "ratio to copy"], "pose-conditioned generation (120x160)")
+    print_table([{"mask": k, **v} for k, v in results["robustness"].items()], ["mask", "mse", "ssim", "ratio_to_copy"],
+                "mask robustness (unseen objects)")
+    print_table([{"reference": k, "move": m, **v} for k, r in results["moved_contacts_240"].items()
+                 for m, v in r["moves"].items()], ["reference", "move", "iou", "centroid_error_px", "area_ratio",
+                                                   "old_contact_left", "energy_in_target", "energy_left_behind"],
+                "moved contacts at 240x320 (ΔF = 0)")
+    print_table([results["speed"]], ["batch", "steps", "pose_img_per_s", "stage1_img_per_s"], "speed (images/s)")
+    if results["speed"]["steps_grid"]:
+        print_table(results["speed"]["steps_grid"], ["steps", "img_per_s", "unseen_mse_ratio_to_copy", "unseen_ssim"],
+                    "speed against error (DDIM steps, batch 32, unseen objects)")
+    pe = results["pose_estimation"]
+    print_table([{"trained on": k, **{f"{s} {m}": pe[k][s][m] for s in ESTIMATION for m in ("xy_mm", "theta_deg")}}
+                 for k in ("real", "generated", "real + generated", "pca baseline")],
+                ["trained on", *(f"{s} {m}" for s in ESTIMATION for m in ("xy_mm", "theta_deg"))],
+                f"pose estimation ({pe['frames']})")
+
+
 def main(argv=None) -> dict:
     p = base_parser(__doc__.splitlines()[0])
     p.add_argument("--checkpoint", default="default", help="stage-1 generator (shipped name or folder)")
@@ -293,25 +316,7 @@ def main(argv=None) -> dict:
     results["moved_contacts_240"] = moved_contact_metrics(gen, {**({} if a.quick else real_references()), **sim})
     results["wall_s"] = round(time.perf_counter() - t0, 1)
 
-    rows = [{"split": s, "method": m, "MSE": f"{r[m]['mse']:.1f} ± {r[m]['mse_sd']:.1f}", "SSIM": f"{r[m]['ssim']:.3f}",
-             "ratio to copy": r[m]["mse"] / r["copy"]["mse"]}
-            for s, r in results["splits"].items() for m in ("copy", "stage1_only", "pose_control", "pose_control_image_mask")]
-    print_table(rows, ["split", "method", "MSE", "SSIM", "ratio to copy"], "pose-conditioned generation (120x160)")
-    print_table([{"mask": k, **v} for k, v in results["robustness"].items()], ["mask", "mse", "ssim", "ratio_to_copy"],
-                "mask robustness (unseen objects)")
-    print_table([{"reference": k, "move": m, **v} for k, r in results["moved_contacts_240"].items()
-                 for m, v in r["moves"].items()], ["reference", "move", "iou", "centroid_error_px", "area_ratio",
-                                                   "old_contact_left", "energy_in_target", "energy_left_behind"],
-                "moved contacts at 240x320 (ΔF = 0)")
-    print_table([results["speed"]], ["batch", "steps", "pose_img_per_s", "stage1_img_per_s"], "speed (images/s)")
-    if results["speed"]["steps_grid"]:
-        print_table(results["speed"]["steps_grid"], ["steps", "img_per_s", "unseen_mse_ratio_to_copy", "unseen_ssim"],
-                    "speed against error (DDIM steps, batch 32, unseen objects)")
-    pe = results["pose_estimation"]
-    print_table([{"trained on": k, **{f"{s} {m}": pe[k][s][m] for s in ESTIMATION for m in ("xy_mm", "theta_deg")}}
-                 for k in ("real", "generated", "real + generated", "pca baseline")],
-                ["trained on", *(f"{s} {m}" for s in ESTIMATION for m in ("xy_mm", "theta_deg"))],
-                f"pose estimation ({pe['frames']})")
+    report(results)
     if a.sheet or a.out:
         save_sheet(a.sheet or a.out.with_suffix(".png"), sheet_rows)
     doc = write_results(a.out, results)

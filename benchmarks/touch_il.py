@@ -201,7 +201,8 @@ def _band(p, flag: str, value) -> tuple[float, float]:
     return lo, hi
 
 
-def parse_args(argv=None):
+def parser():
+    """The command line's options (``parse_args`` checks them together)."""
     from benchmarks.common import base_parser
 
     p = base_parser(__doc__.split("\n\n")[0])
@@ -237,6 +238,12 @@ def parse_args(argv=None):
     p.add_argument("--jobs", type=int, default=1, help="policies trained and evaluated at once (default 1; 2 on 2 cores)")
     p.add_argument("--resume", action="store_true",
                    help="continue a grid in --runs: reuse its trained policies and finished cells")
+    return p
+
+
+def parse_args(argv=None):
+    """(parser, args): the options checked, --quick's sizes applied, the budgets, variants and grip bands parsed."""
+    p = parser()
     args = p.parse_args(argv)
     args.force_settings = {k: v for k, v in (("offset_range", args.offset_range), ("out_of_range", args.out_of_range))
                            if v is not None}
@@ -275,14 +282,87 @@ def parse_args(argv=None):
     return p, args
 
 
+def signature_of(args, generator_hash: str | None) -> str:
+    """The grid's settings hashed: cells of a grid with other training or evaluation settings are never mixed."""
+    from controltac_il.app.experiment import touch_scene
+
+    sig_fields = {"scene": "touch_critical", "scene_config": repr(touch_scene()),
+                  "steps": args.steps, "batch_size": args.batch_size, "eval_episodes": args.eval_episodes,
+                  "eval_seed": args.eval_seed, "bands": args.bands, "generator_hash": generator_hash,
+                  "collect": args.collect, "image_aug_copies": args.image_aug_copies, "checkpoint": "last",
+                  **({"force_settings": args.force_settings} if args.force_settings else {}),
+                  **({"train_seed": args.train_seed} if args.train_seed else {})}
+    return hashlib.sha1(json.dumps(sig_fields, sort_keys=True, default=str).encode()).hexdigest()[:12]
+
+
+def settings_of(args, copies: dict, generator_hash: str | None, signature: str) -> dict:
+    """The JSON's record of the grid's settings."""
+    return {"scene": "PegInHoleConfig.touch_critical()", "budgets": args.budgets, "variants": args.variant_list,
+            "copies": copies, "train_seed": args.train_seed, "steps": args.steps, "batch_size": args.batch_size,
+            "eval_episodes": args.eval_episodes, "eval_seed": args.eval_seed, "grip_bands_n": args.bands,
+            "collect": args.collect, "generator": args.generator, "generator_hash": generator_hash,
+            "jobs": args.jobs, "signature": signature,
+            "force_augment": args.force_settings or "paper: offset U[-3, 10] N, jitter {0, ±0.5, ±1} N, clamp",
+            "checkpoint": CHECKPOINT_NOTE}
+
+
+def prepare(p, args, results: dict, copies: dict, max_force: int) -> dict:
+    """Collect the demos, write each budget's folder and ForceAugment cache (once, before any worker reads it) and
+    refuse a policy in --runs trained with other augmentation; {budget: demos folder}."""
+    from controltac_il.app import default_demos
+    from controltac_il.app.experiment import augment_change, policy_meta, training_split
+
+    t = time.perf_counter()
+    all_demos = default_demos(args.collect, seed=0, scene="touch_critical")
+    results["collect_s"] = round(time.perf_counter() - t, 1)
+    dirs = {n: budget_demos(all_demos, args.runs, n) for n in args.budgets}
+    for n in args.budgets:
+        if max_force:
+            t = time.perf_counter()
+            make_stage("fa1", 1, args.generator, max_force, args.force_settings)(training_split(dirs[n]))
+            results.setdefault("cache_s", {})[str(n)] = round(time.perf_counter() - t, 1)
+    for v in args.variant_list:
+        stage = make_stage(v, copies[v], args.generator, max_force, args.force_settings)
+        for n in args.budgets:
+            run = args.runs / "policies" / f"{v}-n{n}"
+            meta = policy_meta(run)
+            change = augment_change(meta.get("augment"), stage.description if stage else None)
+            if meta and change:
+                p.error(f"--runs: {run} was trained with different augmentation ({change}); use another --runs folder")
+    return dirs
+
+
+def run_units(units: list, jobs: int, dirs: dict, copies: dict, job: dict, cells: list, save) -> None:
+    """Train and evaluate each (variant, budget, settings to do), ``jobs`` at once; ``save(cells)`` after each."""
+    from tqdm import tqdm
+
+    bar = tqdm(total=len(units), desc="policies", unit="policy", dynamic_ncols=True, disable=None)
+    if jobs > 1 and len(units) > 1:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        with ProcessPoolExecutor(min(jobs, len(units)), mp_context=multiprocessing.get_context("spawn")) as pool:
+            futures = {pool.submit(run_unit, v, n, demos_dir=str(dirs[n]), copies=copies[v], todo_settings=todo, **job):
+                       (v, n) for v, n, todo in units}
+            for fut in as_completed(futures):
+                cells.extend(fut.result())
+                save(cells)
+                bar.update(1)
+    else:
+        for v, n, todo in units:
+            cells.extend(run_unit(v, n, demos_dir=str(dirs[n]), copies=copies[v], todo_settings=todo, **job))
+            save(cells)
+            bar.update(1)
+    bar.close()
+
+
 def main(argv=None) -> dict:
     p, args = parse_args(argv)
     import torch
 
     from benchmarks.common import print_table, write_results
-    from controltac_il.app import default_demos
-    from controltac_il.app.experiment import augment_change, policy_meta, touch_scene, training_split
     from controltac_il.app.touch_probes import grip_response, vision_check
+    from controltac_il.io import write_json
 
     torch.set_num_threads(2 if args.jobs == 1 else 1)
     t_start = time.perf_counter()
@@ -294,25 +374,11 @@ def main(argv=None) -> dict:
         from controltac_il.generator.shipped import locate_checkpoint
 
         generator_hash = checkpoint_hash(locate_checkpoint(args.generator))
-    # cells of a grid with other training or evaluation settings are never mixed into this one
-    sig_fields = {"scene": "touch_critical", "scene_config": repr(touch_scene()),
-                  "steps": args.steps, "batch_size": args.batch_size, "eval_episodes": args.eval_episodes,
-                  "eval_seed": args.eval_seed, "bands": args.bands, "generator_hash": generator_hash,
-                  "collect": args.collect, "image_aug_copies": args.image_aug_copies, "checkpoint": "last",
-                  **({"force_settings": args.force_settings} if args.force_settings else {}),
-                  **({"train_seed": args.train_seed} if args.train_seed else {})}
-    signature = hashlib.sha1(json.dumps(sig_fields, sort_keys=True, default=str).encode()).hexdigest()[:12]
+    signature = signature_of(args, generator_hash)
     done = load_cells(args.runs, signature) if (args.runs / "cells").is_dir() else {}
     if (args.runs / "cells").is_dir() and any((args.runs / "cells").iterdir()) and not args.resume:
         p.error(f"--runs: {args.runs} already holds a grid; pass --resume to continue it or another --runs folder")
-
-    results: dict = {"benchmark": "touch_il", "settings": {
-        "scene": "PegInHoleConfig.touch_critical()", "budgets": args.budgets, "variants": args.variant_list,
-        "copies": copies, "train_seed": args.train_seed, "steps": args.steps, "batch_size": args.batch_size,
-        "eval_episodes": args.eval_episodes, "eval_seed": args.eval_seed, "grip_bands_n": args.bands, "collect": args.collect, "generator": args.generator,
-        "generator_hash": generator_hash, "jobs": args.jobs, "signature": signature,
-        "force_augment": args.force_settings or "paper: offset U[-3, 10] N, jitter {0, ±0.5, ±1} N, clamp",
-        "checkpoint": CHECKPOINT_NOTE}}
+    results: dict = {"benchmark": "touch_il", "settings": settings_of(args, copies, generator_hash, signature)}
     history_path = args.runs / "wall_s.json"
     history = json.loads(history_path.read_text()) if args.resume and history_path.is_file() else []
 
@@ -330,58 +396,17 @@ def main(argv=None) -> dict:
 
     results["vision_check"] = vision_check(range(3 if args.quick else 20))
     results["grip_response"] = grip_response(args.bands, range(3 if args.quick else 12), args.generator)
-    t = time.perf_counter()
-    all_demos = default_demos(args.collect, seed=0, scene="touch_critical")
-    results["collect_s"] = round(time.perf_counter() - t, 1)
-    dirs = {n: budget_demos(all_demos, args.runs, n) for n in args.budgets}
-    if max_force:  # build each budget's ForceAugment cache once, before any worker reads it
-        for n in args.budgets:
-            t = time.perf_counter()
-            make_stage("fa1", 1, args.generator, max_force, args.force_settings)(
-                training_split(dirs[n]))
-            results.setdefault("cache_s", {})[str(n)] = round(time.perf_counter() - t, 1)
-    for v in args.variant_list:  # a policy trained on other augmentation is never reused as this grid's
-        stage = make_stage(v, copies[v], args.generator, max_force, args.force_settings)
-        for n in args.budgets:
-            run = args.runs / "policies" / f"{v}-n{n}"
-            meta = policy_meta(run)
-            change = augment_change(meta.get("augment"), stage.description if stage else None)
-            if meta and change:
-                p.error(f"--runs: {run} was trained with different augmentation ({change}); "
-                        "use another --runs folder")
+    dirs = prepare(p, args, results, copies, max_force)
     cells = list(done.values())
     save(cells)
-    units = []  # largest budget first: the paper's headline (50 demos) finishes first
-    for n in sorted(args.budgets, reverse=True):
-        for v in args.variant_list:
-            todo = [s for s in SETTINGS if (v, n, s) not in done]
-            if todo:
-                units.append((v, n, todo))
-    job = dict(runs=str(args.runs), eval_seed=args.eval_seed, steps=args.steps, batch_size=args.batch_size, generator=args.generator,
-               max_force_copies=max_force, bands=args.bands, eval_episodes=args.eval_episodes, signature=signature,
-               force_settings=args.force_settings, train_seed=args.train_seed)
-    from tqdm import tqdm
-
-    bar = tqdm(total=len(units), desc="policies", unit="policy", dynamic_ncols=True, disable=None)
-    if args.jobs > 1 and len(units) > 1:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-
-        with ProcessPoolExecutor(min(args.jobs, len(units)), mp_context=multiprocessing.get_context("spawn")) as pool:
-            futures = {pool.submit(run_unit, v, n, demos_dir=str(dirs[n]), copies=copies[v], todo_settings=todo, **job):
-                       (v, n) for v, n, todo in units}
-            for fut in as_completed(futures):
-                cells.extend(fut.result())
-                save(cells)
-                bar.update(1)
-    else:
-        for v, n, todo in units:
-            cells.extend(run_unit(v, n, demos_dir=str(dirs[n]), copies=copies[v], todo_settings=todo, **job))
-            save(cells)
-            bar.update(1)
-    bar.close()
-    from controltac_il.io import write_json
-
+    # largest budget first: the paper's headline (50 demos) finishes first
+    units = [(v, n, todo) for n in sorted(args.budgets, reverse=True) for v in args.variant_list
+             if (todo := [s for s in SETTINGS if (v, n, s) not in done])]
+    job = dict(runs=str(args.runs), eval_seed=args.eval_seed, steps=args.steps, batch_size=args.batch_size,
+               generator=args.generator, max_force_copies=max_force, bands=args.bands,
+               eval_episodes=args.eval_episodes, signature=signature, force_settings=args.force_settings,
+               train_seed=args.train_seed)
+    run_units(units, args.jobs, dirs, copies, job, cells, save)
     write_json(history_path, history + [round(time.perf_counter() - t_start, 1)])
     save(cells, picture=True)
     print_table(results["cells"], ["variant", "demos", "copies", "setting", "successes", "episodes", "wilson95",
