@@ -1,5 +1,7 @@
 """benchmarks.generator_levers: each variant's command is default's own recipe with its lever, nothing else."""
 
+import json
+
 from benchmarks.generator_levers import VARIANTS, command, recipe, with_values
 
 
@@ -31,8 +33,6 @@ def _args(tmp_path, steps=2000):
 
 def _finished(tmp_path, cmd_words):
     """A variant's folder as a finished run leaves it: the final card and the command stamp."""
-    import json
-
     final = tmp_path / "r" / "control" / "final"
     final.mkdir(parents=True)
     card = {"denoiser": {"steps": 2000, "wall_s": 812.5, "validation": {"objects": ["procedural_0020"], "best": 0.3}}}
@@ -49,7 +49,7 @@ def test_a_finished_variant_is_reused_only_for_the_same_command(tmp_path):
     with pytest.raises(SystemExit, match="holds a run of another command"):
         train(_args(tmp_path), "control", [])
     (tmp_path / "r" / "control" / "levers_command.json").write_text(
-        __import__("json").dumps(command(_args(tmp_path), "control", [])[2:]))
+        json.dumps(command(_args(tmp_path), "control", [])[2:]))
     row = train(_args(tmp_path), "control", [])
     assert row["trained_here"] is False and row["wall_s"] == 812.5 and row["steps"] == 2000
 
