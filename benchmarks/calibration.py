@@ -30,8 +30,10 @@ the rows already written.
 from __future__ import annotations
 
 import csv
+import json
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -50,6 +52,8 @@ HELDOUT_TARGETS = {"decision_accuracy": 0.9, "used_estimator_ratio": 0.7, "gener
 # ones, in neither the calibration grasps nor the base models' training
 CALIBRATION_OBJECTS, TEST_OBJECTS = TRAIN_OBJECTS, HELDOUT_OBJECTS
 SAME_OBJECTS = (CALIBRATION_OBJECTS + TEST_OBJECTS,) * 2
+# (instance index, optics): the unseen-family sensors calibrated, two of them with the rotated light
+SENSORS = ((0, "three_light"), (0, "three_light_rot"), (1, "three_light_rot"))
 
 
 def record_grasps(sensor, rng, n: int, folder: Path | None, objects: tuple[str, ...]) -> list[tuple]:
@@ -151,9 +155,8 @@ def sim_record_one(args, work: Path) -> dict:
 def calibrate_and_test(rec: Path, labels: np.ndarray, test: list[tuple], args) -> dict:
     """``calibrate --recordings rec/recordings``, timed, and its bundle on the ``test`` grasps; the constant is the
     calibration ``labels``' mean over the validated range."""
-    import json
-
     from controltac_il.calibrate import main as calibrate
+    from controltac_il.checkpoint import read_json
 
     argv = ["--recordings", str(rec / "recordings"), "--out", str(rec / "bundle"), "--lag", "auto", "--stride", "2",
             "--threads", str(args.threads), "--device", args.device, "--ae-steps", str(args.ae_steps),
@@ -162,7 +165,7 @@ def calibrate_and_test(rec: Path, labels: np.ndarray, test: list[tuple], args) -
     if calibrate(argv) != 0:
         raise SystemExit(f"calibrate failed on {rec.name}")
     minutes = (time.perf_counter() - t0) / 60
-    record = json.loads((rec / "bundle" / "calibration.json").read_text())
+    record = read_json(rec / "bundle" / "calibration.json")
     kept = labels[(labels >= 1) & (labels <= 10)]
     h = record["estimator"]["held_out"]
     return {"grasps": args.k, "cal_frames": record["images"], "minutes": minutes,
@@ -170,12 +173,13 @@ def calibrate_and_test(rec: Path, labels: np.ndarray, test: list[tuple], args) -
             "lags_found": [v["lag_frames"] for v in record["source"]["per_recording"].values()],
             "machine": {k: machine_info()[k] for k in ("cpu", "cores", "cuda_device")}, "device": args.device,
             "cv_ratio": h["ratio_to_constant"], "cv_interval": h["decision"]["interval"],
-            "cv_wins": h["decision"]["wins"], "cv_grasps": h["decision"]["grasps"], "use_estimator": record["estimator"]["use_estimator"],
+            "cv_wins": h["decision"]["wins"], "cv_grasps": h["decision"]["grasps"],
+            "cv_per_grasp": h["per_grasp"], "use_estimator": record["estimator"]["use_estimator"],
             **test_figures(rec / "bundle", "default", test, float(kept.mean()), tuple(args.size))}
 
 
-def main(argv=None) -> dict:
-    p = base_parser(__doc__.split("\n\n")[0].strip("`"))
+def add_options(p) -> None:
+    """The options of a calibration case (``calibrate_one``'s ``args``): also ``benchmarks.calibration_rule``'s."""
     p.add_argument("--k", type=int, default=10, help="calibration grasps per sensor (default 10: ~50 frames)")
     p.add_argument("--test-grasps", type=int, default=12)
     p.add_argument("--ae-steps", type=int, default=600)
@@ -185,22 +189,36 @@ def main(argv=None) -> dict:
     p.add_argument("--jobs", type=int, default=1, help="sensor cases calibrated at once, each in its own process")
     p.add_argument("--seed", type=int, default=40)
     p.add_argument("--size", type=int, nargs=2, default=(240, 320), help="calibrate's frame size (its default)")
-    p.add_argument("--resume", action="store_true", help="keep the sensors already in --out (written after each)")
+    p.add_argument("--resume", action="store_true", help="keep the cases already in --out (written after each)")
+
+
+def quick_settings(args) -> list[tuple[int, str]]:
+    """The sensors to calibrate; with ``--quick`` one of them, 4 grasps and a few steps (CI)."""
+    if not args.quick:
+        return list(SENSORS)
+    args.k, args.test_grasps, args.ae_steps, args.dit_steps = 4, 2, 1, 2
+    return list(SENSORS[:1])
+
+
+def resumed_rows(args) -> list[dict]:
+    """The rows already in ``--out`` with ``--resume``; else none."""
+    if args.resume and args.out is not None and args.out.is_file():
+        return json.loads(args.out.read_text())["rows"]
+    return []
+
+
+def main(argv=None) -> dict:
+    p = base_parser(__doc__.split("\n\n")[0].strip("`"))
+    add_options(p)
     p.add_argument("--no-sim-record", action="store_true", help="skip the MuJoCo scene's recorded presses")
     p.add_argument("--heldout-draws", type=int, default=0, metavar="D",
                    help="also the held-out-object setting: D draws of calibration grasps per sensor, tested on "
                         "objects in neither them nor the base models' training (default 0: not run)")
     args = p.parse_args(argv)
-    sensors = [(0, "three_light"), (0, "three_light_rot"), (1, "three_light_rot")]
-    if args.quick:
-        sensors, args.k, args.test_grasps, args.ae_steps, args.dit_steps = sensors[:1], 4, 2, 1, 2
-    rows, t0 = [], time.perf_counter()
-    if args.resume and args.out is not None and args.out.is_file():
-        import json
-
-        rows = json.loads(args.out.read_text())["rows"]
+    sensors, rows, t0 = quick_settings(args), resumed_rows(args), time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="calibration-bench-") as work:
-        run_cases(todo_cases(sensors, args.heldout_draws, rows), args, Path(work), rows, t0)
+        run_cases(todo_cases(sensors, args.heldout_draws, rows), args, Path(work),
+                  lambda row: add_row(rows, row, args, t0))
         if not (args.no_sim_record or args.quick or any(r["sensor"].startswith("sim_record") for r in rows)):
             add_row(rows, sim_record_one(args, Path(work)), args, t0)
     return summary(rows, args, t0, show=True)
@@ -213,18 +231,18 @@ def todo_cases(sensors, draws: int, rows: list[dict]) -> list[tuple]:
     return [c for c in cases if not any(r["sensor"] == c[0] and r.get("draw") == c[3] for r in rows)]
 
 
-def run_cases(cases: list[tuple], args, work: Path, rows: list[dict], t0: float) -> None:
-    """``calibrate_one`` on each case, ``args.jobs`` processes at once, each row saved as it finishes."""
+def run_cases(cases: list[tuple], args, work: Path, on_row: Callable[[dict], None]) -> None:
+    """``calibrate_one`` on each case, ``args.jobs`` processes at once; ``on_row`` saves each row as it finishes."""
     if args.jobs <= 1:
         for name, index, optics, draw in cases:
-            add_row(rows, calibrate_one(name, index, optics, args, work, draw), args, t0)
+            on_row(calibrate_one(name, index, optics, args, work, draw))
         return
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     with ProcessPoolExecutor(args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
         for fut in as_completed([pool.submit(calibrate_one, *c[:3], args, work, c[3]) for c in cases]):
-            add_row(rows, fut.result(), args, t0)
+            on_row(fut.result())
 
 
 def add_row(rows: list[dict], row: dict, args, t0: float) -> None:

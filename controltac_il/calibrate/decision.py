@@ -30,8 +30,8 @@ def per_grasp(pred: np.ndarray, fz: np.ndarray, constant: np.ndarray, grasps: np
     return rows
 
 
-def ratio_interval(rows: list[dict]) -> tuple[float, float]:
-    """LEVEL percentile bootstrap interval, over grasps resampled with replacement, of the frame-weighted MAE ratio
+def ratio_interval(rows: list[dict], level: float = LEVEL) -> tuple[float, float]:
+    """``level`` percentile bootstrap interval, over grasps resampled with replacement, of the frame-weighted MAE ratio
     sum(estimator's absolute errors) ÷ sum(the constant's)."""
     from scipy import stats
 
@@ -42,13 +42,13 @@ def ratio_interval(rows: list[dict]) -> tuple[float, float]:
         return e.sum(axis) / np.maximum(c.sum(axis), 1e-12)
 
     res = stats.bootstrap((est, const), ratio, paired=True, vectorized=True, n_resamples=BOOTSTRAP,
-                          confidence_level=LEVEL, method="percentile", random_state=0)
+                          confidence_level=level, method="percentile", random_state=0)
     return float(res.confidence_interval.low), float(res.confidence_interval.high)
 
 
-def decide(rows: list[dict]) -> dict:
-    """The decision over held-out grasp rows (``per_grasp``): used, the ratio, its interval, the grasps won and
-    the one line that says why."""
+def decide(rows: list[dict], level: float = LEVEL) -> dict:
+    """The decision over held-out grasp rows (``per_grasp``): used, the ratio, its ``level`` interval, the grasps
+    won and the one line that says why."""
     if len(rows) < MIN_GRASPS:
         return {"use": False, "ratio_to_constant": None, "interval": None, "wins": None, "grasps": len(rows),
                 "why": f"estimator declined: {len(rows)} held-out grasps, fewer than the {MIN_GRASPS} an interval "
@@ -56,11 +56,11 @@ def decide(rows: list[dict]) -> dict:
     frames = sum(r["frames"] for r in rows)
     est_sum, const_sum = (sum(r[k] * r["frames"] for r in rows) for k in ("mae_n", "constant_mae_n"))
     ratio, mae, const = est_sum / max(const_sum, 1e-12), est_sum / frames, const_sum / frames
-    low, high = ratio_interval(rows)
+    low, high = ratio_interval(rows, level)
     wins = sum(r["mae_n"] < r["constant_mae_n"] for r in rows)
     use = bool(high < 1.0) and wins > len(rows) / 2  # a NaN end is no evidence: declined
     figures = (f"held-out Fz MAE {mae:.2f} N against the constant's {const:.2f} N ({ratio:.2f}x, "
-               f"{LEVEL:.0%} interval {low:.2f}-{high:.2f} over {len(rows)} grasps; better on {wins} of {len(rows)})")
+               f"{level:.0%} interval {low:.2f}-{high:.2f} over {len(rows)} grasps; better on {wins} of {len(rows)})")
     if use:
         why = f"estimator used for unlabelled frames: {figures}"
     else:
