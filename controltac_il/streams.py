@@ -48,18 +48,13 @@ _PREFIXES = {
     LOOP: {IMAGE: LOOP_IMAGES, TACTILE: LOOP_TACTILE, BACKGROUND: LOOP_BACKGROUND, FORCE: LOOP_FORCE},
     HDF5: {IMAGE: HDF5_IMAGES, TACTILE: HDF5_TACTILE, BACKGROUND: HDF5_BACKGROUND, FORCE: HDF5_FORCE},
 }
-_STATES = {LOOP: LOOP_STATE, HDF5: HDF5_STATE, LEROBOT: LEROBOT_STATE}
+_STATES = {LOOP: LOOP_STATE, HDF5: HDF5_STATE}
 
 
 def _vocabulary(vocabulary: str) -> str:
     if vocabulary not in VOCABULARIES:
         raise ValueError(f"vocabulary: expected one of {list(VOCABULARIES)}, got {vocabulary!r}")
     return vocabulary
-
-
-def state_key(vocabulary: str) -> str:
-    """The arm's state: ``qpos`` (LOOP), ``observation.qpos`` (HDF5), ``observation.state`` (LEROBOT)."""
-    return _STATES[_vocabulary(vocabulary)]
 
 
 def _key(kind: str, name: str, vocabulary: str) -> str:
@@ -115,23 +110,13 @@ def sensor_of(key: str) -> str:
     return name
 
 
-def _translate(key: str, source: str, target: str) -> str:
-    vocabulary, kind, name = parse(key)
-    if vocabulary != source:
-        raise ValueError(f"{key!r} is not a {source} key")
-    return _STATES[target] if kind == STATE else _PREFIXES[target][kind] + name
-
-
 def loop_to_hdf5(key: str) -> str:
     """HDF5 item key of LOOP key ``key`` (what a policy's batch holds of an observation): ``qpos`` ->
     ``observation.qpos``, ``tactile/left`` -> ``observation.tactile.left``; ValueError naming any other key."""
-    return _translate(key, LOOP, HDF5)
-
-
-def hdf5_to_loop(key: str) -> str:
-    """LOOP key of HDF5 item key ``key``: ``observation.images.wrist`` -> ``images/wrist`` (loop_to_hdf5's
-    inverse); ValueError naming any other key."""
-    return _translate(key, HDF5, LOOP)
+    vocabulary, kind, name = parse(key)
+    if vocabulary != LOOP:
+        raise ValueError(f"{key!r} is not a {LOOP} key")
+    return HDF5_STATE if kind == STATE else _PREFIXES[HDF5][kind] + name
 
 
 def lerobot_name(key: str) -> str:
@@ -147,18 +132,6 @@ def lerobot_to_hdf5(key: str, tactile: bool = False) -> str:
     if key == LEROBOT_STATE:
         return HDF5_STATE
     return (tactile_key if tactile else image_key)(lerobot_name(key), HDF5)
-
-
-def hdf5_to_lerobot(key: str) -> str:
-    """LeRobot feature of HDF5 item key ``key``: ``observation.qpos`` -> ``observation.state``, a camera or a
-    tactile image -> ``observation.images.<n>``, a force label -> ``observation.<n>.force``; ValueError naming a
-    background (LeRobot records none) or any other key."""
-    vocabulary, kind, name = parse(key)
-    if vocabulary != HDF5:
-        raise ValueError(f"{key!r} is not a {HDF5} key")
-    if kind == BACKGROUND:
-        raise ValueError(f"{key!r}: LeRobot datasets record no tactile background")
-    return LEROBOT_STATE if kind == STATE else _key(kind, name, LEROBOT)
 
 
 def looks_tactile(key: str) -> bool:
