@@ -31,6 +31,7 @@ from pathlib import Path
 
 from benchmarks.common import base_parser, print_table, write_results
 from benchmarks.generator_fa import GRIP_FZ, SIZES, fa_pairs, floors, score, sensors
+from controltac_il.checkpoint import read_json
 from controltac_il.io import write_json
 from controltac_il.tactile import HELDOUT_OBJECTS
 
@@ -87,7 +88,7 @@ def train(args, variant: str, base: list[str]) -> dict:
         with open(log, "a") as f:
             if subprocess.run(cmd + ([state] if state else []), stdout=f, stderr=subprocess.STDOUT).returncode != 0:
                 raise SystemExit(f"training variant {variant} failed: see {log}")
-    card = json.loads((final / "model_card.json").read_text())
+    card = read_json(final / "model_card.json")
     return {"command": "python " + shlex.join(cmd[1:]), "trained_here": trained_here,
             "steps": card["denoiser"]["steps"], "wall_s": card["denoiser"]["wall_s"],
             "validation_objects": card["denoiser"]["validation"]["objects"],
@@ -141,7 +142,7 @@ def main(argv=None) -> dict:
     from controltac_il.generator.shipped import locate_checkpoint
 
     args = parse(argv)
-    card = json.loads((locate_checkpoint("default") / "model_card.json").read_text())
+    card = read_json(locate_checkpoint("default") / "model_card.json")
     base = recipe(card)
     if args.quick:
         base = with_values(base, {"--val-objects": "1", "--checkpoint-every": "1", "--warmup-steps": "1",
