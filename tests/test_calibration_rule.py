@@ -1,14 +1,16 @@
-"""benchmarks.calibration_rule: each candidate level scored by ``decide`` itself, the protocol's choice, and a test
-split that is refused until the validation is complete and its level shipped."""
+"""benchmarks.calibration_rule: each candidate level scored by ``decide`` itself, the protocol's choice, a test
+split refused until the validation is complete and its level shipped, and a results file never rewritten or mixed.
+
+The cases' runner (``run_cases``: a calibration of minutes each) is replaced by one that hands over given rows;
+everything after it is the benchmark's own code."""
 
 import json
 
 import pytest
 
-from benchmarks.calibration_rule import (LEVELS, choose, level_scores, main, parse, split_figures,
-                                         validation_choice)
-from benchmarks.calibration import quick_settings
-from controltac_il.calibrate.decision import LEVEL, decide
+from benchmarks import calibration_rule as rule
+from benchmarks.calibration_rule import LEVELS, choose, level_scores, main
+from controltac_il.calibrate.decision import decide
 
 # seven grasps read well, three of one object 1.3x the constant's error: the 95 % and 90 % intervals reach 1, the
 # 80 % one does not
@@ -16,14 +18,17 @@ BORDERLINE = [{"grasp": g, "frames": 5, "mae_n": r, "constant_mae_n": 1.0, "rati
               for g, r in enumerate([0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.3, 1.3, 1.3])]
 
 
-def case(test_ratio: float, draw: int = 3) -> dict:
-    """A held-out-object case whose leave-one-grasp-out rows are BORDERLINE and whose test MAE ratio is given."""
+def case(test_ratio: float, draw: int = 3, level: float = 0.95) -> dict:
+    """A held-out-object case whose held-out grasp rows are BORDERLINE, decided by calibrate at ``level``, whose
+    test MAE ratio is ``test_ratio``."""
     return {"sensor": "unseen_00/three_light", "draw": draw, "cv_per_grasp": BORDERLINE,
-            "calibrated_ratio": test_ratio}
+            "use_estimator": decide(BORDERLINE, level)["use"], "calibrated_ratio": test_ratio,
+            "decision_right": decide(BORDERLINE, level)["use"] == (test_ratio < 1), "generator_calibrated_ratio": 0.4,
+            "minutes": 9.0}
 
 
-def test_a_lower_level_uses_an_estimator_the_shipped_level_declines():
-    assert LEVELS[0] == LEVEL and not decide(BORDERLINE, 0.95)["use"] and not decide(BORDERLINE, 0.90)["use"]
+def test_a_lower_level_uses_an_estimator_a_higher_one_declines():
+    assert not decide(BORDERLINE, 0.95)["use"] and not decide(BORDERLINE, 0.90)["use"]
     d = decide(BORDERLINE, 0.80)
     assert d["use"] and d["interval"][1] < 1 and "80% interval" in d["why"]
 
@@ -34,54 +39,82 @@ def test_each_level_is_scored_by_where_its_decision_meets_the_test():
     scores = {s["level"]: s for s in level_scores([case(0.5), case(1.2)])}
     assert {k: (s["decision_accuracy"], s["false_uses"], s["missed_uses"], s["used"]) for k, s in scores.items()} == {
         0.95: (0.5, 0, 1, 0), 0.90: (0.5, 0, 1, 0), 0.80: (0.5, 1, 0, 2)}
+    assert tuple(scores) == LEVELS
 
 
 @pytest.mark.parametrize("tests, chosen", [
     ([0.5], 0.80),             # only the 80 % level is right: chosen
     ([0.5, 1.2], 0.95),        # equal accuracy, 80 % falsely uses once: the cautious levels tie, the higher wins
     ([0.5, 0.5, 1.2], 0.95),   # 80 % is more accurate (2/3 against 1/3) but its false use rules it out
-    ([1.2], 0.95),             # every level declining rightly: the shipped level
+    ([1.2], 0.95),             # every level declining rightly: the highest
 ])
 def test_the_choice_is_fewest_false_uses_then_accuracy_then_the_higher_level(tests, chosen):
     assert choose(level_scores([case(t) for t in tests])) == chosen
 
 
-def validation_doc(tmp_path, rows: list[dict], *extra: str) -> tuple[dict, object]:
-    """A results file whose validation split holds ``rows``, run with --quick (one sensor, one draw) and ``extra``."""
-    out = tmp_path / "rule.json"
-    args = parse(["--split", "validation", "--out", str(out), "--quick", *extra])
-    quick_settings(args)
-    doc = json.loads(json.dumps({"validation": split_figures("validation", rows, args)}))
-    out.write_text(json.dumps(doc))
-    return doc, parse(["--split", "test", "--out", str(out), "--quick"])
+def run(tmp_path, monkeypatch, split: str, rows: list[dict], *extra: str) -> dict:
+    """``main`` --quick (one sensor, one draw) on ``tmp_path/rule.json``, its runner handing over ``rows``."""
+    def runner(cases, args, work, on_row):
+        for row in rows:
+            on_row(row)
+    monkeypatch.setattr(rule, "run_cases", runner)
+    return main(["--split", split, "--out", str(tmp_path / "rule.json"), "--quick", *extra])
 
 
-def test_the_test_split_runs_only_with_the_level_the_validation_chose_shipped(tmp_path):
-    doc, args = validation_doc(tmp_path, [case(1.2)])
-    quick_settings(args)
-    assert validation_choice(doc, args) == LEVEL
-    doc, args = validation_doc(tmp_path, [case(0.5)])
-    quick_settings(args)
+def test_validation_chooses_and_a_test_at_the_shipped_choice_keeps_the_validation(tmp_path, monkeypatch):
+    monkeypatch.setattr(rule, "LEVEL", 0.95)
+    assert run(tmp_path, monkeypatch, "validation", [case(1.2)])["chosen_level"] == 0.95
+    validation = json.loads((tmp_path / "rule.json").read_text())["validation"]
+    out = run(tmp_path, monkeypatch, "test", [case(1.1, draw=6)])
+    assert out["level"] == 0.95 and out["figures"]["decision_accuracy"] == 1.0 and len(out["levels"]) == 3
+    doc = json.loads((tmp_path / "rule.json").read_text())
+    assert doc["validation"] == validation and doc["test"]["rows"][0]["draw"] == 6
+
+
+def test_the_test_is_refused_until_the_validations_choice_ships(tmp_path, monkeypatch):
+    monkeypatch.setattr(rule, "LEVEL", 0.95)
+    run(tmp_path, monkeypatch, "validation", [case(0.5)])
     with pytest.raises(SystemExit, match="validation chose level 0.8; ship it as controltac_il.calibrate.decision"):
-        validation_choice(doc, args)
+        run(tmp_path, monkeypatch, "test", [])
+    assert "test" not in json.loads((tmp_path / "rule.json").read_text())
 
 
-def test_the_test_split_is_refused_before_a_complete_validation_or_with_other_settings(tmp_path):
-    doc, args = validation_doc(tmp_path, [])
-    quick_settings(args)
-    with pytest.raises(SystemExit, match="the validation split is not complete"):
-        validation_choice(doc, args)
-    with pytest.raises(SystemExit, match="the validation split is not complete"):
-        validation_choice({}, args)
-    doc, args = validation_doc(tmp_path, [case(1.2)], "--seed", "41")
-    quick_settings(args)
+def test_the_test_is_refused_without_a_complete_validation_in_its_settings(tmp_path, monkeypatch):
+    with pytest.raises(SystemExit, match="no validation cases"):
+        run(tmp_path, monkeypatch, "test", [])
+    run(tmp_path, monkeypatch, "validation", [case(1.2)], "--seed", "41")
     with pytest.raises(SystemExit, match="differ from the validation's"):
-        validation_choice(doc, args)
+        run(tmp_path, monkeypatch, "test", [])
+    assert rule.cases("validation", [(0, "three_light"), (1, "three_light_rot")], [case(1.2)], quick=False) == [
+        ("unseen_01/three_light_rot", 1, "three_light_rot", 3), *[
+            (f"unseen_0{i}/{o}", i, o, d) for d in (4, 5) for i, o in ((0, "three_light"), (1, "three_light_rot"))]]
 
 
-def test_a_split_already_in_the_file_is_kept_unless_resumed(tmp_path):
-    validation_doc(tmp_path, [case(1.2)])
+def test_a_split_in_the_file_is_neither_rewritten_nor_resumed_in_other_settings(tmp_path, monkeypatch):
+    run(tmp_path, monkeypatch, "validation", [case(1.2)])
     before = (tmp_path / "rule.json").read_text()
-    with pytest.raises(SystemExit, match="already holds 1 validation cases: --resume to keep them"):
-        main(["--split", "validation", "--out", str(tmp_path / "rule.json"), "--quick"])
+    with pytest.raises(SystemExit, match="already holds 1 validation cases: --resume"):
+        run(tmp_path, monkeypatch, "validation", [])
+    with pytest.raises(SystemExit, match=r"were run in .*'seed': 40.*not .*'seed': 41"):
+        run(tmp_path, monkeypatch, "validation", [], "--resume", "--seed", "41")
     assert (tmp_path / "rule.json").read_text() == before
+    assert run(tmp_path, monkeypatch, "validation", [], "--resume")["rows"] == [case(1.2)]
+
+
+def test_validation_is_frozen_once_the_test_has_cases_and_other_files_are_refused(tmp_path, monkeypatch):
+    monkeypatch.setattr(rule, "LEVEL", 0.95)
+    run(tmp_path, monkeypatch, "validation", [case(1.2)])
+    run(tmp_path, monkeypatch, "test", [case(1.1, draw=6)])
+    with pytest.raises(SystemExit, match="the test has cases"):
+        run(tmp_path, monkeypatch, "validation", [], "--resume")
+    (tmp_path / "rule.json").write_text(json.dumps({"benchmark": "calibration", "rows": []}))
+    with pytest.raises(SystemExit, match="is not a calibration_rule results file"):
+        run(tmp_path, monkeypatch, "validation", [])
+
+
+def test_a_case_whose_decision_decide_does_not_reproduce_is_refused(tmp_path, monkeypatch):
+    """calibrate used the estimator where decide at the shipped level on the same rows declines: the other levels'
+    scores would not be of calibrate's rule."""
+    monkeypatch.setattr(rule, "LEVEL", 0.95)
+    with pytest.raises(SystemExit, match="draw 3: decide at level 0.95 does not reproduce calibrate's decision"):
+        run(tmp_path, monkeypatch, "validation", [case(1.2, level=0.80)])
