@@ -46,8 +46,8 @@ def dynamixel_latency(monkeypatch):
 
 @pytest.fixture(scope="session")
 def written(tmp_path_factory):
-    """A LeRobot source folder and one clean augmented write of it (``test_lerobot_v3_write.write_clean``), shared by
+    """A LeRobot source folder and one clean augmented write of it (``lerobot_fixtures.write_clean``), shared by
     the LeRobot writer's test modules."""
-    from test_lerobot_v3_write import write_clean
+    from lerobot_fixtures import write_clean
 
     return write_clean(tmp_path_factory.mktemp("lerobot_write"))

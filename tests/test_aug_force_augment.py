@@ -1,97 +1,20 @@
-"""ForceAugment: exact augmentation semantics, determinism, cache build/resume/shards, bad input.
-
-A tiny randomly initialised ForceGenerator (the real class) keeps this independent of the shipped
-checkpoint's quality; the episodes are synthetic (flat background + a pressed blob on some frames).
-"""
-
-import hashlib
-import json
-import os
-import pickle
+"""ForceAugment: exact augmentation semantics (one offset per trajectory, per-frame jitter, the trajectory plan,
+provenance), datasets without labels, indices or backgrounds, and bad input. Its cache: test_aug_cache.py."""
 
 import numpy as np
 import pytest
 import torch
 from torch.utils.data import DataLoader, Dataset
 
-import controltac_il.generator as gen_mod  # noqa: E402 (a broken import fails, never skips)
-from controltac_il.augment import (  # noqa: E402
-    STATUS, ForceAugment, StaleCacheError, copy_offset, frame_jitter,
-)
-from controltac_il.augment.draws import requested_target, status_of  # noqa: E402
-from controltac_il.datasets import Episode, EpisodeDataset, write_episode  # noqa: E402
-from controltac_il.generator.forces import decide_targets  # noqa: E402
+from aug_fixtures import aug, demo_data, same, synthetic_episode, tiny_estimator, tiny_generator
+from controltac_il.augment import STATUS, ForceAugment, copy_offset, frame_jitter
+from controltac_il.augment.draws import requested_target, status_of
+from controltac_il.datasets import EpisodeDataset, write_episode
+from controltac_il.generator.forces import decide_targets
 
-H, W = 32, 32
+data = pytest.fixture(name="data")(demo_data)
+gen = pytest.fixture(scope="module", name="gen")(lambda: tiny_generator())
 JITTER = (-1.0, -0.5, 0.0, 0.5, 1.0)
-
-
-def tiny_generator(hash_="tiny-a", seed=0):
-    torch.manual_seed(seed)
-    cfg = gen_mod.GeneratorConfig(
-        autoencoder=gen_mod.AutoencoderConfig(image_size=(H, W), channels=(8, 8), stem_channels=4, latent_channels=4),
-        dit=gen_mod.DiTConfig(in_channels=4, hidden_size=16, depth=1, num_heads=2),
-        diffusion=gen_mod.DiffusionConfig(default_steps=2),
-    )
-    from controltac_il.generator.autoencoder import TactileAutoencoder
-    from controltac_il.generator.dit import ForceDiT
-    return gen_mod.ForceGenerator(cfg, TactileAutoencoder(cfg.autoencoder), ForceDiT(cfg.dit), checkpoint_hash=hash_)
-
-
-def synthetic_episode(T, seed, contact, labels=True, background=True):
-    rng = np.random.default_rng(seed)
-    bg = np.full((H, W, 3), 110, np.uint8)
-    tactile = np.repeat(bg[None], T, 0).astype(np.int16) + rng.integers(-1, 2, (T, H, W, 3))
-    force = np.zeros((T, 3), np.float32)
-    for t in contact:
-        tactile[t, 8:24, 8:24] += 50
-        force[t] = (0.3, -0.2, 1.5 + 0.5 * (t % 10))
-    return Episode(
-        qpos=rng.normal(size=(T, 4)).astype(np.float32),
-        action=rng.normal(size=(T, 5)).astype(np.float32),
-        images={"wrist": rng.integers(0, 256, (T, 8, 8, 3), dtype=np.uint8)},
-        tactile={"left": tactile.clip(0, 255).astype(np.uint8)},
-        tactile_background={"left": bg} if background else {},
-        force={"left": force} if labels else {},
-        sim=True,
-    )
-
-
-def make_folder(root, labels=True, background=True):
-    for i, (T, contact) in enumerate(((12, range(4, 10)), (8, range(2, 8)))):
-        write_episode(root / f"episode_{i}.hdf5", synthetic_episode(T, i, contact, labels, background))
-    return root
-
-
-@pytest.fixture
-def data(tmp_path):
-    root = make_folder(tmp_path / "demos")
-    return EpisodeDataset(root, chunk_size=4, stats_path=tmp_path / "stats.json")
-
-
-@pytest.fixture(scope="module")
-def gen():
-    return tiny_generator()
-
-
-def same(x, y):
-    """Exactly equal values (NaN equal to NaN) and types."""
-    if isinstance(x, torch.Tensor):
-        return x.dtype == y.dtype and x.shape == y.shape and bool(((x == y) | (x.isnan() & y.isnan())).all())
-    return x == y
-
-
-def checksums(root):
-    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(root.iterdir())}
-
-
-def tree_bytes(root):
-    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
-
-
-def aug(data, gen, tmp_path, name="cache", **kw):
-    kw.setdefault("copies", 3)
-    return ForceAugment(data, gen, cache_dir=tmp_path / name, progress=False, **kw)
 
 
 def test_length_copy0_and_untouched_fields(data, gen, tmp_path):
@@ -229,91 +152,6 @@ def test_every_cached_frame_records_the_one_trajectory_plan(data, gen, tmp_path)
             assert plan.target[2] > 10.0 or plan.target[2] < 1.0
 
 
-def test_determinism_two_builds_and_online_matches_cache(data, gen, tmp_path):
-    a = aug(data, gen, tmp_path, "one")
-    b = aug(data, tiny_generator(), tmp_path, "two")
-    assert tree_bytes(a.cache_dir) == tree_bytes(b.cache_dir)
-    on1 = ForceAugment(data, gen, copies=3, mode="online")
-    on2 = ForceAugment(data, tiny_generator(), copies=3, mode="online")
-    for i in (len(data) + 5, 2 * len(data) + 13, 3 * len(data) + 3):
-        x, y, c = on1[i], on2[i], a[i]
-        for k in x:
-            assert same(x[k], y[k]), k
-        # same draws, same noise: online equals the cache up to batch-size rounding (<= 1 grey level)
-        diff = (x["observation.tactile.left"].int() - c["observation.tactile.left"].int()).abs().max()
-        assert int(diff) <= 1
-        assert float(on1.info(x)["offset"]) == float(a.info(c)["offset"])
-
-
-def test_interrupted_build_resumes_to_the_clean_result(data, gen, tmp_path):
-    clean = aug(data, gen, tmp_path, "clean")
-    with pytest.raises(ValueError, match="chunk\\(s\\) missing"):
-        aug(data, gen, tmp_path, "part", build="require")
-    # 1) a build stopped after two chunks, 2) a build killed inside a chunk (the generator fails)
-    first = aug(data, gen, tmp_path, "part", build="manual")
-    assert first.build_cache(progress=False, stop_after=2)["chunks"] == 2
-
-    class Crash(Exception):
-        pass
-
-    calls = {"n": 0}
-    real = gen.generate_at
-
-    def crashing(*args, **kw):
-        calls["n"] += 1
-        if calls["n"] == 2:
-            raise Crash()
-        return real(*args, **kw)
-
-    gen.generate_at = crashing
-    try:
-        with pytest.raises(Crash):
-            first.build_cache(progress=False)
-    finally:
-        del gen.generate_at
-    assert not any(p.name.endswith(".tmp") for p in (tmp_path / "part" / "chunks").iterdir())
-    assert len(first.missing_chunks()) == 3
-    resumed = aug(data, gen, tmp_path, "part")
-    assert tree_bytes(resumed.cache_dir) == tree_bytes(clean.cache_dir)
-
-
-def test_sharded_build_equals_single_build(data, gen, tmp_path):
-    clean = aug(data, gen, tmp_path, "clean")
-    shard = aug(data, gen, tmp_path, "sharded", build="manual")
-    done = [shard.build_cache(rank=r, world_size=3, progress=False)["chunks"] for r in (2, 0, 1)]
-    assert sum(done) == 6 and all(d == 2 for d in done)
-    assert tree_bytes(shard.cache_dir) == tree_bytes(clean.cache_dir)
-    with pytest.raises(ValueError, match="rank"):
-        shard.build_cache(rank=3, world_size=3, progress=False)
-
-
-def test_source_files_unchanged(data, gen, tmp_path):
-    before = checksums(data.root)
-    a = aug(data, gen, tmp_path)
-    list(DataLoader(a, batch_size=8, num_workers=2))
-    ForceAugment(data, gen, copies=1, mode="online")[len(data) + 6]
-    assert checksums(data.root) == before
-    assert not (data.root / "cache").exists() and sorted(os.listdir(data.root)) == ["episode_0.hdf5", "episode_1.hdf5"]
-
-
-def test_stale_cache_is_never_reused(data, gen, tmp_path):
-    aug(data, gen, tmp_path)
-    with pytest.raises(StaleCacheError, match="generator_hash: cache has 'tiny-a', now 'tiny-b'"):
-        aug(data, tiny_generator("tiny-b", seed=1), tmp_path)
-    with pytest.raises(StaleCacheError, match="copies"):
-        aug(data, gen, tmp_path, copies=2)
-    with pytest.raises(StaleCacheError, match="seed"):
-        aug(data, gen, tmp_path, seed=5)
-    with pytest.raises(StaleCacheError, match="steps"):
-        aug(data, gen, tmp_path, steps=1)
-    with pytest.raises(StaleCacheError, match="jitter"):
-        aug(data, gen, tmp_path, jitter=(0.0,))
-    write_episode(data.root / "episode_2.hdf5", synthetic_episode(5, 2, range(1, 3)))
-    grown = EpisodeDataset(data.root, chunk_size=4, stats_path=tmp_path / "stats2.json")
-    with pytest.raises(StaleCacheError, match="data"):
-        aug(grown, gen, tmp_path)
-
-
 class NaNLabel(Dataset):
     """An item dataset whose one contact frame carries a NaN Fz label (a LeRobot column, not an HDF5 file)."""
 
@@ -356,13 +194,6 @@ class LeRobotLike(Dataset):
         if self.with_index:
             item.update(episode_index=torch.tensor(e), frame_index=torch.tensor(t))
         return item
-
-
-def tiny_estimator():
-    from controltac_il.estimators import EstimatorConfig, ForceEstimator
-    torch.manual_seed(0)
-    return ForceEstimator(EstimatorConfig(input_height=16, input_width=16, widths=(4, 4, 4, 4), hidden=8,
-                                          force_mean=(0.0, 0.0, 4.0), force_std=(0.1, 0.1, 0.5)))
 
 
 def test_generic_dataset_with_estimator_and_estimated_background(gen, tmp_path):
@@ -486,133 +317,6 @@ def test_the_generator_alone_decides_out_of_range_targets(data, gen, tmp_path):
         assert r["target_force"] == used.tolist()
         assert (r["status"] == "clamped") == bool((used != want).any())
         np.testing.assert_allclose(want[2], r["reference_force"][2] + r["offset"] + r["jitter"])
-
-
-# -- a cache is used only when it provably matches --------------------------------------
-
-def test_cache_without_its_manifest_is_refused(data, gen, tmp_path):
-    a = aug(data, gen, tmp_path, copies=2)
-    (a.cache_dir / "manifest.json").unlink()
-    before = tree_bytes(a.cache_dir)
-    for kw in (dict(seed=7), dict()):  # other settings, or even the same ones: nothing proves it
-        with pytest.raises(StaleCacheError, match=f"{a.cache_dir}.*no manifest.json"):
-            aug(data, gen, tmp_path, copies=2, **kw)
-    with pytest.raises(StaleCacheError, match="no manifest.json"):
-        aug(data, gen, tmp_path, copies=2, build="manual").build_cache(progress=False)
-    assert tree_bytes(a.cache_dir) == before  # not re-stamped
-    own = tmp_path / "mine"
-    own.mkdir()
-    (own / "notes.txt").write_text("the user's")
-    with pytest.raises(StaleCacheError, match="mine.*not a ForceAugment cache"):
-        aug(data, gen, tmp_path, "mine", copies=2)
-    assert sorted(p.name for p in own.iterdir()) == ["notes.txt"]
-    corrupt = aug(data, gen, tmp_path, "corrupt", copies=1)
-    (corrupt.cache_dir / "manifest.json").write_text("{not json")
-    with pytest.raises(StaleCacheError, match="manifest.json"):
-        aug(data, gen, tmp_path, "corrupt", copies=1)
-
-
-def tamper_chunk(cache_dir, edit, name="e000001_k002"):
-    path = cache_dir / "chunks" / name / "provenance.json"
-    doc = json.loads(path.read_text())
-    edit(doc)
-    path.write_text(json.dumps(doc))
-
-
-@pytest.mark.parametrize("edit, match", [
-    (lambda d: [r.update(generator_hash="0123456789abcdef") for r in d["frames"]], "generator_hash"),
-    (lambda d: d["frames"][0].update(generator_hash="other"), "generator_hash"),
-    (lambda d: [r.update(steps=50) for r in d["frames"]], "steps"),
-    (lambda d: d.update(settings_sha256="0" * 16), "settings"),
-    (lambda d: d.pop("settings_sha256"), "settings"),
-    (lambda d: d.update(copy=1), "copy"),
-    (lambda d: d["frames"].pop(), "frame"),
-])
-def test_chunk_that_differs_from_the_manifest_is_refused(data, gen, tmp_path, edit, match):
-    a = aug(data, gen, tmp_path, copies=2)
-    tamper_chunk(a.cache_dir, edit)
-    with pytest.raises(StaleCacheError, match=f"e000001_k002.*{match}"):
-        aug(data, gen, tmp_path, copies=2)
-    worker = pickle.loads(pickle.dumps(a))  # as a DataLoader worker gets it: chunks not opened yet
-    with pytest.raises(StaleCacheError, match=f"e000001_k002.*{match}"):
-        worker[2 * len(data) + 12 + 3]  # refused where the chunk is read, too
-
-
-def test_chunk_copied_from_a_cache_of_other_settings_is_refused(data, gen, tmp_path):
-    import shutil
-
-    a = aug(data, gen, tmp_path, "a", copies=2)
-    b = aug(data, gen, tmp_path, "b", copies=2, seed=5)
-    target = a.cache_dir / "chunks" / "e000000_k001"
-    shutil.rmtree(target)
-    shutil.copytree(b.cache_dir / "chunks" / "e000000_k001", target)
-    with pytest.raises(StaleCacheError, match="e000000_k001.*settings"):
-        aug(data, gen, tmp_path, "a", copies=2)
-
-
-def test_truncated_or_swapped_chunk_images_are_refused(data, gen, tmp_path):
-    a = aug(data, gen, tmp_path, copies=2)
-    f = a.cache_dir / "chunks" / "e000000_k001" / "tactile_0.npy"
-    f.write_bytes(f.read_bytes()[:-10])
-    with pytest.raises(StaleCacheError, match="e000000_k001.*tactile_0.npy"):
-        aug(data, gen, tmp_path, copies=2)
-    b = aug(data, gen, tmp_path, "b", copies=2)
-    np.save(b.cache_dir / "chunks" / "e000000_k001" / "tactile_0.npy", np.zeros((1, H, W, 3), np.uint8))
-    with pytest.raises(StaleCacheError, match="e000000_k001.*tactile_0.npy"):
-        aug(data, gen, tmp_path, "b", copies=2)
-
-
-KILL_INSIDE_A_CHUNK = """
-import os, signal, sys
-sys.path.insert(0, sys.argv[1])
-import numpy as np
-from pathlib import Path
-from controltac_il.augment import ForceAugment, writer
-from controltac_il.datasets import EpisodeDataset
-from test_aug_force_augment import tiny_generator
-saved = {"n": 0}
-real_save = np.save
-def save(path, arr, *a, **k):
-    real_save(path, arr, *a, **k)
-    saved["n"] += 1
-    if saved["n"] == 3:  # inside the third chunk's temporary folder
-        os.kill(os.getpid(), signal.SIG%s)
-writer.np.save = save
-data = EpisodeDataset(sys.argv[2], chunk_size=4, stats_path=Path(sys.argv[3]) / "stats_k.json")
-ForceAugment(data, tiny_generator(), copies=3, cache_dir=Path(sys.argv[3]) / "part", progress=False)
-"""
-
-
-@pytest.mark.parametrize("sig", ["KILL", pytest.param("INT", marks=pytest.mark.slow)])  # INT: -m slow (the suite's time)
-def test_killed_build_leaves_nothing_and_resumes_to_the_clean_result(data, gen, tmp_path, sig):
-    import subprocess
-    import sys
-
-    clean = aug(data, gen, tmp_path, "clean")
-    tests = os.path.dirname(__file__)
-    res = subprocess.run([sys.executable, "-c", KILL_INSIDE_A_CHUNK % sig, tests, str(data.root), str(tmp_path)],
-                         cwd=os.path.dirname(tests), capture_output=True, text=True,
-                         env={**os.environ, "OMP_NUM_THREADS": str(torch.get_num_threads())})  # the same numerics
-    assert res.returncode != 0, res.stdout
-    chunks = tmp_path / "part" / "chunks"
-    assert len([p for p in chunks.iterdir() if not p.name.startswith(".")]) == 2
-    left = [p for p in chunks.iterdir() if p.name.startswith(".")]
-    assert len(left) == (1 if sig == "KILL" else 0), left  # SIGINT cleans up itself; SIGKILL cannot
-    resumed = aug(data, gen, tmp_path, "part")
-    assert sorted(p.name for p in chunks.iterdir() if p.name.startswith(".")) == []  # leftovers cleaned
-    assert tree_bytes(resumed.cache_dir) == tree_bytes(clean.cache_dir)
-
-
-def test_cache_files_get_the_umask_permissions(data, gen, tmp_path):
-    old = os.umask(0o022)
-    try:
-        a = aug(data, gen, tmp_path, copies=1)
-    finally:
-        os.umask(old)
-    modes = {oct(p.stat().st_mode & 0o777) for p in [a.cache_dir, *a.cache_dir.rglob("*")] if p.is_dir()}
-    assert modes == {"0o755"}
-    modes = {oct(p.stat().st_mode & 0o777) for p in a.cache_dir.rglob("*") if p.is_file()}
-    assert modes == {"0o644"}
 
 
 def test_reference_outside_the_validated_range_is_kept_real(tmp_path, gen):

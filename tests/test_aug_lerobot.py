@@ -5,7 +5,7 @@
 cameras ``observation.images.<name>`` as float32 (C, H, W) in [0, 1], the tactile stream among them; with
 ``delta_timestamps`` (s) and ``fps`` a key holds a window (T, ...) of the frames at frame + round(delta x fps),
 clamped to the episode, with ``<key>_is_pad`` (T,) bool marking the clamped positions. No force labels and
-no backgrounds unless asked for. A tiny randomly initialised generator, as in test_aug_force_augment.
+no backgrounds unless asked for. A tiny randomly initialised generator (aug_fixtures).
 """
 
 import warnings
@@ -15,7 +15,7 @@ import pytest
 import torch
 from torch.utils.data import DataLoader, Dataset
 
-from test_aug_force_augment import synthetic_episode, tiny_estimator, tiny_generator  # noqa: E402
+from aug_fixtures import synthetic_episode, tiny_estimator, tiny_generator  # noqa: E402
 
 from controltac_il.augment import STATUS, ForceAugment, StaleCacheError  # noqa: E402
 

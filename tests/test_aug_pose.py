@@ -10,7 +10,7 @@ from controltac_il.augment.draws import copy_pose_offset, moved_contact
 from controltac_il.datasets import EpisodeDataset
 from controltac_il.generator.adapter import PoseAdapter
 from controltac_il.generator.config import PoseAdapterConfig
-from tests.test_aug_force_augment import make_folder, tiny_generator
+from aug_fixtures import make_folder, tiny_generator
 
 MAX = (3.0, 2.0, 10.0)
 

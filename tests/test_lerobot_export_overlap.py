@@ -2,7 +2,7 @@
 same files as before (the session's ``written`` clean write, conftest); an export error stops the build at its next
 chunk; ``ChunkGate``'s rule; a source's own per-episode stats reused for the features copies hold unchanged where
 complete, computed where not; worker processes writing the same files, a worker's error raised in one line.
-Source folder and tiny generator: ``test_lerobot_v3_write``."""
+Source folder and tiny generator: ``lerobot_fixtures``."""
 
 import shutil
 import threading
@@ -12,7 +12,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from test_lerobot_v3_write import LEFT, LENGTHS, RIGHT, WRIST, augment, write_lerobot
+from lerobot_fixtures import LEFT, LENGTHS, RIGHT, WRIST, augment, write_lerobot
 
 from controltac_il.augment import main
 from controltac_il.augment.provenance import PROVENANCE, StaleCacheError, chunk_dir, chunk_done

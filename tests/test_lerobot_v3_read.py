@@ -414,7 +414,7 @@ def test_a_force_feature_found_by_name_must_be_three_forces(folder, tmp_path):
 
 def test_force_augment_wraps_a_folder_with_windows_and_labels(folder, tmp_path):
     from controltac_il.augment import ForceAugment
-    from test_aug_force_augment import tiny_generator
+    from aug_fixtures import tiny_generator
 
     ds = LeRobotFolder(folder, delta_timestamps={LEFT: [-0.1, 0.0]})
     aug = ForceAugment(ds, tiny_generator(), tactile_keys=[LEFT], force_keys={LEFT: FORCE}, copies=1, mode="online")
@@ -428,7 +428,7 @@ def test_force_augment_wraps_a_folder_with_windows_and_labels(folder, tmp_path):
 def test_cli_takes_a_lerobot_folder_and_its_force_keys(folder, tmp_path, capsys):
     from controltac_il.augment import main
     from controltac_il.generator.checkpoint import save_checkpoint
-    from test_aug_force_augment import tiny_generator
+    from aug_fixtures import tiny_generator
 
     g = tiny_generator()
     ckpt = save_checkpoint(tmp_path / "gen", g.config, g.autoencoder, g.denoiser)
