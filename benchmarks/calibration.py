@@ -217,17 +217,17 @@ def main(argv=None) -> dict:
     args = p.parse_args(argv)
     sensors, rows, t0 = quick_settings(args), resumed_rows(args), time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="calibration-bench-") as work:
-        run_cases(todo_cases(sensors, args.heldout_draws, rows), args, Path(work),
+        run_cases(todo_cases(sensors, (None, *range(args.heldout_draws)), rows), args, Path(work),
                   lambda row: add_row(rows, row, args, t0))
         if not (args.no_sim_record or args.quick or any(r["sensor"].startswith("sim_record") for r in rows)):
             add_row(rows, sim_record_one(args, Path(work)), args, t0)
     return summary(rows, args, t0, show=True)
 
 
-def todo_cases(sensors, draws: int, rows: list[dict]) -> list[tuple]:
-    """The (name, index, optics, draw) cases not yet in ``rows``: every sensor's same-object case (draw None), then
-    the held-out draws draw by draw, so that a run cut short has each sensor's first draws."""
-    cases = [(f"unseen_{i:02d}/{o}", i, o, d) for d in (None, *range(draws)) for i, o in sensors]
+def todo_cases(sensors, draws, rows: list[dict]) -> list[tuple]:
+    """The (name, index, optics, draw) cases not yet in ``rows``, draw by draw in the order of ``draws`` (None: the
+    same-object case), so that a run cut short has each sensor's first draws."""
+    cases = [(f"unseen_{i:02d}/{o}", i, o, d) for d in draws for i, o in sensors]
     return [c for c in cases if not any(r["sensor"] == c[0] and r.get("draw") == c[3] for r in rows)]
 
 

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.calibration import add_options, heldout_summary, quick_settings, run_cases
+from benchmarks.calibration import add_options, heldout_summary, quick_settings, run_cases, todo_cases
 from benchmarks.common import base_parser, machine_info, print_table, write_results
 from controltac_il.calibrate.decision import LEVEL, decide
 
@@ -63,9 +63,7 @@ def choose(scores: list[dict]) -> float:
 
 def cases(split: str, sensors, rows: list[dict], quick: bool) -> list[tuple]:
     """The split's (name, index, optics, draw) cases not yet in ``rows``, draw by draw (``--quick``: its first)."""
-    draws = SPLITS[split][:1] if quick else SPLITS[split]
-    todo = [(f"unseen_{i:02d}/{o}", i, o, d) for d in draws for i, o in sensors]
-    return [c for c in todo if not any(r["sensor"] == c[0] and r["draw"] == c[3] for r in rows)]
+    return todo_cases(sensors, SPLITS[split][:1] if quick else SPLITS[split], rows)
 
 
 def case_settings(settings: dict) -> dict:

@@ -118,5 +118,5 @@ def test_the_benchmark_runs_same_object_cases_first_then_draw_by_draw_and_skips_
 
     sensors = [(0, "a"), (1, "b")]
     done = [{"sensor": "unseen_00/a"}, {"sensor": "unseen_01/b", "draw": 0}]
-    assert [(c[0], c[3]) for c in todo_cases(sensors, 2, done)] == [
+    assert [(c[0], c[3]) for c in todo_cases(sensors, (None, 0, 1), done)] == [
         ("unseen_01/b", None), ("unseen_00/a", 0), ("unseen_00/a", 1), ("unseen_01/b", 1)]
