@@ -3,6 +3,7 @@ load by the bundle's name (ForceEstimator, ForceGenerator, ForceAugment, the aug
 bases; resume; one-line errors. Tiny bases (a generator trained here for 3 + 3 steps, a small estimator) keep it fast."""
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -61,7 +62,7 @@ def test_bundle_loads_by_name_everywhere_and_moved_from_its_bases(bases, tmp_pat
     readme = (out / "README.md").read_text()
     assert "estimator Fz MAE" in readme and decision["why"] in readme and "| held-out grasp | frames |" in readme
     assert main(args) == 2 and "exists" in capsys.readouterr().err  # never written over
-    from test_aug_lerobot import GEL, LeRobotLike, episodes
+    from lerobot_like import GEL, LeRobotLike, episodes
 
     from controltac_il.augment import ForceAugment
     from controltac_il.augment.cli import load_models, parser
@@ -100,6 +101,34 @@ def test_bad_presses_and_stopped_runs_are_one_line(bases, tmp_path, capsys):
         assert main(argv) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and expected in err, (argv, err)
+
+
+def test_a_subset_copy_stopped_midway_leaves_only_whole_entries_and_a_rerun_completes(bases, tmp_path, monkeypatch):
+    _, presses = bases
+    ds = load_dataset(presses)
+    rows = [r for g in list(ds.pose_groups().values())[:3] for r in g]
+    copyfile, calls = shutil.copyfile, []
+
+    def killed_on_the_fifth(src, dst, **kw):  # a kill while a folder is half copied
+        calls.append(src)
+        if len(calls) == 5:
+            raise KeyboardInterrupt
+        return copyfile(src, dst, **kw)
+
+    def listing(root):
+        return sorted(str(f.relative_to(root)) for f in root.rglob("*")) if root.is_dir() else [root.name]
+
+    monkeypatch.setattr(shutil, "copyfile", killed_on_the_fifth)
+    with pytest.raises(KeyboardInterrupt):
+        subset_presses(ds, rows, tmp_path / "sub")
+    monkeypatch.undo()
+    entries = ("background.png", "backgrounds", "images", "meta.json")
+    kept = [n for n in entries if (tmp_path / "sub" / n).exists()]
+    assert len(kept) < sum((presses / n).exists() for n in entries)  # the kill left something out...
+    assert all(listing(tmp_path / "sub" / n) == listing(presses / n) for n in kept)  # ...and nothing half there
+    sub = subset_presses(ds, rows, tmp_path / "sub")
+    assert all(listing(sub / n) == listing(presses / n) for n in entries if (presses / n).exists())
+    assert len(load_dataset(sub)) == len(rows)
 
 
 def test_held_out_poses_never_split_a_pose_and_need_two():

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from controltac_il.calibrate.decision import MIN_GRASPS, decide, per_grasp
+from controltac_il.generator.shipped import BUNDLE_PART as GENERATOR_PART
 
 FINETUNE_FROM = 500  # frames: from here "auto" fine-tunes the whole estimator (benchmarks/results/finetune.json: Fz MAE
 #                      0.40 N at 2 016 frames, the adapter 0.89 N at 480), below it fits the colour adapter
@@ -112,9 +113,11 @@ def finetuned(args, ds, base, x, f, grasps, staging: Path):
 
 
 def estimator_part(args, ds, staging: Path) -> dict:
-    """Calibrate the base estimator into ``staging / "estimator"`` (module docstring); its held-out table."""
+    """Calibrate the base estimator into its bundle part, ``staging / "estimator"`` (module docstring); its held-out
+    table."""
     from controltac_il.estimators import ForceEstimator
     from controltac_il.estimators.data import load_arrays
+    from controltac_il.estimators.estimator import BUNDLE_PART as ESTIMATOR_PART
     from controltac_il.estimators.few_shot import ColourFit, fit_colour_adapter
 
     base = ForceEstimator.from_pretrained(args.base_estimator)
@@ -127,7 +130,7 @@ def estimator_part(args, ds, staging: Path) -> dict:
     else:
         table = cross_validated(base, x, f[:, 2].astype(np.float64), grasps, args.estimator_steps)
         est = fit_colour_adapter(base, x, f[:, 2], ColourFit(steps=args.estimator_steps))
-    est.save(staging / "estimator")
+    est.save(staging / ESTIMATOR_PART)
     print(table["decision"]["why"])
     names = {"adapter": "colour adapter (3x3 mix + shift) before the frozen base network",
              "finetune": "the whole base network fine-tuned"}
@@ -135,25 +138,34 @@ def estimator_part(args, ds, staging: Path) -> dict:
             "method": names[method], "steps": args.estimator_steps, "images": len(x), "zero_shot_mae_n": before,
             "held_out": table, "use_estimator": table["decision"]["use"], "grasp_of_frame": grasps.tolist(),
             "true_fz": f[:, 2].astype(float).tolist(),
-            "hash": str(ForceEstimator.from_pretrained(staging / "estimator").checkpoint_hash)}
+            "hash": str(ForceEstimator.from_pretrained(staging / ESTIMATOR_PART).checkpoint_hash)}
 
 
 def subset_presses(ds, rows: list[int], out: Path) -> Path:
-    """A presses folder at ``out`` holding only ``rows`` of ``ds`` (manifest rows, their images, backgrounds)."""
+    """A presses folder at ``out`` holding only ``rows`` of ``ds`` (manifest rows, their images, backgrounds). Each
+    entry is written whole or not at all, so a resumed calibration never reuses a half-copied folder."""
     import csv
+
+    from controltac_il.io import atomic_dir, atomic_path
 
     out.mkdir(parents=True, exist_ok=True)
     with open(ds.root / "manifest.csv", newline="") as f:
         reader = csv.DictReader(f)
         fields, lines = reader.fieldnames, list(reader)
-    with open(out / "manifest.csv", "w", newline="") as f:
+    with atomic_path(out / "manifest.csv") as tmp, open(tmp, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=fields)
         w.writeheader()
         w.writerows(lines[i] for i in rows)
     for name in ("background.png", "backgrounds", "images", "meta.json"):
         src = ds.root / name
-        if src.exists() and not (out / name).exists():
-            (shutil.copytree if src.is_dir() else shutil.copy2)(src, out / name)
+        if not src.exists() or (out / name).exists():
+            continue
+        if src.is_dir():
+            with atomic_dir(out / name) as tmp:
+                shutil.copytree(src, tmp, dirs_exist_ok=True)
+        else:
+            with atomic_path(out / name) as tmp:
+                shutil.copy2(src, tmp)
     return out
 
 
@@ -174,7 +186,8 @@ def held_out_pairs(ds, rows: list[int]) -> tuple:
 
 
 def generator_part(args, ds, staging: Path) -> dict:
-    """Fine-tune the base generator on the training grasps into ``staging / "generator"``; error on held-out ones."""
+    """Fine-tune the base generator on the training grasps into its bundle part, ``staging / "generator"``; its error
+    on held-out pairs."""
     from controltac_il.generator import ForceGenerator
     from controltac_il.generator.training.finetune import fine_tune
     from controltac_il.generator.shipped import locate_checkpoint
@@ -185,11 +198,11 @@ def generator_part(args, ds, staging: Path) -> dict:
     data = subset_presses(ds, train, staging / "generator.data")
     final = fine_tune(base, data, staging / "generator.run", args.dit_steps, args.lr, args.ae_steps, batch=args.batch,
                       threads=args.threads, device=args.device)
-    if (staging / "generator").exists():
-        shutil.rmtree(staging / "generator")
-    shutil.copytree(final, staging / "generator")
+    if (staging / GENERATOR_PART).exists():
+        shutil.rmtree(staging / GENERATOR_PART)
+    shutil.copytree(final, staging / GENERATOR_PART)
     pairs, table = held_out_pairs(ds, val), None
-    base_gen, tuned = ForceGenerator.from_pretrained(base), ForceGenerator.from_pretrained(staging / "generator")
+    base_gen, tuned = ForceGenerator.from_pretrained(base), ForceGenerator.from_pretrained(staging / GENERATOR_PART)
     if pairs is not None:
         before, after = generation_error(base_gen, *pairs), generation_error(tuned, *pairs)
         table = {"pairs": len(pairs[0]), "grasps": len({(ds.records[i].object, ds.records[i].pose_id) for i in val}),
@@ -218,7 +231,7 @@ def run(args, ds, source: dict | None = None) -> dict:
     record = {"presses": str(presses), "images": len(ds), "source": source,
               "estimator": estimator_part(args, ds, staging), "generator": generator_part(args, ds, staging)}
     write_json(staging / "calibration.json", record)
-    save_report(staging / "report.png", record, ds, staging / "generator")
+    save_report(staging / "report.png", record, ds, staging / GENERATOR_PART)
     (staging / "README.md").write_text(card(record))
     for leftover in ("generator.run", "generator.data", "estimator.train_state"):
         shutil.rmtree(staging / leftover, ignore_errors=True)
