@@ -17,11 +17,11 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import time
 from pathlib import Path
 
 from benchmarks.verdict_protocols import (DEMO_SEEDS, LOOKED_AT, NOMINAL, PROTOCOLS, USED_TRAIN_SEEDS,
                                           VALIDATION_SEEDS, Look, Protocol, record, signature_of)
+from benchmarks.wall_time import WallTime
 from controltac_il.io import write_json
 
 
@@ -264,39 +264,6 @@ def _load_done(args, p, signature: str, previous: dict) -> dict[str, dict]:
     return done
 
 
-class WallTime:
-    """A resumable grid's wall seconds across invocations: the finished ones in ``RUNS/wall_s.json``, the running
-    one in ``RUNS/wall_s_running.json`` at every save (a stopped invocation counts up to its last save). ``earlier``:
-    the history a committed ``--out`` carries when ``RUNS`` is new (another session's machine)."""
-
-    def __init__(self, runs: Path, resume: bool, clock=time.perf_counter, earlier: list | None = None):
-        self.clock = clock
-        self.history_path, self.running_path = runs / "wall_s.json", runs / "wall_s_running.json"
-        self.history = []
-        if resume:  # the stopped invocation is in the running file and, on a machine that kept RUNS, in --out too
-            running = [json.loads(self.running_path.read_text())] if self.running_path.is_file() else []
-            if self.history_path.is_file():
-                self.history = json.loads(self.history_path.read_text()) + running
-            else:
-                self.history = list(earlier or []) or running
-            if running:
-                write_json(self.history_path, self.history)
-                self.running_path.unlink()
-        self.t0 = clock()
-
-    def now(self) -> dict:
-        """This invocation's seconds so far (also kept in the running file), the earlier ones and the total."""
-        elapsed = round(self.clock() - self.t0, 1)
-        write_json(self.running_path, elapsed)
-        return {"this_invocation": elapsed, "earlier_invocations": self.history,
-                "total": round(sum(self.history) + elapsed, 1)}
-
-    def finish(self) -> None:
-        self.history.append(round(self.clock() - self.t0, 1))
-        write_json(self.history_path, self.history)
-        self.running_path.unlink(missing_ok=True)
-
-
 def _run(units: list[dict], ctx: dict, jobs: int, done: dict, save) -> None:
     """Run the units not yet done, ``jobs`` at a time, saving after each."""
     from tqdm import tqdm
@@ -362,6 +329,7 @@ def main(argv=None) -> dict:
         if args.out:
             write_results(args.out, results)
 
+    wall.start()
     _grid(proto, args, ctx, results, done, save)
     save(picture=True)
     wall.finish()

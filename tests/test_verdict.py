@@ -253,27 +253,6 @@ def test_a_unit_whose_episode_raised_is_written_to_failed_and_stops_the_grid_nam
     assert not (tmp_path / "units").exists()  # nothing counted
 
 
-def test_wall_time_adds_up_across_a_stopped_and_a_resumed_invocation(tmp_path):
-    t = [1000.0]
-    first = verdict.WallTime(tmp_path, resume=False, clock=lambda: t[0])
-    t[0] += 100.0
-    assert first.now()["this_invocation"] == 100.0  # saved; then the invocation is stopped
-    second = verdict.WallTime(tmp_path, resume=True, clock=lambda: t[0])  # picks the stopped one up from its file
-    t[0] += 50.0
-    assert second.now() == {"this_invocation": 50.0, "earlier_invocations": [100.0], "total": 150.0}
-    second.finish()
-    assert verdict.WallTime(tmp_path, resume=True, clock=lambda: t[0]).history == [100.0, 50.0]
-    assert verdict.WallTime(tmp_path, resume=False).history == []  # a new grid starts from zero
-    fresh = verdict.WallTime(tmp_path / "new", resume=True, clock=lambda: t[0], earlier=[7.0, 8.0])
-    assert fresh.now()["total"] == 15.0  # another machine: the history the committed --out carries
-    kept = tmp_path / "kept"  # this machine again, before any invocation finished: --out and the running file agree
-    stopped = verdict.WallTime(kept, resume=False, clock=lambda: t[0])
-    t[0] += 30.0
-    assert stopped.now()["this_invocation"] == 30.0  # saved to the running file and to --out; then stopped
-    again = verdict.WallTime(kept, resume=True, clock=lambda: t[0], earlier=[30.0])
-    assert again.history == [30.0]  # counted once
-
-
 @pytest.mark.slow
 def test_quick_grid_end_to_end_then_resume_runs_nothing_again(tmp_path):
     out, runs = tmp_path / "v.json", tmp_path / "runs"
