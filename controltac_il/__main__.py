@@ -39,7 +39,7 @@ def parse_args(argv=None) -> argparse.Namespace:
 def main(argv=None) -> int:
     """Run the job; returns the exit status (every failure one line on stderr)."""
     args = parse_args(argv)  # before the job's imports (torch, MuJoCo): --help answers at once
-    from controltac_il.app.job import PipelineConfig, render_contact_sheet, run_pipeline
+    from controltac_il.app.job_config import PipelineConfig
     from controltac_il.config import one_line
     from controltac_il.training import run_cli
 
@@ -51,6 +51,8 @@ def main(argv=None) -> int:
         return 2
 
     def job() -> None:
+        from controltac_il.app.job import render_contact_sheet, run_pipeline  # MuJoCo: a missing [sim] is one line
+
         args.out.mkdir(parents=True, exist_ok=True)
         render_contact_sheet(args.out)
         if not args.sensor_only:

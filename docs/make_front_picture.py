@@ -61,4 +61,6 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from controltac_il.cli import guard
+
+    sys.exit(guard("docs/make_front_picture.py", main))

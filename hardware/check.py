@@ -56,8 +56,8 @@ def main(argv=None) -> int:
         print(f"device check failed: {msg if msg.startswith(str(args.config)) else f'{args.config}: {msg}'}",
               file=sys.stderr)
         return 1
-    except MissingExtra as exc:  # an adapter whose SDK is not installed: the extra to install
-        print(f"device check failed: {exc}", file=sys.stderr)
+    except (MissingExtra, ValueError, OSError) as exc:  # an SDK not installed (the extra to install), a bad value
+        print(f"device check failed: {one_line(exc)}", file=sys.stderr)  # or device path the setup names
         return 2
     except KeyboardInterrupt:  # the devices were closed (arm stopped first) on the way out
         print("device check interrupted (Ctrl-C); the devices were closed", file=sys.stderr)

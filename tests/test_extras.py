@@ -20,6 +20,7 @@ import sys
 for m in SDKS:
     sys.modules[m] = None
 import controltac_il.augment, controltac_il.augment.cli, controltac_il.app.train_cli, controltac_il.calibrate.cli
+import controltac_il.app.deploy, controltac_il.app.deploy_cli, controltac_il.__main__  # a robot deploys without MuJoCo
 import hardware.config
 print(sorted(m for m, v in sys.modules.items() if v is not None and m.split('.')[0] in SDKS))
 from controltac_il.extras import MissingExtra
@@ -47,7 +48,7 @@ def without_sdks() -> list[str]:
     return run.stdout.strip().splitlines()
 
 
-def test_the_augmentation_library_and_the_training_wiring_import_without_sdks_or_mujoco(without_sdks):
+def test_the_augmentation_library_the_training_and_deploy_wiring_import_without_sdks_or_mujoco(without_sdks):
     assert without_sdks[0] == "[]"
 
 

@@ -16,22 +16,23 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from tqdm import tqdm
-from controltac_il.cli import tty_only
 
-from controltac_il.cli import RunFault
+from controltac_il.cli import RunFault, tty_only
 from controltac_il.config import one_line
 from controltac_il.metrics import wilson_interval
 from envs.config import EVAL_SEED, SENSORS, scene_config
-from envs.peg_in_hole import PegInHoleEnv
-from envs.sim_robot import SimRobot
 from hardware.config import load_setup, loop_config, open_setup
 from hardware.control_loop import ControlLoop, ControlLoopConfig, LoopStats
 from hardware.interfaces import ACTION_DIM, ACTION_NAMES, HardwareError  # noqa: F401 - HardwareError for the CLI
 from policies.act.policy import ACTPolicy
 from policies.act.training import resolve_checkpoint
+
+if TYPE_CHECKING:
+    from envs.peg_in_hole import PegInHoleEnv
 
 
 def load_policy(checkpoint: str | Path | ACTPolicy, device: str = "cpu") -> ACTPolicy:
@@ -92,6 +93,8 @@ def run_sim_episode(policy: ACTPolicy, env: PegInHoleEnv, seed: int) -> dict:
     Returns success, steps, seed, inference_ms (wall-clock ms per policy call), stop_reason, safety clamp
     counts, grip_force_n and insertion_mm.
     """
+    from envs.sim_robot import SimRobot  # the [sim] extra, needed only here: a robot deploys without MuJoCo
+
     timed = WallTimed(policy)
     with SimRobot(seed=seed, env=env) as robot:
         stats = deploy(robot, timed, max_steps=env.config.max_steps, stop_when=lambda: robot.success)
@@ -144,6 +147,8 @@ def evaluate_in_sim(checkpoint, episodes: int = 50, seed: int = EVAL_SEED,
     """
     if on_error not in ("raise", "report"):
         raise ValueError(f"on_error must be 'raise' or 'report', got {on_error!r}")
+    from envs.peg_in_hole import PegInHoleEnv  # the [sim] extra
+
     policy = load_policy(checkpoint)
     overrides = dict(env_overrides or {})
     if grip_force_range is not None:

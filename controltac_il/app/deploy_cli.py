@@ -23,7 +23,7 @@ import sys
 from pathlib import Path
 
 from controltac_il.app import EVAL_SEED, SCENES
-from controltac_il.cli import ArgumentParser
+from controltac_il.cli import ArgumentParser, guard
 
 PROG = "deploy_policy.py"
 
@@ -68,37 +68,30 @@ def check_args(args: argparse.Namespace) -> None:
 
 def main(argv=None) -> int:
     """0 done; 1 the robot side stopped the run (HardwareError: a device that does not answer or fails, a safety
-    violation, a late policy; the arm was stopped); 2 bad options, setup file or checkpoint; 130 Ctrl-C. Every
-    failure is one line on stderr."""
+    violation, a late policy; the arm was stopped) or episodes raised; 2 bad options, setup file, checkpoint or
+    output, a missing extra; 130 Ctrl-C. Every failure is one line on stderr."""
     args = parse_args(argv)
-    try:
+
+    def job() -> int:
         check_args(args)
-    except ValueError as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return 2
-    from controltac_il.app.deploy import EvaluationError, HardwareError
-    from controltac_il.config import one_line
-    from controltac_il.extras import MissingExtra
+        from controltac_il.app.deploy import EvaluationError
+        from controltac_il.config import one_line
+        from hardware.interfaces import HardwareError
 
-    try:
-        run(args)
-    except EvaluationError as exc:  # a crash inside an episode is not a failed episode: no success rate
-        if args.out is not None:
-            from controltac_il.io import write_json
+        try:
+            run(args)
+        except EvaluationError as exc:  # a crash inside an episode is not a failed episode: no success rate
+            if args.out is not None:
+                from controltac_il.io import write_json
 
-            write_json(args.out, exc.result)
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return 1
-    except (ValueError, OSError, MissingExtra) as exc:  # bad checkpoint, set-up, option, output, a missing extra
-        print(f"{PROG}: error: {one_line(exc)}", file=sys.stderr)
-        return 2
-    except HardwareError as exc:  # a device did not answer or failed, a safety limit, a late policy: arm stopped
-        print(f"{PROG}: robot error: {one_line(exc)}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted (Ctrl-C); the control loop stopped the devices", file=sys.stderr)
-        return 130
-    return 0
+                write_json(args.out, exc.result)
+            raise
+        except HardwareError as exc:  # a device did not answer or failed, a safety limit, a late policy: arm stopped
+            print(f"{PROG}: robot error: {one_line(exc)}", file=sys.stderr)
+            return 1
+        return 0
+
+    return guard(PROG, job, "interrupted (Ctrl-C); the control loop stopped the devices")
 
 
 def run(args: argparse.Namespace) -> dict:

@@ -24,6 +24,7 @@ from controltac_il.config import one_line
 from controltac_il.estimators.config import EstimatorConfig, EstimatorTrainConfig
 from controltac_il.estimators.data import load_arrays, native_no_contact, split_by_pose
 from controltac_il.outputs import claim_output, own_checkpoint, own_json, own_safetensors
+from controltac_il.tactile.dataset import FZ_RANGE, SHEAR_MAX
 from controltac_il.tactile.residual import OFFSET
 
 
@@ -117,7 +118,8 @@ def model_card(data: Path, n_train: int, n_val: int, history: list, cfg: Estimat
         f"- Training data: `{data.name}` ({n_train} frames incl. no-contact frames labelled 0 N), "
         f"{train.steps} AdamW steps, batch {train.batch_size}, lr {train.lr} cosine, seed {train.seed}.\n"
         f"- Validation (held-out contact poses, {n_val} frames) MAE: {mae}.\n"
-        "- Valid range: the training forces' range (sensor-model data: Fz 0.5-11 N, |Fx|, |Fy| <= 1 N); "
+        f"- Valid range: the training forces' range (sensor-model data: Fz {FZ_RANGE[0]:g}-{FZ_RANGE[1]:g} N, "
+        f"|Fx|, |Fy| <= {SHEAR_MAX:g} N); "
         "real sensors need retraining or fine-tuning on their own frames.\n"
     )
 
@@ -127,8 +129,8 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
         train, cfg = check_args(args)
-    except ValueError as exc:  # OutputInUse is a ValueError
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
+    except (ValueError, OSError) as exc:  # OutputInUse is a ValueError; an output folder we cannot read or clear
+        print(f"{PROG}: error: {one_line(exc)}", file=sys.stderr)
         return 2
     from controltac_il.training import run_cli
 

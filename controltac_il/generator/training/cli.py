@@ -176,8 +176,8 @@ def stage1_config(a: dict) -> GeneratorTrainConfig:
     rank0 = os.environ.get("RANK", "0") == "0"  # under torchrun only rank 0 removes a replaced run
     try:
         claim_output(out, STAGE1_OUTPUTS, resume=resume or (overwrite and not rank0), overwrite=overwrite, tool=STAGE1_PROG)
-    except OutputInUse as exc:
-        fail(STAGE1_PROG, str(exc))
+    except (OutputInUse, OSError) as exc:  # in use, or unreadable / not removable
+        fail(STAGE1_PROG, one_line(exc))
     return cfg
 
 
@@ -198,8 +198,8 @@ def stage2_config(a: dict) -> PoseTrainConfig:
         fail(STAGE2_PROG, f"--resume: {cfg.out} holds no adapter_state.json to continue")
     try:
         claim_output(cfg.out, STAGE2_OUTPUTS, resume=resume, overwrite=overwrite, tool=STAGE2_PROG)
-    except OutputInUse as exc:
-        fail(STAGE2_PROG, str(exc))
+    except (OutputInUse, OSError) as exc:  # in use, or unreadable / not removable
+        fail(STAGE2_PROG, one_line(exc))
     return cfg
 
 
