@@ -32,7 +32,7 @@ from benchmarks.common import base_parser, print_table, write_results
 
 SIZE = (120, 160)  # render size (H, W), the pad's aspect
 CROP_W = 120  # kept columns: a square frame, another aspect ratio than the 64x80 input
-LABEL_RANGE = (1.0, 10.0)  # N: the calibration labels kept
+LABEL_RANGE = VALIDATED_RANGE.fz  # N: the calibration labels kept, as calibrate keeps them
 TEST_MIN_FZ = 0.5  # N: test frames with contact
 ALPHAS = np.logspace(-2, 4, 13)  # ridge penalties tried by leave-one-grasp-out
 OPTICS = ("polynomial", "three_light", "three_light_rot")

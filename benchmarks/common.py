@@ -22,6 +22,37 @@ from controltac_il.io import write_json
 VERIFIED_COMMIT = "CONTROLTAC_VERIFIED_COMMIT"
 
 
+REAL_GELSIGHT = Path(__file__).resolve().parents[2] / "shared" / "data" / "real_gelsight_mini"
+"""The real GelSight Mini frames of ``../shared`` (GPL-3.0: measured against, never shipped or trained on)."""
+REAL_PRESSES = ("bead", "key", "seed")  # the presses recorded with that folder's background.png
+
+
+def real_gelsight(frames: Path = REAL_GELSIGHT):
+    """RGB uint8 (240, 320, 3) ``background`` and ``{press: frame}`` of :data:`REAL_PRESSES` from ``frames``;
+    FileNotFoundError naming the first missing file."""
+    import cv2
+
+    def rgb(name: str):
+        img = cv2.imread(str(frames / f"{name}.png"))
+        if img is None:
+            raise FileNotFoundError(f"{frames / (name + '.png')} is missing or not an image")
+        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+    return rgb("background"), {n: rgb(n) for n in REAL_PRESSES}
+
+
+def save_figure(fig, path: Path, dpi: int = 90) -> Path:
+    """Write a matplotlib figure as PNG atomically (a temporary file renamed onto ``path``), then close it."""
+    import matplotlib.pyplot as plt
+
+    from controltac_il.io import atomic_path
+
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=dpi, format="png")
+    plt.close(fig)
+    return Path(path)
+
+
 def git_revision(path: Path) -> str | None:
     """Short commit of the repository holding ``path``, suffixed ``-dirty`` when tracked files
     differ from it (so a figure measured before its weights were committed says so); None

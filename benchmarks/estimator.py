@@ -20,11 +20,10 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
-import cv2
 import numpy as np
 import torch
 
-from benchmarks.common import base_parser, print_table, write_results
+from benchmarks.common import REAL_GELSIGHT, REAL_PRESSES, base_parser, print_table, real_gelsight, write_results
 from controltac_il.estimators import ForceEstimator
 from controltac_il.estimators.data import load_arrays
 from controltac_il.tactile.dataset import load_dataset, write_dataset
@@ -32,8 +31,6 @@ from controltac_il.tactile.indenters import HELDOUT_OBJECTS, TRAIN_OBJECTS
 from controltac_il.tactile.residual import to_residual
 from controltac_il.tactile.spec import SensorSpec
 
-REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real_gelsight_mini"
-PRESSES = ("bead", "key", "seed")
 CELLS = {"seen_objects/one_sensor": (TRAIN_OBJECTS, None, 900), "seen_objects/seen_sensors": (TRAIN_OBJECTS, "train", 901),
          "seen_objects/unseen_sensor": (TRAIN_OBJECTS, "unseen", 902),
          "unseen_objects/seen_sensors": (HELDOUT_OBJECTS, "train", 903),
@@ -53,11 +50,11 @@ def render(tmp: Path, poses: int, forces: int) -> dict:
 
 def real_presses(frames: Path) -> np.ndarray | None:
     """Residuals (3, 240, 320, 3) of the real presses, None where the frames are not there."""
-    images = [cv2.imread(str(frames / f"{n}.png")) for n in ("background", *PRESSES)]
-    if any(i is None for i in images):
+    try:
+        bg, presses = real_gelsight(frames)
+    except FileNotFoundError:
         return None
-    rgb = [i[..., ::-1] for i in images]
-    return np.stack([to_residual(p, rgb[0]) for p in rgb[1:]])
+    return np.stack([to_residual(f, bg) for f in presses.values()])
 
 
 def evaluate(estimator, cells: dict, real: np.ndarray | None) -> dict:
@@ -70,7 +67,7 @@ def evaluate(estimator, cells: dict, real: np.ndarray | None) -> dict:
         est = estimator.predict(real).astype(float)
         row["real_presses"] = {n: {"force_n": f.round(2).tolist(),
                                    "plausible": bool(0 < f[2] <= 15 and abs(f[0]) <= 1 and abs(f[1]) <= 1)}
-                               for n, f in zip(PRESSES, est)}
+                               for n, f in zip(REAL_PRESSES, est)}
     return row
 
 
@@ -78,7 +75,7 @@ def main(argv=None) -> dict:
     p = base_parser(__doc__.splitlines()[0])
     p.add_argument("--checkpoint", nargs="+", default=["shipped=default"], metavar="NAME=PATH",
                    help="estimators to measure (default: the shipped one, 'shipped=default')")
-    p.add_argument("--frames", type=Path, default=REAL, help=f"real GelSight Mini frames (default {REAL})")
+    p.add_argument("--frames", type=Path, default=REAL_GELSIGHT, help=f"real GelSight Mini frames (default {REAL_GELSIGHT})")
     args = p.parse_args(argv)
     torch.set_num_threads(2)
     poses, forces = (2, 2) if args.quick else (8, 4)

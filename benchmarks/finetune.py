@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 
-from benchmarks.common import base_parser, machine_info, print_table, write_results
+from benchmarks.common import base_parser, machine_info, print_table, save_figure, write_results
 from benchmarks.generator import dataset_pairs, quality
 from controltac_il.checkpoint import read_json
 from controltac_il.generator import ForceGenerator
@@ -132,8 +132,7 @@ def save_plot(path: Path, curves: dict[str, list[dict]], instance: str) -> None:
             title=f"estimator, unseen sensor {instance}")
     ax2.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def plot_runs(paths: list[Path], out: Path) -> None:

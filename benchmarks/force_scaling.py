@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from benchmarks.common import base_parser, print_table, write_results
+from benchmarks.common import base_parser, print_table, save_figure, write_results
 from controltac_il.estimators import EstimatorConfig, ForceEstimator, EstimatorTrainConfig, fit
 from controltac_il.estimators.data import estimate_noise_std, load_arrays, no_contact_residuals
 from controltac_il.io import atomic_path, write_json
@@ -254,9 +254,7 @@ def plot(rows: list[dict], dest: Path, setup: ScalingSetup) -> None:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    with atomic_path(dest, suffix=".png") as tmp:
-        fig.savefig(tmp, format="png", dpi=120)
-    plt.close(fig)
+    save_figure(fig, dest, dpi=120)
 
 
 def physical_check(est, generated: tuple, real: tuple, rows: list[dict], k: int) -> dict:

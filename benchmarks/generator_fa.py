@@ -22,8 +22,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from benchmarks.common import base_parser, print_table, write_results
+from benchmarks.common import base_parser, print_table, save_figure, write_results
 from benchmarks.response import real_references
+from benchmarks.verdict_protocols import NOMINAL, SETTINGS
 from controltac_il.augment.config import ForceAugmentConfig
 from controltac_il.augment.draws import plan_frame
 from controltac_il.metrics import mse
@@ -31,7 +32,7 @@ from controltac_il.tactile import HELDOUT_OBJECTS, SensorSpec, TactileSensor, co
 from controltac_il.tactile.instances import sensor_instance
 
 SIZES = {"240": (240, 320), "120": (120, 160)}
-GRIP_FZ = (4.0, 7.0)  # N: the verdict demos' grip
+GRIP_FZ = SETTINGS[NOMINAL]  # N: the verdict demos' grip
 DFZ_BINS = ((0.0, 2.0), (2.0, 5.0), (5.0, np.inf))  # |ΔFz| N
 REAL_DFZ = (-2.0, 0.0, 2.0, 4.0, 6.0)  # N
 COPIES = 2  # fa2
@@ -136,8 +137,7 @@ def save_plot(path, rows: list[dict]) -> None:
                yscale="log")
         ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def sensors(instances: int, size: tuple[int, int]) -> dict[str, TactileSensor]:

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.common import save_figure
 from benchmarks.response import DELTAS, MAX_DROP_PP, area_drops, contact_area_pct, real_references
 from controltac_il.cli import ArgumentParser
 from controltac_il.generator.shipped import FRONTIER_SIZES
@@ -93,8 +94,7 @@ def save_frontier_plot(path: Path, methods: list[dict], speed: dict) -> None:
            title="generator speed against error (numbers: DDIM steps)")
     ax.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def main(argv=None) -> Path:

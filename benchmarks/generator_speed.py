@@ -22,6 +22,7 @@ import torch
 
 from benchmarks.common import base_parser, median_time, print_table, write_results
 from benchmarks.generator import eval_pairs
+from benchmarks.generator_fa import SIZES
 from benchmarks.generator_frontier import FRONTIER
 from controltac_il.generator import ForceGenerator
 from controltac_il.config import AUTO, parse_batch_size
@@ -30,7 +31,6 @@ from controltac_il.generator.pipeline import chunk_rows
 from controltac_il.metrics import mse
 from controltac_il.tactile import HELDOUT_OBJECTS, SensorSpec, TactileSensor, from_residual
 
-SIZES = {"240": (240, 320), "120": (120, 160)}
 ERROR_SPLITS = {"240": "unseen_240", "120": "unseen"}  # benchmarks.generator's pairs of each size
 STEPS = (1, 2, 5)
 CALL_BATCHES = 1  # an int batch size is timed over calls of this many batches

@@ -23,6 +23,7 @@ from statistics import mean
 
 from controltac_il.cli import ArgumentParser
 from controltac_il.generator.shipped import FRONTIER_SIZES, SHIPPED
+from controltac_il.io import atomic_path
 
 from benchmarks import docs_figures
 from benchmarks.figure_text import (RESULTS, ROOT, SHIPPED_GENERATOR, ci_points, load, pct, provenance,
@@ -423,7 +424,8 @@ def _run(check_only: bool) -> int:
     for doc in DOCS:
         text, changed = rendered(doc.read_text())
         if changed:
-            doc.write_text(text)
+            with atomic_path(doc) as tmp:  # a stopped rewrite never leaves a README half written
+                tmp.write_text(text)
             print(f"{doc.relative_to(ROOT)}: rewrote {', '.join(changed)}")
     bad = card_mismatches()
     for b in bad:

@@ -26,12 +26,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from benchmarks.common import base_parser, print_table, write_results
+from benchmarks.common import REAL_GELSIGHT, base_parser, print_table, real_gelsight, save_figure, write_results
 from controltac_il.tactile import HELDOUT_OBJECTS, TRAIN_OBJECTS, SensorSpec, TactileSensor, to_residual
 from controltac_il.tactile.residual import contact_mask
 
-REAL_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "real_gelsight_mini"
-REAL_FRAMES = ("bead", "key", "seed")
 DELTAS = np.arange(-2.0, 8.0 + 1e-9, 0.5)
 QUICK_DELTAS = np.arange(-1.0, 2.0 + 1e-9, 0.5)
 REFERENCE_FZ = 3.0  # N, the sensor-model references
@@ -85,12 +83,11 @@ def response(gen, reference: np.ndarray, deltas: np.ndarray, seed: int = 0) -> d
 
 def real_references() -> dict[str, np.ndarray]:
     """The real frames' residuals against their background (RGB, 240×320), or {} without the shared folder."""
-    if not (REAL_DIR / "background.png").is_file():
+    try:
+        bg, presses = real_gelsight()
+    except FileNotFoundError:
         return {}
-    def rgb(name):
-        return cv2.cvtColor(cv2.imread(str(REAL_DIR / f"{name}.png")), cv2.COLOR_BGR2RGB)
-    bg = rgb("background")
-    return {f"real/{n}": to_residual(rgb(n), bg) for n in REAL_FRAMES}
+    return {f"real/{n}": to_residual(f, bg) for n, f in presses.items()}
 
 
 def sim_references(objects, size: tuple[int, int]) -> dict[str, np.ndarray]:
@@ -124,8 +121,7 @@ def save_plot(path: Path, deltas: np.ndarray, rows: dict) -> None:
         else:
             ax.text(0.5, 0.5, "no frames (../shared absent)", ha="center", transform=ax.transAxes)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def main(argv=None) -> dict:
@@ -149,7 +145,7 @@ def main(argv=None) -> dict:
     print_table(table, list(table[0]), title=f"contact area vs ΔFz ({args.generator or 'default'} generator)")
     results = {"benchmark": "response", "generator": args.generator or "default",
                "generator_hash": gen.checkpoint_hash, "delta_fz_n": deltas.tolist(), "max_drop_target_pp": MAX_DROP_PP,
-               "real_frames": "read from ../shared/data/real_gelsight_mini" if REAL_DIR.is_dir() else "absent",
+               "real_frames": "read from ../shared/data/real_gelsight_mini" if REAL_GELSIGHT.is_dir() else "absent",
                "monotone": {group: f"{sum(r['monotone'] for n, r in rows.items() if n.split('/')[0] == group)} of "
                                    f"{sum(n.split('/')[0] == group for n in rows)}"
                             for group in dict.fromkeys(n.split("/")[0] for n in rows)},

@@ -15,14 +15,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from benchmarks.common import base_parser, median_time, print_table, write_results
+from benchmarks.common import REAL_GELSIGHT, base_parser, median_time, print_table, write_results
 from controltac_il.generator.forces import VALIDATED_RANGE
 from controltac_il.tactile import HELDOUT_OBJECTS, TRAIN_OBJECTS, SensorSpec, TactileSensor, to_residual
 from controltac_il.tactile.residual import OFFSET, residual_magnitude
 from controltac_il.tactile.sheet import save_png
 
 REAL_CONTACTS = ("bead.png", "key.png", "seed.png", "ball_image.png")
-DEFAULT_REAL_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real_gelsight_mini"
 
 
 def residual_stats(residual: np.ndarray) -> dict:
@@ -117,7 +116,7 @@ def run(quick: bool, real_dir: Path, picture: Path | None) -> dict:
 
 def main(argv=None) -> dict:
     p = base_parser(__doc__.splitlines()[0])
-    p.add_argument("--real-dir", type=Path, default=DEFAULT_REAL_DIR, help="folder with real GelSight Mini frames")
+    p.add_argument("--real-dir", type=Path, default=REAL_GELSIGHT, help="folder with real GelSight Mini frames")
     p.add_argument("--picture", type=Path, default=None, help="PNG of real frames above ours (default: beside --out)")
     args = p.parse_args(argv)
     picture = args.picture or (args.out.with_name(args.out.stem + "_realism.png") if args.out else None)

@@ -23,6 +23,7 @@ import json
 import time
 from pathlib import Path
 
+from benchmarks.common import save_figure
 from controltac_il.app.experiment import EVAL_SEED
 
 BUDGETS = (20, 35, 50)
@@ -185,11 +186,7 @@ def plot(cells: list[dict], path: Path, budgets: list[int], image_aug_copies: in
     handles, labels = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="lower center", ncol=3, fontsize=7, frameon=False)
     fig.tight_layout(rect=(0, 0.16, 1, 1))
-    from controltac_il.io import atomic_path
-
-    with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def _band(p, flag: str, value) -> tuple[float, float]:

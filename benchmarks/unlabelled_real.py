@@ -29,14 +29,13 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from benchmarks.common import base_parser, print_table, write_results
+from benchmarks.common import REAL_GELSIGHT, REAL_PRESSES, base_parser, print_table, real_gelsight, write_results
 from controltac_il.augment import ForceAugment
 from controltac_il.augment.reference import working_reference
 from controltac_il.streams import LEROBOT, tactile_key
 from controltac_il.tactile.residual import contact_mask, from_residual, to_residual
+from controltac_il.tactile.sheet import save_png
 
-FRAMES = Path(__file__).resolve().parents[2] / "shared" / "data" / "real_gelsight_mini"
-PRESSES = ("bead", "key", "seed")
 POLICIES = ("skip", "clip", "nominal")
 SWEEP = (-4.0, -3.0, -2.0, -1.0, 0.0, 1.0, 2.0, 3.0, 4.0)
 KEY = tactile_key("gelsight", LEROBOT)
@@ -56,16 +55,6 @@ class RealPresses(Dataset):
         return {KEY: torch.from_numpy(img).permute(2, 0, 1).float() / 255, "episode_index": torch.tensor(e),
                 "frame_index": torch.tensor(t), "index": torch.tensor(i), "task_index": torch.tensor(0),
                 "timestamp": torch.tensor(t / 10, dtype=torch.float32), "task": "press"}
-
-
-def load(frames: Path) -> tuple[np.ndarray, list[np.ndarray]]:
-    """RGB uint8 (240, 320, 3) background and presses."""
-    def rgb(name):
-        img = cv2.imread(str(frames / f"{name}.png"))
-        if img is None:
-            raise SystemExit(f"benchmarks.unlabelled_real: error: --frames: {frames / (name + '.png')} is missing")
-        return np.ascontiguousarray(img[..., ::-1])
-    return rgb("background"), [rgb(n) for n in PRESSES]
 
 
 def sweep(gen, residual: np.ndarray, reference: np.ndarray) -> dict:
@@ -99,7 +88,7 @@ def policy_row(gen, estimator, data, residuals, estimates, policy: str) -> dict:
     sweeps = [sweep(gen, r, f) for r, f in zip(residuals, refs)]
     return {"policy": policy, "summary": s, "contact_frames": contact,
             "regenerated_share": (s["regenerated"] + s["clamped"]) / contact if contact else 0.0,
-            "working_reference": refs.round(3).tolist(), "presses": dict(zip(PRESSES, sweeps)),
+            "working_reference": refs.round(3).tolist(), "presses": dict(zip(REAL_PRESSES, sweeps)),
             "warnings": sorted({str(w.message) for w in caught if "force estimator" in str(w.message)})}
 
 
@@ -107,32 +96,32 @@ def picture(path: Path, background: np.ndarray, residuals, row: dict) -> None:
     """Reference and ΔFz = -3, 0, +3 of each press under one policy (images as the sensor shows them)."""
     cols = [SWEEP.index(d) for d in (-3.0, 0.0, 3.0)]
     lines = []
-    for name, res in zip(PRESSES, residuals):
+    for name, res in zip(REAL_PRESSES, residuals):
         images = row["presses"][name]["images"]
         lines.append(np.concatenate([from_residual(res, background)] + [from_residual(images[c], background)
                                                                          for c in cols], axis=1))
-    sheet = np.concatenate(lines, axis=0)[::2, ::2]
-    cv2.imwrite(str(path), sheet[..., ::-1])
+    save_png(path, np.ascontiguousarray(np.concatenate(lines, axis=0)[::2, ::2]))
 
 
 def main(argv=None) -> dict:
     p = base_parser(__doc__.splitlines()[0])
-    p.add_argument("--frames", type=Path, default=FRAMES, help=f"folder of the real frames (default {FRAMES})")
+    p.add_argument("--frames", type=Path, default=REAL_GELSIGHT, help=f"folder of the real frames (default {REAL_GELSIGHT})")
     args = p.parse_args(argv)
     from controltac_il.estimators import ForceEstimator
     from controltac_il.generator import ForceGenerator
 
     torch.set_num_threads(2)
     gen, estimator = ForceGenerator.from_pretrained(), ForceEstimator.from_pretrained()
-    background, presses = load(args.frames)
+    background, presses = real_gelsight(args.frames)  # a missing frame: one line naming it (guard)
+    presses = list(presses.values())
     residuals = [to_residual(p, background) for p in presses]
     estimates = estimator.predict(np.stack(residuals)).astype(np.float64)
     data = RealPresses(background, presses)
     rows = [policy_row(gen, estimator, data, residuals, estimates, policy) for policy in POLICIES]
     table = [{"policy": r["policy"], "regenerated": f"{r['summary']['regenerated'] + r['summary']['clamped']}/"
-              f"{r['contact_frames']}", **{f"{n} area monotone": r["presses"][n]["area_non_decreasing"] for n in PRESSES},
-              "identity MSE": max(r["presses"][n]["identity_mse"] for n in PRESSES),
-              "invented": max(r["presses"][n]["invented_contact_max"] for n in PRESSES)} for r in rows]
+              f"{r['contact_frames']}", **{f"{n} area monotone": r["presses"][n]["area_non_decreasing"] for n in REAL_PRESSES},
+              "identity MSE": max(r["presses"][n]["identity_mse"] for n in REAL_PRESSES),
+              "invented": max(r["presses"][n]["invented_contact_max"] for n in REAL_PRESSES)} for r in rows]
     print_table(table, list(table[0]), title="estimated references outside the range, per policy (real frames)")
     if args.out is not None:
         picture(args.out.with_suffix(".png"), background, residuals, rows[POLICIES.index("nominal")])
@@ -142,7 +131,7 @@ def main(argv=None) -> dict:
     return write_results(args.out, {
         "benchmark": "unlabelled_real", "frames": "shared/data/real_gelsight_mini (GPL-3.0, measured against only)",
         "generator_hash": str(gen.checkpoint_hash), "estimator_hash": str(estimator.checkpoint_hash),
-        "estimates_n": dict(zip(PRESSES, estimates.round(2).tolist())), "sweep_dfz": list(SWEEP), "policies": rows,
+        "estimates_n": dict(zip(REAL_PRESSES, estimates.round(2).tolist())), "sweep_dfz": list(SWEEP), "policies": rows,
         "target_regenerated_share": 0.8})
 
 

@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.common import save_figure
+
 
 def _as_seeds(outcomes) -> list[np.ndarray]:
     out = [np.asarray(o, dtype=np.float64).reshape(-1) for o in outcomes]
@@ -290,7 +292,7 @@ def plot(table: list[dict], path: Path, variants, settings) -> None:
         ax.grid(alpha=0.3)
     axes[0][0].set_ylabel("test success (dots: seeds; bar: 95 % CI)")
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path, dpi=110)
 
 
 def plot_paired(looks: list[dict], comparisons: list[dict], path: Path) -> None:
@@ -321,15 +323,4 @@ def plot_paired(looks: list[dict], comparisons: list[dict], path: Path) -> None:
     ax.legend(fontsize=7, loc="lower right")
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    _save(fig, path)
-
-
-def _save(fig, path: Path) -> None:
-    """Write ``fig`` as a PNG at ``path`` atomically and close it."""
-    import matplotlib.pyplot as plt
-
-    from controltac_il.io import atomic_path
-
-    with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
