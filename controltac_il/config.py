@@ -10,12 +10,20 @@ from __future__ import annotations
 
 import functools
 from argparse import ArgumentTypeError
-from typing import Mapping
+from typing import Annotated, Mapping
 
-from pydantic import ConfigDict, TypeAdapter, ValidationError
+import numpy as np
+from pydantic import ConfigDict, Field, TypeAdapter, ValidationError
 
 STRICT = ConfigDict(extra="forbid")
 AUTO = "auto"  # a batch size the generator picks for its device (generator.batching)
+PosInt = Annotated[int, Field(gt=0)]
+Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]  # finite and > 0
+
+
+def is_int(value) -> bool:
+    """An int or a numpy integer, never a bool (True is an int to Python, not a count or an index to a user)."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
 
 
 def parse_batch_size(text: str):

@@ -25,7 +25,7 @@ os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 
 from controltac_il.cli import ArgumentParser  # noqa: E402
 from controltac_il.streams import LOOP, LOOP_STATE, force_key, image_key, tactile_key  # noqa: E402
-from envs.config import CAMERAS, SCENES, SENSORS, scene_config  # noqa: E402
+from envs.config import CAMERAS, OPTICS, SCENES, SENSORS, PegInHoleConfig, scene_config  # noqa: E402
 
 if TYPE_CHECKING:  # MuJoCo is imported by the job, after the options: --help stays light
     from envs.expert import ScriptedExpert
@@ -84,9 +84,9 @@ FLAG_OF_FIELD = {"cameras": "--cameras", "camera_size": "--camera-size", "tactil
                  "hole_diameter_mm": "--hole-diameter"}
 
 
-def parse_args(argv=None) -> argparse.Namespace:
-    """Parse and validate the command line; ``args.config`` is the scene. Exits 2 with one line naming
-    the flag on any invalid value."""
+def build_parser() -> argparse.ArgumentParser:
+    """The command line, its defaults the scene's (``PegInHoleConfig``)."""
+    d = PegInHoleConfig()
     p = ArgumentParser(
         prog="python -m envs.collect",
         description="Record scripted peg-in-hole demonstrations (cameras, tactile, forces) as ACT HDF5 "
@@ -99,12 +99,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--seed", type=int, default=0, help="first scene seed; later episodes use the next seeds (default 0)")
     p.add_argument("--cameras", nargs="*", default=list(CAMERAS), choices=CAMERAS,
                    help="cameras to record (default: third_view wrist; none: no images)")
-    p.add_argument("--camera-size", type=int, nargs=2, default=(96, 128), metavar=("H", "W"),
-                   help="camera image size in pixels (default 96 128)")
-    p.add_argument("--tactile-size", type=int, nargs=2, default=(120, 160), metavar=("H", "W"),
-                   help="tactile image size in pixels, GelSight Mini aspect 3:4 (default 120 160)")
-    p.add_argument("--optics", default="three_light", choices=("three_light", "polynomial"),
-                   help="tactile optics model (default three_light, as the generator's training data)")
+    p.add_argument("--camera-size", type=int, nargs=2, default=d.camera_size, metavar=("H", "W"),
+                   help=f"camera image size in pixels (default {d.camera_size[0]} {d.camera_size[1]})")
+    p.add_argument("--tactile-size", type=int, nargs=2, default=d.tactile_size, metavar=("H", "W"),
+                   help=f"tactile image size in pixels, GelSight Mini aspect 3:4 (default {d.tactile_size[0]} {d.tactile_size[1]})")
+    p.add_argument("--optics", default=d.tactile_optics, choices=OPTICS,
+                   help=f"tactile optics model (default {d.tactile_optics}, as the generator's training data)")
     p.add_argument("--no-tactile", action="store_true", help="record no tactile images (forces are still recorded)")
     p.add_argument("--scene", default="default", choices=SCENES,
                    help="default: pick the peg from the table; touch_critical: the peg starts in the hand "
@@ -119,6 +119,13 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="give up after this many attempts, at least --episodes (default: 2 x episodes + 10)")
     p.add_argument("--compression", default=None, choices=("gzip", "lzf"), help="HDF5 image compression (default none)")
     p.add_argument("--quiet", action="store_true", help="no closing summary line (a caller that moves --out says where)")
+    return p
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    """Parse and validate the command line; ``args.config`` is the scene. Exits 2 with one line naming
+    the flag on any invalid value."""
+    p = build_parser()
     args = p.parse_args(argv)
     if args.episodes < 1:
         p.error(f"--episodes must be an int >= 1, got {args.episodes}")

@@ -14,7 +14,7 @@ from pydantic import field_validator
 from pydantic.dataclasses import dataclass
 
 from controltac_il.generator.forces import NOMINAL_FZ
-from controltac_il.config import AUTO, STRICT, one_line_errors, parse_batch_size
+from controltac_il.config import AUTO, STRICT, is_int, one_line_errors, parse_batch_size
 
 MODES = ("cache", "online")
 OUT_OF_RANGE = ("clamp", "skip")
@@ -31,7 +31,7 @@ def _setting(default, help: str, flag: bool = True, **argparse_kwargs):
 def _int(value, low: int, none_ok: bool = False) -> int | None:
     if value is None and none_ok:
         return None
-    if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < low:
+    if not is_int(value) or value < low:
         raise ValueError(f"expected {'None or ' if none_ok else ''}an int >= {low}")
     return int(value)
 
@@ -151,7 +151,7 @@ class ForceAugmentConfig:
     def _batch(cls, v):
         if v == AUTO:
             return AUTO
-        if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
+        if not is_int(v) or v < 1:
             raise ValueError("expected an int >= 1 or 'auto'")
         return int(v)
 

@@ -8,14 +8,13 @@ from typing import TYPE_CHECKING, Annotated, Literal
 from pydantic import Field, model_validator
 from pydantic.dataclasses import dataclass
 
-from controltac_il.config import STRICT, JsonConfig
+from controltac_il.config import STRICT, JsonConfig, Positive
 from controltac_il.tactile.residual import OFFSET
 
 if TYPE_CHECKING:
     import torch
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
-Std = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 
 
 @dataclass(config=STRICT)
@@ -50,9 +49,9 @@ class EstimatorConfig(JsonConfig):
     widths: Annotated[tuple[Annotated[int, Field(ge=1)], ...], Field(min_length=1, max_length=6)] = (16, 32, 64, 96)
     hidden: Annotated[int, Field(ge=1)] = 128
     residual_offset: Finite = float(OFFSET)
-    residual_scale: Std = 32.0
+    residual_scale: Positive = 32.0
     force_mean: tuple[Finite, Finite, Finite] = (0.0, 0.0, 0.0)
-    force_std: tuple[Std, Std, Std] = (1.0, 1.0, 1.0)
+    force_std: tuple[Positive, Positive, Positive] = (1.0, 1.0, 1.0)
     contact_threshold: Annotated[float, Field(gt=0, lt=128)] | None = 8.0
     min_contact_fraction: Annotated[float, Field(ge=0, lt=1)] = 2e-4
     input_mix: tuple[tuple[Finite, Finite, Finite], tuple[Finite, Finite, Finite], tuple[Finite, Finite, Finite]] | None = None

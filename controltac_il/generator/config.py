@@ -12,7 +12,7 @@ from typing import Annotated, Literal
 from pydantic import Field, model_validator
 from pydantic.dataclasses import dataclass
 
-from controltac_il.config import STRICT, JsonConfig
+from controltac_il.config import STRICT, JsonConfig, PosInt, Positive
 from controltac_il.generator.forces import VALIDATED_RANGE
 
 # Validated force range of the paper, owned by ``controltac_il.generator.forces`` (these are its aliases).
@@ -20,9 +20,6 @@ FZ_RANGE = VALIDATED_RANGE.fz
 SHEAR_MAX = VALIDATED_RANGE.shear_max
 DETAIL_GATE_SIGMA_PX = 2.0  # smoothing of the contact magnitudes that gate the reference detail
 
-
-PosInt = Annotated[int, Field(gt=0)]
-Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 
 
 @dataclass(config=STRICT)

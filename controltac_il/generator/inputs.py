@@ -14,7 +14,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from controltac_il.config import AUTO
+from controltac_il.config import AUTO, is_int
 from controltac_il.generator.forces import VALIDATED_RANGE, TargetDecision, decide_targets
 
 # Largest change of aspect ratio (either way) the resize to the model's image size may make.
@@ -59,20 +59,16 @@ def check_forces(f, n: int, name: str) -> np.ndarray:
     return f
 
 
-def _is_int(x) -> bool:
-    return isinstance(x, (int, np.integer)) and not isinstance(x, bool)
-
-
 def check_options(steps, seed: int | Sequence[int], batch_size, n: int, default_steps: int,
                   max_steps: int) -> tuple[int, list[int]]:
     """-> (DDIM steps in [1, max_steps], ``default_steps`` for None; one seed per sample, n ints); ValueError on a
     bad steps, seed or batch_size (a positive int or "auto")."""
     steps = default_steps if steps is None else steps
-    if not _is_int(steps) or not 1 <= steps <= max_steps:
+    if not is_int(steps) or not 1 <= steps <= max_steps:
         raise ValueError(f"steps must be an int in [1, {max_steps}], got {steps!r}")
-    if batch_size != AUTO and (not _is_int(batch_size) or batch_size < 1):
+    if batch_size != AUTO and (not is_int(batch_size) or batch_size < 1):
         raise ValueError(f"batch_size must be a positive int or 'auto', got {batch_size!r}")
-    if _is_int(seed):
+    if is_int(seed):
         return int(steps), [int(seed)] * n
     seeds = [int(s) for s in seed]
     if len(seeds) != n:

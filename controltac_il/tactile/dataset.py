@@ -33,6 +33,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from controltac_il.cli import ArgumentParser
+from controltac_il.config import is_int
 from controltac_il.io import atomic_dir
 from controltac_il.tactile.indenters import INDENTERS, TRAIN_OBJECTS, get_indenter, procedural_objects
 from controltac_il.tactile.instances import FAMILIES, sensor_instance
@@ -44,6 +45,8 @@ if TYPE_CHECKING:  # the sensor model (OpenCV) is imported where images are rend
 
 MANIFEST_FIELDS = ("image", "object", "pose_id", "x_mm", "y_mm", "theta_rad", "fx", "fy", "fz")
 SENSOR_FIELD = "sensor"  # optional: the simulated sensor instance of the row (controltac_il.tactile.instances)
+FZ_RANGE = (0.5, 11.0)  # N: the rendered training forces, a margin around the validated 1-10 N
+SHEAR_MAX = 1.0  # N: |Fx|, |Fy| of the rendered training forces
 
 
 @dataclass(frozen=True)
@@ -60,7 +63,7 @@ class TactileRecord:
 
 
 def sample_contacts(objects: Sequence[str], poses_per_object: int, forces_per_pose: int, seed: int,
-                    spec: SensorSpec, fz_range=(0.5, 11.0), shear_max: float = 1.0, only: int | None = None):
+                    spec: SensorSpec, fz_range=FZ_RANGE, shear_max: float = SHEAR_MAX, only: int | None = None):
     """Deterministic contact list: each (object, pose) draws from its own stream keyed by (seed, object index, pose).
 
     Yields (object, pose_id, pose (x, y, θ), [(fx, fy, fz), ...], noise seeds); ``only``: that object index alone.
@@ -80,10 +83,6 @@ def sample_contacts(objects: Sequence[str], poses_per_object: int, forces_per_po
             yield name, pid, pose, forces, [int(n) for n in noise]
 
 
-def _is_int(value) -> bool:
-    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
-
-
 def _check_write_args(objects: tuple, poses_per_object, forces_per_pose, seed, fz_range, shear_max, sensors,
                       instances) -> None:
     """ValueError naming the first bad argument of :func:`write_dataset`."""
@@ -92,9 +91,9 @@ def _check_write_args(objects: tuple, poses_per_object, forces_per_pose, seed, f
     for name in objects:
         get_indenter(name)
     for name, value in (("poses_per_object", poses_per_object), ("forces_per_pose", forces_per_pose)):
-        if not _is_int(value) or value < 1:
+        if not is_int(value) or value < 1:
             raise ValueError(f"{name} must be an int >= 1, got {value!r}")
-    if not _is_int(seed) or seed < 0:
+    if not is_int(seed) or seed < 0:
         raise ValueError(f"seed must be an int >= 0, got {seed!r}")
     try:
         lo, hi = (float(v) for v in fz_range)
@@ -105,13 +104,13 @@ def _check_write_args(objects: tuple, poses_per_object, forces_per_pose, seed, f
     if not (isinstance(shear_max, numbers.Real) and not isinstance(shear_max, bool) and np.isfinite(shear_max)
             and shear_max >= 0):
         raise ValueError(f"shear_max must be a finite number >= 0 N, got {shear_max!r}")
-    if sensors is not None and not (sensors in FAMILIES and _is_int(instances) and instances >= 1):
+    if sensors is not None and not (sensors in FAMILIES and is_int(instances) and instances >= 1):
         raise ValueError(f"sensors must be None or one of {FAMILIES} with instances >= 1, got {sensors!r}, {instances!r}")
 
 
 def write_dataset(out_dir, objects: Sequence[str] = TRAIN_OBJECTS, poses_per_object: int = 50,
                   forces_per_pose: int = 8, seed: int = 0, spec: SensorSpec | None = None,
-                  optics: str = "three_light", fz_range=(0.5, 11.0), shear_max: float = 1.0,
+                  optics: str = "three_light", fz_range=FZ_RANGE, shear_max: float = SHEAR_MAX,
                   progress: bool = True, sensors: str | None = None, instances: int = 16, workers: int = 1) -> Path:
     """Render a sensor-model dataset into ``out_dir`` (built in a temporary folder, renamed when complete).
 
@@ -125,7 +124,7 @@ def write_dataset(out_dir, objects: Sequence[str] = TRAIN_OBJECTS, poses_per_obj
 
     objects = tuple(objects)
     _check_write_args(objects, poses_per_object, forces_per_pose, seed, fz_range, shear_max, sensors, instances)
-    if not _is_int(workers) or workers < 1:
+    if not is_int(workers) or workers < 1:
         raise ValueError(f"workers must be an int >= 1, got {workers!r}")
     spec = spec or SensorSpec.gelsight_mini()
     out_dir = Path(out_dir)

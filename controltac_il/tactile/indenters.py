@@ -20,6 +20,7 @@ from typing import Callable
 
 import numpy as np
 
+from controltac_il.config import is_int
 from controltac_il.tactile.spec import SensorSpec
 
 HeightFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -173,7 +174,7 @@ def procedural_indenter(index: int) -> Indenter:
     long) or a filleted elliptical plateau (semi-axes 0.6-5 mm), shifted up to 3.5 mm and rotated at random;
     a quarter of those without a cap carry bumps 0.03-0.1 mm high every 0.6-1.5 mm. No primitive is a ring, a
     T, a box or an edge, and no cap is bumpy: the held-out families (a bumpy cap is ``textured_bead``'s)."""
-    if not isinstance(index, (int, np.integer)) or isinstance(index, bool) or index < 0:
+    if not is_int(index) or index < 0:
         raise ValueError(f"procedural indenter index must be an int >= 0, got {index!r}")
     rng = np.random.default_rng([_PROCEDURAL_SEED, int(index)])
     parts, words = [], []

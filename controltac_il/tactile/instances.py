@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from controltac_il.config import is_int
 from controltac_il.tactile.spec import SensorSpec
 
 FAMILIES = ("train", "unseen")
@@ -42,7 +43,7 @@ def sensor_instance(family: str, index: int, size: tuple[int, int] | None = None
     (default 240×320); a pure function of its arguments."""
     if family not in FAMILIES:
         raise ValueError(f"sensor family must be one of {FAMILIES}, got {family!r}")
-    if not isinstance(index, (int, np.integer)) or isinstance(index, bool) or index < 0:
+    if not is_int(index) or index < 0:
         raise ValueError(f"sensor instance index must be an int >= 0, got {index!r}")
     base = SensorSpec.gelsight_mini()
     if family == "train" and index == 0:

@@ -12,12 +12,10 @@ from typing import Annotated, Literal
 from pydantic import AfterValidator, Field, model_validator
 from pydantic.dataclasses import dataclass
 
-from controltac_il.config import STRICT, JsonConfig
+from controltac_il.config import STRICT, JsonConfig, PosInt, Positive
 from controltac_il.streams import HDF5, HDF5_STATE, background_key, image_key, tactile_key
 
-PosInt = Annotated[int, Field(gt=0)]
 NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
-Rate = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 
 
 def _stream_names(names: tuple[str, ...]) -> tuple[str, ...]:
@@ -85,8 +83,8 @@ class ACTConfig(JsonConfig):
     latent_dim: PosInt = 32
     dropout: Annotated[float, Field(ge=0, lt=1)] = 0.1
     kl_weight: NonNeg = 10.0
-    lr: Rate = 1e-5
-    lr_backbone: Rate = 1e-5
+    lr: Positive = 1e-5
+    lr_backbone: Positive = 1e-5
     weight_decay: NonNeg = 1e-4
     temporal_ensemble_coeff: NonNeg = 0.01
     preset: Literal["gpu", "cpu", "custom"] = "custom"

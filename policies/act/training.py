@@ -33,7 +33,7 @@ from pydantic.dataclasses import dataclass
 from torch.utils.data import DataLoader, Dataset
 from tqdm import tqdm
 
-from controltac_il.config import STRICT
+from controltac_il.config import STRICT, PosInt
 from controltac_il.io import write_json
 from controltac_il.outputs import claim_output, own_checkpoint, own_json
 from controltac_il.streams import HDF5_STATE
@@ -43,8 +43,6 @@ from policies.act.checkpoint import (BACKGROUND_FILE, FORMAT, WEIGHTS_FILE, Chec
                                      load_optimizer_state, save_checkpoint)
 from policies.act.configuration_act import ACTConfig
 from policies.act.modeling_act import ACT
-
-PosInt = Annotated[int, Field(gt=0)]
 
 @dataclass(config=STRICT)
 class ACTTrainConfig:

@@ -17,7 +17,8 @@ from pydantic import Field, model_validator
 from pydantic.dataclasses import dataclass
 
 from controltac_il.checkpoint import read_json
-from controltac_il.generator.config import STRICT, AutoencoderConfig, DiffusionConfig, DiTConfig, PosInt, Positive
+from controltac_il.config import STRICT, PosInt, Positive
+from controltac_il.generator.config import AutoencoderConfig, DiffusionConfig, DiTConfig
 from controltac_il.generator.forces import VALIDATED_RANGE
 
 if TYPE_CHECKING:

@@ -30,10 +30,14 @@ def find_gelsight_devices(by_id_dir: str = BY_ID_DIR) -> list[dict]:
 
 
 def save_background(image: np.ndarray, path: str) -> None:
-    """Write an RGB uint8 (H, W, 3) background as a PNG at ``path`` (folders made as needed)."""
-    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    if not cv2.imwrite(path, cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
-        raise OSError(f"background_path: cannot write a PNG at {path!r}")
+    """Write an RGB uint8 (H, W, 3) background as a PNG at ``path``, atomically (folders made as needed): a
+    stopped recording never leaves a half-written background that a later session would load."""
+    from controltac_il.tactile.sheet import save_png
+
+    try:
+        save_png(path, image)
+    except OSError as exc:
+        raise OSError(f"background_path: cannot write a PNG at {path!r} ({exc})") from None
 
 
 class GelSightFrames:
