@@ -32,7 +32,8 @@ import torch
 from torch.utils.data import Dataset, Subset
 
 from controltac_il.datasets.background import estimate_background
-from controltac_il.datasets.checks import check_episode, check_same_streams, open_episode, streams
+from controltac_il.datasets.checks import (ACTION, QPOS, check_episode, check_same_streams, open_episode, stream_path,
+                                           streams)
 from controltac_il.datasets.episodes import episode_index, episode_paths
 from controltac_il.io import cache_root, write_json
 from controltac_il.streams import HDF5, HDF5_STATE, background_key, force_key, image_key, tactile_key
@@ -92,10 +93,10 @@ class EpisodeDataset(Dataset):
                     check_same_streams(p, self.paths[0], group, names, streams(f, group), exact)
                 found_force = [s for s in streams(f, "force") if s in self.tactile_sensors]
                 check_same_streams(p, self.paths[0], "force", self.force_sensors, found_force, exact=True)
-                trajectory = f["observations/qpos"][()].tobytes() + f["action"][()].tobytes()
+                trajectory = f[QPOS][()].tobytes() + f[ACTION][()].tobytes()
                 self._digests.append(hashlib.sha256(trajectory).hexdigest()[:16])
                 for s in self.tactile_sensors:
-                    key = f"observations/tactile_background/{s}"
+                    key = stream_path("tactile_background", s)
                     backgrounds[(n, s)] = f[key][()] if key in f else None
         self.lengths = np.asarray(lengths, dtype=np.int64)
         self.offsets = np.concatenate([[0], np.cumsum(self.lengths)])
@@ -120,8 +121,8 @@ class EpisodeDataset(Dataset):
         for (n, s), bg in found.items():
             if bg is None:
                 with h5py.File(self.paths[n], "r") as f:
-                    frames = f[f"observations/tactile/{s}"][()]
-                    fkey = f"observations/force/{s}"
+                    frames = f[stream_path("tactile", s)][()]
+                    fkey = stream_path("force", s)
                     force = f[fkey][()] if fkey in f else None
                 bg, used = estimate_background(frames, force)
                 warnings.warn(
@@ -167,8 +168,8 @@ class EpisodeDataset(Dataset):
         qpos, action = [], []
         for p in self.paths:
             with open_episode(p) as f:
-                qpos.append(f["observations/qpos"][()])
-                action.append(f["action"][()])
+                qpos.append(f[QPOS][()])
+                action.append(f[ACTION][()])
         stats = {}
         for name, parts in (("qpos", qpos), ("action", action)):
             arr = np.concatenate(parts).astype(np.float64)
@@ -207,10 +208,10 @@ class EpisodeDataset(Dataset):
         h = self._files.get(n)
         if h is None:
             f = h5py.File(self.paths[n], "r")
-            h = {"file": f, "action": f["action"], "qpos": f["observations/qpos"]}
-            h.update({f"images.{c}": f[f"observations/images/{c}"] for c in self.cameras})
-            h.update({f"tactile.{s}": f[f"observations/tactile/{s}"] for s in self.tactile_sensors})
-            h.update({f"force.{s}": f[f"observations/force/{s}"] for s in self.force_sensors})
+            h = {"file": f, "action": f[ACTION], "qpos": f[QPOS]}
+            h.update({f"images.{c}": f[stream_path("images", c)] for c in self.cameras})
+            h.update({f"tactile.{s}": f[stream_path("tactile", s)] for s in self.tactile_sensors})
+            h.update({f"force.{s}": f[stream_path("force", s)] for s in self.force_sensors})
             self._files[n] = h
         return h
 

@@ -17,6 +17,13 @@ import numpy as np
 MAX_PLAUSIBLE_FORCE_N = 60.0  # a GelSight Mini is rated to ~25 N: larger labels are in mN or wrong
 CONTACT_N = 0.05  # |F| above which a label counts as contact when checking the sign of Fz
 PER_FRAME_GROUPS = ("images", "tactile", "force")
+ACTION, QPOS, QVEL = "action", "observations/qpos", "observations/qvel"  # the file's paths (ALOHA's ACT layout)
+NEEDS = f"every episode needs /{ACTION} and /{QPOS}"
+
+
+def stream_path(group: str, name: str) -> str:
+    """The path of stream ``name`` of ``group`` (images, tactile, tactile_background or force)."""
+    return f"observations/{group}/{name}"
 
 
 def open_episode(path: Path) -> h5py.File:
@@ -29,12 +36,13 @@ def open_episode(path: Path) -> h5py.File:
 
 def streams(f: h5py.File, group: str) -> list[str]:
     """Names under ``/observations/<group>`` (sorted; [] when the group is absent)."""
-    return sorted(f[f"observations/{group}"].keys()) if f"observations/{group}" in f else []
+    where = stream_path(group, "").rstrip("/")
+    return sorted(f[where].keys()) if where in f else []
 
 
 def _require(f: h5py.File, path: Path, key: str) -> h5py.Dataset:
     if key not in f:
-        raise ValueError(f"{path.name}: no /{key} (every episode needs /action and /observations/qpos)")
+        raise ValueError(f"{path.name}: no /{key} ({NEEDS})")
     return f[key]
 
 
@@ -55,26 +63,26 @@ def check_force_labels(where: str, force: np.ndarray) -> None:
 
 def check_episode(f: h5py.File, path: Path) -> int:
     """Validate one open episode file (see the module docstring); returns its number of frames T."""
-    qpos = _require(f, path, "observations/qpos")
-    action = _require(f, path, "action")
+    qpos = _require(f, path, QPOS)
+    action = _require(f, path, ACTION)
     T = int(qpos.shape[0])
-    per_frame = {"action": action, "observations/qpos": qpos}
-    if "observations/qvel" in f:
-        per_frame["observations/qvel"] = f["observations/qvel"]
+    per_frame = {ACTION: action, QPOS: qpos}
+    if QVEL in f:
+        per_frame[QVEL] = f[QVEL]
     for group in PER_FRAME_GROUPS:
-        per_frame.update({f"observations/{group}/{s}": f[f"observations/{group}/{s}"] for s in streams(f, group)})
+        per_frame.update({stream_path(group, s): f[stream_path(group, s)] for s in streams(f, group)})
     wrong = {k: int(d.shape[0]) for k, d in per_frame.items() if d.shape[0] != T}
     if wrong:
         key, n = next(iter(wrong.items()))
-        raise ValueError(f"{path.name}: /{key} has {n} frames, /observations/qpos has {T}; every per-frame "
+        raise ValueError(f"{path.name}: /{key} has {n} frames, /{QPOS} has {T}; every per-frame "
                          "stream of an episode needs the same length")
-    for key in ("action", "observations/qpos"):
+    for key in (ACTION, QPOS):
         values = per_frame[key][()]
         if not np.isfinite(values).all():
             bad = int(np.flatnonzero(~np.isfinite(values.reshape(T, -1)).all(axis=1))[0])
             raise ValueError(f"{path.name}: /{key} holds NaN or inf (first at frame {bad})")
     for name in streams(f, "force"):
-        check_force_labels(f"{path.name}: /observations/force/{name}", f[f"observations/force/{name}"][()])
+        check_force_labels(f"{path.name}: /{stream_path('force', name)}", f[stream_path("force", name)][()])
     return T
 
 

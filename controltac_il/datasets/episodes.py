@@ -25,7 +25,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from controltac_il.datasets.checks import open_episode
+from controltac_il.datasets.checks import ACTION, NEEDS, QPOS, open_episode
 from controltac_il.io import atomic_path
 
 EPISODE_PATTERN = re.compile(r"^episode_(\d+)\.hdf5$")
@@ -170,8 +170,8 @@ def read_episode(path: str | os.PathLike) -> Episode:
     if not path.is_file():
         raise FileNotFoundError(f"episode file not found: {path}")
     with open_episode(path) as f:
-        if "action" not in f or "observations/qpos" not in f:
-            raise ValueError(f"{path}: not an ACT episode (needs /action and /observations/qpos)")
+        if ACTION not in f or QPOS not in f:
+            raise ValueError(f"{path}: not an ACT episode ({NEEDS})")
         obs = f["observations"]
         attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items() if k != "sim"}
         return Episode(
