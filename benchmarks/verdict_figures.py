@@ -4,7 +4,8 @@ ForceAugment's targets) and the README's headline rows.
 
 ``python -m benchmarks.verdict_figures RUNS.json`` prints the block of a grid still running: test tables read
 "pending" until a look is complete, and a look's statistics exist only then; ``--look K`` refuses, in one line,
-a look whose units are not all tested.
+a look whose units are not all tested; ``--pictures`` draws the grid's pictures from the JSON (a grid that goes on
+after a look draws them only when it ends).
 """
 
 from __future__ import annotations
@@ -153,10 +154,17 @@ def main(argv=None) -> int:
                        "JSON (python -m benchmarks.verdict).")
     p.add_argument("json", type=Path, help="the grid's --out JSON")
     p.add_argument("--look", type=int, default=None, help="print look K's decision; refused until its units are tested")
+    p.add_argument("--pictures", action="store_true",
+                   help="draw the pictures beside the JSON instead, as the grid draws them when it ends: success per "
+                        "variant (JSON.png) and each complete look's seed-paired differences (JSON_paired.png)")
     args = p.parse_args(argv)
     doc = json.loads(args.json.read_text())
     if not isinstance(doc, dict) or doc.get("benchmark") not in BENCHMARKS:
         raise ValueError(f"{args.json}: not the JSON of python -m benchmarks.verdict")
+    if args.pictures:
+        drawn = pictures(doc, args.json)
+        print("\n".join(f"wrote {path}" for path in drawn) or "no picture yet: no look is complete")
+        return 0
     if args.look is not None:
         return _show_look(p, doc, args.look)
     try:
@@ -164,6 +172,21 @@ def main(argv=None) -> int:
     except (KeyError, TypeError, IndexError) as exc:
         raise ValueError(f"{args.json}: incomplete or malformed ({type(exc).__name__}: {exc})") from None
     return 0
+
+
+def pictures(doc: dict, path: Path) -> list[Path]:
+    """The grid's pictures from its JSON (``verdict_report.plot``, ``plot_paired``), for a grid that goes on after
+    a complete look; none before its first look is complete."""
+    from benchmarks.verdict_report import plot, plot_paired
+
+    if not doc.get("table"):
+        return []
+    protocol, out = doc["protocol"], [path.with_suffix(".png")]
+    plot(doc["table"], out[0], list(protocol["variants"]), list(protocol["settings"]))
+    if protocol.get("looks"):
+        out.append(path.with_name(path.stem + "_paired.png"))
+        plot_paired(doc["looks"], doc["comparisons"], out[1])
+    return out
 
 
 def _show_look(p, doc: dict, k: int) -> int:

@@ -5,6 +5,7 @@ import json
 import re
 from pathlib import Path
 
+import cv2
 import pytest
 
 from benchmarks import verdict
@@ -133,3 +134,14 @@ def test_v3_prints_a_look_only_once_complete_and_its_readme_row_says_running_unt
     assert row[0] == ("the verdict (v3, confirmatory): ACT with ForceAugment `fa2` (2 copies, the paper's offsets) vs "
                       "ACT on the real demos, nominal (4–7 N), fresh seeds, 12 paired (look 1)")
     assert row[1] == "+20.0 points: **helps**" and "against 0.001 (efficacy)" in row[2]
+
+
+def test_pictures_are_drawn_from_the_json_once_a_look_is_complete_and_not_before(tmp_path, capsys):
+    path = tmp_path / "v3.json"
+    path.write_text(json.dumps(_v3_doc(tested_seeds=11)))
+    assert vf.main([str(path), "--pictures"]) == 0 and not list(tmp_path.glob("*.png"))
+    path.write_text(json.dumps(_v3_doc(tested_seeds=12)))
+    assert vf.main([str(path), "--pictures"]) == 0
+    drawn = {p.name: cv2.imread(str(p)) for p in tmp_path.glob("*.png")}
+    assert set(drawn) == {"v3.png", "v3_paired.png"} and all(img is not None and img.size for img in drawn.values())
+    assert f"wrote {tmp_path / 'v3_paired.png'}" in capsys.readouterr().out
