@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from benchmarks.common import base_parser, print_table, write_results
+from controltac_il.generator.forces import VALIDATED_RANGE
 
 SIZE = (120, 160)  # render size (H, W), the pad's aspect
 CROP_W = 120  # kept columns: a square frame, another aspect ratio than the 64x80 input

@@ -24,7 +24,6 @@ from controltac_il.config import one_line
 from controltac_il.estimators.config import EstimatorConfig, EstimatorTrainConfig
 from controltac_il.estimators.data import load_arrays, native_no_contact, split_by_pose
 from controltac_il.outputs import claim_output, own_checkpoint, own_json, own_safetensors
-from controltac_il.tactile.dataset import FZ_RANGE, SHEAR_MAX
 from controltac_il.tactile.residual import OFFSET
 
 
@@ -107,6 +106,8 @@ def check_args(args: argparse.Namespace) -> tuple[EstimatorTrainConfig, Estimato
 
 
 def model_card(data: Path, n_train: int, n_val: int, history: list, cfg: EstimatorConfig, train: EstimatorTrainConfig) -> str:
+    from controltac_il.tactile.dataset import FZ_RANGE, SHEAR_MAX  # here: python -m runs that module on its own
+
     last = history[-1] if history else None
     mae = "n/a" if last is None else ", ".join(f"{a} {v:.3f} N" for a, v in zip(("Fx", "Fy", "Fz"), last["val_mae"]))
     return (
