@@ -223,16 +223,15 @@ def load_models(args, pose: bool):
     from controltac_il.generator import ForceGenerator
 
     estimator = None
-    bundle = args.generator is not None and (Path(args.generator) / "estimator").is_dir()
-    if args.estimator or bundle:  # a calibration bundle (--generator) brings its estimator
+    if args.estimator or args.generator is not None:  # a calibration bundle (--generator) brings its estimator
         from controltac_il.augment.reference import bundle_estimator
         from controltac_il.estimators import ForceEstimator
 
+        flag = "--estimator" if args.estimator else "--generator"
         try:
             estimator = ForceEstimator.from_pretrained(args.estimator) if args.estimator else bundle_estimator(args.generator)
         except (ValueError, OSError) as exc:
-            raise UsageError("--estimator", f"expected a force estimator checkpoint folder: "
-                                            f"{' '.join(str(exc).split())}") from exc
+            raise UsageError(flag, f"expected a force estimator checkpoint folder: {' '.join(str(exc).split())}") from exc
     try:
         generator = ForceGenerator.from_pretrained(args.generator, device=device)
     except (ValueError, OSError) as exc:

@@ -65,10 +65,10 @@ class ForceAugment(Dataset):
         adapters.check_probe(probe)
         self.keys = resolve_keys(probe, self.config, dataset)
         self.tactile_keys = self.keys.tactile_keys
-        if isinstance(generator, (str, os.PathLike)) and estimator is None and (Path(generator) / "estimator").is_dir():
+        if isinstance(generator, (str, os.PathLike)) and estimator is None:
             from controltac_il.augment.reference import bundle_estimator
 
-            estimator = bundle_estimator(generator)  # a calibration bundle: its estimator too
+            estimator = bundle_estimator(generator)  # a calibration bundle brings its estimator; else None
         self.references = ReferenceForces(self.keys, self.config.contact_force, self.config.min_contact_area, estimator,
                                           self.config.estimated_reference)
         self.labelled = self.references.labelled

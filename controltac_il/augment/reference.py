@@ -55,12 +55,16 @@ class NominalEstimator:
 
 def bundle_estimator(path):
     """The estimator of the calibration bundle at ``path`` (``python -m controltac_il.calibrate``): its calibrated
-    one, or NominalEstimator (with a one-line warning) where the bundle says it does not beat the constant."""
+    one, or NominalEstimator (with a one-line warning) where the bundle says it does not beat the constant; None
+    where ``path`` holds no bundle's estimator part (a plain generator checkpoint or a shipped name)."""
     import json
     from pathlib import Path
 
     from controltac_il.estimators import ForceEstimator
+    from controltac_il.estimators.estimator import BUNDLE_PART
 
+    if not (Path(path) / BUNDLE_PART).is_dir():
+        return None
     record = Path(path) / "calibration.json"
     if record.is_file() and not json.loads(record.read_text())["estimator"].get("use_estimator", True):
         warnings.warn(f"{path}: its calibrated estimator does not beat the constant baseline on held-out grasps; "
