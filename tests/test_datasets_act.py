@@ -207,6 +207,21 @@ def test_streams_of_one_episode_must_have_one_length(folder, tmp_path, key, valu
         EpisodeDataset(folder, stats_path=tmp_path / "s.json")
 
 
+@pytest.mark.parametrize("key, value, message", [
+    ("observations/tactile/left", np.zeros((9, H, W), np.uint8), r"/observations/tactile/left has shape \(9, 12, 16\); "
+                                                                 r"expected \(T, H, W, 3\)"),
+    ("observations/images/wrist", np.zeros((9, H, W, 4), np.uint8), r"/observations/images/wrist has shape"),
+    ("observations/qpos", np.zeros(9, np.float32), r"/observations/qpos has shape \(9,\); expected \(T, D\)"),
+    ("action", np.float32(0), r"/action has shape \(\); expected \(T, D\)"),
+    ("observations/force/left", np.zeros((9, 2), np.float32), r"/observations/force/left has shape \(9, 2\)"),
+    ("observations/tactile_background/left", np.zeros((H, W), np.uint8), r"/observations/tactile_background/left has shape"),
+])
+def test_a_stream_of_the_wrong_shape_is_named_before_anything_reads_it(folder, tmp_path, key, value, message):
+    _edit(folder / "episode_0.hdf5", key, value)
+    with pytest.raises(ValueError, match=r"episode_0.hdf5: " + message):
+        EpisodeDataset(folder, stats_path=tmp_path / "s.json")
+
+
 def test_a_corrupt_file_is_named(folder, tmp_path):
     (folder / "episode_1.hdf5").write_bytes(b"not hdf5")
     with pytest.raises(ValueError, match=r"episode_1.hdf5: not a readable HDF5 episode file"):

@@ -1,8 +1,8 @@
 """What an episode file must satisfy before anything trains on it; every error names the file and the key.
 
 Checked per file (``check_episode``): the file opens as HDF5; ``/action`` and ``/observations/qpos``
-exist; every per-frame stream (action, qpos, qvel, images, tactile, force) has the same number of
-frames; qpos and actions are finite; force labels are finite, in N (|F| <= MAX_PLAUSIBLE_FORCE_N) and
+exist; every stream has its layout's axes (``SHAPES``); every per-frame stream (action, qpos, qvel, images,
+tactile, force) has the same number of frames; qpos and actions are finite; force labels are finite, in N (|F| <= MAX_PLAUSIBLE_FORCE_N) and
 pressing with Fz > 0. Checked across files (``check_same_streams``): every episode records the same
 cameras, tactile sensors and force labels.
 """
@@ -17,6 +17,8 @@ import numpy as np
 MAX_PLAUSIBLE_FORCE_N = 60.0  # a GelSight Mini is rated to ~25 N: larger labels are in mN or wrong
 CONTACT_N = 0.05  # |F| above which a label counts as contact when checking the sign of Fz
 PER_FRAME_GROUPS = ("images", "tactile", "force")
+SHAPES = {"vector": (2, None, "(T, D)"), "images": (4, 3, "(T, H, W, 3)"), "tactile": (4, 3, "(T, H, W, 3)"),
+          "force": (2, 3, "(T, 3) [Fx, Fy, Fz] N"), "tactile_background": (3, 3, "(H, W, 3)")}  # (axes, last, text)
 ACTION, QPOS, QVEL = "action", "observations/qpos", "observations/qvel"  # the file's paths (ALOHA's ACT layout)
 NEEDS = f"every episode needs /{ACTION} and /{QPOS}"
 
@@ -61,10 +63,23 @@ def check_force_labels(where: str, force: np.ndarray) -> None:
                          "(sensor frame): flip the sign of the labels")
 
 
+def _check_shapes(f: h5py.File, path: Path) -> None:
+    """Every stream has its layout's number of axes (and 3 colour or force components), so that nothing downstream
+    fails on a transposed, flattened or scalar array."""
+    expected = {key: SHAPES["vector"] for key in (ACTION, QPOS, QVEL) if key in f}
+    expected.update({stream_path(g, s): SHAPES[g] for g in (*PER_FRAME_GROUPS, "tactile_background")
+                     for s in streams(f, g)})
+    for key, (ndim, last, text) in expected.items():
+        shape = f[key].shape
+        if shape is None or len(shape) != ndim or (last is not None and shape[-1] != last):
+            raise ValueError(f"{path.name}: /{key} has shape {shape}; expected {text}")
+
+
 def check_episode(f: h5py.File, path: Path) -> int:
     """Validate one open episode file (see the module docstring); returns its number of frames T."""
     qpos = _require(f, path, QPOS)
     action = _require(f, path, ACTION)
+    _check_shapes(f, path)
     T = int(qpos.shape[0])
     per_frame = {ACTION: action, QPOS: qpos}
     if QVEL in f:
