@@ -117,6 +117,21 @@ def test_malformed_manifest_rows_name_the_line_and_field(tmp_path, row, message)
         tds.load_dataset(root)
 
 
+def test_a_bad_pose_field_meta_or_background_is_named(tmp_path):
+    root = _feelanyforce_like(tmp_path / "pose", [["a.png", "cross", 0, 0.0, 0.0, 1.0]])
+    (root / "manifest.csv").write_text("image,object,pose_id,x_mm,Fx,Fy,Fz\na.png,cross,0,abc,0,0,1\n")
+    with pytest.raises(ValueError, match="line 2: field 'x_mm' must be float, got 'abc'"):
+        tds.load_dataset(root)
+    root = _feelanyforce_like(tmp_path / "meta", [["a.png", "cross", 0, 0.0, 0.0, 1.0]])
+    (root / "meta.json").write_text("{not json")
+    with pytest.raises(ValueError, match=r"meta.json: not valid JSON"):
+        tds.load_dataset(root)
+    root = _feelanyforce_like(tmp_path / "bg", [["a.png", "cross", 0, 0.0, 0.0, 1.0]])
+    (root / "background.png").write_bytes(b"not a png")
+    with pytest.raises(ValueError, match=r"background.png: not a readable image"):
+        tds.load_dataset(root)
+
+
 def test_not_a_dataset_and_bad_options(tmp_path):
     with pytest.raises(ValueError, match="no manifest.csv"):
         tds.load_dataset(tmp_path)

@@ -302,13 +302,16 @@ def load_dataset(root, fz_pressing: str = "auto") -> TactileDataset:
         raise ValueError(f"{root} is not a tactile dataset: no manifest.csv")
     if fz_pressing not in ("auto", "positive", "negative"):
         raise ValueError(f"fz_pressing must be 'auto', 'positive' or 'negative', got {fz_pressing!r}")
-    meta = json.loads((root / "meta.json").read_text()) if (root / "meta.json").is_file() else {}
+    try:
+        meta = json.loads((root / "meta.json").read_text()) if (root / "meta.json").is_file() else {}
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{root / 'meta.json'}: not valid JSON ({exc})") from None
     records = []
     with open(manifest, newline="") as f:
         for line, row in enumerate(csv.DictReader(f), start=2):
             image = _field(row, "image", line, str)
             force = tuple(_field(row, k, line, float) for k in ("fx", "fy", "fz"))
-            pose = tuple(float(row.get(k) or 0.0) for k in ("x_mm", "y_mm", "theta_rad"))
+            pose = tuple(_field(row, k, line, float) if row.get(k) else 0.0 for k in ("x_mm", "y_mm", "theta_rad"))
             records.append(TactileRecord(image, _field(row, "object", line, str), _field(row, "pose_id", line, int), pose,
                                          force, row.get(SENSOR_FIELD) or None))
     if not records:
@@ -320,8 +323,13 @@ def load_dataset(root, fz_pressing: str = "auto") -> TactileDataset:
         records = [dataclasses.replace(r, force=(r.force[0], r.force[1], -r.force[2])) for r in records]
     import cv2
 
-    def read(path):
-        return cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB) if path.is_file() else None
+    def read(path):  # None where absent; a file that is not an image is named
+        if not path.is_file():
+            return None
+        img = cv2.imread(str(path))
+        if img is None:
+            raise ValueError(f"{path}: not a readable image (a background must be a PNG)")
+        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
     backgrounds = {n: read(root / "backgrounds" / f"{n}.png") for n in {r.sensor for r in records} - {None}}
     missing = sorted(n for n, bg in backgrounds.items() if bg is None)
     if missing:
