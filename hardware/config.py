@@ -225,7 +225,7 @@ def load_setup(path: str | Path) -> SetupConfig:
     path = Path(path)
     try:
         text = path.read_text()
-    except OSError as exc:
+    except (OSError, UnicodeDecodeError) as exc:  # missing, unreadable, or not text (e.g. a weights file)
         raise ConfigError(f"{path}: cannot read the setup file: {exc}") from None
     try:
         node = yaml.compose(text, Loader=yaml.SafeLoader)

@@ -132,7 +132,7 @@ def test_deploy_cli_runs_the_touch_critical_scene(checkpoint, tmp_path):
 @pytest.mark.parametrize("flags, named", [
     (["--episodes", "0"], "--episodes"), (["--episodes", "-3"], "--episodes"), (["--max-steps", "0"], "--max-steps"),
     (["--threads", "0"], "--threads"), (["--grip-force", "9", "3"], "--grip-force"),
-    (["--grip-force", "-1", "3"], "--grip-force"),
+    (["--grip-force", "-1", "3"], "--grip-force"), (["--seed", "-1"], "--seed"),
 ])
 def test_deploy_cli_validation_errors_are_one_line_naming_the_flag(checkpoint, capsys, flags, named):
     from controltac_il.app import deploy_cli as deploy_policy
@@ -140,6 +140,15 @@ def test_deploy_cli_validation_errors_are_one_line_naming_the_flag(checkpoint, c
     assert deploy_policy.main(["--robot", "sim", "--checkpoint", str(checkpoint), *flags]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and named in err[0], err
+
+
+def test_deploy_cli_never_writes_its_result_over_an_existing_file(checkpoint, tmp_path, capsys):
+    from controltac_il.app import deploy_cli as deploy_policy
+
+    notes = tmp_path / "notes.txt"
+    notes.write_text("the user's own")
+    assert deploy_policy.main(["--robot", "sim", "--checkpoint", str(checkpoint), "--out", str(notes)]) == 2
+    assert "exists: a result never replaces a file" in capsys.readouterr().err and notes.read_text() == "the user's own"
 
 
 def _raising(monkeypatch, bad: set[int]):

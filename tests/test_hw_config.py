@@ -126,6 +126,10 @@ def test_missing_sections_and_bad_yaml(tmp_path):
     assert "\n" not in str(info.value)
     with pytest.raises(ConfigError, match="cannot read the setup file"):
         load_setup(tmp_path / "absent.yaml")
+    weights = tmp_path / "model.safetensors"  # a binary file given by mistake
+    weights.write_bytes(bytes([0x80, 0xFF, 0x00, 0x9C]) * 8)
+    with pytest.raises(ConfigError, match="model.safetensors: cannot read the setup file"):
+        load_setup(weights)
 
 
 @pytest.mark.parametrize("text, message", [

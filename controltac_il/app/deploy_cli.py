@@ -61,9 +61,12 @@ def check_args(args: argparse.Namespace) -> None:
             raise ValueError(f"--grip-force LOW HIGH must be finite newtons with 0 < LOW <= HIGH, got {low} {high}")
     if args.robot != "sim" and args.config is None:
         raise ValueError("--config setup.yaml is required with --robot xarm|ur")
-    if args.out is not None and (args.out.is_dir() or not args.out.parent.is_dir()):
-        where = "is a folder" if args.out.is_dir() else f"its folder {args.out.parent} does not exist or is not a folder"
-        raise ValueError(f"--out {args.out}: cannot write the result there ({where}); expected a file path")
+    if args.seed < 0:
+        raise ValueError(f"--seed must be an integer >= 0 (the first scene seed), got {args.seed}")
+    if args.out is not None and (args.out.exists() or not args.out.parent.is_dir()):
+        where = ("exists: a result never replaces a file" if args.out.exists()
+                 else f"its folder {args.out.parent} does not exist or is not a folder")
+        raise ValueError(f"--out {args.out}: cannot write the result there ({where}); expected a new file path")
 
 
 def main(argv=None) -> int:

@@ -81,7 +81,7 @@ class EstimatorTrainConfig:
     min_lr: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 2e-5
     warmup: Annotated[int, Field(ge=0)] = 100
     weight_decay: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 1e-4
-    seed: int = 0
+    seed: Annotated[int, Field(ge=0)] = 0  # numpy's generators take no negative seed
     checkpoint_every: Annotated[int, Field(ge=0)] = 250
     eval_every: Annotated[int, Field(ge=0)] = 500
 

@@ -72,7 +72,7 @@ class ACTTrainConfig:
     num_workers: Annotated[int, Field(ge=0)] = 0
     max_val_batches: PosInt = 20
     snapshot_every: Annotated[int, Field(ge=0)] = 0
-    seed: int = 0
+    seed: Annotated[int, Field(ge=0)] = 0  # numpy's generators take no negative seed
 
 
 def _optimizer(model: ACT) -> torch.optim.AdamW:

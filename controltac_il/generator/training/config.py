@@ -113,7 +113,7 @@ class GeneratorTrainConfig:
     detail_gate: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
     val_objects: Count = 0
     checkpoint_every: PosInt = 250
-    seed: int = 0
+    seed: Annotated[int, Field(ge=0)] = 0  # numpy's generators take no negative seed
     threads: PosInt | None = None
     device: str = "cpu"
 
