@@ -79,6 +79,7 @@ def record_episode(env: PegInHoleEnv, expert: ScriptedExpert, seed: int, hold_st
 
 
 # the scene fields the flags set: a config error names the flag
+PROG = "python -m envs.collect"
 FLAG_OF_FIELD = {"cameras": "--cameras", "camera_size": "--camera-size", "tactile_size": "--tactile-size",
                  "tactile_optics": "--optics", "tactile": "--no-tactile", "grip_force_range_n": "--grip-force",
                  "hole_diameter_mm": "--hole-diameter"}
@@ -88,7 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
     """The command line, its defaults the scene's (``PegInHoleConfig``)."""
     d = PegInHoleConfig()
     p = ArgumentParser(
-        prog="python -m envs.collect",
+        prog=PROG,
         description="Record scripted peg-in-hole demonstrations (cameras, tactile, forces) as ACT HDF5 "
                     "episodes episode_<i>.hdf5 in --out.",
     )
@@ -164,9 +165,11 @@ def main(argv=None) -> int:
     config = args.config
     max_attempts = 2 * args.episodes + 10 if args.max_attempts is None else args.max_attempts
     existing = episode_paths(args.out) if args.out.is_dir() else []
-    if existing and not args.overwrite:
-        print(f"python -m envs.collect: error: --out {args.out} already holds {len(existing)} episode files; "
-              "pass --overwrite to replace them", file=sys.stderr)
+    info = args.out / "collect_info.json"
+    if (existing or info.exists()) and not args.overwrite:
+        what = f"{len(existing)} episode files" if existing else f"a {info.name} of an earlier collection"
+        print(f"{PROG}: error: --out {args.out} already holds {what}; pass --overwrite to replace them",
+              file=sys.stderr)
         return 2
     args.out.mkdir(parents=True, exist_ok=True)
     written, attempts, failures = 0, 0, []
@@ -188,14 +191,15 @@ def main(argv=None) -> int:
     for old in existing:  # --overwrite: the folder holds exactly the new episodes
         if episode_index(old) >= written:
             old.unlink()
-    write_json(args.out / "collect_info.json", {
+    write_json(info, {
         "episodes": written, "attempts": attempts, "failed_seeds": failures,
         "config": {k: v for k, v in vars(config).items()}, "expert": vars(ExpertConfig()),
     })
     if not args.quiet:
         print(f"wrote {written} episodes to {args.out} ({attempts} attempts, {len(failures)} expert failures)")
     if written < args.episodes:
-        print(f"error: only {written} of {args.episodes} episodes succeeded within {max_attempts} attempts", file=sys.stderr)
+        print(f"{PROG}: error: only {written} of {args.episodes} episodes succeeded within {max_attempts} attempts",
+              file=sys.stderr)
         return 1
     return 0
 
@@ -203,4 +207,4 @@ def main(argv=None) -> int:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    sys.exit(guard("python -m envs.collect", main, "interrupted (Ctrl-C): the episode files written so far are complete"))
+    sys.exit(guard(PROG, main, "interrupted (Ctrl-C): the episode files written so far are complete"))

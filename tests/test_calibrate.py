@@ -97,10 +97,16 @@ def test_bad_presses_and_stopped_runs_are_one_line(bases, tmp_path, capsys):
     two = subset_presses(ds, [r for g in list(ds.pose_groups().values())[:2] for r in g], tmp_path / "two_poses")
     cases.append((["--presses", str(two), "--out", str(tmp_path / "o")],
                   f"--presses: {two} holds 2 grasps (contact poses); at least 3 are needed"))
+    (tmp_path / "broken").mkdir()
+    (tmp_path / "broken" / "config.json").write_text("{")
+    for flag in ("--base-estimator", "--base-generator", "--lr", "--threads"):
+        value = {"--lr": "nan", "--threads": "0"}.get(flag, str(tmp_path / "broken"))
+        cases.append((["--presses", str(presses), "--out", str(tmp_path / "b"), flag, value], f"{flag}: "))
     for argv, expected in cases:
         assert main(argv) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and expected in err, (argv, err)
+    assert not (tmp_path / "b.partial").exists() and not (tmp_path / "b").exists()  # refused before any write
 
 
 def test_a_subset_copy_stopped_midway_leaves_only_whole_entries_and_a_rerun_completes(bases, tmp_path, monkeypatch):

@@ -72,6 +72,11 @@ def test_existing_episodes_are_kept_unless_overwrite(tmp_path):
     assert collect.main(args + ["--overwrite"]) == 0
     assert [p.name for p in episode_paths(out)] == ["episode_0.hdf5"]
     assert len(read_episode(out / "episode_0.hdf5")) > 10
+    alone = tmp_path / "info_only"  # an earlier collection's record, its episodes moved away: kept as well
+    alone.mkdir()
+    (alone / "collect_info.json").write_text("{}")
+    assert collect.main(["--episodes", "1", "--out", str(alone)]) == 2
+    assert (alone / "collect_info.json").read_text() == "{}"
 
 
 def test_grip_force_range_and_no_tactile(tmp_path):

@@ -180,6 +180,13 @@ def test_out_of_the_users_own_is_never_replaced(dataset, tmp_path, capsys):
         assert _tree(out) == before
 
 
+def test_data_refused_leaves_out_unwritten_so_the_corrected_command_runs_as_given(tmp_path):
+    (tmp_path / "empty").mkdir()
+    out = tmp_path / "run"
+    assert main(["stage1", "--data", str(tmp_path / "empty"), "--out", str(out), "--image-size", "64", "80", *TINY]) == 2
+    assert not out.exists()
+
+
 def test_a_previous_run_needs_resume_or_overwrite(dataset, tmp_path, capsys):
     run = tmp_path / "run"
     args = ["--data", str(dataset), "--out", str(run), "--image-size", "64", "80", *TINY[:2], "--dit-steps", "1",

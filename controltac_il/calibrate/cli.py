@@ -59,6 +59,10 @@ def check(args: argparse.Namespace) -> None:
             raise ValueError(f"{flag}: expected an int >= {low}, got {value}")
     if not 0 < args.val_fraction < 1:
         raise ValueError(f"--val-fraction: expected a share in (0, 1), got {args.val_fraction}")
+    if not 0 < args.lr < float("inf"):
+        raise ValueError(f"--lr: expected a finite learning rate > 0, got {args.lr}")
+    if args.threads is not None and args.threads < 1:
+        raise ValueError(f"--threads: expected an int >= 1, got {args.threads}")
     from controltac_il.training import device_problem
 
     problem = device_problem(args.device)
@@ -72,6 +76,20 @@ def check(args: argparse.Namespace) -> None:
     src, flag = (args.presses, "--presses") if args.presses is not None else (args.recordings, "--recordings")
     if not src.is_dir():
         raise ValueError(f"{flag}: {src} is not a folder")
+    check_bases(args)
+
+
+def check_bases(args: argparse.Namespace) -> None:
+    """Both base models load (checksums included) before anything is written or fitted; ValueError naming the flag."""
+    from controltac_il.estimators import ForceEstimator
+    from controltac_il.generator import ForceGenerator
+
+    for flag, load, name in (("--base-estimator", ForceEstimator.from_pretrained, args.base_estimator),
+                             ("--base-generator", ForceGenerator.from_pretrained, args.base_generator)):
+        try:
+            load(name)
+        except (ValueError, OSError) as exc:
+            raise ValueError(f"{flag}: {' '.join(str(exc).split())}") from None
 
 
 def load(args: argparse.Namespace):

@@ -277,13 +277,13 @@ def run(cfg: GeneratorTrainConfig) -> Path:
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     out = Path(cfg.out)
-    if rank == 0:
-        out.mkdir(parents=True, exist_ok=True)
-        write_json(out / "train_config.json", {**dataclasses.asdict(cfg), "world_size": world})
-    barrier(world)
     t_start = time.perf_counter()
     data = load_pair_data(cfg.data, cfg.image_size, cfg.no_contact_frames, cfg.seed, progress=rank == 0)
     train_data, split = hold_out_objects(data, cfg.val_objects, cfg.seed)
+    if rank == 0:  # only once --data is read: data refused leaves --out as it was
+        out.mkdir(parents=True, exist_ok=True)
+        write_json(out / "train_config.json", {**dataclasses.asdict(cfg), "world_size": world})
+    barrier(world)
     ae, ae_meta = autoencoder_for(cfg, train_data, out, rank, world)
     if cfg.stage == "autoencoder":
         return out

@@ -171,12 +171,12 @@ def run(cfg: PoseTrainConfig) -> Path:
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     out = Path(cfg.out)
+    t0 = time.perf_counter()
+    base_dir = locate_checkpoint(cfg.base)
+    gcfg, ae, dit = load_checkpoint(base_dir)  # a bad --base leaves --out as it was
     out.mkdir(parents=True, exist_ok=True)
     _check_resume(cfg, out)
     write_json(out / "train_config.json", dataclasses.asdict(cfg))
-    t0 = time.perf_counter()
-    base_dir = locate_checkpoint(cfg.base)
-    gcfg, ae, dit = load_checkpoint(base_dir)
     dev = torch.device(cfg.device)
     ae.requires_grad_(False)
     dit.requires_grad_(False).to(dev)
