@@ -36,6 +36,7 @@ import numpy as np
 from benchmarks.calibration import add_options, heldout_summary, quick_settings, run_cases, todo_cases
 from benchmarks.common import base_parser, machine_info, print_table, write_results
 from controltac_il.calibrate.decision import LEVEL, decide
+from controltac_il.cli import RunFault
 
 LEVELS = (0.95, 0.90, 0.80)  # 0.95: the level before this protocol
 SPLITS = {"validation": (3, 4, 5), "test": (6, 7, 8)}  # draws of benchmarks.calibration's held-out setting
@@ -72,39 +73,39 @@ def case_settings(settings: dict) -> dict:
 
 
 def load(args) -> dict:
-    """The results file so far; SystemExit where it is another benchmark's, or where this run would rewrite its
+    """The results file so far; ValueError where it is another benchmark's, or where this run would rewrite its
     split's cases, add cases in other settings, or change a validation whose choice the test has used."""
     doc = json.loads(args.out.read_text()) if args.out.is_file() else {}
-    if doc and doc.get("benchmark") != "calibration_rule":
-        raise SystemExit(f"{args.out} is not a calibration_rule results file: choose another --out")
+    if doc and (not isinstance(doc, dict) or doc.get("benchmark") != "calibration_rule"):
+        raise ValueError(f"{args.out} is not a calibration_rule results file: choose another --out")
     split = doc.get(args.split, {})
     if split.get("rows") and not args.resume:
-        raise SystemExit(f"{args.out} already holds {len(split['rows'])} {args.split} cases: --resume (in the same "
+        raise ValueError(f"{args.out} already holds {len(split['rows'])} {args.split} cases: --resume (in the same "
                          "settings) to add the missing ones")
     if split.get("rows") and case_settings(split["settings"]) != case_settings(vars(args)):
-        raise SystemExit(f"{args.out}: the {args.split} cases were run in {case_settings(split['settings'])}, not "
+        raise ValueError(f"{args.out}: the {args.split} cases were run in {case_settings(split['settings'])}, not "
                          f"{case_settings(vars(args))}")
     if args.split == "validation" and doc.get("test", {}).get("rows"):
-        raise SystemExit(f"{args.out}: the test has cases; the validation that chose its level stays as it is")
+        raise ValueError(f"{args.out}: the test has cases; the validation that chose its level stays as it is")
     return doc
 
 
 def validation_choice(doc: dict, args, sensors) -> float:
-    """The level the complete validation split chose; SystemExit naming what is missing or differs."""
+    """The level the complete validation split chose; ValueError naming what is missing or differs."""
     val = doc.get("validation")
     if not val:
-        raise SystemExit(f"{args.out}: no validation cases; run --split validation first")
+        raise ValueError(f"{args.out}: no validation cases; run --split validation first")
     if case_settings(val["settings"]) != case_settings(vars(args)):
-        raise SystemExit(f"{args.out}: the test's case settings {case_settings(vars(args))} differ from the "
+        raise ValueError(f"{args.out}: the test's case settings {case_settings(vars(args))} differ from the "
                          f"validation's {case_settings(val['settings'])}")
     if cases("validation", sensors, val["rows"], args.quick):
-        raise SystemExit(f"{args.out}: the validation split is not complete; --split validation --resume first")
+        raise ValueError(f"{args.out}: the validation split is not complete; --split validation --resume first")
     level = choose(level_scores(val["rows"]))
     if level != val["chosen_level"]:
-        raise SystemExit(f"the validation cases now choose level {level}, where they chose {val['chosen_level']}: "
+        raise ValueError(f"the validation cases now choose level {level}, where they chose {val['chosen_level']}: "
                          "decide changed since they ran")
     if level != LEVEL:
-        raise SystemExit(f"validation chose level {level}; ship it as controltac_il.calibrate.decision.LEVEL "
+        raise ValueError(f"validation chose level {level}; ship it as controltac_il.calibrate.decision.LEVEL "
                          f"(now {LEVEL}) before the test")
     return level
 
@@ -126,7 +127,7 @@ def checked(row: dict) -> dict:
     """``row``, once ``decide`` at ``LEVEL`` on its held-out grasp rows reproduces ``calibrate``'s decision: else the
     scores of the other levels would not be of the rule ``calibrate`` runs."""
     if decide(row["cv_per_grasp"], LEVEL)["use"] != row["use_estimator"]:
-        raise SystemExit(f"{row['sensor']} draw {row['draw']}: decide at level {LEVEL} does not reproduce "
+        raise RunFault(f"{row['sensor']} draw {row['draw']}: decide at level {LEVEL} does not reproduce "
                          f"calibrate's decision ({row['use_estimator']}) from its held-out grasp rows")
     return row
 

@@ -201,7 +201,25 @@ def parse_args(argv=None):
     for name in ("jobs", "batch_size"):
         if getattr(args, name) < 1:
             p.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
+    _check_out(p, args)
     return p, args
+
+
+def _check_out(p, args) -> None:
+    """--out is a new file path, or (with --resume) a grid's JSON: refused before any unit runs."""
+    if args.out is None:
+        return
+    if args.out.is_dir() or not args.out.parent.is_dir():
+        p.error(f"--out: {args.out} is a folder or its folder does not exist; expected a JSON file path")
+    if args.out.is_file() and not args.resume:
+        p.error(f"--out: {args.out} exists; pass --resume to continue its grid, or choose a new file")
+    if args.out.is_file():
+        try:
+            doc = json.loads(args.out.read_text())
+        except (OSError, json.JSONDecodeError) as exc:
+            p.error(f"--out: {args.out} is not a grid's JSON ({exc})")
+        if not isinstance(doc, dict) or not str(doc.get("benchmark", "")).startswith("touch_il_verdict"):
+            p.error(f"--out: {args.out} is not a grid's JSON (python -m benchmarks.verdict); choose another file")
 
 
 def _check_seeds(p, args, proto: Protocol) -> None:

@@ -11,6 +11,7 @@ import pytest
 from benchmarks import calibration_rule as rule
 from benchmarks.calibration_rule import LEVELS, choose, level_scores, main
 from controltac_il.calibrate.decision import decide
+from controltac_il.cli import RunFault
 
 # seven grasps read well, three of one object 1.3x the constant's error: the 95 % and 90 % intervals reach 1, the
 # 80 % one does not
@@ -74,16 +75,16 @@ def test_validation_chooses_and_a_test_at_the_shipped_choice_keeps_the_validatio
 def test_the_test_is_refused_until_the_validations_choice_ships(tmp_path, monkeypatch):
     monkeypatch.setattr(rule, "LEVEL", 0.95)
     run(tmp_path, monkeypatch, "validation", [case(0.5)])
-    with pytest.raises(SystemExit, match="validation chose level 0.8; ship it as controltac_il.calibrate.decision"):
+    with pytest.raises(ValueError, match="validation chose level 0.8; ship it as controltac_il.calibrate.decision"):
         run(tmp_path, monkeypatch, "test", [])
     assert "test" not in json.loads((tmp_path / "rule.json").read_text())
 
 
 def test_the_test_is_refused_without_a_complete_validation_in_its_settings(tmp_path, monkeypatch):
-    with pytest.raises(SystemExit, match="no validation cases"):
+    with pytest.raises(ValueError, match="no validation cases"):
         run(tmp_path, monkeypatch, "test", [])
     run(tmp_path, monkeypatch, "validation", [case(1.2)], "--seed", "41")
-    with pytest.raises(SystemExit, match="differ from the validation's"):
+    with pytest.raises(ValueError, match="differ from the validation's"):
         run(tmp_path, monkeypatch, "test", [])
     assert rule.cases("validation", [(0, "three_light"), (1, "three_light_rot")], [case(1.2)], quick=False) == [
         ("unseen_01/three_light_rot", 1, "three_light_rot", 3), *[
@@ -93,9 +94,9 @@ def test_the_test_is_refused_without_a_complete_validation_in_its_settings(tmp_p
 def test_a_split_in_the_file_is_neither_rewritten_nor_resumed_in_other_settings(tmp_path, monkeypatch):
     run(tmp_path, monkeypatch, "validation", [case(1.2)])
     before = (tmp_path / "rule.json").read_text()
-    with pytest.raises(SystemExit, match="already holds 1 validation cases: --resume"):
+    with pytest.raises(ValueError, match="already holds 1 validation cases: --resume"):
         run(tmp_path, monkeypatch, "validation", [])
-    with pytest.raises(SystemExit, match=r"were run in .*'seed': 40.*not .*'seed': 41"):
+    with pytest.raises(ValueError, match=r"were run in .*'seed': 40.*not .*'seed': 41"):
         run(tmp_path, monkeypatch, "validation", [], "--resume", "--seed", "41")
     assert (tmp_path / "rule.json").read_text() == before
     assert run(tmp_path, monkeypatch, "validation", [], "--resume")["rows"] == [case(1.2)]
@@ -105,10 +106,10 @@ def test_validation_is_frozen_once_the_test_has_cases_and_other_files_are_refuse
     monkeypatch.setattr(rule, "LEVEL", 0.95)
     run(tmp_path, monkeypatch, "validation", [case(1.2)])
     run(tmp_path, monkeypatch, "test", [case(1.1, draw=6)])
-    with pytest.raises(SystemExit, match="the test has cases"):
+    with pytest.raises(ValueError, match="the test has cases"):
         run(tmp_path, monkeypatch, "validation", [], "--resume")
     (tmp_path / "rule.json").write_text(json.dumps({"benchmark": "calibration", "rows": []}))
-    with pytest.raises(SystemExit, match="is not a calibration_rule results file"):
+    with pytest.raises(ValueError, match="is not a calibration_rule results file"):
         run(tmp_path, monkeypatch, "validation", [])
 
 
@@ -116,5 +117,5 @@ def test_a_case_whose_decision_decide_does_not_reproduce_is_refused(tmp_path, mo
     """calibrate used the estimator where decide at the shipped level on the same rows declines: the other levels'
     scores would not be of calibrate's rule."""
     monkeypatch.setattr(rule, "LEVEL", 0.95)
-    with pytest.raises(SystemExit, match="draw 3: decide at level 0.95 does not reproduce calibrate's decision"):
+    with pytest.raises(RunFault, match="draw 3: decide at level 0.95 does not reproduce calibrate's decision"):
         run(tmp_path, monkeypatch, "validation", [case(1.2, level=0.80)])

@@ -169,6 +169,20 @@ def test_bad_input_is_one_line_naming_the_flag(argv, says, capsys):
     assert len(err) == 1 and says in err[0]
 
 
+def test_an_out_that_is_no_grid_json_is_refused_before_any_unit(tmp_path, capsys):
+    (tmp_path / "list.json").write_text("[1]")
+    (tmp_path / "notes.json").write_text('{"mine": true}')
+    (tmp_path / "old.json").write_text('{"benchmark": "touch_il_verdict_v3"}')
+    for out, resume, says in ((tmp_path, True, "is a folder"), (tmp_path / "list.json", True, "not a grid's JSON"),
+                              (tmp_path / "notes.json", True, "not a grid's JSON"),
+                              (tmp_path / "old.json", False, "exists; pass --resume")):
+        with pytest.raises(SystemExit) as exc:
+            verdict.parse_args(["--protocol", "v3", "--out", str(out), *(["--resume"] if resume else [])])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert exc.value.code == 2 and len(err) == 1 and says in err[0], (out, err)
+    assert (tmp_path / "list.json").read_text() == "[1]"
+
+
 def test_v2_runs_by_name_on_its_own_seeds_and_test_range():
     _, args = verdict.parse_args(["--protocol", "v2"])
     assert args.protocol.name == "v2" and args.seeds == list(range(12)) and args.protocol.test_start == 900_000
