@@ -23,6 +23,9 @@ from pathlib import Path
 from controltac_il.cli import ArgumentParser
 
 
+COPIES = 2  # ForceAugment copies per episode by default (the verdict's fa2)
+
+
 def parse_args(argv=None) -> argparse.Namespace:
     p = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--dataset", type=Path, default=None,
@@ -43,7 +46,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--val-fraction", type=float, default=0.1, help="episodes held out for validation (default 0.1)")
     p.add_argument("--augment", choices=("none", "force"), default="none",
                    help="force: add ForceAugment copies of every training episode (generated tactile frames)")
-    p.add_argument("--copies", type=int, default=2, help="ForceAugment copies per episode, 1-9 (default 2)")
+    p.add_argument("--copies", type=int, default=None,
+                   help=f"ForceAugment copies per episode, 1-9 (default {COPIES}; with --augment force only)")
     p.add_argument("--generator", default=None,
                    help="with --augment force: a shipped preset (default, fast, quality) or a checkpoint folder (default: default)")
     p.add_argument("--demos", type=int, default=20, help="episodes collected for the embedded default (default 20)")
@@ -76,7 +80,9 @@ def check_args(args: argparse.Namespace):
                              ("--threads", args.threads, 1)):
         if value is not None and value < low:
             raise ValueError(f"{flag} must be an integer >= {low}, got {value}")
-    if args.augment == "force" and not 1 <= args.copies <= 9:
+    if args.copies is not None and args.augment != "force":
+        raise ValueError(f"--copies {args.copies}: ForceAugment's copies per episode, used only with --augment force")
+    if args.augment == "force" and not 1 <= (COPIES if args.copies is None else args.copies) <= 9:
         raise ValueError(f"--copies must be in 1..9 (ForceAugment copies per episode), got {args.copies}")
     if args.dataset is not None and not args.dataset.is_dir():
         raise ValueError(f"--dataset {args.dataset}: episode folder not found")
@@ -114,7 +120,7 @@ def run(args: argparse.Namespace, train_config=None) -> dict:
         torch.set_num_threads(args.threads)
     train_config = train_config or check_args(args)
     return train_act(args.out, args.dataset, demos=args.demos, preset=args.preset, train_config=train_config,
-                     copies=args.copies if args.augment == "force" else 0, generator=args.generator,
+                     copies=(COPIES if args.copies is None else args.copies) if args.augment == "force" else 0, generator=args.generator,
                      val_fraction=args.val_fraction, chunk_size=args.chunk_size, resume=args.resume,
                      overwrite=args.overwrite, lerobot=lerobot_keys(args))
 
