@@ -192,6 +192,21 @@ def add_options(p) -> None:
     p.add_argument("--resume", action="store_true", help="keep the cases already in --out (written after each)")
 
 
+def check_options(p, args) -> None:
+    """Refuse, by flag, options no calibration case can run with (before any case starts)."""
+    from controltac_il.calibrate.decision import MIN_GRASPS
+    from controltac_il.training import device_problem
+
+    for flag, value, low in (("--k", args.k, MIN_GRASPS), ("--test-grasps", args.test_grasps, 1),
+                             ("--ae-steps", args.ae_steps, 0), ("--dit-steps", args.dit_steps, 1),
+                             ("--threads", args.threads, 1), ("--jobs", args.jobs, 1), ("--size", min(args.size), 8)):
+        if value < low:
+            p.error(f"{flag}: expected an int >= {low}, got {value}")
+    problem = device_problem(args.device)  # names --device itself
+    if problem:
+        p.error(problem)
+
+
 def quick_settings(args) -> list[tuple[int, str]]:
     """The sensors to calibrate; with ``--quick`` one of them, 4 grasps and a few steps (CI)."""
     if not args.quick:
@@ -215,6 +230,7 @@ def main(argv=None) -> dict:
                    help="also the held-out-object setting: D draws of calibration grasps per sensor, tested on "
                         "objects in neither them nor the base models' training (default 0: not run)")
     args = p.parse_args(argv)
+    check_options(p, args)
     sensors, rows, t0 = quick_settings(args), resumed_rows(args), time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="calibration-bench-") as work:
         run_cases(todo_cases(sensors, (None, *range(args.heldout_draws)), rows), args, Path(work),

@@ -33,7 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.calibration import add_options, heldout_summary, quick_settings, run_cases, todo_cases
+from benchmarks.calibration import (add_options, check_options, heldout_summary, quick_settings, run_cases,
+                                    todo_cases)
 from benchmarks.common import base_parser, machine_info, print_table, write_results
 from controltac_il.calibrate.decision import LEVEL, decide
 from controltac_il.cli import RunFault
@@ -141,6 +142,7 @@ def parse(argv):
     args = p.parse_args(argv)
     if args.out is None:
         p.error("--out is required: the validation's choice and the test live in one file")
+    check_options(p, args)
     return args
 
 

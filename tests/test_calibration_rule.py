@@ -119,3 +119,12 @@ def test_a_case_whose_decision_decide_does_not_reproduce_is_refused(tmp_path, mo
     monkeypatch.setattr(rule, "LEVEL", 0.95)
     with pytest.raises(RunFault, match="draw 3: decide at level 0.95 does not reproduce calibrate's decision"):
         run(tmp_path, monkeypatch, "validation", [case(1.2, level=0.80)])
+
+
+@pytest.mark.parametrize("flags, says", [(["--k", "2"], "--k: expected an int >= 3"), (["--jobs", "0"], "--jobs"),
+                                         (["--size", "0", "0"], "--size"), (["--device", "abacus"], "--device")])
+def test_options_no_case_can_run_with_are_refused_by_flag_before_any_case(tmp_path, capsys, flags, says):
+    with pytest.raises(SystemExit) as exc:
+        rule.parse(["--split", "validation", "--out", str(tmp_path / "r.json"), *flags])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and len(err) == 1 and says in err[0] and not (tmp_path / "r.json").exists()
