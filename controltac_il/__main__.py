@@ -36,6 +36,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
+OUTPUTS = ("contact_sheet.png", "pipeline")  # what the job writes in --out; a run replaces its own
+
+
 def main(argv=None) -> int:
     """Run the job; returns the exit status (every failure one line on stderr)."""
     args = parse_args(argv)  # before the job's imports (torch, MuJoCo): --help answers at once
@@ -53,6 +56,10 @@ def main(argv=None) -> int:
     def job() -> None:
         from controltac_il.app.job import render_contact_sheet, run_pipeline  # MuJoCo: a missing [sim] is one line
 
+        foreign = sorted(p.name for p in args.out.iterdir() if p.name not in OUTPUTS) if args.out.is_dir() else []
+        if foreign:
+            raise ValueError(f"--out {args.out} holds files this job did not write ({', '.join(foreign[:3])}); "
+                             "nothing was changed: choose another --out")
         args.out.mkdir(parents=True, exist_ok=True)
         render_contact_sheet(args.out)
         if not args.sensor_only:

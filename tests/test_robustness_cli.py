@@ -106,6 +106,9 @@ def test_main_job_cli_faults_are_one_line(tmp_path, capsys, monkeypatch):
     (tmp_path / "a_file").write_text("the user's")
     assert main(["--out", str(tmp_path / "a_file" / "out"), "--sensor-only"]) == 2
     assert "a_file" in one_line(capsys)
+    assert main(["--out", str(tmp_path), "--sensor-only"]) == 2  # the user's folder: a_file is theirs
+    assert "holds files this job did not write (a_file)" in one_line(capsys)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
 
     def interrupted(out):
         raise KeyboardInterrupt
