@@ -133,6 +133,7 @@ def test_deploy_cli_runs_the_touch_critical_scene(checkpoint, tmp_path):
     (["--episodes", "0"], "--episodes"), (["--episodes", "-3"], "--episodes"), (["--max-steps", "0"], "--max-steps"),
     (["--threads", "0"], "--threads"), (["--grip-force", "9", "3"], "--grip-force"),
     (["--grip-force", "-1", "3"], "--grip-force"), (["--seed", "-1"], "--seed"),
+    (["--config", "setup.yaml"], "--config setup.yaml: a robot set-up, used only with --robot xarm|ur"),
 ])
 def test_deploy_cli_validation_errors_are_one_line_naming_the_flag(checkpoint, capsys, flags, named):
     from controltac_il.app import deploy_cli as deploy_policy

@@ -61,6 +61,8 @@ def check_args(args: argparse.Namespace) -> None:
             raise ValueError(f"--grip-force LOW HIGH must be finite newtons with 0 < LOW <= HIGH, got {low} {high}")
     if args.robot != "sim" and args.config is None:
         raise ValueError("--config setup.yaml is required with --robot xarm|ur")
+    if args.robot == "sim" and args.config is not None:
+        raise ValueError(f"--config {args.config}: a robot set-up, used only with --robot xarm|ur (the scene has its own)")
     if args.seed < 0:
         raise ValueError(f"--seed must be an integer >= 0 (the first scene seed), got {args.seed}")
     if args.out is not None and (args.out.exists() or not args.out.parent.is_dir()):

@@ -363,8 +363,8 @@ def _parser() -> ArgumentParser:
     p.add_argument("--sensors", choices=FAMILIES, default=None,
                    help="sensor randomisation: render each contact pose with one instance of this family "
                         "(controltac_il.tactile.instances; 'unseen' is held out of training); default: one sensor, --optics")
-    p.add_argument("--instances", type=int, default=d["instances"],
-                   help=f"with --sensors: how many of the family's instances to draw from, >= 1 (default {d['instances']})")
+    p.add_argument("--instances", type=int, default=None,
+                   help=f"only with --sensors: how many of the family's instances to draw from, >= 1 (default {d['instances']})")
     p.add_argument("--fz-range", type=float, nargs=2, metavar=("LOW", "HIGH"), default=d["fz_range"],
                    help="normal force range in N, 0 <= LOW < HIGH, drawn uniformly (default {} {})".format(*d["fz_range"]))
     p.add_argument("--shear-max", type=float, default=d["shear_max"],
@@ -392,6 +392,8 @@ def main(argv=None) -> Path:
         p.error(f"--seed must be an int >= 0, got {a.seed}")
     if a.workers < 1:
         p.error(f"--workers must be an int >= 1, got {a.workers}")
+    if a.instances is not None and a.sensors is None:
+        p.error(f"--instances {a.instances}: the number of randomised sensors to draw from, used only with --sensors")
     lo, hi = a.fz_range
     if not (np.isfinite([lo, hi]).all() and 0 <= lo < hi):
         p.error(f"--fz-range LOW HIGH must be finite newtons with 0 <= LOW < HIGH, got {lo:g} {hi:g}")
@@ -405,9 +407,9 @@ def main(argv=None) -> Path:
             p.error(f"--size H W must be ints >= 8 at the pad's {spec.height}:{spec.width} aspect "
                     f"(e.g. 120 160), got {a.size[0]} {a.size[1]}")
     try:
+        drawn = {} if a.instances is None else {"instances": a.instances}  # else write_dataset's default
         out = write_dataset(a.out, objects, a.poses_per_object, a.forces_per_pose, a.seed, spec, a.optics,
-                            (lo, hi), a.shear_max, sensors=a.sensors, instances=a.instances,
-                            workers=a.workers)
+                            (lo, hi), a.shear_max, sensors=a.sensors, workers=a.workers, **drawn)
     except ValueError as e:
         p.error(str(e).splitlines()[0] if str(e).strip() else repr(e))
     print(f"wrote {out} ({len(objects) * a.poses_per_object * a.forces_per_pose} images)")
