@@ -137,10 +137,18 @@ def print_table(rows: Sequence[dict], columns: Sequence[str], title: str | None 
         print("  ".join(v.ljust(w) for v, w in zip(row, widths)))
 
 
+def results_path(text: str) -> Path:
+    """An --out value: a file path (written atomically, its folders made), never an existing folder."""
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{path} is a folder; expected a JSON file path")
+    return path
+
+
 def base_parser(description: str) -> argparse.ArgumentParser:
     """Argument parser with the flags every benchmark takes (``--out``, ``--quick``)."""
     p = ArgumentParser(description=description)
-    p.add_argument("--out", type=Path, default=None, help="write the results as JSON to this file")
+    p.add_argument("--out", type=results_path, default=None, help="write the results as JSON to this file")
     p.add_argument("--quick", action="store_true", help="small version that finishes in about a minute (CI)")
     return p
 

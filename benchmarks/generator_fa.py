@@ -175,7 +175,11 @@ def main(argv=None) -> dict:
     p.add_argument("--pairs", type=int, default=None, help="pairs per sensor and size (default 96, quick 6)")
     p.add_argument("--instances", type=int, default=None, help="randomised sensor instances (default 2, quick 0)")
     a = p.parse_args(argv)
-    n, instances = a.pairs or (6 if a.quick else 96), (0 if a.quick else 2) if a.instances is None else a.instances
+    for flag, value, low in (("--pairs", a.pairs, 1), ("--instances", a.instances, 0)):
+        if value is not None and value < low:
+            p.error(f"{flag}: expected an int >= {low}, got {value}")
+    n = (6 if a.quick else 96) if a.pairs is None else a.pairs
+    instances = (0 if a.quick else 2) if a.instances is None else a.instances
     doc = measure({c: ForceGenerator.from_pretrained(c) for c in a.checkpoints}, n, instances)
     print_table([{"size": r["size"], "sensor": r["sensor"], "preset": c, "all": s["all"]["ratio"],
                   "increase": s["increase"] and s["increase"]["ratio"], "decrease": s["decrease"] and s["decrease"]["ratio"],

@@ -5,7 +5,9 @@ import ast
 import subprocess
 from pathlib import Path
 
-from benchmarks.common import git_revision
+import pytest
+
+from benchmarks.common import base_parser, git_revision
 
 
 def _git(repo, *args):
@@ -61,3 +63,12 @@ def test_every_benchmark_runs_its_main_under_guard():
                if (calls := _main_block_calls(p)) is not None}
     assert len(entries) >= 20
     assert [name for name, calls in entries.items() if "guard" not in calls] == []
+
+
+def test_every_benchmark_refuses_a_folder_as_out_and_accepts_a_new_file_path(tmp_path, capsys):
+    p = base_parser("a benchmark")
+    with pytest.raises(SystemExit) as exc:
+        p.parse_args(["--out", str(tmp_path)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and len(err) == 1 and f"{tmp_path} is a folder; expected a JSON file path" in err[0]
+    assert p.parse_args(["--out", str(tmp_path / "new" / "r.json")]).out == tmp_path / "new" / "r.json"
