@@ -147,6 +147,8 @@ def _exit(argv) -> int:
     (["--ae-finetune-steps", "5"], "--autoencoder-from"),
     (["--ae-finetune-steps", "5", "--autoencoder-from", "x", "--denoiser-from", "x", "--dit-steps", "0"], "--dit-steps"),
     (["--device", "abacus"], "--device"), (["--device", "mps"], "--device"),
+    (["--autoencoder-from", "no_such_ae"], "--autoencoder-from no_such_ae: no such checkpoint folder"),
+    (["--denoiser-from", "no_such_run"], "--denoiser-from no_such_run: no such checkpoint folder"),
     pytest.param(["--device", "cuda"], "no CUDA device", marks=pytest.mark.skipif(
         __import__("torch").cuda.is_available(), reason="this machine has CUDA: the refusal is for machines without")),
 ])

@@ -165,6 +165,9 @@ def stage1_config(a: dict) -> GeneratorTrainConfig:
         fail(STAGE1_PROG, f"--device {cfg.device} under torchrun: data parallelism here is CPU only (gloo); train on one GPU instead")
     if not Path(cfg.data).is_dir():
         fail(STAGE1_PROG, f"--data {cfg.data}: dataset folder not found (a controltac_il.tactile.dataset folder with manifest.csv)")
+    for flag, source in (("--autoencoder-from", cfg.autoencoder_from), ("--denoiser-from", cfg.denoiser_from)):
+        if source is not None and not Path(source).is_dir():  # checked now, not after hours of training
+            fail(STAGE1_PROG, f"{flag} {source}: no such checkpoint folder (a folder, or one of {', '.join(SHIPPED)})")
     out = Path(cfg.out)
     if out.resolve() == Path(cfg.data).resolve():
         fail(STAGE1_PROG, f"--out {out} is the dataset folder: choose a run folder of its own")
