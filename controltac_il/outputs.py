@@ -87,6 +87,9 @@ def claim_output(out: str | Path, outputs: Mapping[str, Callable[[Path], str | N
     label = label or str(out)
     if out.exists() and not out.is_dir():
         raise OutputInUse(f"--out {label} is a file, not a folder")
+    blocking = next((p for p in out.parents if p.exists() and not p.is_dir()), None)
+    if blocking is not None:
+        raise OutputInUse(f"--out {label}: {blocking} is a file, so no folder can be made under it")
     present = [n for n in outputs if (out / n).exists() or (out / n).is_symlink()]
     for name in present:
         why = "a link" if (out / name).is_symlink() else outputs[name](out / name)
