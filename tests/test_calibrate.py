@@ -193,15 +193,23 @@ def test_a_bundle_from_recordings_names_its_final_folder(bases, tmp_path):
     assert json.loads((out / "calibration.json").read_text())["presses"] == str((out / "presses").resolve())
 
 
-def test_a_stopped_calibration_resumes_to_the_same_estimator(bases, tmp_path, capsys):
+def test_a_stopped_calibration_resumes_to_the_same_estimator(bases, tmp_path, capsys, monkeypatch):
+    import controltac_il.calibrate.bundle as bundle
+
     tmp, presses = bases
     out = tmp_path / "lab"
     args = ["--presses", str(presses), "--out", str(out), "--base-estimator", str(tmp / "est"), "--estimator-steps",
             "6", "--ae-steps", "1", "--dit-steps", "1", "--batch", "4", "--threads", "1", "--estimator-method", "finetune"]
-    assert main([*args, "--base-generator", str(tmp_path / "missing")]) == 2  # stops after the estimator part
+
+    def stopped(*_):  # Ctrl-C once the generator's fine-tune starts: the estimator part is done
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as m:
+        m.setattr(bundle, "generator_part", stopped)
+        assert main([*args, "--base-generator", str(tmp / "gen" / "final")]) == 130
     staging = tmp_path / "lab.partial"
     first = ForceEstimator.from_pretrained(staging / "estimator").checkpoint_hash
-    assert "missing" in capsys.readouterr().err and not out.exists()
+    assert "interrupted" in capsys.readouterr().err and not out.exists()
     assert main([*args, "--base-generator", str(tmp / "gen" / "final")]) == 2  # a stopped run needs --resume
     assert main([*args, "--base-generator", str(tmp / "gen" / "final"), "--resume"]) == 0
     assert ForceEstimator.from_pretrained(out).checkpoint_hash == first and not staging.exists()
