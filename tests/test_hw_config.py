@@ -152,6 +152,10 @@ def test_check_cli(tmp_path, capsys):
     bad.write_text(yaml.safe_dump({"robot": {"type": "ur", "model": "ur5"}, "limits": BOX}))
     assert check_main([str(bad)]) == 2
     assert "robot.ip: required" in capsys.readouterr().err
+    for seconds in ("nan", "-1", "inf"):
+        with pytest.raises(SystemExit) as exc:
+            check_main([EXAMPLES[0], "--connect", "--seconds", seconds])
+        assert exc.value.code == 2 and "--seconds: expected a finite duration > 0 s" in capsys.readouterr().err
 
 
 @pytest.mark.usefixtures("dynamixel_latency")
