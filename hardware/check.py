@@ -37,8 +37,8 @@ def main(argv=None) -> int:
     p.add_argument("--connect", action="store_true", help="also connect the devices and read them (no motion)")
     p.add_argument("--seconds", type=float, default=2.0, help="how long to watch the sensors with --connect (s)")
     args = p.parse_args(argv)
-    if not 0 < args.seconds < float("inf"):
-        p.error(f"--seconds: expected a finite duration > 0 s, got {args.seconds}")
+    if not 0 <= args.seconds < float("inf"):  # 0: read each device once
+        p.error(f"--seconds: expected a finite duration >= 0 s, got {args.seconds}")
     try:
         cfg = load_setup(args.config)
     except ConfigError as exc:
