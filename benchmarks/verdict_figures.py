@@ -141,7 +141,10 @@ def headline_rows_v3(doc: dict, source: str) -> list[list[str]]:
             f"({_augmentation(doc['protocol'], variant)}) vs ACT on the real demos, {setting_label(doc, setting)}, "
             "fresh seeds")
     if not stopped:
-        return [[what, "running: no look complete yet", "–", LINK_V3, source]]
+        went_on = [lk["look"] for lk in doc.get("looks", []) if lk.get("complete")]
+        status = (f"running: look {went_on[-1]} continued to look {went_on[-1] + 1} (no stop at its boundary)"
+                  if went_on else "running: no look complete yet")
+        return [[what, status, "–", LINK_V3, source]]
     lk = stopped[-1]
     return [[f"{what}, {len(lk['seeds'])} paired (look {lk['look']})",
              f"{lk['diff'] * 100:+.1f} points: **{lk['verdict']}**",

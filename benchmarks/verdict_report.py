@@ -311,14 +311,14 @@ def plot_paired(looks: list[dict], comparisons: list[dict], path: Path) -> None:
     start = 0
     for lk in done:
         d = c["per_seed_diff"][start:len(lk["seeds"])]
-        x = np.arange(start, start + len(d))
+        x = np.asarray(lk["seeds"][start:])  # the training seeds the look added
         ax.scatter(x, np.asarray(d) * 100, s=22, zorder=3, label=f"seeds of look {lk['look']} "
                    f"(p {lk['p']:.3g} vs alpha {lk['alpha']:g}: {lk['stop']})")
         start += len(d)
     ax.axhline(0, color="black", lw=0.8)
     ax.axhspan(c["ci95"][0] * 100, c["ci95"][1] * 100, color="tab:red", alpha=0.15, label="mean, 95 % CI")
     ax.axhline(c["diff"] * 100, color="tab:red", lw=1.5)
-    ax.set_xlabel("training seed (paired)")
+    ax.set_xlabel("training seed (both variants trained with it)")
     ax.set_ylabel(f"{c['variant']} - real, points ({c['setting']})")
     ax.legend(fontsize=7, loc="lower right")
     ax.grid(alpha=0.3)

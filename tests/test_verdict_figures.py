@@ -134,6 +134,8 @@ def test_v3_prints_a_look_only_once_complete_and_its_readme_row_says_running_unt
     assert row[0] == ("the verdict (v3, confirmatory): ACT with ForceAugment `fa2` (2 copies, the paper's offsets) vs "
                       "ACT on the real demos, nominal (4–7 N), fresh seeds, 12 paired (look 1)")
     assert row[1] == "+20.0 points: **helps**" and "against 0.001 (efficacy)" in row[2]
+    done["looks"][0]["stop"] = "continue"  # a look that did not stop: the row says the grid went on
+    assert vf.headline_rows_v3(done, "src")[0][1] == "running: look 1 continued to look 2 (no stop at its boundary)"
 
 
 def test_pictures_are_drawn_from_the_json_once_a_look_is_complete_and_not_before(tmp_path, capsys):
