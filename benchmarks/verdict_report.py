@@ -320,7 +320,7 @@ def plot_paired(looks: list[dict], comparisons: list[dict], path: Path) -> None:
     ax.axhline(c["diff"] * 100, color="tab:red", lw=1.5)
     ax.set_xlabel("training seed (both variants trained with it)")
     ax.set_ylabel(f"{c['variant']} - real, points ({c['setting']})")
-    ax.legend(fontsize=7, loc="lower right")
+    ax.legend(fontsize=7, loc="upper right")
     ax.grid(alpha=0.3)
     fig.tight_layout()
     save_figure(fig, path, dpi=110)
