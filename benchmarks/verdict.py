@@ -209,8 +209,8 @@ def _check_out(p, args) -> None:
     """--out is a new file path, or (with --resume) a grid's JSON: refused before any unit runs."""
     if args.out is None:
         return
-    if args.out.is_dir() or not args.out.parent.is_dir():
-        p.error(f"--out: {args.out} is a folder or its folder does not exist; expected a JSON file path")
+    if not args.out.parent.is_dir():  # a folder as --out is refused by base_parser's results_path
+        p.error(f"--out: {args.out.parent} does not exist; expected a JSON file path in an existing folder")
     if args.out.is_file() and not args.resume:
         p.error(f"--out: {args.out} exists; pass --resume to continue its grid, or choose a new file")
     if args.out.is_file():

@@ -67,6 +67,13 @@ FLAGS = {"steps": "--steps", "batch_size": "--batch-size", "val_every": "--val-e
          "num_workers": "--workers", "seed": "--seed"}
 
 
+def augment_copies(args: argparse.Namespace) -> int:
+    """ForceAugment copies per episode: --copies (default COPIES) with --augment force, else 0."""
+    if args.augment != "force":
+        return 0
+    return COPIES if args.copies is None else args.copies
+
+
 def check_args(args: argparse.Namespace):
     """The run's ACTTrainConfig; ValueError (one line naming the flag and the expected form) for a bad option."""
     from controltac_il.config import one_line
@@ -82,7 +89,7 @@ def check_args(args: argparse.Namespace):
             raise ValueError(f"{flag} must be an integer >= {low}, got {value}")
     if args.copies is not None and args.augment != "force":
         raise ValueError(f"--copies {args.copies}: ForceAugment's copies per episode, used only with --augment force")
-    if args.augment == "force" and not 1 <= (COPIES if args.copies is None else args.copies) <= 9:
+    if args.augment == "force" and not 1 <= augment_copies(args) <= 9:
         raise ValueError(f"--copies must be in 1..9 (ForceAugment copies per episode), got {args.copies}")
     if args.dataset is not None and not args.dataset.is_dir():
         raise ValueError(f"--dataset {args.dataset}: episode folder not found")
@@ -120,7 +127,7 @@ def run(args: argparse.Namespace, train_config=None) -> dict:
         torch.set_num_threads(args.threads)
     train_config = train_config or check_args(args)
     return train_act(args.out, args.dataset, demos=args.demos, preset=args.preset, train_config=train_config,
-                     copies=(COPIES if args.copies is None else args.copies) if args.augment == "force" else 0, generator=args.generator,
+                     copies=augment_copies(args), generator=args.generator,
                      val_fraction=args.val_fraction, chunk_size=args.chunk_size, resume=args.resume,
                      overwrite=args.overwrite, lerobot=lerobot_keys(args))
 

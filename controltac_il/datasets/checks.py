@@ -2,8 +2,8 @@
 
 Checked per file (``check_episode``): the file opens as HDF5; ``/action`` and ``/observations/qpos``
 exist; every stream has its layout's axes (``SHAPES``); every per-frame stream (action, qpos, qvel, images,
-tactile, force) has the same number of frames; qpos and actions are finite; force labels are finite, in N (|F| <= MAX_PLAUSIBLE_FORCE_N) and
-pressing with Fz > 0. Checked across files (``check_same_streams``): every episode records the same
+tactile, force) has the same number of frames; qpos and actions are finite; force labels are finite, in N
+(|F| <= MAX_PLAUSIBLE_FORCE_N) and pressing with Fz > 0. Checked across files (``check_same_streams``): every episode records the same
 cameras, tactile sensors and force labels.
 """
 
@@ -19,13 +19,14 @@ CONTACT_N = 0.05  # |F| above which a label counts as contact when checking the 
 PER_FRAME_GROUPS = ("images", "tactile", "force")
 SHAPES = {"vector": (2, None, "(T, D)"), "images": (4, 3, "(T, H, W, 3)"), "tactile": (4, 3, "(T, H, W, 3)"),
           "force": (2, 3, "(T, 3) [Fx, Fy, Fz] N"), "tactile_background": (3, 3, "(H, W, 3)")}  # (axes, last, text)
-ACTION, QPOS, QVEL = "action", "observations/qpos", "observations/qvel"  # the file's paths (ALOHA's ACT layout)
+OBSERVATIONS = "observations"  # the group of every per-frame observation (ALOHA's ACT layout)
+ACTION, QPOS, QVEL = "action", f"{OBSERVATIONS}/qpos", f"{OBSERVATIONS}/qvel"
 NEEDS = f"every episode needs /{ACTION} and /{QPOS}"
 
 
 def stream_path(group: str, name: str) -> str:
     """The path of stream ``name`` of ``group`` (images, tactile, tactile_background or force)."""
-    return f"observations/{group}/{name}"
+    return f"{OBSERVATIONS}/{group}/{name}"
 
 
 def open_episode(path: Path) -> h5py.File:
@@ -38,7 +39,7 @@ def open_episode(path: Path) -> h5py.File:
 
 def streams(f: h5py.File, group: str) -> list[str]:
     """Names under ``/observations/<group>`` (sorted; [] when the group is absent)."""
-    where = stream_path(group, "").rstrip("/")
+    where = f"{OBSERVATIONS}/{group}"
     return sorted(f[where].keys()) if where in f else []
 
 

@@ -25,7 +25,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from controltac_il.datasets.checks import ACTION, NEEDS, QPOS, open_episode
+from controltac_il.datasets.checks import ACTION, NEEDS, OBSERVATIONS, QPOS, open_episode
 from controltac_il.io import atomic_path
 
 EPISODE_PATTERN = re.compile(r"^episode_(\d+)\.hdf5$")
@@ -141,7 +141,7 @@ def write_episode(path: str | os.PathLike, episode: Episode, compression: str | 
                 except (TypeError, ValueError) as exc:
                     raise ValueError(f"attrs/{key}: value of type {type(value).__name__} cannot be stored in HDF5") from exc
             f.create_dataset("action", data=episode.action)
-            obs = f.create_group("observations")
+            obs = f.create_group(OBSERVATIONS)
             obs.create_dataset("qpos", data=episode.qpos)
             if episode.qvel is not None:
                 obs.create_dataset("qvel", data=episode.qvel)
@@ -172,7 +172,7 @@ def read_episode(path: str | os.PathLike) -> Episode:
     with open_episode(path) as f:
         if ACTION not in f or QPOS not in f:
             raise ValueError(f"{path}: not an ACT episode ({NEEDS})")
-        obs = f["observations"]
+        obs = f[OBSERVATIONS]
         attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items() if k != "sim"}
         return Episode(
             qpos=obs["qpos"][()],
