@@ -10,14 +10,12 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import re
-import sys
 from pathlib import Path
 
 from typing import TYPE_CHECKING
 
 from controltac_il.augment.config import ForceAugmentConfig
-from controltac_il.cli import RunFault
-from controltac_il.config import one_line
+from controltac_il.cli import guard
 
 if TYPE_CHECKING:  # the job's modules (torch, h5py) are imported inside it: --help stays light
     from controltac_il.augment.dataset import ForceAugment
@@ -25,11 +23,11 @@ if TYPE_CHECKING:  # the job's modules (torch, h5py) are imported inside it: --h
 PROG = "python -m controltac_il.augment"
 
 
-class UsageError(Exception):
-    """A validation error of the command line: ``flag`` and the one-line message."""
+class UsageError(ValueError):
+    """A validation error of the command line: ``flag`` and the one-line message, shown as ``FLAG: MESSAGE``."""
 
     def __init__(self, flag: str | None, message: str):
-        super().__init__(message)
+        super().__init__(f"{flag}: {message}" if flag else message)
         self.flag = flag
 
 
@@ -276,34 +274,24 @@ def _open_dataset(root: Path, keys: list[str] | None = None):
         raise _field_error(exc, "--dataset") from exc
 
 
-def main(argv=None) -> int:
-    """Run the command; returns the exit status (0, 2 for a validation error, 1 for a fault of the run, 130 when
-    interrupted)."""
+def _run(argv) -> None:
+    args = parser().parse_args(argv)
+    aug = _setup(args)
+    from controltac_il.augment.provenance import StaleCacheError
+
     try:
-        args = parser().parse_args(argv)
-        aug = _setup(args)
-        from controltac_il.augment.provenance import StaleCacheError
+        if args.lerobot:
+            _report_lerobot(args.out, _write(aug, args.out, args.dataset, args.video_round_trip,
+                                             args.export_workers))
+        else:
+            _report(aug, aug.build_cache())
+    except StaleCacheError as exc:  # a chunk that does not provably belong to the cache
+        raise UsageError("--out", " ".join(str(exc).split())) from exc
 
-        try:
-            if args.lerobot:
-                _report_lerobot(args.out, _write(aug, args.out, args.dataset, args.video_round_trip,
-                                                 args.export_workers))
-            else:
-                _report(aug, aug.build_cache())
-        except StaleCacheError as exc:  # a chunk that does not provably belong to the cache
-            raise UsageError("--out", " ".join(str(exc).split())) from exc
-    except UsageError as exc:
-        print(f"{PROG}: error: {exc.flag + ': ' if exc.flag else ''}{exc}", file=sys.stderr)
-        return 2
-    except (OSError, ValueError) as exc:  # e.g. --out under a file, a full disk, a NaN force label in the data
-        print(f"{PROG}: error: {one_line(exc)}", file=sys.stderr)
-        return 2
-    except RunFault as exc:  # e.g. the generator's output not finite
-        print(f"{PROG}: error: {one_line(exc)}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted; every chunk written so far is complete: re-run the same command to resume",
-              file=sys.stderr)
-        return 130
-    return 0
 
+def main(argv=None) -> int:
+    """Run the command; returns the exit status (0; 2 for a validation error, e.g. a flag, --out under a file, a
+    full disk, a NaN force label in the data; 1 for a fault of the run, e.g. the generator's output not finite;
+    130 when interrupted)."""
+    return guard(PROG, lambda: _run(argv), interrupted="interrupted; every chunk written so far is complete: "
+                                                       "re-run the same command to resume")
