@@ -14,6 +14,7 @@ import json
 from pathlib import Path
 
 from benchmarks import figure_text as ft
+from benchmarks.verdict_protocols import sequential_statement
 from controltac_il.cli import ArgumentParser
 
 LINK = "[experiments](docs/experiments.md#the-verdict-v2)"
@@ -83,7 +84,9 @@ def augment_table(doc: dict) -> str:
 def block(doc: dict, source: str) -> str:
     """The docs block: power, the looks (a sequential design), success, comparisons, validation curves,
     ForceAugment's targets, the source line."""
-    parts = [f"*Power, stated before any result: {doc['power_statement']}.*", looks_table(doc), success_table(doc),
+    power = doc["protocol"].get("power", {})
+    statement = sequential_statement(power) if "mde_80" in power else doc["power_statement"]
+    parts = [f"*Power, stated before any result: {statement}.*", looks_table(doc), success_table(doc),
              comparisons_table(doc), validation_table(doc), augment_table(doc), source]
     return "\n\n".join(p for p in parts if p)
 

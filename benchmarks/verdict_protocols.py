@@ -153,12 +153,18 @@ def sequential_design_power(looks: tuple[Look, ...], reps: int = 2000) -> dict:
     rows = [sequential_power(e, s, spec, reps) for e in (0.10, 0.13) for s in (0.16, sd, 0.21)]
     null = sequential_power(0.0, sd, spec, reps)
     mde = sequential_mde(sd, spec, reps=reps)
-    at = {(r["effect"], r["sd"]): r for r in rows}
-    statement = (f"at v2's SD of paired differences ({sd}), the design rejects a 10-point effect with "
-                 f"{at[0.10, sd]['power']:.0%} probability and a 13-point one with {at[0.13, sd]['power']:.0%} "
-                 f"({at[0.13, sd]['look_1_efficacy']:.0%} at look 1); 80 % power at {mde:.0%}; simulated type-I "
-                 f"error {null['power']:.3f} (bound 0.05)")
-    return {"v2_paired_sd": sd, "rows": rows, "no_effect": null, "mde_80": mde, "reps": reps, "statement": statement}
+    power = {"v2_paired_sd": sd, "rows": rows, "no_effect": null, "mde_80": mde, "reps": reps}
+    return {**power, "statement": sequential_statement(power)}
+
+
+def sequential_statement(power: dict) -> str:
+    """The sentence of a sequential design's power record (``sequential_design_power`` without its statement)."""
+    sd = power["v2_paired_sd"]
+    at = {(r["effect"], r["sd"]): r for r in power["rows"]}
+    return (f"at v2's SD of paired differences ({sd}), the design rejects a 10-point effect with "
+            f"{at[0.10, sd]['power']:.0%} probability and a 13-point one with {at[0.13, sd]['power']:.0%} "
+            f"({at[0.13, sd]['look_1_efficacy']:.0%} at look 1); 80 % power at a {power['mde_80'] * 100:.0f}-point "
+            f"effect; simulated type-I error {power['no_effect']['power']:.3f} (bound 0.05)")
 
 
 def holm_power(n: int) -> dict:

@@ -147,3 +147,14 @@ def test_pictures_are_drawn_from_the_json_once_a_look_is_complete_and_not_before
     drawn = {p.name: cv2.imread(str(p)) for p in tmp_path.glob("*.png")}
     assert set(drawn) == {"v3.png", "v3_paired.png"} and all(img is not None and img.size for img in drawn.values())
     assert f"wrote {tmp_path / 'v3_paired.png'}" in capsys.readouterr().out
+
+
+def test_a_sequential_designs_power_sentence_is_written_from_its_numbers_not_the_stored_text():
+    rows = [{"effect": e, "sd": 0.2, "power": p, "look_1_efficacy": 0.05} for e, p in ((0.10, 0.63), (0.13, 0.84))]
+    power = {"v2_paired_sd": 0.2, "rows": rows, "no_effect": {"power": 0.027}, "mde_80": 0.13,
+             "statement": "80 % power at 13%"}
+    doc = _doc(tests=True)
+    doc["protocol"]["power"] = power
+    text = vf.block(doc, "")
+    assert "80 % power at a 13-point effect" in text and "at 13%" not in text
+    assert "10-point effect with 63% probability and a 13-point one with 84% (5% at look 1)" in text
