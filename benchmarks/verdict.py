@@ -206,7 +206,9 @@ def parse_args(argv=None):
 
 
 def _check_out(p, args) -> None:
-    """--out is a new file path, or (with --resume) a grid's JSON: refused before any unit runs."""
+    """--out is a new file path, or (with --resume) a grid's JSON, kept as ``args.previous`` ({} for a new file):
+    refused before any unit runs."""
+    args.previous = {}
     if args.out is None:
         return
     if not args.out.parent.is_dir():  # a folder as --out is refused by base_parser's results_path
@@ -220,6 +222,7 @@ def _check_out(p, args) -> None:
             p.error(f"--out: {args.out} is not a grid's JSON ({exc})")
         if not isinstance(doc, dict) or not str(doc.get("benchmark", "")).startswith("touch_il_verdict"):
             p.error(f"--out: {args.out} is not a grid's JSON (python -m benchmarks.verdict); choose another file")
+        args.previous = doc
 
 
 def _check_seeds(p, args, proto: Protocol) -> None:
@@ -322,7 +325,7 @@ def main(argv=None) -> dict:
     protocol = record(proto, args.seeds, args.demos, args.batch_size, proto.snapshots, generator,
                       200 if args.quick else 2000)
     signature = signature_of(protocol)
-    previous = json.loads(args.out.read_text()) if args.resume and args.out and args.out.is_file() else {}
+    previous = args.previous
     done = _load_done(args, p, signature, previous)
     write_json(args.runs / "protocol.json", {"signature": signature, **protocol})
     protocol.update(signature=signature, fixed_at_commit=_protocol_commit(Path(__file__).with_name("verdict_protocols.py")))
