@@ -22,7 +22,7 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from controltac_il.cli import ArgumentParser
+from controltac_il.cli import ArgumentParser, RunFault, guard
 from controltac_il.config import one_line
 from controltac_il.extras import MissingExtra
 from controltac_il.streams import LOOP, image_key, tactile_key
@@ -30,8 +30,11 @@ from hardware.config import ConfigError, load_setup, open_setup
 from hardware.interfaces import HardwareError
 
 
+PROG = "python -m hardware.check"
+
+
 def main(argv=None) -> int:
-    p = ArgumentParser(description=__doc__.split("\n\n")[0],
+    p = ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0],
                        formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     p.add_argument("config", help="setup YAML file (see hardware/configs/)")
     p.add_argument("--connect", action="store_true", help="also connect the devices and read them (no motion)")
@@ -39,32 +42,29 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     if not 0 <= args.seconds < float("inf"):  # 0: read each device once
         p.error(f"--seconds: expected a finite duration >= 0 s, got {args.seconds}")
+    return guard(PROG, lambda: _check(args), interrupted="device check interrupted (Ctrl-C); the devices were closed")
+
+
+def _check(args) -> None:
+    """Validate the setup file and, with --connect, read its devices. ValueError (exit 2) for the file, a missing
+    SDK or a bad device path; RunFault (exit 1) for a device that cannot be reached or fails while read."""
     try:
         cfg = load_setup(args.config)
     except ConfigError as exc:
-        print(f"invalid setup: {exc}", file=sys.stderr)
-        return 2
+        raise ValueError(f"invalid setup: {one_line(exc)}") from None
     print(f"{args.config}: valid setup {cfg.name!r}: robot {cfg.robot.type}, gripper {cfg.gripper.type}, "
           f"cameras {sorted(cfg.cameras)}, tactile {sorted(cfg.tactile)}, {cfg.control.rate_hz} Hz")
     if not args.connect:
-        return 0
+        return
     try:
         _connect_and_report(cfg, args.seconds)
     except ConfigError as exc:  # validated again before anything connects
-        print(f"invalid setup: {exc}", file=sys.stderr)
-        return 2
+        raise ValueError(f"invalid setup: {one_line(exc)}") from None
     except HardwareError as exc:  # open_setup names the file for a device it cannot reach; later faults get it here
         msg = one_line(exc)
-        print(f"device check failed: {msg if msg.startswith(str(args.config)) else f'{args.config}: {msg}'}",
-              file=sys.stderr)
-        return 1
+        raise RunFault(f"device check failed: {msg if msg.startswith(str(args.config)) else f'{args.config}: {msg}'}") from None
     except (MissingExtra, ValueError, OSError) as exc:  # an SDK not installed (the extra to install), a bad value
-        print(f"device check failed: {one_line(exc)}", file=sys.stderr)  # or device path the setup names
-        return 2
-    except KeyboardInterrupt:  # the devices were closed (arm stopped first) on the way out
-        print("device check interrupted (Ctrl-C); the devices were closed", file=sys.stderr)
-        return 130
-    return 0
+        raise ValueError(f"device check failed: {one_line(exc)}") from None  # or device path the setup names
 
 
 def _connect_and_report(cfg, seconds: float) -> None:

@@ -159,6 +159,7 @@ def test_check_cli_refuses_an_implausible_file_in_one_line(tmp_path, capsys):
     assert check_main([str(path)]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and f"{path}: limits.workspace_max: the box corner" in err
+    assert err.startswith("python -m hardware.check: error: invalid setup: ")
 
 
 # -- nothing is built from an unvalidated config -----------------------------------------------------
@@ -296,7 +297,7 @@ def test_check_cli_connect_failure_is_one_line_exit_1(tmp_path, capsys, fake_xar
     assert check_main([str(path), "--connect", "--seconds", "0"]) == 1
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "Traceback" not in err
-    assert err.startswith(f"device check failed: {path}: xArm 127.0.0.1: cannot connect to the controller (connect socket failed)")
+    assert err.startswith(f"python -m hardware.check: error: device check failed: {path}: xArm 127.0.0.1: cannot connect to the controller (connect socket failed)")
 
 
 def test_deploy_on_robot_fails_on_an_unreachable_arm_naming_file_and_address(tmp_path, fake_xarm_sdk):
