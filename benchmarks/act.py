@@ -28,6 +28,8 @@ from policies.act.training import augment_change
 
 VARIANTS = {"real": 0, "fa1": 1, "fa2": 2, "fa4": 4}
 
+PROG = "python -m benchmarks.act"
+
 
 def _observation(cameras=("third_view", "wrist"), camera_hw=(96, 128), tactile_hw=(120, 160), seed=0) -> dict:
     rng = np.random.default_rng(seed)
@@ -140,7 +142,7 @@ def stale_runs(runs: Path, variants: list[str], generator: str | None) -> list[s
 
 def parse(argv) -> tuple:
     """The command line, its --quick sizes applied; (args, variants, parser)."""
-    p = base_parser(__doc__.split("\n\n")[0])
+    p = base_parser(PROG, __doc__.split("\n\n")[0])
     p.add_argument("--demos", type=int, default=50, help="demos collected in the scene (default 50, the paper's)")
     p.add_argument("--steps", type=int, default=1500, help="training steps per variant (default 1500)")
     p.add_argument("--batch-size", type=int, default=16, help="training batch size (default 16)")
@@ -264,4 +266,4 @@ def experiment(args, variants: list[str], demos, save) -> list[dict]:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.act", lambda: main() and 0))
+    raise SystemExit(guard(PROG, lambda: main() and 0))

@@ -40,6 +40,8 @@ from controltac_il.tactile import SensorSpec, TactileSensor
 SENSORS = ("left", "right")
 WRITE_ROUNDS = 5  # the writer row's rounds (medians; the machine is shared and its speed drifts by 20 %)
 
+PROG = "python -m benchmarks.augment"
+
 
 def force_profile(T: int, peak: float, rng: np.random.Generator) -> np.ndarray:
     """Normal force (T,) N: free approach (no contact), ramp to ``peak``, hold with noise, release."""
@@ -186,7 +188,7 @@ def hdf5_row(tmp: Path, gen, args, copies: int, steps, items: int, epochs: int, 
 
 
 def main(argv=None) -> dict:
-    p = base_parser(__doc__.splitlines()[0])
+    p = base_parser(PROG, __doc__.splitlines()[0])
     p.add_argument("--generator", default=None, help="generator checkpoint folder (default: shipped)")
     p.add_argument("--threads", type=int, default=2, help="torch threads for the cache build (default 2)")
     p.add_argument("--steps", type=int, default=None,
@@ -234,4 +236,4 @@ def main(argv=None) -> dict:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.augment", lambda: main() and 0))
+    raise SystemExit(guard(PROG, lambda: main() and 0))

@@ -55,6 +55,8 @@ SAME_OBJECTS = (CALIBRATION_OBJECTS + TEST_OBJECTS,) * 2
 # (instance index, optics): the unseen-family sensors calibrated, two of them with the rotated light
 SENSORS = ((0, "three_light"), (0, "three_light_rot"), (1, "three_light_rot"))
 
+PROG = "python -m benchmarks.calibration"
+
 
 def record_grasps(sensor, rng, n: int, folder: Path | None, objects: tuple[str, ...]) -> list[tuple]:
     """Render ``n`` grasps of ``objects``: (residuals (T, H, W, 3), true Fz (T,), lag); with ``folder``, each written
@@ -223,7 +225,7 @@ def resumed_rows(args) -> list[dict]:
 
 
 def main(argv=None) -> dict:
-    p = base_parser(__doc__.split("\n\n")[0].strip("`"))
+    p = base_parser(PROG, __doc__.split("\n\n")[0].strip("`"))
     add_options(p)
     p.add_argument("--no-sim-record", action="store_true", help="skip the MuJoCo scene's recorded presses")
     p.add_argument("--heldout-draws", type=int, default=0, metavar="D",
@@ -323,4 +325,4 @@ def summary(rows: list[dict], args, t0: float, show: bool = False) -> dict:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.calibration", lambda: main() and 0))
+    raise SystemExit(guard(PROG, lambda: main() and 0))

@@ -40,6 +40,8 @@ OPTICS = ("polynomial", "three_light", "three_light_rot")
 METHODS = ("constant", "zero_shot", "stat_monotone", "ship_monotone", "ship_affine", "stats_ridge", "frozen_ridge",
            "colour_adapter")
 
+PROG = "python -m benchmarks.calibration_methods"
+
 
 def ramp(n: int, fmax: float) -> np.ndarray:
     """Loading ramp Fz (n,) in N from 0 to ``fmax``: smoothstep, so mid-ramp frames move ~1.5x the mean step."""
@@ -334,7 +336,7 @@ def settings(args) -> dict:
 
 
 def main(argv=None) -> dict:
-    p = base_parser(__doc__.split("\n\n")[0].split(": ", 1)[1])
+    p = base_parser(PROG, __doc__.split("\n\n")[0].split(": ", 1)[1])
     p.add_argument("--draws", type=int, default=8, help="calibration draws per sensor and K (default 8)")
     p.add_argument("--stride", type=int, default=2, help="keep every n-th labelled frame (default 2: ~5 a grasp)")
     p.add_argument("--seed", type=int, default=40)
@@ -375,4 +377,4 @@ def main(argv=None) -> dict:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.calibration_methods", lambda: main() and 0))
+    raise SystemExit(guard(PROG, lambda: main() and 0))

@@ -44,6 +44,8 @@ SPLITS = {"validation": (3, 4, 5), "test": (6, 7, 8)}  # draws of benchmarks.cal
 # the settings that define a case: every case of both splits is run in the same ones
 CASE_SETTINGS = ("k", "test_grasps", "ae_steps", "dit_steps", "seed", "size", "quick")
 
+PROG = "python -m benchmarks.calibration_rule"
+
 
 def level_scores(rows: list[dict]) -> list[dict]:
     """Per candidate level, over the cases' held-out grasp rows (``cv_per_grasp``): the decision's accuracy (right:
@@ -134,7 +136,7 @@ def checked(row: dict) -> dict:
 
 
 def parse(argv):
-    p = base_parser(__doc__.split("\n\n")[0])
+    p = base_parser(PROG, __doc__.split("\n\n")[0])
     add_options(p)
     p.add_argument("--split", choices=tuple(SPLITS), required=True,
                    help="validation: score every level on draws 3-5 and choose; test: the chosen level once, "
@@ -172,4 +174,4 @@ def main(argv=None) -> dict:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.calibration_rule", lambda: main() and 0))
+    raise SystemExit(guard(PROG, lambda: main() and 0))

@@ -145,9 +145,10 @@ def results_path(text: str) -> Path:
     return path
 
 
-def base_parser(description: str) -> argparse.ArgumentParser:
-    """Argument parser with the flags every benchmark takes (``--out``, ``--quick``)."""
-    p = ArgumentParser(description=description)
+def base_parser(prog: str, description: str) -> argparse.ArgumentParser:
+    """Argument parser of the command ``prog`` (``python -m benchmarks.NAME``, the name its errors start with)
+    with the flags every benchmark takes (``--out``, ``--quick``)."""
+    p = ArgumentParser(prog=prog, description=description)
     p.add_argument("--out", type=results_path, default=None, help="write the results as JSON to this file")
     p.add_argument("--quick", action="store_true", help="small version that finishes in about a minute (CI)")
     return p

@@ -35,6 +35,8 @@ SETTINGS = {
     "2 cameras + 2 tactile": dict(cameras=CAMERAS, tactile=True),
 }
 
+PROG = "python -m benchmarks.env"
+
 
 def time_steps(config: PegInHoleConfig, seeds: list[int]) -> dict:
     """Median wall and CPU ms per control step over expert episodes."""
@@ -117,7 +119,7 @@ def expert_success(seeds: list[int], hole_diameter_mm: float) -> dict:
 
 
 def main(argv=None) -> dict:
-    p = base_parser(__doc__.split("\n\n")[0])
+    p = base_parser(PROG, __doc__.split("\n\n")[0])
     p.add_argument("--seeds", type=int, default=None, help="expert episodes for the success rate (default 50, quick 10)")
     p.add_argument("--tight", action="store_true", help="also measure the expert on a tight Ø27 mm hole")
     args = p.parse_args(argv)
@@ -150,4 +152,4 @@ def main(argv=None) -> dict:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.env", lambda: main() and 0))
+    raise SystemExit(guard(PROG, lambda: main() and 0))

@@ -36,6 +36,8 @@ CELLS = {"seen_objects/one_sensor": (TRAIN_OBJECTS, None, 900), "seen_objects/se
          "unseen_objects/seen_sensors": (HELDOUT_OBJECTS, "train", 903),
          "unseen_objects/unseen_sensor": (HELDOUT_OBJECTS, "unseen", 904)}
 
+PROG = "python -m benchmarks.estimator"
+
 
 def render(tmp: Path, poses: int, forces: int) -> dict:
     """{cell: (residuals uint8 (N, 120, 160, 3), forces (N, 3))}."""
@@ -72,7 +74,7 @@ def evaluate(estimator, cells: dict, real: np.ndarray | None) -> dict:
 
 
 def main(argv=None) -> dict:
-    p = base_parser(__doc__.splitlines()[0])
+    p = base_parser(PROG, __doc__.splitlines()[0])
     p.add_argument("--checkpoint", nargs="+", default=["shipped=default"], metavar="NAME=PATH",
                    help="estimators to measure (default: the shipped one, 'shipped=default')")
     p.add_argument("--frames", type=Path, default=REAL_GELSIGHT, help=f"real GelSight Mini frames (default {REAL_GELSIGHT})")
@@ -99,4 +101,4 @@ def main(argv=None) -> dict:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.estimator", lambda: main() and 0))
+    raise SystemExit(guard(PROG, lambda: main() and 0))

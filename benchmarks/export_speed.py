@@ -31,6 +31,8 @@ from controltac_il.lerobot import LeRobotExport, LeRobotFolder
 SIZES = {False: {"frames": 100, "copies": 1, "steps": 2, "rounds": 3},  # episodes: --episodes
          True: {"frames": 20, "copies": 1, "steps": 1, "rounds": 1}}
 
+PROG = "python -m benchmarks.export_speed"
+
 
 def build_cache(root: Path, cache_dir: Path, copies: int, steps: int) -> tuple[ForceAugment, dict]:
     """ForceAugment over the tactile video stream of the source ``root``, its cache built: (it, the build's wall s
@@ -100,7 +102,7 @@ def measure(aug: ForceAugment, root: Path, tmp: Path, workers: list[int], rounds
 
 
 def main(argv=None) -> dict:
-    p = base_parser(__doc__.splitlines()[0])
+    p = base_parser(PROG, __doc__.splitlines()[0])
     p.add_argument("--workers", type=int, nargs="+", default=[1, 2, 4],
                    help="worker process counts to time (default: 1 2 4)")
     p.add_argument("--episodes", type=int, default=None, help="source episodes (default 32; 4 with --quick)")
@@ -132,4 +134,4 @@ def main(argv=None) -> dict:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.export_speed", lambda: main() and 0))
+    raise SystemExit(guard(PROG, lambda: main() and 0))

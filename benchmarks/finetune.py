@@ -40,6 +40,8 @@ SIZE = (120, 160)
 FORCES_PER_POSE = 8
 EVAL_SEED = 2001  # held-out poses of the same sensor
 
+PROG = "python -m benchmarks.finetune"
+
 
 def render(root: Path, instance: str, images: int, seed: int, workers: int = 1) -> Path:
     """A one-sensor dataset folder of about ``images`` presses of the training objects (cached; the same files
@@ -148,7 +150,7 @@ def plot_runs(paths: list[Path], out: Path) -> None:
 
 
 def _parser():
-    p = base_parser(__doc__.split(":", 1)[1].strip().split("\n")[0])
+    p = base_parser(PROG, __doc__.split(":", 1)[1].strip().split("\n")[0])
     p.add_argument("--images", type=int, nargs="+", default=[0, 100, 500, 2000], help="fine-tuning budgets (images)")
     p.add_argument("--steps", type=int, default=600, help="fine-tuning steps per budget (batch 64; default 600)")
     p.add_argument("--ae-steps", type=int, default=600,
@@ -212,4 +214,4 @@ def main(argv=None) -> dict | None:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.finetune", lambda: main() and 0))
+    raise SystemExit(guard(PROG, lambda: main() and 0))

@@ -45,6 +45,8 @@ from controltac_il.metrics import force_mae
 
 ROW_KINDS = ("real", "third+copy", "generated", "third+generated", "full+generated")
 
+PROG = "python -m benchmarks.force_scaling"
+
 
 @dataclass
 class ScalingSetup:
@@ -298,7 +300,7 @@ def report(results: dict, n_test: int) -> None:
 
 def parse(argv) -> tuple:
     """The command line and the setup it asks for (quick or full, with the flags' overrides); (args, setup)."""
-    p = base_parser(__doc__.split("\n")[0])
+    p = base_parser(PROG, __doc__.split("\n")[0])
     p.add_argument("--work-dir", type=Path, default=Path(tempfile.gettempdir()) / "controltac_force_scaling",
                    help="cache of the sensor-model datasets and generated frames (default: a folder in /tmp)")
     p.add_argument("--generator", default=None, help="generator checkpoint folder (default: the shipped one)")
@@ -388,4 +390,4 @@ def main(argv=None) -> dict:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.force_scaling", lambda: main() and 0))
+    raise SystemExit(guard(PROG, lambda: main() and 0))

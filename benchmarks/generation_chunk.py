@@ -23,6 +23,8 @@ from controltac_il.generator import ForceGenerator
 from controltac_il.generator import pipeline
 from controltac_il.tactile import SensorSpec, TactileSensor
 
+PROG = "python -m benchmarks.generation_chunk"
+
 
 def residuals(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """``n`` sensor-model contact residuals (n, 240, 320, 3) and ΔF (n, 3) N."""
@@ -34,7 +36,7 @@ def residuals(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
 
 
 def main(argv=None) -> dict:
-    p = base_parser(__doc__.split("\n\n")[0])
+    p = base_parser(PROG, __doc__.split("\n\n")[0])
     p.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
     p.add_argument("--repeats", type=int, default=5, help="timed repeats per setting (medians)")
     args = p.parse_args(argv)
@@ -73,4 +75,4 @@ def main(argv=None) -> dict:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.generation_chunk", lambda: main() and 0))
+    raise SystemExit(guard(PROG, lambda: main() and 0))

@@ -68,6 +68,8 @@ SPLITS = {"seen": (TRAIN_OBJECTS, 1001, RENDER_SIZE, None), "unseen": (HELDOUT_O
           "unseen_sensor": (TRAIN_OBJECTS, 1003, RENDER_SIZE, "unseen")}
 STEPS = (1, 2, 5, 10, 20, 50)
 
+PROG = "python -m benchmarks.generator"
+
 
 def eval_pairs(cache: Path, split: str, poses: int, forces: int, max_pairs: int, seed: int = 0):
     """(residual refs, residual targets, ref forces, target forces, backgrounds (N, H, W, 3)) of one split."""
@@ -236,7 +238,7 @@ def table_row(entry: dict) -> dict:
 
 
 def parse(argv):
-    p = base_parser(__doc__.splitlines()[0])
+    p = base_parser(PROG, __doc__.splitlines()[0])
     p.add_argument("--checkpoint", default="default", help="default generator (shipped name or folder)")
     p.add_argument("--fast", default="fast", help="faster variant (shipped name or folder; '' to skip)")
     p.add_argument("--frontier", nargs="*", default=None, metavar="NAME",
@@ -417,4 +419,4 @@ def main(argv=None) -> dict:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.generator", lambda: main() and 0))
+    raise SystemExit(guard(PROG, lambda: main() and 0))

@@ -44,6 +44,8 @@ for name in sys.argv[3:]:
 np.savez(sys.argv[1], **out)
 """
 
+PROG = "python -m benchmarks.generator_cpu_change"
+
 
 def _run(tree: Path, args: list[str]) -> None:
     """``python args`` in ``tree``, its code first on the path; one line naming the tree if it fails."""
@@ -80,7 +82,7 @@ def byte_change(trees: dict, a, tmp: Path) -> list[dict]:
 
 
 def main(argv=None) -> dict:
-    p = base_parser(__doc__.splitlines()[0])
+    p = base_parser(PROG, __doc__.splitlines()[0])
     p.add_argument("--baseline", type=Path, required=True, help="folder holding the earlier code (module docstring)")
     p.add_argument("--checkpoints", nargs="+", default=["fast", "default", "quality"], help="default: the presets")
     p.add_argument("--threads", type=int, default=2, help="torch threads (default 2, the target machine's)")
@@ -116,4 +118,4 @@ def main(argv=None) -> dict:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.generator_cpu_change", lambda: main() and 0))
+    raise SystemExit(guard(PROG, lambda: main() and 0))

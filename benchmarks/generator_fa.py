@@ -37,6 +37,8 @@ DFZ_BINS = ((0.0, 2.0), (2.0, 5.0), (5.0, np.inf))  # |ΔFz| N
 REAL_DFZ = (-2.0, 0.0, 2.0, 4.0, 6.0)  # N
 COPIES = 2  # fa2
 
+PROG = "python -m benchmarks.generator_fa"
+
 
 def fa_pairs(sensor: TactileSensor, generator, n: int, seed: int = 0,
              objects: tuple[str, ...] = HELDOUT_OBJECTS) -> dict:
@@ -170,7 +172,7 @@ def measure(gens: dict, n: int, instances: int) -> dict:
 def main(argv=None) -> dict:
     from controltac_il.generator import ForceGenerator
 
-    p = base_parser(__doc__.splitlines()[0])
+    p = base_parser(PROG, __doc__.splitlines()[0])
     p.add_argument("--checkpoints", nargs="+", default=["fast", "default", "quality"], help="default: the presets")
     p.add_argument("--pairs", type=int, default=None, help="pairs per sensor and size (default 96, quick 6)")
     p.add_argument("--instances", type=int, default=None, help="randomised sensor instances (default 2, quick 0)")
@@ -194,4 +196,4 @@ def main(argv=None) -> dict:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.generator_fa", lambda: main() and 0))
+    raise SystemExit(guard(PROG, lambda: main() and 0))

@@ -26,6 +26,8 @@ FRONTIER_STEPS = (1, 2, 5)
 PAPER = {"label": "ControlTac (147 M, real data)", "unseen_ratio_to_copy": 26 / 233}  # DESIGN.md's paper figures
 REAL_FZ = 4.0  # the nominal reference force (N) the real frames' ΔF sweeps start from (they carry no label)
 
+PROG = "python -m benchmarks.generator_frontier"
+
 
 def real_checks(predict) -> dict | None:
     """On the real GelSight Mini frames (../shared; None where absent): the MSE (grey levels²) of the output at
@@ -102,7 +104,7 @@ def main(argv=None) -> Path:
     JSON (speeds), beside the first."""
     import json
 
-    p = ArgumentParser(description="Draw the generator's speed-error frontier: errors from a benchmarks.generator "
+    p = ArgumentParser(prog=PROG, description="Draw the generator's speed-error frontier: errors from a benchmarks.generator "
                        "JSON, speeds from a benchmarks.generator_speed JSON.")
     p.add_argument("errors", type=Path, help="the JSON benchmarks.generator wrote (the PNG goes beside it)")
     p.add_argument("speeds", type=Path, help="the JSON benchmarks.generator_speed wrote")
@@ -116,4 +118,4 @@ def main(argv=None) -> Path:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.generator_frontier", lambda: main() and 0))
+    raise SystemExit(guard(PROG, lambda: main() and 0))

@@ -43,6 +43,8 @@ TARGETS = {"increase": 0.40, "all": 0.30, "worst_object": 0.60}
 OWN_FLAGS = ("--data", "--out", "--autoencoder-from", "--denoiser-from", "--dit-steps", "--dit-lr", "--device",
              "--threads")
 
+PROG = "python -m benchmarks.generator_levers"
+
 
 def recipe(card: dict) -> list[str]:
     """The training flags of a checkpoint's card command, without those each run sets itself."""
@@ -116,7 +118,7 @@ def against_targets(s: dict) -> dict:
 
 
 def parse(argv):
-    p = base_parser(__doc__.splitlines()[0])
+    p = base_parser(PROG, __doc__.splitlines()[0])
     p.add_argument("--data", type=Path, required=True, help="default's training set (module docstring)")
     p.add_argument("--runs", type=Path, default=None,
                    help="one run folder per variant (default runs/generator_levers, with --quick ..._quick)")
@@ -198,4 +200,4 @@ def report(doc: dict) -> None:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.generator_levers", lambda: main() and 0))
+    raise SystemExit(guard(PROG, lambda: main() and 0))

@@ -37,6 +37,8 @@ CALL_BATCHES = 1  # an int batch size is timed over calls of this many batches
 AUTO_ROWS = 2048  # frames per call at batch "auto" (and so the most it can pick)
 DTYPES = {"float32": torch.float32, "bfloat16": torch.bfloat16, "float16": torch.float16}
 
+PROG = "python -m benchmarks.generator_speed"
+
 
 def frames(size: tuple[int, int], count: int) -> tuple[np.ndarray, np.ndarray]:
     """(residuals uint8 (count, H, W, 3), ΔF float32 (count, 3) N): 32 presses of the held-out objects at 2-9 N,
@@ -112,7 +114,7 @@ def time_checkpoints(a, data: dict, pairs: dict | None) -> list[dict]:
 
 
 def main(argv=None) -> dict:
-    p = base_parser(__doc__.splitlines()[0])
+    p = base_parser(PROG, __doc__.splitlines()[0])
     p.add_argument("--checkpoints", nargs="+", default=["fast", "default", *FRONTIER],
                    help="shipped names (the presets, the frontier's sizes) or checkpoint folders (default: all five)")
     p.add_argument("--device", default="cpu", help="cpu (default) or cuda")
@@ -150,4 +152,4 @@ def main(argv=None) -> dict:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.generator_speed", lambda: main() and 0))
+    raise SystemExit(guard(PROG, lambda: main() and 0))

@@ -27,6 +27,8 @@ import numpy as np
 from benchmarks.common import base_parser, print_table, write_results
 from controltac_il.streams import LOOP_STATE
 
+PROG = "python -m benchmarks.hardware"
+
 
 def _stats_ms(values) -> dict:
     v = np.asarray(values, dtype=np.float64) * 1e3
@@ -106,7 +108,7 @@ def serial_round_trips(n: int) -> dict:
 
 
 def main(argv=None) -> dict:
-    p = base_parser(__doc__.split("\n\n")[0])
+    p = base_parser(PROG, __doc__.split("\n\n")[0])
     p.add_argument("--steps", type=int, default=None, help="control-loop cycles (default 300, quick 100)")
     p.add_argument("--policy-ms", type=float, default=25.0, help="simulated policy inference time per chunk (ms)")
     p.add_argument("--raw-hw", type=int, nargs=2, default=(600, 800), metavar=("H", "W"),
@@ -138,4 +140,4 @@ def main(argv=None) -> dict:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.hardware", lambda: main() and 0))
+    raise SystemExit(guard(PROG, lambda: main() and 0))

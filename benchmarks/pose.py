@@ -54,6 +54,8 @@ PERTURBATIONS = {"scale 0.8": (0.8, 0, 0), "scale 0.9": (0.9, 0, 0), "scale 1.1"
                  "rotate 2°": (1, 0, 2), "rotate 4°": (1, 0, 4), "rotate 6°": (1, 0, 6),
                  "combined 0.8, 6 px, 6°": (0.8, 6, 6), "combined 1.2, 6 px, 6°": (1.2, 6, 6)}
 
+PROG = "python -m benchmarks.pose"
+
 
 def cross_pose_pairs(scenes: PoseScenes, max_pairs: int, seed: int) -> np.ndarray:
     """(P, 2) (reference, target) index pairs within scenes whose poses differ, at most ``max_pairs``."""
@@ -278,7 +280,7 @@ def report(results: dict) -> None:
 
 
 def main(argv=None) -> dict:
-    p = base_parser(__doc__.splitlines()[0])
+    p = base_parser(PROG, __doc__.splitlines()[0])
     p.add_argument("--checkpoint", default="default", help="stage-1 generator (shipped name or folder)")
     p.add_argument("--adapter", default="pose", help="stage-2 pose adapter (shipped name or folder)")
     p.add_argument("--pairs", type=int, default=96, help="evaluation pairs per split (default 96)")
@@ -333,4 +335,4 @@ def main(argv=None) -> dict:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.pose", lambda: main() and 0))
+    raise SystemExit(guard(PROG, lambda: main() and 0))

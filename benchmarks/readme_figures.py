@@ -33,6 +33,8 @@ DOCS = (ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), RESULTS / "RE
 HISTORY_KEYS = ("source", "history", "history_note")  # added to a card's figures, not measured
 MARKER = re.compile(r"<!-- (/?)figures:([A-Za-z0-9_-]+) -->")
 
+PROG = "python -m benchmarks.readme_figures"
+
 
 def ms(s: dict) -> str:
     return f"{s['mse']:.1f} ± {s['mse_sd']:.1f}"
@@ -409,7 +411,7 @@ def check() -> list[str]:
 
 
 def main(argv=None) -> int:
-    p = ArgumentParser(prog="python -m benchmarks.readme_figures", description=__doc__.split("\n\n")[0])
+    p = ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
     p.add_argument("--check", action="store_true", help="change nothing; exit 1 naming each block that differs")
     a = p.parse_args(argv)
     return _run(a.check)  # a malformed marker: ValueError, one line and exit 2 under guard
@@ -436,4 +438,4 @@ def _run(check_only: bool) -> int:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.readme_figures", main))
+    raise SystemExit(guard(PROG, main))

@@ -36,6 +36,8 @@ REFERENCE_FZ = 3.0  # N, the sensor-model references
 SIM_SIZES = ((120, 160), (240, 320))  # the model's size (about) and the GelSight Mini's
 MAX_DROP_PP = 0.15  # the tolerated drop between neighbouring 0.5 N steps
 
+PROG = "python -m benchmarks.response"
+
 
 def contact_area_pct(residuals: np.ndarray) -> np.ndarray:
     """Contact area (% of the pad) of each residual uint8 (B, H, W, 3) -> float (B,)."""
@@ -125,7 +127,7 @@ def save_plot(path: Path, deltas: np.ndarray, rows: dict) -> None:
 
 
 def main(argv=None) -> dict:
-    p = base_parser(__doc__.split(":", 1)[1].strip().split("\n")[0])
+    p = base_parser(PROG, __doc__.split(":", 1)[1].strip().split("\n")[0])
     p.add_argument("--generator", default=None, help="checkpoint: default (shipped), fast, or a folder")
     p.add_argument("--plot", type=Path, default=None, help="PNG of the curves (default: beside --out)")
     args = p.parse_args(argv)
@@ -160,4 +162,4 @@ def main(argv=None) -> dict:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.response", lambda: main() and 0))
+    raise SystemExit(guard(PROG, lambda: main() and 0))

@@ -23,6 +23,8 @@ from controltac_il.tactile.sheet import save_png
 
 REAL_CONTACTS = ("bead.png", "key.png", "seed.png", "ball_image.png")
 
+PROG = "python -m benchmarks.sensor"
+
 
 def residual_stats(residual: np.ndarray) -> dict:
     """Statistics of one residual (uint8 (H, W, 3)): magnitude percentiles, contact fraction, channel spread."""
@@ -115,7 +117,7 @@ def run(quick: bool, real_dir: Path, picture: Path | None) -> dict:
 
 
 def main(argv=None) -> dict:
-    p = base_parser(__doc__.splitlines()[0])
+    p = base_parser(PROG, __doc__.splitlines()[0])
     p.add_argument("--real-dir", type=Path, default=REAL_GELSIGHT, help="folder with real GelSight Mini frames")
     p.add_argument("--picture", type=Path, default=None, help="PNG of real frames above ours (default: beside --out)")
     args = p.parse_args(argv)
@@ -129,4 +131,4 @@ def main(argv=None) -> dict:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.sensor", lambda: main() and 0))
+    raise SystemExit(guard(PROG, lambda: main() and 0))

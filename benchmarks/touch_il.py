@@ -37,6 +37,8 @@ CHECKPOINT_NOTE = ("policies are evaluated at their final step: the held-out L1 
                    "few-mm lateral correction touch supplies (real, 50 demos: best/ = step 1000 succeeded 17/50, "
                    "last/ = step 2000 28/30 on the same seeds)")
 
+PROG = "python -m benchmarks.touch_il"
+
 
 def fisher_greater(k_a: int, n_a: int, k_b: int, n_b: int) -> float:
     """One-sided Fisher exact p-value that A's success rate exceeds B's."""
@@ -202,7 +204,7 @@ def parser():
     """The command line's options (``parse_args`` checks them together)."""
     from benchmarks.common import base_parser
 
-    p = base_parser(__doc__.split("\n\n")[0])
+    p = base_parser(PROG, __doc__.split("\n\n")[0])
     p.add_argument("--demos", default=",".join(map(str, BUDGETS)),
                    help="comma list of demonstration budgets (default 20,35,50; each <= --collect)")
     p.add_argument("--collect", type=int, default=max(BUDGETS),
@@ -415,4 +417,4 @@ def main(argv=None) -> dict:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.touch_il", lambda: main() and 0))
+    raise SystemExit(guard(PROG, lambda: main() and 0))

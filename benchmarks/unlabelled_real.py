@@ -40,6 +40,8 @@ POLICIES = ("skip", "clip", "nominal")
 SWEEP = (-4.0, -3.0, -2.0, -1.0, 0.0, 1.0, 2.0, 3.0, 4.0)
 KEY = tactile_key("gelsight", LEROBOT)
 
+PROG = "python -m benchmarks.unlabelled_real"
+
 
 class RealPresses(Dataset):
     """The presses as LeRobot items: episode e = 3 background frames then 9 frames of press e."""
@@ -104,7 +106,7 @@ def picture(path: Path, background: np.ndarray, residuals, row: dict) -> None:
 
 
 def main(argv=None) -> dict:
-    p = base_parser(__doc__.splitlines()[0])
+    p = base_parser(PROG, __doc__.splitlines()[0])
     p.add_argument("--frames", type=Path, default=REAL_GELSIGHT, help=f"folder of the real frames (default {REAL_GELSIGHT})")
     args = p.parse_args(argv)
     from controltac_il.estimators import ForceEstimator
@@ -138,4 +140,4 @@ def main(argv=None) -> dict:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.unlabelled_real", lambda: main() and 0))
+    raise SystemExit(guard(PROG, lambda: main() and 0))

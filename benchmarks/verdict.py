@@ -26,6 +26,9 @@ from controltac_il.io import write_json
 
 
 # --- units: one (variant, seed) trained and validated, or tested; each saved as it finishes ----------------------
+PROG = "python -m benchmarks.verdict"
+
+
 def make_stage(variant: str):
     """The training set's augmentation of a variant (None for real)."""
     from benchmarks.touch_il import make_stage as stage
@@ -170,7 +173,7 @@ def quick(protocol: Protocol) -> Protocol:
 def parse_args(argv=None):
     from benchmarks.common import base_parser
 
-    p = base_parser(__doc__.split("\n\n")[0])
+    p = base_parser(PROG, __doc__.split("\n\n")[0])
     p.add_argument("--protocol", default="v3", help="v3 (confirmatory, default) or v2 (exploratory); v1 is retired")
     p.add_argument("--seeds", default=None, help="training seeds, the same for every variant (default: the protocol's)")
     p.add_argument("--allow-underpowered", action="store_true", help="accept fewer seeds than the protocol's (tests)")
@@ -468,4 +471,4 @@ def analyse_look(results: dict, proto: Protocol, units: dict, k: int, look: Look
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.verdict", lambda: main() and 0))
+    raise SystemExit(guard(PROG, lambda: main() and 0))

@@ -21,6 +21,8 @@ LINK = "[experiments](docs/experiments.md#the-verdict-v2)"
 LINK_V3 = "[experiments](docs/experiments.md#the-verdict-v3-confirmatory)"
 BENCHMARKS = ("touch_il_verdict_v2", "touch_il_verdict_v3")
 
+PROG = "python -m benchmarks.verdict_figures"
+
 
 def points(c: dict) -> str:
     """A paired difference and its interval, in points."""
@@ -156,7 +158,7 @@ def headline_rows_v3(doc: dict, source: str) -> list[list[str]]:
 
 
 def main(argv=None) -> int:
-    p = ArgumentParser(description="Print the verdict's docs block and README rows from a (running) grid's --out "
+    p = ArgumentParser(prog=PROG, description="Print the verdict's docs block and README rows from a (running) grid's --out "
                        "JSON (python -m benchmarks.verdict).")
     p.add_argument("json", type=Path, help="the grid's --out JSON")
     p.add_argument("--look", type=int, default=None, help="print look K's decision; refused until its units are tested")
@@ -227,4 +229,4 @@ def show(doc: dict, path: Path) -> None:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.verdict_figures", main))
+    raise SystemExit(guard(PROG, main))

@@ -65,8 +65,43 @@ def test_every_benchmark_runs_its_main_under_guard():
     assert [name for name, calls in entries.items() if "guard" not in calls] == []
 
 
+USAGE_PROBE = """
+import contextlib, io, json, runpy, sys, warnings
+warnings.simplefilter("ignore", RuntimeWarning)  # runpy's note on a module one run before imported: one process
+out = {{}}
+for module in {modules!r}:
+    sys.argv = [module, "--no-such-flag"]
+    err = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(err):
+            runpy.run_module(module, run_name="__main__", alter_sys=True)
+    except SystemExit as exc:
+        out[module] = [exc.code, err.getvalue()]
+print(json.dumps(out))
+"""
+
+
+def test_every_benchmarks_usage_error_starts_with_the_command_that_runs_it():
+    """``python -m benchmarks.X --no-such-flag``: one line ``python -m benchmarks.X: error: ...``, exit 2 (not the
+    file name argparse would take from sys.argv)."""
+    import json
+    import sys
+
+    root = Path(__file__).resolve().parents[1] / "benchmarks"
+    modules = sorted("benchmarks." + p.relative_to(root).with_suffix("").as_posix().replace("/", ".")
+                     .removesuffix(".__main__") for p in root.rglob("*.py") if _main_block_calls(p) is not None)
+    run = subprocess.run([sys.executable, "-c", USAGE_PROBE.format(modules=modules)], cwd=root.parent,
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    got = json.loads(run.stdout.strip().splitlines()[-1])
+    bad = {m: got.get(m) for m in modules
+           if got.get(m) is None or got[m][0] != 2 or not got[m][1].startswith(f"python -m {m}: error: ")
+           or len(got[m][1].strip().splitlines()) != 1}
+    assert len(modules) >= 20 and bad == {}
+
+
 def test_every_benchmark_refuses_a_folder_as_out_and_accepts_a_new_file_path(tmp_path, capsys):
-    p = base_parser("a benchmark")
+    p = base_parser("python -m benchmarks.a", "a benchmark")
     with pytest.raises(SystemExit) as exc:
         p.parse_args(["--out", str(tmp_path)])
     err = capsys.readouterr().err.strip().splitlines()

@@ -14,6 +14,8 @@ from benchmarks.common import base_parser, print_table, write_results
 from benchmarks.robustness import probes_faults, probes_hardware, probes_models, probes_training  # noqa: F401
 from benchmarks.robustness.harness import PROBES, UNCLEAR, VERDICTS
 
+PROG = "python -m benchmarks.robustness"
+
 
 def run_probe(pr) -> dict:
     """One probe in a fresh folder: its row (surface, probe, verdict, detail, seconds; for a command, its exit
@@ -33,7 +35,7 @@ def run_probe(pr) -> dict:
 
 
 def main(argv=None) -> dict:
-    p = base_parser(__doc__.split(":", 1)[1].strip())
+    p = base_parser(PROG, __doc__.split(":", 1)[1].strip())
     p.add_argument("--only", default=None, help="run only the probes of surfaces whose name contains this")
     p.add_argument("--faults", action="store_true", help="run only the runtime-fault probes of the CLIs")
     args = p.parse_args(argv)
@@ -53,4 +55,4 @@ def main(argv=None) -> dict:
 if __name__ == "__main__":
     from controltac_il.cli import guard
 
-    raise SystemExit(guard("python -m benchmarks.robustness", lambda: main() and 0))
+    raise SystemExit(guard(PROG, lambda: main() and 0))
