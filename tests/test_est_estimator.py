@@ -154,3 +154,22 @@ def test_nonfinite_weights_and_config_values_are_refused_in_one_line_naming_the_
         with pytest.raises(CheckpointError) as info:
             ForceEstimator.from_pretrained(tmp_path / "ck2")
         assert "\n" not in str(info.value) and field in str(info.value) and "config.json" in str(info.value)
+
+
+def test_a_reading_that_is_not_finite_is_a_fault_never_passed_on(est, monkeypatch):
+    """A broken checkpoint's NaN reading would reach ForceAugment as a reference force: it stops instead."""
+    from controltac_il.cli import RunFault
+
+    forward = est.model.forward
+
+    def nan_for_frame_1(x):
+        y = forward(x).clone()
+        y[1, 2] = float("nan")
+        return y
+
+    monkeypatch.setattr(est.model, "forward", nan_for_frame_1)
+    touch = np.full((3, 120, 160, 3), 127, np.uint8)
+    touch[:, 50:58, 70:80] = [150, 120, 110]
+    with pytest.raises(RunFault, match=r"^the force estimator's output holds NaN or inf values for 1 of 3 frames "
+                                       r"\(e.g. index 1\)"):
+        est.predict(touch)

@@ -402,3 +402,13 @@ def test_anisotropic_resizes_are_refused(gen, size):
 def test_moderate_aspect_changes_are_accepted(gen, size):
     out = gen.generate(np.full((1, *size, 3), 127, np.uint8), np.zeros((1, 3)), steps=1)
     assert out.shape == (1, *size, 3)
+
+
+def test_a_nan_force_is_outside_the_validated_range_and_an_untrusted_estimate_of_it_reads_nominal():
+    from controltac_il.augment.reference import working_reference
+    from controltac_il.generator.forces import NOMINAL_FZ, VALIDATED_RANGE
+
+    forces = np.array([[0.0, 0.0, np.nan], [0.0, 0.0, 4.0], [np.nan, 0.0, 4.0]])
+    assert VALIDATED_RANGE.outside(forces).any(axis=-1).tolist() == [True, False, True]
+    np.testing.assert_array_equal(working_reference(forces, "nominal"),
+                                  [[0, 0, NOMINAL_FZ], [0, 0, 4.0], [0, 0, NOMINAL_FZ]])

@@ -10,6 +10,7 @@ import torch.nn.functional as F
 
 from controltac_il.checkpoint import (CARD_FILE, CONFIG_FILE, HASH_KEY, CheckpointError, load_folder, load_into,
                                       read_json, save_folder)
+from controltac_il.cli import RunFault
 from controltac_il.config import one_line
 from controltac_il.estimators.config import EstimatorConfig
 from controltac_il.estimators.model import ForceCNN
@@ -120,7 +121,8 @@ class ForceEstimator:
         Any H, W is resized to the network's input size (same physical pad assumed). A colour calibration
         (``config.input_mix``, fitted on Fz labels) applies to Fz; Fx and Fy read the unmixed frame. With
         ``gate``, frames without visible contact (see ``EstimatorConfig.contact_threshold``) read
-        exactly 0 N; ``gate=False`` returns the raw network reading for every frame.
+        exactly 0 N; ``gate=False`` returns the raw network reading for every frame. A reading that is not
+        finite raises RunFault (the checkpoint is broken), never passed on.
         """
         residuals = validate_residuals(residuals)
         self.model.eval()
@@ -132,6 +134,11 @@ class ForceEstimator:
                 forces[:, 2] = self.denormalise_forces(self.model(mix_colours(x, self.config)))[:, 2]
             out.append(forces.cpu())
         forces = torch.cat(out).numpy().astype(np.float32)
+        bad = ~np.isfinite(forces).all(axis=-1)
+        if bad.any():  # a broken checkpoint: never a reference force of NaN passed on as a reading
+            raise RunFault(f"the force estimator's output holds NaN or inf values for {int(bad.sum())} of {len(bad)} "
+                           f"frames (e.g. index {int(np.flatnonzero(bad)[0])}); its checkpoint is broken: retrain "
+                           "or recalibrate it")
         if gate:
             forces[~self.contact_visible(residuals)] = 0.0
         return forces

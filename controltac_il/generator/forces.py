@@ -43,9 +43,10 @@ class ForceRange:
         return self.high - self.low
 
     def outside(self, force) -> np.ndarray:
-        """bool (..., 3): components of ``force`` (..., 3) beyond the range (by more than the tolerance)."""
+        """bool (..., 3): components of ``force`` (..., 3) beyond the range (by more than the tolerance); a NaN
+        component is outside too (no force the model was validated on)."""
         f = np.asarray(force, np.float64)
-        return (f < self.low - self.tolerance) | (f > self.high + self.tolerance)
+        return ~((f >= self.low - self.tolerance) & (f <= self.high + self.tolerance))
 
     def clamp(self, force) -> np.ndarray:
         return np.clip(np.asarray(force, np.float64), self.low, self.high)
