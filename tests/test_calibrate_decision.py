@@ -48,6 +48,24 @@ def test_fewer_than_three_held_out_grasps_are_declined_without_an_interval():
     assert not d["use"] and d["interval"] is None and d["why"].startswith("estimator declined: 2 held-out grasps")
 
 
+def test_a_constant_without_error_leaves_no_ratio_and_declines_with_valid_json():
+    """Every held-out label equal to the constant: no ratio exists (not an Infinity the JSON could not hold)."""
+    import json
+
+    from controltac_il.calibrate.report import grasp_table
+    from controltac_il.estimators.few_shot import held_out_mae
+
+    fz = np.full(9, 5.0)
+    out = per_grasp(np.full(9, 5.3), fz, np.full(9, 5.0), np.repeat([0, 1, 2], 3))
+    assert [r["ratio"] for r in out] == [None, None, None]
+    d = decide(out)
+    assert not d["use"] and d["ratio_to_constant"] is None and d["interval"] is None
+    assert d["why"].startswith("estimator declined: the constant's held-out Fz MAE is 0 N")
+    assert held_out_mae(np.full(9, 5.3), fz, 5.0)["ratio_to_constant"] is None
+    json.dumps({"rows": out, "decision": d}, allow_nan=False)
+    assert grasp_table(out).splitlines()[2] == "| 0 | 3 | 0.30 | 0.00 | – (worse) |"
+
+
 def test_the_interval_resamples_grasps_and_is_seeded():
     r = rows([0.5, 1.5, 0.8, 1.2], [1.0, 1.0, 1.0, 1.0])
     low, high = ratio_interval(r)

@@ -19,14 +19,15 @@ LEVEL = 0.95
 
 def per_grasp(pred: np.ndarray, fz: np.ndarray, constant: np.ndarray, grasps: np.ndarray) -> list[dict]:
     """One row per grasp with held-out frames (``pred`` finite): frames, Fz MAE of the estimator and of the constant
-    (N), their ratio. pred, fz, constant, grasps: (N,); ``constant`` is the prediction without the estimator."""
+    (N), their ratio (None where the constant's MAE is 0: no ratio exists). pred, fz, constant, grasps: (N,);
+    ``constant`` is the prediction without the estimator."""
     rows = []
     held = np.isfinite(pred)
     for g in np.unique(grasps[held]):
         m = held & (grasps == g)
         est, const = float(np.abs(pred[m] - fz[m]).mean()), float(np.abs(constant[m] - fz[m]).mean())
         rows.append({"grasp": int(g), "frames": int(m.sum()), "mae_n": est, "constant_mae_n": const,
-                     "ratio": est / const if const > 0 else float("inf")})
+                     "ratio": est / const if const > 0 else None})
     return rows
 
 
@@ -55,7 +56,11 @@ def decide(rows: list[dict], level: float = LEVEL) -> dict:
                        "over grasps needs; ForceAugment takes the nominal reference force for unlabelled frames"}
     frames = sum(r["frames"] for r in rows)
     est_sum, const_sum = (sum(r[k] * r["frames"] for r in rows) for k in ("mae_n", "constant_mae_n"))
-    ratio, mae, const = est_sum / max(const_sum, 1e-12), est_sum / frames, const_sum / frames
+    if const_sum == 0:
+        return {"use": False, "ratio_to_constant": None, "interval": None, "wins": 0, "grasps": len(rows),
+                "why": "estimator declined: the constant's held-out Fz MAE is 0 N (every held-out label equals it), "
+                       "nothing to improve on; ForceAugment takes the nominal reference force for unlabelled frames"}
+    ratio, mae, const = est_sum / const_sum, est_sum / frames, const_sum / frames
     low, high = ratio_interval(rows, level)
     wins = sum(r["mae_n"] < r["constant_mae_n"] for r in rows)
     use = bool(high < 1.0) and wins > len(rows) / 2  # a NaN end is no evidence: declined

@@ -15,7 +15,7 @@ def table(record: dict) -> str:
     h = e["held_out"]
     rows = ["| on held-out grasps | calibrated | before (base) | baseline |", "| --- | --- | --- | --- |",
             f"| estimator Fz MAE, N ({h['frames']} frames, {h['grasps']} grasps held out) | "
-            f"{h['mae_n']:.2f} ({h['ratio_to_constant']:.2f}x the constant) | {e['zero_shot_mae_n']:.2f} | "
+            f"{h['mae_n']:.2f} ({_times(h['ratio_to_constant'])}x the constant) | {e['zero_shot_mae_n']:.2f} | "
             f"{h['constant_mae_n']:.2f} (training grasps' mean) |"]
     gh = g["held_out"]
     if gh is None:
@@ -26,11 +26,16 @@ def table(record: dict) -> str:
     return "\n".join(rows) + "\n\n" + grasp_table(h["per_grasp"])
 
 
+def _times(ratio: float | None) -> str:
+    """A ratio to the constant, or "–" where the constant's error is 0 and none exists."""
+    return "–" if ratio is None else f"{ratio:.2f}"
+
+
 def grasp_table(rows: list[dict]) -> str:
     """The estimator per held-out grasp (markdown): its frames, Fz MAE and the constant's, their ratio."""
     lines = ["| held-out grasp | frames | estimator Fz MAE, N | constant's, N | ratio |", "| --- | --- | --- | --- | --- |"]
     lines += [f"| {r['grasp']} | {r['frames']} | {r['mae_n']:.2f} | {r['constant_mae_n']:.2f} | "
-              f"{r['ratio']:.2f}{'' if r['mae_n'] < r['constant_mae_n'] else ' (worse)'} |" for r in rows]
+              f"{_times(r['ratio'])}{'' if r['mae_n'] < r['constant_mae_n'] else ' (worse)'} |" for r in rows]
     return "\n".join(lines)
 
 

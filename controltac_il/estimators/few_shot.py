@@ -67,9 +67,10 @@ def fit_colour_adapter(base: ForceEstimator, residuals: np.ndarray, fz: np.ndarr
 
 def held_out_mae(pred: np.ndarray, fz: np.ndarray, constant) -> dict:
     """Fz MAE (N) of predictions ``pred`` (N,) and of the constant baseline ``constant`` (a number or (N,)) against
-    held-out labels ``fz`` (N,), their ratio and the correlation; the numbers ``calibrate`` reports."""
+    held-out labels ``fz`` (N,), their ratio (None where the constant's MAE is 0) and the correlation; the numbers
+    ``calibrate`` reports."""
     pred, fz = np.asarray(pred, np.float64), np.asarray(fz, np.float64)
     mae, base = float(np.abs(pred - fz).mean()), float(np.abs(constant - fz).mean())
     corr = float(np.corrcoef(pred, fz)[0, 1]) if np.std(pred) > 0 and np.std(fz) > 0 else None
-    return {"mae_n": mae, "constant_mae_n": base, "ratio_to_constant": mae / max(base, 1e-12), "corr": corr,
+    return {"mae_n": mae, "constant_mae_n": base, "ratio_to_constant": mae / base if base > 0 else None, "corr": corr,
             "frames": int(len(fz))}
