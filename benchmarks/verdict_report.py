@@ -30,7 +30,18 @@ def _as_seeds(outcomes) -> list[np.ndarray]:
     out = [np.asarray(o, dtype=np.float64).reshape(-1) for o in outcomes]
     if not out or any(o.size == 0 for o in out):
         raise ValueError("outcomes: need at least one seed, each with at least one episode")
+    bad = [i for i, o in enumerate(out) if not np.isfinite(o).all()]
+    if bad:
+        raise ValueError(f"outcomes: seed {bad[0]} holds NaN or inf; expected episode successes 0 or 1")
     return out
+
+
+def _finite_diffs(diffs, least: int) -> np.ndarray:
+    """Per-seed differences (n,) as float64; ValueError for a non-finite one or fewer than ``least``."""
+    d = np.asarray(diffs, dtype=np.float64).reshape(-1)
+    if d.size < least or not np.isfinite(d).all():
+        raise ValueError(f"diffs: expected at least {least} finite per-seed differences, got {d.tolist()}")
+    return d
 
 
 def _two_level(per_seed_stat, n_seeds: int, sizes: list[int], reps: int, rng: np.random.Generator) -> np.ndarray:
@@ -89,8 +100,8 @@ def sign_flip_p(diffs) -> float:
     share of the 2**n sign patterns whose |mean| reaches the observed one. Counted by meeting in the middle (the
     sums of each half's 2**(n/2) patterns, one sorted): milliseconds at n = 24, where scipy's exact
     ``permutation_test`` enumerates 2**24 patterns (4 min on the 2-core CPU) and its default resampling is random."""
-    d = np.abs(np.asarray(diffs, dtype=np.float64).reshape(-1))
-    if d.size == 0 or np.all(d == 0):
+    d = np.abs(_finite_diffs(diffs, 1))
+    if np.all(d == 0):
         return 1.0
     observed = abs(float(np.sum(diffs))) - 1e-9 * float(d.sum())  # ties within rounding count as reaching it
     if observed <= 0:
@@ -111,11 +122,11 @@ def _pattern_sums(d: np.ndarray) -> np.ndarray:
 
 
 def paired_t_p(diffs) -> float:
-    """Two-sided paired t-test p of the per-seed differences (scipy's one-sample t-test against 0); 1.0 when they
-    are all equal to 0, 0.0 when they are all one non-zero value."""
+    """Two-sided paired t-test p of the per-seed differences (at least 2; scipy's one-sample t-test against 0); 1.0
+    when they are all equal to 0, 0.0 when they are all one non-zero value."""
     from scipy.stats import ttest_1samp
 
-    d = np.asarray(diffs, dtype=np.float64)
+    d = _finite_diffs(diffs, 2)
     if np.all(d == d[0]):
         return 1.0 if d[0] == 0 else 0.0
     return float(ttest_1samp(d, 0.0).pvalue)

@@ -65,6 +65,18 @@ def test_sign_flip_p_at_24_seeds_counts_every_pattern():
     assert vr.sign_flip_p([0.2, -0.2]) == 1.0 and vr.sign_flip_p([0, 0, 0]) == 1.0
 
 
+def test_a_nan_outcome_or_difference_is_refused_never_a_p_of_2_or_a_nan_interval():
+    for call in (lambda: vr.sign_flip_p([np.nan] * 5), lambda: vr.sign_flip_p([0.1, np.nan, 0.2]),
+                 lambda: vr.paired_t_p([0.1, np.inf]), lambda: vr.sign_flip_p([])):
+        with pytest.raises(ValueError, match="^diffs: expected at least"):
+            call()
+    with pytest.raises(ValueError, match="^outcomes: seed 1 holds NaN or inf"):
+        vr.seed_episode_ci([[1, 0, 1], [1, np.nan, 0]])
+    with pytest.raises(ValueError, match="at least 2 finite"):  # no t-test at 0 degrees of freedom
+        vr.paired_t_p([0.2])
+    assert vr.paired_t_p([0.2, 0.2]) == 0.0 and vr.paired_t_p([0.0, 0.0]) == 1.0
+
+
 def test_holm_step_down():
     assert vr.holm([0.01, 0.04, 0.03, 0.5]) == pytest.approx([0.04, 0.09, 0.09, 0.5])
 
