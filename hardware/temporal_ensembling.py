@@ -66,7 +66,8 @@ class TemporalEnsembler:
             votes = [c[t - s] for s, c in zip(self._starts, self._chunks) if s <= t]
         if not votes:
             raise LookupError(f"no predicted chunk covers step {t}")
-        w = np.exp(-self.k * np.arange(len(votes)))
+        with np.errstate(over="ignore"):  # k * i past float range is -inf: its weight exp(-inf) is exactly 0
+            w = np.exp(-self.k * np.arange(len(votes)))
         return (w / w.sum()) @ np.stack(votes)
 
     def reset(self) -> None:

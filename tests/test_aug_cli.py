@@ -166,3 +166,18 @@ def test_cli_ctrl_c_says_how_to_resume(setup, tmp_path, capsys, monkeypatch):
     assert run_cli(root, ckpt, tmp_path / "c") == 0
     assert run_cli(root, ckpt, tmp_path / "clean") == 0
     assert tree_bytes(tmp_path / "c") == tree_bytes(tmp_path / "clean")
+
+
+def test_a_generator_whose_output_is_inf_stops_the_build_with_one_line_and_exit_1(setup, tmp_path, capsys,
+                                                                                monkeypatch):
+    """A fault of the run (the checkpoint decodes inf), not of the input: exit 1, one line, no chunk written."""
+    from controltac_il.generator.autoencoder import TactileAutoencoder
+
+    root, ckpt = setup
+    decode = TactileAutoencoder.decode
+    monkeypatch.setattr(TactileAutoencoder, "decode", lambda self, z: decode(self, z) + float("inf"))
+    assert run_cli(root, ckpt, tmp_path / "c") == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("python -m controltac_il.augment: error: the generator's output holds "
+                                               "NaN or inf values (float32 on cpu)")
+    assert not list((tmp_path / "c").glob("chunks/*"))

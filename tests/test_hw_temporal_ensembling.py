@@ -29,6 +29,34 @@ def test_oldest_gets_largest_weight_with_large_k():
     assert ens.action(1)[0] == pytest.approx(1.0, abs=1e-12)  # exp(-50) ~ 0 for the newer chunk
 
 
+def test_k_zero_is_the_plain_mean_and_a_chunk_of_one_passes_through():
+    ens = TemporalEnsembler(chunk_size=3, action_dim=1, k=0.0)
+    for t0, v in ((0, 1.0), (1, 4.0), (2, 10.0)):
+        ens.add_chunk(t0, [[v], [v], [v]])
+    assert ens.action(2)[0] == pytest.approx(5.0, abs=1e-12)
+    one = TemporalEnsembler(chunk_size=1, action_dim=2)
+    for t in range(3):
+        one.add_chunk(t, [[t, -t]])
+        np.testing.assert_array_equal(one.action(t), [t, -t])
+        assert len(one) == 1  # the chunk of the step before has expired
+
+
+@pytest.mark.parametrize("k", [0.01, 1e6, 1e308])
+def test_a_long_run_stays_finite_keeps_at_most_a_chunks_worth_and_never_warns(k):
+    """5 000 control steps, a chunk every step: the weights never underflow to a zero sum (the oldest weighs 1),
+    an extreme k overflows to weight 0 silently, and expired chunks are dropped."""
+    import warnings
+
+    ens = TemporalEnsembler(chunk_size=20, action_dim=3, k=k)
+    rng = np.random.default_rng(0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for t in range(5000):
+            ens.add_chunk(t, rng.normal(0, 1, (20, 3)))
+            a = ens.action(t)
+            assert np.isfinite(a).all() and len(ens) <= 20
+
+
 def test_out_of_order_arrival_is_ordered_by_prediction_step():
     a = TemporalEnsembler(chunk_size=3, action_dim=1)
     b = TemporalEnsembler(chunk_size=3, action_dim=1)
