@@ -155,6 +155,20 @@ def test_half_precision_agrees_with_float32(contacts, dtype):
     assert np.all(mse(a, b) < 4.0), mse(a, b)
 
 
+def test_the_validated_ranges_corners_are_inside_finite_and_agree_in_half_precision(contacts):
+    """ΔF at its largest (±2, ±2, ±9 N, both ways): both ends are inside the range (nothing clamped, no error under
+    "error"), and float16, with its narrow range, gives what float32 gives (MSE below 4 grey levels²)."""
+    ref = contacts[0]
+    low, high = [-1.0, -1.0, 1.0], [1.0, 1.0, 10.0]
+    forces = (np.array([low, high, low]), np.array([high, low, high]))
+    runs = [ForceGenerator.from_pretrained(dtype=d).generate_at(ref, *forces, seed=0, out_of_range="error")
+            for d in (torch.float32, torch.float16)]
+    for r in runs:
+        assert not r.decision.clamped.any() and not r.decision.skipped.any()
+        np.testing.assert_array_equal(r.decision.target, forces[1])
+    assert np.all(mse(runs[0].residuals, runs[1].residuals) < 4.0), mse(runs[0].residuals, runs[1].residuals)
+
+
 def test_an_output_that_is_not_finite_is_refused_never_a_black_frame(gen, contacts, monkeypatch):
     from controltac_il.generator.pipeline import NonFiniteOutput
 
