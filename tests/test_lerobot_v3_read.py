@@ -389,6 +389,23 @@ def test_a_nan_in_the_state_the_actions_or_a_force_label_is_refused_naming_episo
         LeRobotEpisodes(tmp_path / "nan", chunk_size=2, tactile_keys=[LEFT])
 
 
+def test_a_constant_action_dimension_gets_the_std_floor_as_an_hdf5_folder_does(folder, tmp_path):
+    """An action component that never moves (a gripper held shut): normalising by its std of 0 would divide by 0."""
+    from controltac_il.datasets.act_dataset import STD_FLOOR
+    from controltac_il.lerobot import LeRobotEpisodes
+
+    root = tmp_path / "const"
+    shutil.copytree(folder, root)
+    for path in (root / "data").rglob("*.parquet"):
+        table = pq.read_table(path)
+        i = table.schema.get_field_index("action")
+        rows = [[r[0], 1.0, *r[2:]] for r in table.column("action").to_pylist()]
+        pq.write_table(table.set_column(i, table.schema.field(i), pa.array(rows, table.schema.field(i).type)), path)
+    stats = LeRobotEpisodes(root, chunk_size=2, tactile_keys=[LEFT]).stats
+    assert stats["action"]["std"][1] == np.float32(STD_FLOOR) and (np.delete(stats["action"]["std"], 1) > STD_FLOOR).all()
+    assert stats["action"]["mean"][1] == 1.0
+
+
 def test_force_labels_in_mn_or_pulling_are_refused_as_an_hdf5_episodes_are(folder, tmp_path):
     from controltac_il.lerobot import LeRobotEpisodes
 
