@@ -367,3 +367,16 @@ def test_target_range_spreads_each_copy_around_its_draw_and_online_matches_cache
         assert torch.equal(x["augment"], c["augment"])
     with pytest.raises(ValueError, match="target_range"):
         ForceAugment(data, gen, copies=1, target_range=(5.0, 2.0), mode="online")
+
+
+def test_an_unlabelled_frames_contact_needs_its_area_and_a_blank_frame_never_has_one():
+    """min_contact_area at its edges: a frame with exactly that share of contact pixels is in contact, one pixel
+    fewer is not, and at min_contact_area 0 a blank frame is still no contact (no reference force to read)."""
+    from controltac_il.augment.keys import KeyMap
+    from controltac_il.augment.reference import ReferenceForces
+
+    keys = KeyMap(("t",), {"t": None}, {"t": None}, {"t": None}, {})
+    frames = np.full((3, 10, 20, 3), 127, np.uint8)  # 200 pixels; frame 1: 10 contact pixels, frame 2: 9
+    frames[1, 0, :10] = frames[2, 0, :9] = 160
+    assert ReferenceForces(keys, 0.5, 10 / 200).in_contact(frames, None).tolist() == [False, True, False]
+    assert ReferenceForces(keys, 0.5, 0.0).in_contact(frames, None).tolist() == [False, True, True]

@@ -66,6 +66,17 @@ def test_a_constant_without_error_leaves_no_ratio_and_declines_with_valid_json()
     assert grasp_table(out).splitlines()[2] == "| 0 | 3 | 0.30 | 0.00 | – (worse) |"
 
 
+def test_identical_grasps_give_a_point_interval_without_warnings():
+    """Every resample of identical grasps has the same ratio: the interval is that point, not NaN (scipy's BCa
+    would warn on a degenerate distribution; the percentile method does not)."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        d = decide(rows([0.5] * 4, [2.0] * 4))
+    assert d["interval"] == [0.25, 0.25] and d["use"] and d["wins"] == 4
+
+
 def test_the_interval_resamples_grasps_and_is_seeded():
     r = rows([0.5, 1.5, 0.8, 1.2], [1.0, 1.0, 1.0, 1.0])
     low, high = ratio_interval(r)
