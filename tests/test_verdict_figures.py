@@ -96,13 +96,14 @@ def test_a_missing_or_foreign_json_is_one_line_and_exit_2(tmp_path, content, say
     assert run.stderr.startswith("python -m benchmarks.verdict_figures: error: ")
 
 
-def _v3_doc(tested_seeds: int) -> dict:
-    """A v3 grid after its look-1 train units, ``tested_seeds`` of them tested: every seed fa2 +20 points."""
+def _v3_doc(tested_seeds: int, trained: int = 12, fa2=lambda seed: 0.8) -> dict:
+    """A v3 grid after its first ``trained`` seeds' train units, ``tested_seeds`` of them tested: `real` 60 %,
+    `fa2` at ``fa2(seed)`` (every seed +20 points by default)."""
     v3, seeds = vp.PROTOCOLS["v3"], list(range(12, 36))
     units = [{"id": f"train-{v}-s{s}", "kind": "train", "variant": v, "seed": s, "augment_digest": "d",
-              **({"test": {k: _outcomes(0.8 if v == "fa2" else 0.6, n) for k, n in v3.test_episodes.items()}}
+              **({"test": {k: _outcomes(fa2(s) if v == "fa2" else 0.6, n) for k, n in v3.test_episodes.items()}}
                  if i < tested_seeds else {})}
-             for i, s in enumerate(seeds[:12]) for v in v3.variants]
+             for i, s in enumerate(seeds[:trained]) for v in v3.variants]
     looks = [{"seeds": lk.seeds, "alpha": lk.alpha, "futility": lk.futility} for lk in v3.looks]
     doc = {"benchmark": "touch_il_verdict_v3", "units": units, "steps": {v: {"step": 8000} for v in v3.variants},
            "protocol": {"demos": 50, "power": {"statement": "stated first"}, "looks": looks, "variants": list(v3.variants),
@@ -136,6 +137,28 @@ def test_v3_prints_a_look_only_once_complete_and_its_readme_row_says_running_unt
     assert row[1] == "+20.0 points: **helps**" and "against 0.001 (efficacy)" in row[2]
     done["looks"][0]["stop"] = "continue"  # a look that did not stop: the row says the grid went on
     assert vf.headline_rows_v3(done, "src")[0][1] == "running: look 1 continued to look 2 (no stop at its boundary)"
+
+
+def test_a_grid_that_goes_on_gives_look_2s_verdict_over_all_24_seeds(tmp_path, capsys):
+    """Ten seeds in twelve gain 20 points and two lose 10: look 1's p is above its 0.001, the mean positive, so
+    the design continues; at look 2 the same pattern over 24 seeds rejects below 0.049, and the row says so."""
+    def fa2(seed):
+        return 0.5 if seed % 12 in (3, 7) else 0.8
+
+    look1 = _v3_doc(tested_seeds=12, fa2=fa2)
+    assert look1["looks"][0]["stop"] == "continue"
+    running = _v3_doc(tested_seeds=20, trained=24, fa2=fa2)
+    assert vf.headline_rows_v3(running, "src")[0][1] == "running: look 1 continued to look 2 (no stop at its boundary)"
+    done = _v3_doc(tested_seeds=24, trained=24, fa2=fa2)
+    path = tmp_path / "v3.json"
+    path.write_text(json.dumps(done))
+    assert vf.main([str(path), "--look", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "look 2 (24 paired seeds)" in out and "+15.0 points" in out and "against alpha 0.049" in out
+    row = vf.headline_rows_v3(done, "src")[0]
+    assert row[0].endswith("24 paired (look 2)") and row[1] == "+15.0 points: **helps**"
+    assert "| 2 | 24 | p < 0.049 | – | efficacy: p 5.08e-05, +15.0 points" in vf.looks_table(done)
+    assert vf.main([str(path), "--pictures"]) == 0 and (tmp_path / "v3_paired.png").is_file()
 
 
 def test_pictures_are_drawn_from_the_json_once_a_look_is_complete_and_not_before(tmp_path, capsys):
