@@ -68,10 +68,6 @@ def checksums(root):
     return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(root.iterdir())}
 
 
-def tree_bytes(root):
-    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
-
-
 def aug(data, gen, tmp_path, name="cache", **kw):
     kw.setdefault("copies", 3)
     return ForceAugment(data, gen, cache_dir=tmp_path / name, progress=False, **kw)

@@ -15,6 +15,7 @@ from controltac_il.datasets import Episode, write_episode
 from policies.act import ACTConfig, CheckpointError, load_checkpoint
 from policies.act.data import DataSpec, check_compatible, load_training_data
 from policies.act.training import ACTTrainConfig, evaluate, resolve_checkpoint, train, train_on_folder
+from files import tree_bytes
 
 REPO = Path(__file__).resolve().parents[1]
 TINY = dict(camera_size=(24, 32), tactile_size=(24, 32), dim_model=32, n_heads=2, dim_feedforward=64,
@@ -181,20 +182,16 @@ def test_torchrun_two_process_gloo_smoke(tmp_path):
 
 # -- never destroy what the user owns, never compute on garbage ---------------------------------
 
-def _tree(root: Path) -> dict[str, bytes]:
-    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
-
-
 def test_out_holding_a_run_is_refused_without_resume_or_overwrite(tmp_path):
     from controltac_il.outputs import OutputInUse
 
     ds, cfg = SyntheticACTDataset(16), tiny_config()
     train(cfg, ACTTrainConfig(steps=2, batch_size=8, val_every=2), ds, ds, tmp_path / "run", stats=ds.stats(),
           progress=False)
-    before = _tree(tmp_path / "run")
+    before = tree_bytes(tmp_path / "run")
     with pytest.raises(OutputInUse, match=r"run.*--resume.*--overwrite"):
         train(cfg, ACTTrainConfig(steps=3, batch_size=8), ds, ds, tmp_path / "run", stats=ds.stats(), progress=False)
-    assert _tree(tmp_path / "run") == before
+    assert tree_bytes(tmp_path / "run") == before
     (tmp_path / "run" / "my_notes.txt").write_text("mine")  # a file of the user's beside the run is kept
     summary = train(cfg, ACTTrainConfig(steps=3, batch_size=8, val_every=3), ds, None, tmp_path / "run",
                     stats=ds.stats(), overwrite=True, progress=False)
@@ -212,11 +209,11 @@ def test_out_of_the_users_own_is_never_deleted_even_with_overwrite(tmp_path):
         (out / sub).mkdir(parents=True)
         (out / sub / "notes.txt").write_text("my notes")
     (out / "train_log.json").write_text('{"mine": true}')
-    before = _tree(out)
+    before = tree_bytes(out)
     for kwargs in ({}, {"overwrite": True}, {"resume": True}):
         with pytest.raises(ValueError, match=str(out)):
             train(cfg, ACTTrainConfig(steps=2, batch_size=8), ds, None, out, stats=ds.stats(), progress=False, **kwargs)
-        assert _tree(out) == before, kwargs
+        assert tree_bytes(out) == before, kwargs
     with pytest.raises(OutputInUse, match="not written by"):
         train(cfg, ACTTrainConfig(steps=2, batch_size=8), ds, None, out, stats=ds.stats(), overwrite=True,
               progress=False)
@@ -285,12 +282,12 @@ def test_ctrl_c_saves_the_current_step_before_stopping(tmp_path):
 def test_resume_refuses_another_dataset_naming_what_differs(tmp_path):
     ds, cfg = SyntheticACTDataset(16), tiny_config()
     train(cfg, ACTTrainConfig(steps=2, batch_size=8), ds, None, tmp_path, stats=ds.stats(), progress=False)
-    before = _tree(tmp_path)
+    before = tree_bytes(tmp_path)
     other = SyntheticACTDataset(16, seed=5)
     with pytest.raises(CheckpointError, match=r"another dataset.*action mean"):
         train(cfg, ACTTrainConfig(steps=4, batch_size=8), other, None, tmp_path, stats=other.stats(), resume=True,
               progress=False)
-    assert _tree(tmp_path) == before  # stats.json is not replaced
+    assert tree_bytes(tmp_path) == before  # stats.json is not replaced
 
 
 def test_chunk_size_longer_than_every_episode_is_refused(tmp_path):

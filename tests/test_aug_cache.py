@@ -10,7 +10,8 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-from aug_fixtures import H, W, aug, checksums, demo_data, same, synthetic_episode, tiny_generator, tree_bytes
+from aug_fixtures import H, W, aug, checksums, demo_data, same, synthetic_episode, tiny_generator
+from files import tree_bytes
 from controltac_il.augment import ForceAugment, StaleCacheError
 from controltac_il.datasets import EpisodeDataset, write_episode
 

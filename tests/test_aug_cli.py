@@ -9,7 +9,8 @@ from controltac_il.datasets import EpisodeDataset  # noqa: E402
 from controltac_il.generator import ForceGenerator  # noqa: E402
 from controltac_il.generator.checkpoint import save_checkpoint  # noqa: E402
 
-from aug_fixtures import make_folder, tiny_generator, tree_bytes  # noqa: E402
+from aug_fixtures import make_folder, tiny_generator  # noqa: E402
+from files import tree_bytes  # noqa: E402
 
 
 @pytest.fixture

@@ -15,6 +15,8 @@ from controltac_il.estimators.data import (
     split_by_pose,
 )
 
+from files import tree_bytes
+
 TINY = EstimatorConfig(input_height=32, input_width=40, widths=(8, 8, 16, 16), hidden=32)
 
 
@@ -175,10 +177,6 @@ def test_train_cli_writes_checkpoint_and_resumes(tmp_path, capsys):
 
 # -- never destroy what the user owns, never compute on garbage, one-line errors --------------------
 
-def _tree(root):
-    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
-
-
 @pytest.fixture(scope="module")
 def presses(tmp_path_factory):
     from controltac_il.tactile import SensorSpec
@@ -219,24 +217,24 @@ def test_train_cli_never_replaces_a_folder_of_the_users(presses, tmp_path, capsy
     out = tmp_path / "mine"
     out.mkdir()
     (out / "notes.txt").write_text("mine")
-    before = _tree(tmp_path)
+    before = tree_bytes(tmp_path)
     for extra in ([], ["--overwrite"], ["--resume"]):
         assert _cli(presses, out, *extra) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and str(out) in err[0], (extra, err)
-        assert _tree(tmp_path) == before
+        assert tree_bytes(tmp_path) == before
 
 
 def test_train_cli_a_previous_run_needs_resume_or_overwrite(presses, tmp_path, capsys):
     out = tmp_path / "est"
     assert _cli(presses, out) == 0
-    before = _tree(tmp_path)
+    before = tree_bytes(tmp_path)
     capsys.readouterr()
     assert _cli(presses, out) == 2
     err = capsys.readouterr().err
-    assert "--resume" in err and "--overwrite" in err and _tree(tmp_path) == before
+    assert "--resume" in err and "--overwrite" in err and tree_bytes(tmp_path) == before
     assert _cli(presses, out, "--overwrite", "--seed", "1") == 0
-    assert _tree(tmp_path) != before
+    assert tree_bytes(tmp_path) != before
 
 
 def test_nonfinite_loss_stops_the_fit_keeping_the_last_good_state(tmp_path, monkeypatch):

@@ -17,6 +17,7 @@ from controltac_il.generator.training.cli import main, parse_args
 from controltac_il.generator.training.data import load_pair_data, sample_pairs
 from controltac_il.tactile import TRAIN_OBJECTS, SensorSpec
 from controltac_il.tactile.dataset import write_dataset
+from files import tree_bytes
 
 TINY = ["--ae-steps", "3", "--dit-steps", "3", "--ae-batch", "2", "--dit-batch", "4", "--ae-crop", "32", "40",
         "--checkpoint-every", "2", "--warmup-steps", "1", "--no-contact-frames", "2", "--threads", "1"]
@@ -165,21 +166,17 @@ def test_missing_data_is_one_line(tmp_path, capsys):
     assert len(err) == 1 and "nowhere" in err[0] and "--data" in err[0]
 
 
-def _tree(root: Path) -> dict:
-    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
-
-
 def test_out_of_the_users_own_is_never_replaced(dataset, tmp_path, capsys):
     out = tmp_path / "mine"
     (out / "final").mkdir(parents=True)
     (out / "final" / "notes.txt").write_text("mine")
     (out / "train_config.json").write_text('{"mine": true}')
-    before = _tree(out)
+    before = tree_bytes(out)
     for extra in ([], ["--overwrite"], ["--resume"]):
         assert _exit(["--data", str(dataset), "--out", str(out), "--image-size", "64", "80", *TINY, *extra]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and str(out) in err[0], (extra, err)
-        assert _tree(out) == before
+        assert tree_bytes(out) == before
 
 
 def test_data_refused_leaves_out_unwritten_so_the_corrected_command_runs_as_given(tmp_path):
@@ -195,11 +192,11 @@ def test_a_previous_run_needs_resume_or_overwrite(dataset, tmp_path, capsys):
             *TINY[4:]]
     assert main(["stage1", *args]) == 0
     (run / "my_notes.txt").write_text("mine")
-    before = _tree(run)
+    before = tree_bytes(run)
     capsys.readouterr()
     assert _exit(args) == 2
     err = capsys.readouterr().err
-    assert "--resume" in err and "--overwrite" in err and _tree(run) == before
+    assert "--resume" in err and "--overwrite" in err and tree_bytes(run) == before
     assert main(["stage1", *args, "--overwrite"]) == 0
     assert json.loads((run / "denoiser_state.json").read_text())["step"] == 1 and (run / "my_notes.txt").is_file()
 
