@@ -12,9 +12,9 @@ from policies.act import ACT, ACTConfig, ACTPolicy
 SCENE_SMALL = dict(camera_size=(32, 40), tactile_size=(24, 32), max_steps=4)
 
 
-def _policy(cameras=("third_view", "wrist")):
+def _policy(cameras=("third_view", "wrist"), tactile=("left", "right")):
     torch.manual_seed(0)
-    cfg = ACTConfig.from_preset("cpu", camera_names=cameras, dim_model=32, n_heads=2, dim_feedforward=64,
+    cfg = ACTConfig.from_preset("cpu", camera_names=cameras, tactile_names=tactile, dim_model=32, n_heads=2, dim_feedforward=64,
                                 n_encoder_layers=1, n_vae_encoder_layers=1, camera_size=(24, 32),
                                 tactile_size=(24, 32))
     model = ACT(cfg)
@@ -39,6 +39,25 @@ def test_sim_episodes_are_deterministic_and_step_once_per_cycle():
     a = evaluate_in_sim(_policy(), episodes=1, seed=3, env_overrides=SCENE_SMALL, progress=False)
     b = evaluate_in_sim(_policy(), episodes=1, seed=3, env_overrides=SCENE_SMALL, progress=False)
     assert a["outcomes"] == b["outcomes"] and a["outcomes"][0]["steps"] == 4
+
+
+def test_the_scene_renders_only_the_streams_the_policy_reads(monkeypatch):
+    """A wrist-camera policy: the third view is not rendered for it, and for one without touch no tactile optics
+    run either."""
+    import envs.peg_in_hole as scene
+
+    built, init = [], scene.PegInHoleEnv.__init__
+
+    def recording(self, config=None, *a, **k):
+        built.append(config)
+        init(self, config, *a, **k)
+
+    monkeypatch.setattr(scene.PegInHoleEnv, "__init__", recording)
+    for tactile in (("left", "right"), ()):
+        out = evaluate_in_sim(_policy(("wrist",), tactile), episodes=1, seed=3, env_overrides=SCENE_SMALL,
+                              progress=False)
+        assert out["outcomes"][0]["steps"] == 4 and out["outcomes"][0]["error"] is None
+    assert [(c.cameras, c.tactile) for c in built] == [(("wrist",), True), (("wrist",), False)]
 
 
 def test_a_policy_for_other_cameras_is_refused_before_the_scene_starts():
