@@ -156,8 +156,8 @@ def evaluate_in_sim(checkpoint, episodes: int = 50, seed: int = EVAL_SEED,
         overrides["grip_force_range_n"] = tuple(grip_force_range)
     env_config = scene_config(scene, **overrides)
     check_setup(policy, env_config.cameras, SENSORS if env_config.tactile else ())
-    # render only the streams the policy reads (a camera-only policy's episodes skip the tactile optics: about 80 %
-    # of a step); physics and the sensors' own noise draws do not depend on what is rendered
+    # render only the streams the policy reads (a camera-only policy's episodes skip the tactile optics); physics and
+    # the sensors' own noise draws do not depend on what is rendered
     env_config = dataclasses.replace(env_config, tactile=bool(policy.config.tactile_names),
                                      cameras=tuple(c for c in env_config.cameras if c in policy.config.camera_names))
     outcomes, inference_ms, clamps = [], [], {}
