@@ -92,3 +92,19 @@ def test_set_peg_offset_in_hand_moves_only_the_peg_along_the_gel():
         env.data.qpos[env.model.joint("hand_yaw").qposadr[0]] = math.pi / 6
         env.set_peg_offset_in_hand(0.004)
         assert env.peg_offset_in_hand() == pytest.approx(0.004, abs=1e-12)
+
+
+def test_what_is_rendered_never_changes_the_physics_or_the_scenes_draws():
+    """Evaluation renders only a policy's streams: an episode must be the same step by step without the others."""
+    def run(**streams):
+        with PegInHoleEnv(scene_config("touch_critical", camera_size=(32, 40), tactile_size=(24, 32), **streams)) as env:
+            env.reset(seed=5)
+            rng, qpos = np.random.default_rng(0), []
+            for _ in range(15):
+                a = np.clip(env.command + rng.normal(0, 0.002, 5), env.action_space.low, env.action_space.high)
+                qpos.append(env.step(a)[0]["qpos"].copy())
+            return np.array(qpos), env.np_random.bit_generator.state
+
+    (full, drawn), (bare, bare_drawn) = run(), run(cameras=(), tactile=False)
+    np.testing.assert_array_equal(full, bare)
+    assert drawn == bare_drawn
