@@ -97,10 +97,12 @@ def save_folder(path: str | Path, config: dict, weights: Mapping[str, torch.nn.M
                 files: Mapping[str, object] | None = None, write_more: Callable[[Path], None] | None = None) -> Path:
     """Write a checkpoint folder atomically: ``config.json``, one safetensors file per ``weights`` entry
     (file name -> module or tensors; floats cast to ``dtype``), ``files`` (name -> text, or an object
-    written as JSON), what ``write_more(folder)`` adds, and the model card."""
+    written as JSON), what ``write_more(folder)`` adds, and the model card. ``path`` may exist only as an empty
+    folder or a checkpoint whose every file the new one rewrites; anything else is refused (ValueError), untouched."""
     from safetensors.torch import save_file
 
     path = Path(path)
+    _check_replaceable(path)
     with atomic_dir(path) as tmp:
         write_json(tmp / CONFIG_FILE, config)
         for name, w in weights.items():
@@ -115,7 +117,32 @@ def save_folder(path: str | Path, config: dict, weights: Mapping[str, torch.nn.M
         if write_more is not None:
             write_more(tmp)
         sign(tmp, card or {})
+        _check_replaceable(path, tmp)
     return path
+
+
+def _check_replaceable(path: Path, new: Path | None = None) -> None:
+    """ValueError unless ``path`` is absent, an empty folder, or a checkpoint (config.json, a model card with the
+    weights' hashes) holding no file the ``new`` checkpoint folder lacks but its own human-readable card
+    (README.md, written only where a card is given): a file or folder of the user's is never replaced."""
+    if not path.exists() and not path.is_symlink():
+        return
+    if not path.is_dir() or path.is_symlink():
+        raise ValueError(f"{path}: exists and is not a folder; a checkpoint is a folder: pass a new path")
+    names = sorted(p.name for p in path.iterdir())
+    if not names:
+        return
+    try:
+        card = read_json(path / CARD_FILE) if (path / CONFIG_FILE).is_file() else {}
+    except CheckpointError:  # missing or not JSON: not a checkpoint of ours
+        card = {}
+    if HASH_KEY not in card:
+        raise ValueError(f"{path}: exists and is not a checkpoint folder (no {CONFIG_FILE} and model card with the "
+                         "weights' hashes); refusing to replace it: pass a new path or an empty folder")
+    extra = [n for n in names if new is not None and not (new / n).exists() and n != "README.md"]
+    if extra:
+        raise ValueError(f"{path}: holds {extra[:3]}, which this checkpoint does not write; refusing to replace it "
+                         "(move them out, or pass a new path)")
 
 
 def load_folder(path: str | Path, weight_files: tuple[str, ...], optional: tuple[str, ...] = ()

@@ -174,10 +174,13 @@ def test_corrupted_or_mismatched_checkpoints_are_refused(tmp_path):
     (ckpt / "model_card.json").unlink()
     with pytest.raises(CheckpointError, match="model_card.json"):
         load_checkpoint(ckpt)
+    with pytest.raises(ValueError, match="is not a checkpoint folder"):  # without its card it may be anyone's
+        save_checkpoint(ckpt, model)
     with torch.no_grad():
         model.action_head.bias.fill_(float("nan"))
     with pytest.raises(CheckpointError, match=r"not saved: model.safetensors tensors \['action_head.bias'\] hold NaN"):
-        save_checkpoint(ckpt, model)
+        save_checkpoint(tmp_path / "nan", model)
+    assert not (tmp_path / "nan").exists()
     from safetensors.torch import save_file
 
     from controltac_il.checkpoint import sign

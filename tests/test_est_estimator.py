@@ -173,3 +173,26 @@ def test_a_reading_that_is_not_finite_is_a_fault_never_passed_on(est, monkeypatc
     with pytest.raises(RunFault, match=r"^the force estimator's output holds NaN or inf values for 1 of 3 frames "
                                        r"\(e.g. index 1\)"):
         est.predict(touch)
+
+
+def test_saving_never_replaces_a_file_or_folder_of_the_users(est, tmp_path):
+    """A checkpoint is written only where nothing is, into an empty folder, or over a checkpoint whose every file
+    it rewrites; anything else is refused before a byte is written, and left as it was."""
+    mine = tmp_path / "mywork"
+    mine.mkdir()
+    (mine / "thesis.tex").write_text("x")
+    (tmp_path / "notes.txt").write_text("n")
+    for path, says in ((mine, "is not a checkpoint folder"), (tmp_path / "notes.txt", "is not a folder")):
+        with pytest.raises(ValueError, match=f"^{path}: exists and {says}"):
+            est.save(path)
+    assert (mine / "thesis.tex").read_text() == "x" and (tmp_path / "notes.txt").read_text() == "n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mywork", "notes.txt"]  # no temporary left either
+    (tmp_path / "empty").mkdir()
+    ckpt = est.save(tmp_path / "empty")
+    before = {p.name: p.read_bytes() for p in ckpt.iterdir()}
+    est.save(ckpt)  # a checkpoint over itself: replaced
+    assert {p.name: p.read_bytes() for p in ckpt.iterdir()} == before
+    (ckpt / "my_notes.md").write_text("mine")
+    with pytest.raises(ValueError, match=r"holds \['my_notes.md'\], which this checkpoint does not write"):
+        est.save(ckpt)
+    assert (ckpt / "my_notes.md").read_text() == "mine"
