@@ -185,7 +185,8 @@ def main(argv=None) -> int:
                     if not args.keep_failures:
                         bar.set_postfix(failed=len(failures))
                         continue
-                write_episode(args.out / f"episode_{written}.hdf5", episode, compression=args.compression)
+                write_episode(args.out / f"episode_{written}.hdf5", episode, compression=args.compression,
+                              overwrite=args.overwrite)
                 written += 1
                 bar.update(1)
     for old in existing:  # --overwrite: the folder holds exactly the new episodes

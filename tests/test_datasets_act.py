@@ -5,6 +5,7 @@ import json
 import os
 import warnings
 
+import h5py
 import numpy as np
 import pytest
 import torch
@@ -121,7 +122,7 @@ def test_rerecorded_episode_of_same_size_invalidates_stats(folder, tmp_path):
     ds = EpisodeDataset(folder, stats_path=tmp_path / "s.json")
     path = folder / "episode_1.hdf5"
     size = path.stat().st_size
-    write_episode(path, synthetic_episode(4, 77))
+    write_episode(path, synthetic_episode(4, 77), overwrite=True)
     assert path.stat().st_size == size
     ds2 = EpisodeDataset(folder, stats_path=tmp_path / "s.json")
     assert ds2.fingerprint() != ds.fingerprint()
@@ -234,29 +235,27 @@ def test_a_corrupt_file_is_named(folder, tmp_path):
     (np.nan, r"episode_0.hdf5: /observations/force/left holds NaN or inf \(first at frame 3\)"),
 ])
 def test_force_labels_in_the_wrong_unit_or_sign_are_reported(folder, tmp_path, scale, message):
-    ep = synthetic_episode(9, 0)
-    ep.force["left"][3:7] *= scale
-    write_episode(folder / "episode_0.hdf5", ep)
+    with h5py.File(folder / "episode_0.hdf5", "r+") as f:  # a file written by another tool
+        f["observations/force/left"][3:7] *= scale
     with pytest.raises(ValueError, match=message):
         EpisodeDataset(folder, stats_path=tmp_path / "s.json")
 
 
 def test_nan_actions_are_reported_before_training(folder, tmp_path):
-    ep = synthetic_episode(9, 0)
-    ep.action[2, 1] = np.nan
-    write_episode(folder / "episode_0.hdf5", ep)
+    with h5py.File(folder / "episode_0.hdf5", "r+") as f:  # write_episode itself refuses NaN
+        f["action"][2, 1] = np.nan
     with pytest.raises(ValueError, match=r"episode_0.hdf5: /action holds NaN or inf \(first at frame 2\)"):
         EpisodeDataset(folder, stats_path=tmp_path / "s.json")
 
 
 def test_streams_must_match_across_episodes(folder, tmp_path):
     """A sensor missing from episode 0 (present in the others) is an error, not dropped for every episode."""
-    write_episode(folder / "episode_0.hdf5", synthetic_episode(9, 0, force=False))
+    write_episode(folder / "episode_0.hdf5", synthetic_episode(9, 0, force=False), overwrite=True)
     with pytest.raises(ValueError, match=r"episode_1.hdf5 has force/left, unlike episode_0.hdf5"):
         EpisodeDataset(folder, stats_path=tmp_path / "s.json")
     ep = synthetic_episode(9, 0)
     ep.tactile["right"] = ep.tactile["left"]
-    write_episode(folder / "episode_0.hdf5", ep)
+    write_episode(folder / "episode_0.hdf5", ep, overwrite=True)
     with pytest.raises(ValueError, match=r"episode_1.hdf5 lacks tactile/right"):
         EpisodeDataset(folder, stats_path=tmp_path / "s.json")
     ds = EpisodeDataset(folder, tactile_sensors=["left"], stats_path=tmp_path / "s.json")  # a chosen subset
@@ -272,5 +271,5 @@ def test_stats_never_overwrite_a_file_of_the_users(folder, tmp_path):
     ours = tmp_path / "stats.json"
     EpisodeDataset(folder, stats_path=ours)
     assert json.loads(ours.read_text())["written_by"] == "controltac_il.datasets.EpisodeDataset"
-    write_episode(folder / "episode_1.hdf5", synthetic_episode(6, 1))  # the data changed: its own file is replaced
+    write_episode(folder / "episode_1.hdf5", synthetic_episode(6, 1), overwrite=True)  # the data changed: its own file is replaced
     assert EpisodeDataset(folder, stats_path=ours).lengths.tolist() == [9, 6]

@@ -91,8 +91,28 @@ def test_failed_write_leaves_old_file_and_no_temp(tmp_path):
     bad = make_episode(seed=2)
     bad.attrs["not_storable"] = {"a": 1}
     with pytest.raises(ValueError, match="attrs/not_storable"):
-        write_episode(p, bad)
+        write_episode(p, bad, overwrite=True)
     assert sha(p) == before
+    assert sorted(os.listdir(tmp_path)) == ["episode_0.hdf5"]
+
+
+def test_an_existing_file_or_a_nan_is_refused_before_anything_is_written(tmp_path):
+    """Nothing the user has is replaced without overwrite=True, and no number a reader would refuse is written."""
+    p = tmp_path / "episode_0.hdf5"
+    p.write_bytes(b"USERDATA")
+    with pytest.raises(ValueError, match=f"^path: {p} already exists; write_episode replaces a file only with "
+                                         "overwrite=True$"):
+        write_episode(p, make_episode())
+    assert p.read_bytes() == b"USERDATA"
+    for field, where in (("action", "action"), ("qpos", "qpos")):
+        ep = make_episode()
+        getattr(ep, field)[1, 0] = np.inf
+        with pytest.raises(ValueError, match=rf"^{where} holds NaN or inf \(first at frame 1\)$"):
+            write_episode(tmp_path / f"{field}.hdf5", ep)
+    ep = make_episode()
+    ep.force = {"left": np.full((len(ep.qpos), 3), np.nan, np.float32)}
+    with pytest.raises(ValueError, match=r"^force/left holds NaN or inf \(first at frame 0\)$"):
+        write_episode(tmp_path / "force.hdf5", ep)
     assert sorted(os.listdir(tmp_path)) == ["episode_0.hdf5"]
 
 

@@ -49,11 +49,17 @@ def _require(f: h5py.File, path: Path, key: str) -> h5py.Dataset:
     return f[key]
 
 
+def check_finite(where: str, values: np.ndarray) -> None:
+    """Refuse per-frame values (T, ...) holding NaN or inf, naming ``where`` and the first such frame."""
+    values = np.asarray(values)
+    ok = np.isfinite(values.reshape(len(values), -1)).all(axis=1)
+    if not ok.all():
+        raise ValueError(f"{where} holds NaN or inf (first at frame {int(np.flatnonzero(~ok)[0])})")
+
+
 def check_force_labels(where: str, force: np.ndarray) -> None:
     """Refuse labels (T, 3) that are not finite, look like mN, or press with a negative Fz; ``where`` names them."""
-    if not np.isfinite(force).all():
-        bad = int(np.flatnonzero(~np.isfinite(force).all(axis=1))[0])
-        raise ValueError(f"{where} holds NaN or inf (first at frame {bad}); labels must be finite [Fx, Fy, Fz] N")
+    check_finite(where, force)
     peak = float(np.abs(force).max(initial=0.0))
     if peak > MAX_PLAUSIBLE_FORCE_N:
         raise ValueError(f"{where} reaches {peak:.4g}, above {MAX_PLAUSIBLE_FORCE_N:g} N: are the labels in mN? "
@@ -93,10 +99,7 @@ def check_episode(f: h5py.File, path: Path) -> int:
         raise ValueError(f"{path.name}: /{key} has {n} frames, /{QPOS} has {T}; every per-frame "
                          "stream of an episode needs the same length")
     for key in (ACTION, QPOS):
-        values = per_frame[key][()]
-        if not np.isfinite(values).all():
-            bad = int(np.flatnonzero(~np.isfinite(values.reshape(T, -1)).all(axis=1))[0])
-            raise ValueError(f"{path.name}: /{key} holds NaN or inf (first at frame {bad})")
+        check_finite(f"{path.name}: /{key}", per_frame[key][()])
     for name in streams(f, "force"):
         check_force_labels(f"{path.name}: /{stream_path('force', name)}", f[stream_path("force", name)][()])
     return T

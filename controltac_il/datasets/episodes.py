@@ -25,7 +25,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from controltac_il.datasets.checks import ACTION, NEEDS, OBSERVATIONS, QPOS, open_episode
+from controltac_il.datasets.checks import ACTION, NEEDS, OBSERVATIONS, QPOS, check_finite, open_episode
 from controltac_il.io import atomic_path
 
 EPISODE_PATTERN = re.compile(r"^episode_(\d+)\.hdf5$")
@@ -123,15 +123,24 @@ class Episode:
         return int(self.qpos.shape[0])
 
 
-def write_episode(path: str | os.PathLike, episode: Episode, compression: str | None = None) -> Path:
+def write_episode(path: str | os.PathLike, episode: Episode, compression: str | None = None,
+                  overwrite: bool = False) -> Path:
     """Write ``episode`` to ``path`` in the extended ACT layout, atomically; returns the path.
 
     Images are chunked one frame per chunk (fast random frame reads); ``compression`` (e.g. "gzip",
-    "lzf") applies to image datasets only, default none (fastest reads).
+    "lzf") applies to image datasets only, default none (fastest reads). An existing ``path`` is refused
+    (ValueError) unless ``overwrite``.
     """
     if not isinstance(episode, Episode):
         raise ValueError(f"episode: expected an Episode, got {type(episode).__name__}")
     path = Path(path)
+    if (path.exists() or path.is_symlink()) and not overwrite:
+        raise ValueError(f"path: {path} already exists; write_episode replaces a file only with overwrite=True")
+    numbers = {"qpos": episode.qpos, "action": episode.action, "qvel": episode.qvel,
+               **{f"force/{k}": v for k, v in episode.force.items()}}
+    for name, values in numbers.items():  # what every reader would refuse: never written
+        if values is not None:
+            check_finite(name, values)
     with atomic_path(path, suffix=".hdf5") as tmp:
         with h5py.File(tmp, "w") as f:
             f.attrs["sim"] = episode.sim
