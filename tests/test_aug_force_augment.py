@@ -217,6 +217,31 @@ def test_generic_dataset_with_estimator_and_estimated_background(gen, tmp_path):
             assert torch.isfinite(ref).all()  # from the estimator
 
 
+class Scaled(LeRobotLike):
+    """LeRobotLike whose tactile images are float in [0, 255] (``scale`` 255) or hold a NaN (``scale`` NaN)."""
+
+    def __init__(self, episodes, scale):
+        super().__init__(episodes)
+        self.scale = scale
+
+    def __getitem__(self, i):
+        item = super().__getitem__(i)
+        image = item["observation.images.tactile_left"].clone()
+        image[0, 0, 0] = float("nan") if self.scale != self.scale else image[0, 0, 0]
+        item["observation.images.tactile_left"] = image * (1.0 if self.scale != self.scale else self.scale)
+        return item
+
+
+@pytest.mark.parametrize("scale, says", [(255.0, r"float image values must lie in \[0, 1\], got \[\d+, \d+\] \(images in \[0, 255\] are uint8\)"),
+                                         (float("nan"), "the float image holds NaN or inf")])
+def test_a_float_tactile_image_outside_0_1_is_refused_never_rounded_to_white(gen, tmp_path, scale, says):
+    eps = [synthetic_episode(6, 0, range(1, 4), labels=False)]
+    with pytest.raises(ValueError, match=f"^observation.images.tactile_left: {says}"):
+        ForceAugment(Scaled(eps, scale), gen, copies=1, cache_dir=tmp_path / "c", estimator=tiny_estimator(),
+                     progress=False)
+    assert not (tmp_path / "c").exists()
+
+
 def test_missing_estimator_is_a_clear_error(gen, tmp_path, monkeypatch):
     from controltac_il.estimators import ForceEstimator
 

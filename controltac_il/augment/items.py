@@ -29,8 +29,23 @@ def to_hwc_uint8(value, key: str) -> np.ndarray:
     if is_chw(arr.shape):
         arr = arr.transpose(1, 2, 0)
     if arr.dtype != np.uint8:
-        arr = np.clip(np.round(arr.astype(np.float32) * 255.0), 0, 255).astype(np.uint8)
+        arr = np.clip(np.round(_unit_float(arr, key) * 255.0), 0, 255).astype(np.uint8)
     return np.ascontiguousarray(arr)
+
+
+def _unit_float(arr: np.ndarray, key: str) -> np.ndarray:
+    """A float image with values in [0, 1] as float32; ValueError naming ``key`` for any other dtype, a NaN, or
+    values outside (e.g. a float image in [0, 255], which rounding would turn white)."""
+    if not np.issubdtype(arr.dtype, np.floating):
+        raise ValueError(f"{key}: expected a uint8 image or a float one in [0, 1], got dtype {arr.dtype}")
+    out = arr.astype(np.float32)
+    if not np.isfinite(out).all():
+        raise ValueError(f"{key}: the float image holds NaN or inf")
+    low, high = float(out.min()), float(out.max())
+    if low < -1e-3 or high > 1 + 1e-3:  # a rounding step of a [0, 1] transform is not an error
+        raise ValueError(f"{key}: float image values must lie in [0, 1], got [{low:g}, {high:g}] (images in "
+                         "[0, 255] are uint8)")
+    return out
 
 
 def like(image: np.ndarray, original):
