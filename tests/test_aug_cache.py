@@ -228,3 +228,13 @@ def test_cache_files_get_the_umask_permissions(data, gen, tmp_path):
     assert modes == {"0o755"}
     modes = {oct(p.stat().st_mode & 0o777) for p in a.cache_dir.rglob("*") if p.is_file()}
     assert modes == {"0o644"}
+
+
+def test_a_build_that_fails_before_its_first_chunk_leaves_nothing_that_blocks_the_corrected_one(data, gen, tmp_path):
+    """A manifest and no chunk proves nothing was built: the next settings start the cache again. A cache with a
+    chunk stays refused (test above)."""
+    with pytest.raises(ValueError, match="steps"):
+        aug(data, gen, tmp_path, steps=2000)
+    assert [p.name for p in (tmp_path / "cache").iterdir()] == ["manifest.json"]
+    a = aug(data, gen, tmp_path, steps=1)
+    assert a.summary()["tactile_frames"] > 0 and not a.missing_chunks()
