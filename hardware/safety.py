@@ -18,7 +18,7 @@ import numpy as np
 from pydantic import Field, model_validator
 from pydantic.dataclasses import dataclass as pydantic_dataclass
 
-from controltac_il.config import STRICT
+from controltac_il.config import STRICT, one_line_errors
 from hardware.fields import Float, Problems, Vec3
 from hardware.interfaces import ACTION_DIM, POSE_DIM, Clock, HardwareError
 
@@ -37,6 +37,7 @@ def wrap_angle(a):
     return np.where((a >= -np.pi) & (a < np.pi), a, (a + np.pi) % (2 * np.pi) - np.pi)
 
 
+@one_line_errors
 @pydantic_dataclass(frozen=True, config=STRICT)
 class SafetyLimits:
     """Limits enforced on every command; validated at construction (ValueError naming the field).
