@@ -331,6 +331,12 @@ def test_bad_forces_and_options_are_refused(gen, contacts):
         gen.generate(ref, np.zeros((len(ref), 3)), batch_size=0)
     with pytest.raises(ValueError, match="seed"):
         gen.generate(ref, np.zeros((len(ref), 3)), seed=[1, 2])
+    for seed in ("12", [1.7, 2.2, 3.1], 1.5, None, True, 2 ** 70):  # never read digit by digit, truncated or wrapped
+        with pytest.raises(ValueError, match=rf"^seed must be one int or {len(ref)} ints \(one per sample\)"):
+            gen.generate(ref, np.zeros((len(ref), 3)), seed=seed)
+    for call in (lambda: gen.generate(ref, None), lambda: gen.generate_at(ref, np.full((len(ref), 3), 4.0), None)):
+        with pytest.raises(ValueError, match=r"^delta_force \(B, 3\) N, or a target_force"):
+            call()
     with pytest.raises(ValueError, match="reference_force"):
         gen.generate(ref, np.zeros((len(ref), 3)), reference_force=np.zeros((1, 3)))
     with pytest.raises(ValueError, match="dtype"):

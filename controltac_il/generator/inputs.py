@@ -68,12 +68,17 @@ def check_options(steps, seed: int | Sequence[int], batch_size, n: int, default_
         raise ValueError(f"steps must be an int in [1, {max_steps}], got {steps!r}")
     if batch_size != AUTO and (not is_int(batch_size) or batch_size < 1):
         raise ValueError(f"batch_size must be a positive int or 'auto', got {batch_size!r}")
-    if is_int(seed):
+    def ok(s) -> bool:
+        return is_int(s) and -2 ** 63 <= s < 2 ** 63  # what torch's generators take
+
+    if ok(seed):
         return int(steps), [int(seed)] * n
-    seeds = [int(s) for s in seed]
-    if len(seeds) != n:
-        raise ValueError(f"seed must be one int or {n} ints (one per sample), got {len(seeds)}")
-    return int(steps), seeds
+    many = isinstance(seed, (Sequence, np.ndarray)) and not isinstance(seed, (str, bytes))
+    seeds = list(np.asarray(seed).reshape(-1)) if many and np.ndim(seed) == 1 else None
+    if seeds is None or len(seeds) != n or not all(ok(s) for s in seeds):
+        got = f"{len(seeds)} seeds" if seeds is not None and len(seeds) != n else repr(seed)[:80]
+        raise ValueError(f"seed must be one int or {n} ints (one per sample) within 64 bits, got {got}")
+    return int(steps), [int(s) for s in seeds]
 
 
 def decide_forces(out_of_range: str, reference: np.ndarray | None = None, delta: np.ndarray | None = None,

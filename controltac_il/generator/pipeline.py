@@ -245,6 +245,8 @@ class ForceGenerator:
         if reference_force is not None or target_force is not None:  # a target needs its reference
             reference_force = check_forces(reference_force, n, "reference_force")
         target = None if target_force is None else check_forces(target_force, n, "target_force")
+        if delta is None and target is None:
+            raise ValueError("delta_force (B, 3) N, or a target_force (B, 3) N with its reference_force, is required")
         steps, seeds = check_options(steps, seed, batch_size, n, self.config.default_steps,
                                      self.config.diffusion.num_train_timesteps)
         masks = target_masks(n, ref.shape[1:3], mask, object_mask, transform)
