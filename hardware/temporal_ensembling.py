@@ -13,6 +13,14 @@ import threading
 
 import numpy as np
 
+from controltac_il.config import is_int
+
+
+def _check_step(t) -> None:
+    """A control step is an int: a float one would be truncated, or index a chunk with a fraction."""
+    if not is_int(t):
+        raise ValueError(f"t must be an int control step, got {t!r}")
+
 
 class TemporalEnsembler:
     """Collect action chunks by the step they were predicted for and blend them per step.
@@ -24,12 +32,11 @@ class TemporalEnsembler:
     """
 
     def __init__(self, chunk_size: int, action_dim: int, k: float = 0.01):
-        if int(chunk_size) < 1:
-            raise ValueError(f"chunk_size must be a positive integer, got {chunk_size}")
-        if int(action_dim) < 1:
-            raise ValueError(f"action_dim must be a positive integer, got {action_dim}")
-        if not np.isfinite(k) or k < 0:
-            raise ValueError(f"k must be a finite number >= 0, got {k}")
+        for name, value in (("chunk_size", chunk_size), ("action_dim", action_dim)):
+            if not is_int(value) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        if not isinstance(k, (int, float, np.number)) or isinstance(k, bool) or not np.isfinite(k) or k < 0:
+            raise ValueError(f"k must be a finite number >= 0, got {k!r}")
         self.chunk_size, self.action_dim, self.k = int(chunk_size), int(action_dim), float(k)
         self._starts: list[int] = []  # sorted t0 of the chunks kept
         self._chunks: list[np.ndarray] = []
@@ -37,6 +44,7 @@ class TemporalEnsembler:
 
     def add_chunk(self, t: int, chunk: np.ndarray) -> None:
         """Add the chunk (L, action_dim), 1 <= L <= chunk_size, predicted from the observation at step ``t``."""
+        _check_step(t)
         chunk = np.asarray(chunk, dtype=np.float64)
         if chunk.ndim != 2 or chunk.shape[1] != self.action_dim or not 1 <= chunk.shape[0] <= self.chunk_size:
             raise ValueError(
@@ -59,6 +67,7 @@ class TemporalEnsembler:
 
         Raises LookupError when no chunk covers ``t`` (the policy is late).
         """
+        _check_step(t)
         with self._lock:
             keep = [i for i, (s, c) in enumerate(zip(self._starts, self._chunks)) if s + len(c) > t]
             self._starts = [self._starts[i] for i in keep]

@@ -89,10 +89,25 @@ def test_bad_chunks_are_rejected(chunk, match):
 
 @pytest.mark.parametrize("kwargs, match", [(dict(chunk_size=0, action_dim=1), "chunk_size"),
                                            (dict(chunk_size=1, action_dim=0), "action_dim"),
-                                           (dict(chunk_size=1, action_dim=1, k=-1.0), "k")])
+                                           (dict(chunk_size=1, action_dim=1, k=-1.0), "k"),
+                                           (dict(chunk_size=2.7, action_dim=1), "chunk_size"),
+                                           (dict(chunk_size=True, action_dim=1), "chunk_size"),
+                                           (dict(chunk_size=1, action_dim=1, k=None), "k"),
+                                           (dict(chunk_size=1, action_dim=1, k="0.01"), "k"),
+                                           (dict(chunk_size=1, action_dim=1, k=float("inf")), "k")])
 def test_bad_construction_names_the_argument(kwargs, match):
-    with pytest.raises(ValueError, match=match):
+    with pytest.raises(ValueError, match=f"^{match} must be"):
         TemporalEnsembler(**kwargs)
+
+
+@pytest.mark.parametrize("t", [1.5, "1", float("nan"), None])
+def test_a_step_that_is_not_an_int_is_refused_never_truncated(t):
+    ens = TemporalEnsembler(chunk_size=3, action_dim=1)
+    ens.add_chunk(0, [[1], [2], [3]])
+    for call in (lambda: ens.add_chunk(t, [[5]]), lambda: ens.action(t)):
+        with pytest.raises(ValueError, match=r"^t must be an int control step"):
+            call()
+    assert len(ens) == 1 and ens.action(np.int64(1))[0] == 2.0
 
 
 def test_concurrent_adds_lose_nothing():
