@@ -248,6 +248,33 @@ def test_nan_actions_are_reported_before_training(folder, tmp_path):
         EpisodeDataset(folder, stats_path=tmp_path / "s.json")
 
 
+def _replace(path, key, values):
+    """A file of another tool's: ``key`` of ``path`` rewritten as ``values``."""
+    with h5py.File(path, "r+") as f:
+        del f[key]
+        f[key] = values
+
+
+@pytest.mark.parametrize("key, values, says", [
+    ("observations/tactile/left", {"": np.zeros((4, H + 2, W, 3), np.uint8),
+                                   "observations/tactile_background/left": np.zeros((H + 2, W, 3), np.uint8)},
+     rf"episode_1.hdf5: /observations/tactile/left is \({H + 2}, {W}, 3\) per frame, episode_0.hdf5's is "
+     rf"\({H}, {W}, 3\)"),
+    ("observations/qpos", np.zeros((4, 7), np.float32), r"episode_1.hdf5: /observations/qpos is \(7,\) per frame"),
+    ("observations/tactile/left", np.zeros((4, H, W, 3), np.float32),
+     "episode_1.hdf5: /observations/tactile/left is float32; images are stored as uint8 RGB"),
+    ("observations/tactile_background/left", np.zeros((H, W + 1, 3), np.uint8),
+     rf"episode_1.hdf5: /observations/tactile_background/left has shape \({H}, {W + 1}, 3\); expected its frames'"),
+])
+def test_an_episode_whose_shapes_differ_from_the_others_is_named(folder, tmp_path, key, values, says):
+    """Frames that could not stack into one batch (or a background that does not fit its frames) are refused when
+    the folder is opened, naming the file and the stream, not at the first batch."""
+    for k, v in (values.items() if isinstance(values, dict) else [("", values)]):
+        _replace(folder / "episode_1.hdf5", k or key, v)
+    with pytest.raises(ValueError, match=f"^{says}"):
+        EpisodeDataset(folder, stats_path=tmp_path / "s.json")
+
+
 def test_streams_must_match_across_episodes(folder, tmp_path):
     """A sensor missing from episode 0 (present in the others) is an error, not dropped for every episode."""
     write_episode(folder / "episode_0.hdf5", synthetic_episode(9, 0, force=False), overwrite=True)

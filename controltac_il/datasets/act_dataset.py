@@ -32,8 +32,8 @@ import torch
 from torch.utils.data import Dataset, Subset
 
 from controltac_il.datasets.background import estimate_background
-from controltac_il.datasets.checks import (ACTION, QPOS, check_episode, check_same_streams, open_episode, stream_path,
-                                           streams)
+from controltac_il.datasets.checks import (ACTION, QPOS, check_episode, check_same_layout, check_same_streams, layout,
+                                           open_episode, stream_path, streams)
 from controltac_il.datasets.episodes import episode_index, episode_paths
 from controltac_il.io import cache_root, write_json
 from controltac_il.streams import HDF5, HDF5_STATE, background_key, force_key, image_key, tactile_key
@@ -85,6 +85,7 @@ class EpisodeDataset(Dataset):
             with open_episode(p) as f:
                 lengths.append(check_episode(f, p))
                 if n == 0:
+                    first_layout = layout(f)
                     self.cameras = self._select("cameras", cameras, streams(f, "images"))
                     self.tactile_sensors = self._select("tactile_sensors", tactile_sensors, streams(f, "tactile"))
                     self.force_sensors = [s for s in streams(f, "force") if s in self.tactile_sensors]
@@ -93,6 +94,7 @@ class EpisodeDataset(Dataset):
                     check_same_streams(p, self.paths[0], group, names, streams(f, group), exact)
                 found_force = [s for s in streams(f, "force") if s in self.tactile_sensors]
                 check_same_streams(p, self.paths[0], "force", self.force_sensors, found_force, exact=True)
+                check_same_layout(p, self.paths[0], first_layout, layout(f))
                 trajectory = f[QPOS][()].tobytes() + f[ACTION][()].tobytes()
                 self._digests.append(hashlib.sha256(trajectory).hexdigest()[:16])
                 for s in self.tactile_sensors:

@@ -2,9 +2,10 @@
 
 Checked per file (``check_episode``): the file opens as HDF5; ``/action`` and ``/observations/qpos``
 exist; every stream has its layout's axes (``SHAPES``); every per-frame stream (action, qpos, qvel, images,
-tactile, force) has the same number of frames; qpos and actions are finite; force labels are finite, in N
-(|F| <= MAX_PLAUSIBLE_FORCE_N) and pressing with Fz > 0. Checked across files (``check_same_streams``): every episode records the same
-cameras, tactile sensors and force labels.
+tactile, force) has the same number of frames; images are uint8 and a tactile background has its frames' shape;
+qpos and actions are finite; force labels are finite, in N (|F| <= MAX_PLAUSIBLE_FORCE_N) and pressing with
+Fz > 0. Checked across files (``check_same_streams``, ``check_same_layout``): every episode records the same
+cameras, tactile sensors and force labels, with the same shapes.
 """
 
 from __future__ import annotations
@@ -80,6 +81,29 @@ def _check_shapes(f: h5py.File, path: Path) -> None:
         shape = f[key].shape
         if shape is None or len(shape) != ndim or (last is not None and shape[-1] != last):
             raise ValueError(f"{path.name}: /{key} has shape {shape}; expected {text}")
+        if ndim >= 3 and f[key].dtype != np.uint8:
+            raise ValueError(f"{path.name}: /{key} is {f[key].dtype}; images are stored as uint8 RGB")
+    for s in streams(f, "tactile_background"):
+        frame = f[stream_path("tactile", s)].shape[1:] if stream_path("tactile", s) in f else None
+        if frame is not None and f[stream_path("tactile_background", s)].shape != frame:
+            raise ValueError(f"{path.name}: /{stream_path('tactile_background', s)} has shape "
+                             f"{f[stream_path('tactile_background', s)].shape}; expected its frames' {frame}")
+
+
+def layout(f: h5py.File) -> dict[str, tuple]:
+    """Each stream's shape without its frame axis (a background's whole shape): what every episode of a folder
+    shares, so that its frames stack into one batch."""
+    keys = [k for k in (ACTION, QPOS) if k in f] + [stream_path(g, s) for g in (*PER_FRAME_GROUPS, "tactile_background")
+                                                    for s in streams(f, g)]
+    return {k: tuple(f[k].shape if "tactile_background" in k else f[k].shape[1:]) for k in keys}
+
+
+def check_same_layout(path: Path, first: Path, expected: dict[str, tuple], found: dict[str, tuple]) -> None:
+    """``path``'s streams have the shapes of ``first``'s (``layout``), for the streams both record."""
+    for key in sorted(expected.keys() & found.keys()):
+        if expected[key] != found[key]:
+            raise ValueError(f"{path.name}: /{key} is {found[key]} per frame, {first.name}'s is {expected[key]}; "
+                             "every episode of a folder needs the same shapes")
 
 
 def check_episode(f: h5py.File, path: Path) -> int:
