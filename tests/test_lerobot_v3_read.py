@@ -306,6 +306,28 @@ def test_bad_inputs_are_refused_in_one_line_naming_the_argument(folder, tmp_path
     LeRobotFolder(folder, delta_timestamps={LEFT: [-0.1 + 1e-5]})  # within LeRobot's tolerance_s (1e-4 s)
 
 
+@pytest.mark.parametrize("edit, says", [
+    (lambda i: i["features"]["action"].pop("shape"), r"features.action needs a dtype \(a string\) and a shape"),
+    (lambda i: i.update(features=[1, 2]), "features must be an object of name -> feature, got list"),
+    (lambda i: i.update(fps=0), "fps must be a positive number of frames per second, got 0"),
+    (lambda i: i.update(fps="30"), "fps must be a positive number of frames per second, got '30'"),
+    (lambda i: i["features"].pop("timestamp"), r"features lack \['timestamp'\], which every LeRobot frame has"),
+    (lambda i: i.update(video_path=7), "video_path must be a path template string, got 7"),
+])
+def test_an_info_json_the_reader_cannot_rely_on_is_refused_naming_its_field(folder, tmp_path, edit, says):
+    from controltac_il.lerobot import LeRobotEpisodes
+
+    root = tmp_path / "edited"
+    shutil.copytree(folder, root)
+    info = json.loads((root / "meta" / "info.json").read_text())
+    edit(info)
+    (root / "meta" / "info.json").write_text(json.dumps(info))
+    for call in (lambda: LeRobotFolder(root), lambda: LeRobotEpisodes(root, chunk_size=2, tactile_keys=[LEFT])):
+        with pytest.raises(ValueError, match=rf"^root: {root / 'meta' / 'info.json'}: {says}") as err:
+            call()
+        assert "\n" not in str(err.value)
+
+
 def _one_line_naming(path, call) -> str:
     """The ValueError ``call()`` raises: one line naming ``path``."""
     with pytest.raises(ValueError) as err:

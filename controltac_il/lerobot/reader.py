@@ -42,6 +42,7 @@ import pyarrow.parquet as pq
 import torch
 from torch.utils.data import Dataset
 
+from controltac_il.config import is_int
 from controltac_il.lerobot.video import TOLERANCE_S, VideoFrames
 
 INDEX_COLUMNS = ("episode_index", "frame_index", "index", "timestamp")  # held in memory, read at open
@@ -76,9 +77,33 @@ def read_info(root: Path) -> dict:
     missing = [k for k in ("fps", "features", "data_path") if k not in info]
     if missing:
         raise ValueError(f"root: {path} lacks {missing}")
+    _check_info(info, path)
     for ft in info["features"].values():
         ft["shape"] = tuple(ft["shape"])
     return info
+
+
+def _check_info(info: dict, path: Path) -> None:
+    """The fields of ``info.json`` the reader relies on, each refused in one line naming it: a positive ``fps``,
+    path templates as strings, ``features`` of a dtype string and a shape of ints each, the index columns."""
+    fps = info["fps"]
+    if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not 0 < fps < float("inf"):
+        raise ValueError(f"root: {path}: fps must be a positive number of frames per second, got {fps!r}")
+    for key in ("data_path", "video_path"):
+        if info.get(key) is not None and not isinstance(info[key], str):
+            raise ValueError(f"root: {path}: {key} must be a path template string, got {info[key]!r}")
+    features = info["features"]
+    if not isinstance(features, dict):
+        raise ValueError(f"root: {path}: features must be an object of name -> feature, got {type(features).__name__}")
+    for name, ft in features.items():
+        shape = ft.get("shape") if isinstance(ft, dict) else None
+        if (not isinstance(ft, dict) or not isinstance(ft.get("dtype"), str) or not isinstance(shape, (list, tuple))
+                or not all(is_int(d) and d >= 0 for d in shape)):
+            raise ValueError(f"root: {path}: features.{name} needs a dtype (a string) and a shape (a list of "
+                             f"ints), got {str(ft)[:80]}")
+    lacking = [k for k in INDEX_COLUMNS if k not in features]
+    if lacking:
+        raise ValueError(f"root: {path}: features lack {lacking}, which every LeRobot frame has")
 
 
 def read_tasks(root: Path, name: str = "tasks") -> list[str]:
