@@ -428,6 +428,14 @@ def test_a_constant_action_dimension_gets_the_std_floor_as_an_hdf5_folder_does(f
     assert stats["action"]["mean"][1] == 1.0
 
 
+def test_a_tactile_sensor_the_dataset_lacks_is_refused_never_an_empty_selection(folder):
+    from controltac_il.lerobot import LeRobotEpisodes
+
+    with pytest.raises(ValueError, match=r"^tactile_sensors: \['gelsight_nope'\] are not tactile cameras of the dataset"):
+        LeRobotEpisodes(folder, chunk_size=2, tactile_keys=[LEFT], tactile_sensors=["gelsight_nope"])
+    assert LeRobotEpisodes(folder, chunk_size=2, tactile_keys=[LEFT], tactile_sensors=()).tactile_sensors == []
+
+
 def test_force_labels_in_mn_or_pulling_are_refused_as_an_hdf5_episodes_are(folder, tmp_path):
     from controltac_il.lerobot import LeRobotEpisodes
 

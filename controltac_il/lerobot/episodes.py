@@ -84,6 +84,10 @@ class LeRobotEpisodes(Dataset):
         unknown = [k for k in every if k not in cams]
         if unknown:
             raise ValueError(f"tactile_keys: {unknown} are not cameras of the dataset ({cams})")
+        named = {lerobot_name(k) for k in every}
+        if tactile_sensors is not None and set(tactile_sensors) - named:
+            raise ValueError(f"tactile_sensors: {sorted(set(tactile_sensors) - named)} are not tactile cameras of the "
+                             f"dataset ({sorted(named)})")
         tactile = [k for k in every if tactile_sensors is None or lerobot_name(k) in set(tactile_sensors)]
         self.tactile_keys = {lerobot_name(k): k for k in tactile}
         self.camera_keys = {lerobot_name(k): k for k in cams if k not in every}
