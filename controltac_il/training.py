@@ -190,11 +190,20 @@ def wrap(model: torch.nn.Module, world: int) -> torch.nn.Module:
     return torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
 
 
+def parse_device(device) -> torch.device:
+    """``device`` (a name such as cpu, cuda, cuda:0, or a torch.device) as a torch.device; ValueError naming
+    ``device`` for anything torch cannot read as one."""
+    try:
+        return torch.device(device)
+    except (RuntimeError, TypeError, ValueError):
+        raise ValueError(f"device: expected a torch device such as cpu, cuda or cuda:0, got {device!r}") from None
+
+
 def device_problem(name: str) -> str | None:
     """Why ``name`` cannot be trained on here (one line naming ``--device``), or None."""
     try:
-        device = torch.device(name)
-    except RuntimeError:
+        device = parse_device(name)
+    except ValueError:
         device = None
     if device is None or device.type not in ("cpu", "cuda"):
         return f"--device: expected cpu, cuda or cuda:N, got {name!r}"

@@ -196,3 +196,13 @@ def test_saving_never_replaces_a_file_or_folder_of_the_users(est, tmp_path):
     with pytest.raises(ValueError, match=r"holds \['my_notes.md'\], which this checkpoint does not write"):
         est.save(ckpt)
     assert (ckpt / "my_notes.md").read_text() == "mine"
+
+
+@pytest.mark.parametrize("call, says", [
+    (lambda est, x: est.predict(x, batch_size=0), "^batch_size must be an int >= 1, got 0$"),
+    (lambda est, x: est.predict(x, batch_size=2.5), "^batch_size must be an int >= 1, got 2.5$"),
+    (lambda est, x: ForceEstimator(est.config, device="gpu"), "^device: expected a torch device such as cpu"),
+])
+def test_a_bad_batch_size_or_device_is_named(est, call, says):
+    with pytest.raises(ValueError, match=says):
+        call(est, np.full((2, 32, 40, 3), 127, np.uint8))

@@ -11,9 +11,10 @@ import torch.nn.functional as F
 from controltac_il.checkpoint import (CARD_FILE, CONFIG_FILE, HASH_KEY, CheckpointError, load_folder, load_into,
                                       read_json, save_folder)
 from controltac_il.cli import RunFault
-from controltac_il.config import one_line
+from controltac_il.config import is_int, one_line
 from controltac_il.estimators.config import EstimatorConfig
 from controltac_il.estimators.model import ForceCNN
+from controltac_il.training import parse_device
 
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parent / "checkpoints" / "default"
 WEIGHTS_FILE = "model.safetensors"
@@ -91,7 +92,7 @@ class ForceEstimator:
 
     def __init__(self, config: EstimatorConfig, model: ForceCNN | None = None, device: str = "cpu"):
         self.config = config
-        self.device = torch.device(device)
+        self.device = parse_device(device)
         self.model = (model or ForceCNN(config)).to(self.device).eval()
         self._mean = torch.tensor(config.force_mean, dtype=torch.float32, device=self.device)
         self._std = torch.tensor(config.force_std, dtype=torch.float32, device=self.device)
@@ -124,6 +125,8 @@ class ForceEstimator:
         exactly 0 N; ``gate=False`` returns the raw network reading for every frame. A reading that is not
         finite raises RunFault (the checkpoint is broken), never passed on.
         """
+        if not is_int(batch_size) or batch_size < 1:
+            raise ValueError(f"batch_size must be an int >= 1, got {batch_size!r}")
         residuals = validate_residuals(residuals)
         self.model.eval()
         out = []

@@ -40,6 +40,7 @@ from controltac_il.generator.resample import gaussian_blur, resize
 from controltac_il.generator.sampler import ddim_sample, make_scheduler, seeded_noise
 from controltac_il.generator.shipped import SHIPPED_ADAPTERS, locate_checkpoint
 from controltac_il.tactile.residual import OFFSET
+from controltac_il.training import parse_device
 
 RESIDUAL_OFFSET = float(OFFSET)
 # Every step of the path runs whole chunks of rows, the last padded by repeating its last row: CPU kernels round a
@@ -93,7 +94,7 @@ class ForceGenerator:
         if dtype not in (torch.float32, torch.bfloat16, torch.float16):
             raise ValueError(f"dtype must be torch.float32, torch.bfloat16 or torch.float16, got {dtype}")
         self.config = config
-        self.device = torch.device(device)
+        self.device = parse_device(device)
         self.dtype = dtype
         self.autoencoder = autoencoder.to(self.device, dtype).eval()
         self.denoiser = denoiser.to(self.device, dtype).eval()
