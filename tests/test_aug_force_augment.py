@@ -259,6 +259,7 @@ def test_missing_estimator_is_a_clear_error(gen, tmp_path, monkeypatch):
     (dict(offset_range=()), "offset_range"),
     (dict(offset_range=(5.0, 1.0)), "offset_range: inverted"),
     (dict(jitter=()), "jitter: expected a non-empty"),
+    (dict(jitter="12"), "jitter: expected a non-empty"),  # never read as (1, 2)
     (dict(tactile_keys=["right"]), "tactile_keys: unknown tactile key 'right'"),
     (dict(mode="lazy"), "mode"),
     (dict(out_of_range="wrap"), "out_of_range"),
@@ -268,6 +269,13 @@ def test_missing_estimator_is_a_clear_error(gen, tmp_path, monkeypatch):
 def test_bad_arguments(data, gen, tmp_path, kw, match):
     with pytest.raises(ValueError, match=match):
         ForceAugment(data, gen, cache_dir=tmp_path / "c", progress=False, **kw)
+
+
+def test_a_dataset_or_generator_of_the_wrong_kind_is_named(data, gen, tmp_path):
+    for dataset, generator, says in ((5, gen, "^dataset: expected a map-style dataset"),
+                                     (data, 5, "^generator: expected a ForceGenerator")):
+        with pytest.raises(ValueError, match=says):
+            ForceAugment(dataset, generator, cache_dir=tmp_path / "c", progress=False)
 
 
 def test_items_without_indices_or_background(gen, tmp_path):

@@ -44,6 +44,14 @@ def folder(tmp_path):
     return root
 
 
+def test_chunk_size_is_a_count(folder, tmp_path):
+    """A numpy int is a count; a bool or a float is not (True would read as a chunk of 1)."""
+    assert type(EpisodeDataset(folder, chunk_size=np.int64(3), stats_path=tmp_path / "s.json").chunk_size) is int
+    for bad in (True, 2.0):
+        with pytest.raises(ValueError, match=f"^chunk_size: expected an int >= 1, got {bad!r}$"):
+            EpisodeDataset(folder, chunk_size=bad, stats_path=tmp_path / "s.json")
+
+
 def test_items_and_padded_chunks(folder, tmp_path):
     ds = EpisodeDataset(folder, chunk_size=5, stats_path=tmp_path / "s.json")
     assert len(ds) == 13

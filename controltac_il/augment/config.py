@@ -37,6 +37,8 @@ def _int(value, low: int, none_ok: bool = False) -> int | None:
 
 
 def _floats(value, what: str) -> tuple[float, ...]:
+    if isinstance(value, (str, bytes)):  # "12" would read as (1.0, 2.0)
+        raise ValueError(f"expected {what}")
     try:
         return tuple(float(v) for v in value)
     except (TypeError, ValueError):

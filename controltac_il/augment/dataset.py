@@ -57,6 +57,8 @@ class ForceAugment(Dataset):
         if settings.get("cache_dir") is not None:
             settings["cache_dir"] = str(settings["cache_dir"])
         self.config = ForceAugmentConfig(**settings)
+        if not (hasattr(dataset, "__len__") and hasattr(dataset, "__getitem__")):
+            raise ValueError(f"dataset: expected a map-style dataset (len and items by index), got {type(dataset).__name__}")
         self.dataset = dataset
         self.n_base = len(dataset)
         if self.n_base == 0:
@@ -77,6 +79,9 @@ class ForceAugment(Dataset):
             from controltac_il.generator import ForceGenerator
 
             generator = ForceGenerator.from_pretrained(generator, pose_adapter="pose" if self.config.pose_offset else None)
+        if not callable(getattr(generator, "generate_at", None)):
+            raise ValueError(f"generator: expected a ForceGenerator, a checkpoint folder or a preset name, got "
+                             f"{type(generator).__name__}")
         self.generator = generator
         if self.config.pose_offset is not None and getattr(generator, "pose_adapter", None) is None:
             raise ValueError("pose_offset: needs a generator with the stage-2 pose adapter "

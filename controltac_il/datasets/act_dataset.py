@@ -31,6 +31,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset, Subset
 
+from controltac_il.config import is_int
 from controltac_il.datasets.background import estimate_background
 from controltac_il.datasets.checks import (ACTION, QPOS, check_episode, check_same_layout, check_same_streams, layout,
                                            open_episode, stream_path, streams)
@@ -72,10 +73,10 @@ class EpisodeDataset(Dataset):
     """
 
     def __init__(self, root, chunk_size: int = 20, cameras=None, tactile_sensors=None, stats_path=None):
-        if not isinstance(chunk_size, int) or chunk_size < 1:
+        if not is_int(chunk_size) or chunk_size < 1:
             raise ValueError(f"chunk_size: expected an int >= 1, got {chunk_size!r}")
         self.root = Path(root).resolve()
-        self.chunk_size = chunk_size
+        self.chunk_size = int(chunk_size)
         self.paths = episode_paths(self.root)
         if not self.paths:
             raise ValueError(f"root: no episode_<i>.hdf5 files in {self.root}")

@@ -31,6 +31,7 @@ from torch.utils.data import Dataset
 from tqdm import tqdm
 
 from controltac_il.datasets.act_dataset import STD_FLOOR
+from controltac_il.config import is_int
 from controltac_il.datasets.background import estimate_background
 from controltac_il.datasets.checks import check_force_labels
 from controltac_il.lerobot.reader import LeRobotFolder, decode_png, numbers, read_info
@@ -71,9 +72,9 @@ class LeRobotEpisodes(Dataset):
     """
 
     def __init__(self, root, chunk_size: int = 20, tactile_keys=None, force_keys=None, tactile_sensors=None):
-        if not isinstance(chunk_size, int) or chunk_size < 1:
+        if not is_int(chunk_size) or chunk_size < 1:
             raise ValueError(f"chunk_size: expected an int >= 1, got {chunk_size!r}")
-        self.root, self.chunk_size = Path(root).resolve(), chunk_size
+        self.root, self.chunk_size = Path(root).resolve(), int(chunk_size)
         info = read_info(self.root)
         features, fps = info["features"], int(info["fps"])
         for key in (LEROBOT_STATE, "action"):
