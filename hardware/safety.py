@@ -95,6 +95,8 @@ class SafetyFilter:
     """Apply :class:`SafetyLimits` to a stream of actions ``[x, y, z, yaw, gripper]``."""
 
     def __init__(self, limits: SafetyLimits):
+        if not isinstance(limits, SafetyLimits):
+            raise ValueError(f"limits: expected SafetyLimits, got {type(limits).__name__}")
         self.limits = limits
         self.counts = SafetyCounts()
         self._last: np.ndarray | None = None  # last commanded pose (4,)
@@ -164,8 +166,9 @@ class Watchdog:
     tripped: str | None = None
 
     def __post_init__(self):
-        if not (np.isfinite(self.timeout_s) and self.timeout_s > 0):
-            raise ValueError(f"timeout_s must be a positive number of seconds, got {self.timeout_s}")
+        t = self.timeout_s
+        if isinstance(t, bool) or not isinstance(t, (int, float, np.number)) or not (np.isfinite(t) and t > 0):
+            raise ValueError(f"timeout_s must be a positive number of seconds, got {t!r}")
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None

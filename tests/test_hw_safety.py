@@ -135,3 +135,11 @@ def test_watchdog_thread_calls_on_trip():
     clock.detach()
     assert "no fresh command" in wd.tripped
     assert trip_times == [pytest.approx(0.0625)]  # the first check past the 0.05 s limit
+
+
+@pytest.mark.parametrize("make, says", [(lambda: SafetyFilter(None), "^limits: expected SafetyLimits, got NoneType$"),
+                                        (lambda: Watchdog("1", VirtualClock()), "^timeout_s must be a positive number"),
+                                        (lambda: Watchdog(float("nan"), VirtualClock()), "^timeout_s must be a positive")])
+def test_a_filter_or_watchdog_without_real_limits_is_refused_in_one_line(make, says):
+    with pytest.raises(ValueError, match=says):
+        make()
