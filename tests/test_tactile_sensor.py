@@ -242,3 +242,10 @@ def test_no_procedural_shape_is_a_bumpy_cap_the_held_out_beads_family():
     u, v = np.meshgrid(np.linspace(-6, 6, 121), np.linspace(-6, 6, 121))
     h = old.relief(u, v)
     assert np.all(np.diff(h[60, 40:61]) >= -1e-9)  # a smooth cap rises monotonically towards its top
+
+
+@pytest.mark.parametrize("field, value", [("conformity", "0.5"), ("vignetting", None), ("light_elevation_deg", "30"),
+                                          ("contact_tint", 5), ("contact_tint", (1.0, 2.0)), ("noise_std", True)])
+def test_a_spec_field_that_is_not_a_number_is_named_never_a_type_error(field, value):
+    with pytest.raises(ValueError, match=rf"^SensorSpec.{field} must be"):
+        SensorSpec(**{field: value})

@@ -4,7 +4,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from dataclasses import dataclass
+
+
+def _real(value) -> bool:
+    """A finite real number, numpy's included (not a bool, a string or None)."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
 
 
 @dataclass(frozen=True)
@@ -55,19 +61,20 @@ class SensorSpec:
                 raise ValueError(f"SensorSpec.{name} must be an int >= 8 pixels, got {v!r}")
         for name in ("mm_per_px", "gel_thickness_mm", "foundation_modulus", "smoothing_mm", "optics_gain", "tint_depth_mm"):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            if not (_real(v) and v > 0):
                 raise ValueError(f"SensorSpec.{name} must be a finite number > 0, got {v!r}")
         for name in ("stiffening", "shear_compliance_mm_per_n", "noise_std"):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+            if not (_real(v) and v >= 0):
                 raise ValueError(f"SensorSpec.{name} must be a finite number >= 0, got {v!r}")
-        if len(self.contact_tint) != 3 or not all(math.isfinite(v) for v in self.contact_tint):
+        tint = self.contact_tint
+        if not (isinstance(tint, (tuple, list)) and len(tint) == 3 and all(_real(v) for v in tint)):
             raise ValueError(f"SensorSpec.contact_tint must be 3 finite grey levels (R, G, B), got {self.contact_tint!r}")
-        if not 0.0 <= self.conformity <= 1.0:
+        if not (_real(self.conformity) and 0.0 <= self.conformity <= 1.0):
             raise ValueError(f"SensorSpec.conformity must be in [0, 1], got {self.conformity!r}")
-        if not 0.0 <= self.vignetting < 1.0:
+        if not (_real(self.vignetting) and 0.0 <= self.vignetting < 1.0):
             raise ValueError(f"SensorSpec.vignetting must be in [0, 1), got {self.vignetting!r}")
-        if not 5.0 <= self.light_elevation_deg <= 85.0:
+        if not (_real(self.light_elevation_deg) and 5.0 <= self.light_elevation_deg <= 85.0):
             raise ValueError(f"SensorSpec.light_elevation_deg must be in [5, 85], got {self.light_elevation_deg!r}")
 
     @classmethod
