@@ -249,3 +249,12 @@ def test_no_procedural_shape_is_a_bumpy_cap_the_held_out_beads_family():
 def test_a_spec_field_that_is_not_a_number_is_named_never_a_type_error(field, value):
     with pytest.raises(ValueError, match=rf"^SensorSpec.{field} must be"):
         SensorSpec(**{field: value})
+
+
+def test_a_seed_or_spec_of_the_wrong_kind_is_named():
+    for make, says in ((lambda: TactileSensor(seed=-1), "^seed must be an int >= 0, got -1$"),
+                       (lambda: TactileSensor(seed=1.5), "^seed must be an int >= 0, got 1.5$"),
+                       (lambda: TactileSensor({"height": 8}), "^spec: expected a SensorSpec, got dict$"),
+                       (lambda: TactileSensor().press("cross", noise_seed="3"), "^noise_seed must be an int >= 0")):
+        with pytest.raises(ValueError, match=says):
+            make()

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from controltac_il.config import is_int
 from controltac_il.tactile import mechanics
 from controltac_il.tactile.indenters import get_indenter
 from controltac_il.tactile.optics import add_noise, contact_tint, load_background, make_optics, vignette
@@ -54,6 +55,12 @@ def check_force(force) -> tuple[float, float, float]:
     return float(f[0]), float(f[1]), float(f[2])
 
 
+def _check_seed(name: str, seed) -> None:
+    """A seed is an int >= 0 (numpy's generators take no other)."""
+    if not is_int(seed) or seed < 0:
+        raise ValueError(f"{name} must be an int >= 0, got {seed!r}")
+
+
 class TactileSensor:
     """A simulated GelSight-type sensor.
 
@@ -64,6 +71,9 @@ class TactileSensor:
     """
 
     def __init__(self, spec: SensorSpec | None = None, optics: str = "three_light", seed: int = 0):
+        if spec is not None and not isinstance(spec, SensorSpec):
+            raise ValueError(f"spec: expected a SensorSpec, got {type(spec).__name__}")
+        _check_seed("seed", seed)
         self.spec = spec or SensorSpec.gelsight_mini()
         self.optics = make_optics(optics)
         self.background = load_background(self.spec)
@@ -113,6 +123,8 @@ class TactileSensor:
         return self._shade(height, noise_seed), height
 
     def _shade(self, height, noise_seed):
+        if noise_seed is not None:
+            _check_seed("noise_seed", noise_seed)
         rng = self._rng if noise_seed is None else np.random.default_rng(noise_seed)
         img = self.background.astype(np.float32) + (self.optics.shade(height, self.spec) + contact_tint(height, self.spec)) * self._vignette
         img = add_noise(img, self.spec.noise_std, rng)
