@@ -292,6 +292,8 @@ def test_bad_inputs_are_refused_in_one_line_naming_the_argument(folder, tmp_path
         (tmp_path, None, r"^root: .* is not a LeRobot dataset folder \(no meta/info.json\)"),
         (folder, {"observation.nope": [0.0]}, r"^delta_timestamps: unknown key 'observation.nope'"),
         (folder, {LEFT: [-0.1, 0.05]}, r"^delta_timestamps: offsets \[0.05\] s of .* not multiples of 1/10 s"),
+        (folder, {LEFT: 0.1}, r"^delta_timestamps: .* needs a non-empty list of finite offsets \(s\)"),
+        (folder, {LEFT: [float("nan")]}, r"^delta_timestamps: .* needs a non-empty list of finite offsets \(s\)"),
     ]
     old = write_folder(tmp_path / "old", version="v2.1")
     cases.append((old, None, r"^root: unsupported codebase_version 'v2.1'"))

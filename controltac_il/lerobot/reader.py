@@ -31,6 +31,7 @@ import json
 import os
 import re
 from collections import OrderedDict
+from numbers import Real
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -166,8 +167,11 @@ def delta_indices(delta_timestamps, features: dict, fps: int, tolerance_s: float
     for key, deltas in delta_timestamps.items():
         if key not in features:
             raise ValueError(f"delta_timestamps: unknown key {key!r}; the features are {list(features)}")
-        if features[key]["dtype"] == "string" or len(deltas) == 0:
-            raise ValueError(f"delta_timestamps: {key!r} needs a non-empty list of offsets of a non-string feature")
+        finite = isinstance(deltas, (list, tuple)) and all(
+            isinstance(d, Real) and not isinstance(d, bool) and np.isfinite(d) for d in deltas)
+        if features[key]["dtype"] == "string" or not finite or len(deltas) == 0:
+            raise ValueError(f"delta_timestamps: {key!r} needs a non-empty list of finite offsets (s) of a "
+                             f"non-string feature, got {deltas!r}")
         bad = [d for d in deltas if abs(d * fps - round(d * fps)) / fps > tolerance_s]
         if bad:
             raise ValueError(f"delta_timestamps: offsets {bad} s of {key!r} are not multiples of 1/{fps} s "
@@ -323,7 +327,7 @@ class LeRobotFolder(Dataset):
 
     def __init__(self, root, delta_timestamps=None, tolerance_s: float = TOLERANCE_S, cache_mb: float = CACHE_MB,
                  keys=None, video_threads: int = 1):
-        if not cache_mb > 0:
+        if isinstance(cache_mb, bool) or not isinstance(cache_mb, (int, float)) or not cache_mb > 0:
             raise ValueError(f"cache_mb: expected a positive number of MB, got {cache_mb!r}")
         self.root = Path(root)
         self.meta = read_info(self.root)
