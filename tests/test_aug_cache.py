@@ -230,11 +230,10 @@ def test_cache_files_get_the_umask_permissions(data, gen, tmp_path):
     assert modes == {"0o644"}
 
 
-def test_a_build_that_fails_before_its_first_chunk_leaves_nothing_that_blocks_the_corrected_one(data, gen, tmp_path):
-    """A manifest and no chunk proves nothing was built: the next settings start the cache again. A cache with a
-    chunk stays refused (test above)."""
-    with pytest.raises(ValueError, match="steps"):
-        aug(data, gen, tmp_path, steps=2000)
-    assert [p.name for p in (tmp_path / "cache").iterdir()] == ["manifest.json"]
-    a = aug(data, gen, tmp_path, steps=1)
-    assert a.summary()["tactile_frames"] > 0 and not a.missing_chunks()
+def test_settings_the_generator_cannot_run_are_refused_before_the_cache_folder_is_made(data, gen, tmp_path):
+    """A stale-looking manifest must never block the corrected run: DDIM steps beyond the generator's training
+    steps are refused before anything is written."""
+    with pytest.raises(ValueError, match=r"^steps: expected DDIM steps in \[1, \d+\] \(the generator's training steps\)"):
+        aug(data, gen, tmp_path, steps=100_000)
+    assert not (tmp_path / "cache").exists()
+    assert aug(data, gen, tmp_path, steps=1).summary()["tactile_frames"] > 0

@@ -75,24 +75,12 @@ class ForceAugment(Dataset):
                                           self.config.estimated_reference)
         self.labelled = self.references.labelled
         self.progress = progress
-        if generator is None or isinstance(generator, (str, os.PathLike)):
-            from controltac_il.generator import ForceGenerator
-
-            generator = ForceGenerator.from_pretrained(generator, pose_adapter="pose" if self.config.pose_offset else None)
-        if not callable(getattr(generator, "generate_at", None)):
-            raise ValueError(f"generator: expected a ForceGenerator, a checkpoint folder or a preset name, got "
-                             f"{type(generator).__name__}")
-        self.generator = generator
-        if self.config.pose_offset is not None and getattr(generator, "pose_adapter", None) is None:
-            raise ValueError("pose_offset: needs a generator with the stage-2 pose adapter "
-                             "(ForceGenerator.from_pretrained(pose_adapter='pose'))")
-        self.steps = int(self.config.steps if self.config.steps is not None else generator.config.default_steps)
-        self.numerics = generator.numerics()  # as constructed: the thread count the frames are generated with
+        self._use_generator(generator)
         self._frames = None  # (episode, frame) per index, when known without reading items
         self._source, self._source_index = None, None  # EpisodeDataset read directly (cache mode)
         self.cache_dir, self._reader, self._online = None, None, None
         if self.config.mode == "online":
-            self._online = OnlineGenerator(generator, self.config, self.steps, self.keys, self.references)
+            self._online = OnlineGenerator(self.generator, self.config, self.steps, self.keys, self.references)
             per_item = self.config.target_range is None and adapters.episode_source(dataset)[0] is not None and all(
                 self.labelled.values()) and all(
                 self.keys.backgrounds[k] is not None and self.keys.offsets[k] is None for k in self.tactile_keys)
@@ -115,6 +103,26 @@ class ForceAugment(Dataset):
             self._require_complete()
 
     # --- set-up ---------------------------------------------------------------------------------
+    def _use_generator(self, generator) -> None:
+        """Set ``generator`` (a ForceGenerator, a checkpoint folder or preset name; None: the default), its DDIM
+        steps and numerics, refusing what the settings cannot run with before anything is written."""
+        if generator is None or isinstance(generator, (str, os.PathLike)):
+            from controltac_il.generator import ForceGenerator
+
+            generator = ForceGenerator.from_pretrained(generator, pose_adapter="pose" if self.config.pose_offset else None)
+        if not callable(getattr(generator, "generate_at", None)):
+            raise ValueError(f"generator: expected a ForceGenerator, a checkpoint folder or a preset name, got "
+                             f"{type(generator).__name__}")
+        if self.config.pose_offset is not None and getattr(generator, "pose_adapter", None) is None:
+            raise ValueError("pose_offset: needs a generator with the stage-2 pose adapter "
+                             "(ForceGenerator.from_pretrained(pose_adapter='pose'))")
+        steps = int(self.config.steps if self.config.steps is not None else generator.config.default_steps)
+        most = generator.config.diffusion.num_train_timesteps
+        if not 1 <= steps <= most:
+            raise ValueError(f"steps: expected DDIM steps in [1, {most}] (the generator's training steps), got {steps}")
+        self.generator, self.steps = generator, steps
+        self.numerics = generator.numerics()  # as constructed: the thread count the frames are generated with
+
     @property
     def estimator(self):
         """The force estimator (loaded on first use); a clear error when it is not available."""

@@ -180,10 +180,10 @@ def _is_fresh(cache_dir: Path) -> bool:
 
 
 def check_manifest(cache_dir: Path, settings: dict, chunks: list[tuple[int, int]] | None = None) -> bool:
-    """Whether ``cache_dir`` is a cache of these settings (True) or a fresh folder to build one in (False: also a
-    cache of ours holding no chunk yet); StaleCacheError for anything that does not provably match: a file, a
-    folder with content but no readable manifest (never written over, never re-stamped), another format, other
-    settings, another chunk list."""
+    """Whether ``cache_dir`` is a cache of these settings (True) or a fresh folder to build one in (False);
+    StaleCacheError for anything that does not provably match: a file, a folder with content but no
+    readable manifest (never written over, never re-stamped), another format, other settings, another
+    chunk list."""
     path = cache_dir / MANIFEST
     if cache_dir.exists() and not cache_dir.is_dir():
         raise StaleCacheError(f"cache {cache_dir}: is a file, expected a cache folder (or none)")
@@ -208,8 +208,6 @@ def check_manifest(cache_dir: Path, settings: dict, chunks: list[tuple[int, int]
     if doc.get("format") != CACHE_FORMAT:
         raise StaleCacheError(f"cache {cache_dir}: format {doc.get('format')} is not {CACHE_FORMAT}; delete the "
                               "folder or use another cache folder to rebuild it")
-    if all(p.name == MANIFEST or is_temporary_name(p.name) for p in cache_dir.iterdir()):
-        return False  # its manifest alone (a build that stopped before its first chunk): started again, restamped
     theirs = doc.get("settings", {})
     if not isinstance(theirs, dict):
         theirs = {}
