@@ -184,7 +184,8 @@ def lost(before: dict[str, str], root: Path) -> list[str]:
 
 
 def demo_episodes(folder: Path, n: int = 4, frames: int = 30, size=(24, 32), seed: int = 0, **changes) -> Path:
-    """``n`` small synthetic ACT episodes (two cameras, two tactile sensors with backgrounds and forces).
+    """``n`` small synthetic ACT episodes (two cameras, two tactile sensors with backgrounds and forces), written
+    over the probe's own earlier ones in ``folder``.
 
     changes: per-episode overrides, e.g. ``force_scale=1000`` (labels in mN) or ``drop_tactile={"right": 0}``.
     """
@@ -207,7 +208,7 @@ def demo_episodes(folder: Path, n: int = 4, frames: int = 30, size=(24, 32), see
         images = {c: rng.integers(0, 255, (frames, *size, 3), dtype=np.uint8) for c in ("third_view", "wrist")}
         write_episode(folder / f"episode_{e}.hdf5", Episode(
             qpos=qpos, action=qpos + 0.01, images=images, tactile=tactile,
-            tactile_background={s: bg for s in tactile}, force=force, sim=True))
+            tactile_background={s: bg for s in tactile}, force=force, sim=True), overwrite=True)
     return folder
 
 
