@@ -283,6 +283,15 @@ def test_an_episode_whose_shapes_differ_from_the_others_is_named(folder, tmp_pat
         EpisodeDataset(folder, stats_path=tmp_path / "s.json")
 
 
+def test_a_camera_nobody_reads_may_change_size_between_episodes(folder, tmp_path):
+    for i, size in enumerate((8, 10)):
+        with h5py.File(folder / f"episode_{i}.hdf5", "r+") as f:
+            f["observations/images/top"] = np.zeros((len(f["action"]), size, size, 3), np.uint8)
+    assert EpisodeDataset(folder, cameras=["wrist"], stats_path=tmp_path / "s.json").cameras == ["wrist"]
+    with pytest.raises(ValueError, match=r"^episode_1.hdf5: /observations/images/top is \(10, 10, 3\) per frame"):
+        EpisodeDataset(folder, stats_path=tmp_path / "s.json")
+
+
 def test_streams_must_match_across_episodes(folder, tmp_path):
     """A sensor missing from episode 0 (present in the others) is an error, not dropped for every episode."""
     write_episode(folder / "episode_0.hdf5", synthetic_episode(9, 0, force=False), overwrite=True)

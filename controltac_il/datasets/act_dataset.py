@@ -81,12 +81,11 @@ class EpisodeDataset(Dataset):
         if not self.paths:
             raise ValueError(f"root: no episode_<i>.hdf5 files in {self.root}")
         self.episode_ids = [episode_index(p) for p in self.paths]
-        lengths, backgrounds, self._digests = [], {}, []
+        lengths, backgrounds, self._digests, first_layout = [], {}, [], None
         for n, p in enumerate(self.paths):
             with open_episode(p) as f:
                 lengths.append(check_episode(f, p))
                 if n == 0:
-                    first_layout = layout(f)
                     self.cameras = self._select("cameras", cameras, streams(f, "images"))
                     self.tactile_sensors = self._select("tactile_sensors", tactile_sensors, streams(f, "tactile"))
                     self.force_sensors = [s for s in streams(f, "force") if s in self.tactile_sensors]
@@ -95,7 +94,9 @@ class EpisodeDataset(Dataset):
                     check_same_streams(p, self.paths[0], group, names, streams(f, group), exact)
                 found_force = [s for s in streams(f, "force") if s in self.tactile_sensors]
                 check_same_streams(p, self.paths[0], "force", self.force_sensors, found_force, exact=True)
-                check_same_layout(p, self.paths[0], first_layout, layout(f))
+                here = layout(f, self.cameras, self.tactile_sensors)
+                first_layout = here if n == 0 else first_layout
+                check_same_layout(p, self.paths[0], first_layout, here)
                 trajectory = f[QPOS][()].tobytes() + f[ACTION][()].tobytes()
                 self._digests.append(hashlib.sha256(trajectory).hexdigest()[:16])
                 for s in self.tactile_sensors:

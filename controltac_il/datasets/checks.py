@@ -90,12 +90,13 @@ def _check_shapes(f: h5py.File, path: Path) -> None:
                              f"{f[stream_path('tactile_background', s)].shape}; expected its frames' {frame}")
 
 
-def layout(f: h5py.File) -> dict[str, tuple]:
-    """Each stream's shape without its frame axis (a background's whole shape): what every episode of a folder
-    shares, so that its frames stack into one batch."""
-    keys = [k for k in (ACTION, QPOS) if k in f] + [stream_path(g, s) for g in (*PER_FRAME_GROUPS, "tactile_background")
-                                                    for s in streams(f, g)]
-    return {k: tuple(f[k].shape if "tactile_background" in k else f[k].shape[1:]) for k in keys}
+def layout(f: h5py.File, cameras, sensors) -> dict[str, tuple]:
+    """The shapes, without the frame axis (a background's whole shape), of the actions, qpos and the streams of
+    the chosen ``cameras`` and tactile ``sensors``: what every episode of a folder shares, so that its frames stack
+    into one batch (a stream nobody reads may differ)."""
+    keys = [k for k in (ACTION, QPOS) if k in f] + [stream_path("images", c) for c in cameras]
+    keys += [stream_path(g, s) for g in ("tactile", "tactile_background", "force") for s in sensors]
+    return {k: tuple(f[k].shape if "tactile_background" in k else f[k].shape[1:]) for k in keys if k in f}
 
 
 def check_same_layout(path: Path, first: Path, expected: dict[str, tuple], found: dict[str, tuple]) -> None:
