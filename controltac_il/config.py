@@ -9,6 +9,8 @@ naming the fields (or their CLI flags).
 from __future__ import annotations
 
 import functools
+import math
+import numbers
 from argparse import ArgumentTypeError
 from typing import Annotated, Mapping
 
@@ -24,6 +26,11 @@ Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]  # finite and > 0
 def is_int(value) -> bool:
     """An int or a numpy integer, never a bool (True is an int to Python, not a count or an index to a user)."""
     return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+
+
+def is_real(value) -> bool:
+    """A finite real number, numpy's included, never a bool, a string, None or a complex number."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def parse_batch_size(text: str):

@@ -18,7 +18,7 @@ import numpy as np
 from pydantic import Field, model_validator
 from pydantic.dataclasses import dataclass as pydantic_dataclass
 
-from controltac_il.config import STRICT, one_line_errors
+from controltac_il.config import STRICT, is_real, one_line_errors
 from hardware.fields import Float, Problems, Vec3
 from hardware.interfaces import ACTION_DIM, POSE_DIM, Clock, HardwareError
 
@@ -166,9 +166,8 @@ class Watchdog:
     tripped: str | None = None
 
     def __post_init__(self):
-        t = self.timeout_s
-        if isinstance(t, bool) or not isinstance(t, (int, float, np.number)) or not (np.isfinite(t) and t > 0):
-            raise ValueError(f"timeout_s must be a positive number of seconds, got {t!r}")
+        if not (is_real(self.timeout_s) and self.timeout_s > 0):
+            raise ValueError(f"timeout_s must be a positive number of seconds, got {self.timeout_s!r}")
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None

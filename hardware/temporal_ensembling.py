@@ -13,7 +13,7 @@ import threading
 
 import numpy as np
 
-from controltac_il.config import is_int
+from controltac_il.config import is_int, is_real
 
 
 def _check_step(t) -> None:
@@ -35,7 +35,7 @@ class TemporalEnsembler:
         for name, value in (("chunk_size", chunk_size), ("action_dim", action_dim)):
             if not is_int(value) or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
-        if not isinstance(k, (int, float, np.number)) or isinstance(k, bool) or not np.isfinite(k) or k < 0:
+        if not is_real(k) or k < 0:
             raise ValueError(f"k must be a finite number >= 0, got {k!r}")
         self.chunk_size, self.action_dim, self.k = int(chunk_size), int(action_dim), float(k)
         self._starts: list[int] = []  # sorted t0 of the chunks kept

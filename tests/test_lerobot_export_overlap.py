@@ -12,6 +12,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
+from files import tree_bytes
 from lerobot_fixtures import LEFT, LENGTHS, RIGHT, WRIST, augment, write_lerobot
 
 from controltac_il.augment import main
@@ -39,10 +40,6 @@ class Gated:
         return self.generator.generate_at(*args, **kwargs)
 
 
-def files(folder):
-    return {p.relative_to(folder): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
-
-
 def test_a_copy_is_exported_while_later_chunks_are_generated(written, tmp_path, monkeypatch):
     root, clean, _, reference = written
     exported, E = threading.Event(), len(LENGTHS)
@@ -59,7 +56,7 @@ def test_a_copy_is_exported_while_later_chunks_are_generated(written, tmp_path, 
     out = tmp_path / "out"
     write_lerobot(augment(root, out, generator=gated), LeRobotFolder(root), out, progress=False)
     assert gated.released is True and gated.calls == 4
-    assert files(out) == files(clean)
+    assert tree_bytes(out) == tree_bytes(clean)
 
 
 def test_an_export_error_stops_the_build_at_its_next_chunk(written, tmp_path, monkeypatch):
@@ -178,7 +175,7 @@ def test_rank_0_writes_what_another_ranks_export_left(written, tmp_path):
         progress=False, poll_s=0.0)["published"]), daemon=True)  # a hang fails the test, not the run
     last.start()
     last.join(timeout=120)
-    assert finished == [True] and files(out) == files(clean)
+    assert finished == [True] and tree_bytes(out) == tree_bytes(clean)
 
 
 def test_worker_processes_write_the_same_files(written, tmp_path):
@@ -186,7 +183,7 @@ def test_worker_processes_write_the_same_files(written, tmp_path):
     out = tmp_path / "out"
     write_lerobot(augment(root, out, generator=reference.generator), LeRobotFolder(root), out, progress=False,
                   export_workers=2)
-    assert files(out) == files(clean)
+    assert tree_bytes(out) == tree_bytes(clean)
 
 
 @pytest.mark.slow  # a spawned worker imports torch: about 6 s on two cores

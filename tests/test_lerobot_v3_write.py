@@ -20,6 +20,7 @@ import torch
 from controltac_il.augment import STATUS, main
 from controltac_il.lerobot import (INFO_KEYS, QUANTILES, STAT_NAMES, LeRobotFolder, frame_histograms, image_stats,
                                    publish, read_record, sample_indices, staging_dir, write_data_parquet)
+from files import tree_bytes
 from lerobot_fixtures import FORCES, FPS, LEFT, LENGTHS, RIGHT, WRIST, H, W, augment, write_lerobot, write_source
 
 
@@ -171,11 +172,9 @@ def test_the_round_trip_is_an_option_that_changes_only_the_record(written, tmp_p
     # the tiny generator's frames are noise, which yuv420p's halved chroma cannot hold (the shipped generator's
     # round trip is measured by benchmarks.augment); here: the figure is the frames' own
     assert marker["video_round_trip_psnr_db"] == pytest.approx(10 * np.log10(255 ** 2 / np.mean(errors)), rel=1e-3)
-    files = {p.relative_to(out): p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()}
-    info = Path("meta") / "info.json"
-    assert files.pop(info) != (clean / info).read_bytes()
-    assert files == {p.relative_to(clean): p.read_bytes() for p in sorted(clean.rglob("*")) if p.is_file()
-                     and p.relative_to(clean) != info}
+    files, clean_files, info = tree_bytes(out), tree_bytes(clean), "meta/info.json"
+    assert files.pop(info) != clean_files.pop(info)
+    assert files == clean_files
     unchecked = json.loads((clean / info).read_text())
     record = unchecked["features"]["augment.copy"]["info"]["controltac_il_augment"]
     record.update({k: marker[k] for k in ("video_round_trip_mse", "video_round_trip_psnr_db")})
@@ -228,21 +227,18 @@ def test_the_record_of_the_write_lives_in_a_feature_dict_and_nowhere_else(writte
 def test_interrupted_and_shared_writes_equal_one_clean_write(written, tmp_path):
     root, clean, _, reference = written
 
-    def files(folder):
-        return {p.relative_to(folder): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
-
     out = tmp_path / "resumed"
     first = write_lerobot(augment(root, out, generator=reference.generator), LeRobotFolder(root), out,
                           progress=False, stop_after=2)
     assert not first["published"] and staging_dir(out).is_dir() and not out.exists()
     assert write_lerobot(augment(root, out, generator=reference.generator), LeRobotFolder(root), out,
                          progress=False)["published"]
-    assert files(out) == files(clean)
+    assert tree_bytes(out) == tree_bytes(clean)
     shared = tmp_path / "shared"
     for rank in (1, 0):
         aug = augment(root, shared, generator=reference.generator)
         write_lerobot(aug, LeRobotFolder(root), shared, rank=rank, world_size=2, progress=False, poll_s=0.0)
-    assert files(shared) == files(clean)
+    assert tree_bytes(shared) == tree_bytes(clean)
 
 
 def test_ctrl_c_while_meta_is_written_publishes_nothing_and_the_rerun_equals_a_clean_write(written, tmp_path,
@@ -262,8 +258,7 @@ def test_ctrl_c_while_meta_is_written_publishes_nothing_and_the_rerun_equals_a_c
     monkeypatch.setattr(publish, "write_meta", real_write_meta)
     done = write_lerobot(augment(root, out, generator=reference.generator), LeRobotFolder(root), out, progress=False)
     assert done["published"] and not staging_dir(out).exists()
-    assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == \
-        {p.relative_to(clean): p.read_bytes() for p in clean.rglob("*") if p.is_file()}
+    assert tree_bytes(out) == tree_bytes(clean)
 
 
 def test_ctrl_c_while_the_staging_folder_is_removed_is_finished_by_the_rerun(written, tmp_path, monkeypatch):
@@ -284,8 +279,7 @@ def test_ctrl_c_while_the_staging_folder_is_removed_is_finished_by_the_rerun(wri
     monkeypatch.setattr(publish.shutil, "rmtree", real_rmtree)
     again = write_lerobot(augment(root, out, generator=reference.generator), LeRobotFolder(root), out, progress=False)
     assert again["already"] and again["published"] and not staging_dir(out).exists()
-    assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == \
-        {p.relative_to(clean): p.read_bytes() for p in clean.rglob("*") if p.is_file()}
+    assert tree_bytes(out) == tree_bytes(clean)
 
 
 def test_cli_writes_and_refuses_in_one_line_naming_the_flag(written, tmp_path, capsys):

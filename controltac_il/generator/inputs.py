@@ -59,6 +59,11 @@ def check_forces(f, n: int, name: str) -> np.ndarray:
     return f
 
 
+def _seed_ok(seed) -> bool:
+    """An int torch's generators take (64 bits), never a bool."""
+    return is_int(seed) and -2 ** 63 <= seed < 2 ** 63
+
+
 def check_options(steps, seed: int | Sequence[int], batch_size, n: int, default_steps: int,
                   max_steps: int) -> tuple[int, list[int]]:
     """-> (DDIM steps in [1, max_steps], ``default_steps`` for None; one seed per sample, n ints); ValueError on a
@@ -68,14 +73,11 @@ def check_options(steps, seed: int | Sequence[int], batch_size, n: int, default_
         raise ValueError(f"steps must be an int in [1, {max_steps}], got {steps!r}")
     if batch_size != AUTO and (not is_int(batch_size) or batch_size < 1):
         raise ValueError(f"batch_size must be a positive int or 'auto', got {batch_size!r}")
-    def ok(s) -> bool:
-        return is_int(s) and -2 ** 63 <= s < 2 ** 63  # what torch's generators take
-
-    if ok(seed):
+    if _seed_ok(seed):
         return int(steps), [int(seed)] * n
-    many = isinstance(seed, (Sequence, np.ndarray)) and not isinstance(seed, (str, bytes))
-    seeds = list(np.asarray(seed).reshape(-1)) if many and np.ndim(seed) == 1 else None
-    if seeds is None or len(seeds) != n or not all(ok(s) for s in seeds):
+    many = isinstance(seed, (Sequence, np.ndarray)) and not isinstance(seed, (str, bytes)) and np.ndim(seed) == 1
+    seeds = list(seed) if many else None  # the items themselves: a True stays a bool
+    if seeds is None or len(seeds) != n or not all(_seed_ok(s) for s in seeds):
         got = f"{len(seeds)} seeds" if seeds is not None and len(seeds) != n else repr(seed)[:80]
         raise ValueError(f"seed must be one int or {n} ints (one per sample) within 64 bits, got {got}")
     return int(steps), [int(s) for s in seeds]

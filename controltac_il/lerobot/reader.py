@@ -31,7 +31,6 @@ import json
 import os
 import re
 from collections import OrderedDict
-from numbers import Real
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -43,7 +42,7 @@ import pyarrow.parquet as pq
 import torch
 from torch.utils.data import Dataset
 
-from controltac_il.config import is_int
+from controltac_il.config import is_int, is_real
 from controltac_il.lerobot.video import TOLERANCE_S, VideoFrames
 
 INDEX_COLUMNS = ("episode_index", "frame_index", "index", "timestamp")  # held in memory, read at open
@@ -88,7 +87,7 @@ def _check_info(info: dict, path: Path) -> None:
     """The fields of ``info.json`` the reader relies on, each refused in one line naming it: a positive ``fps``,
     path templates as strings, ``features`` of a dtype string and a shape of ints each, the index columns."""
     fps = info["fps"]
-    if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not 0 < fps < float("inf"):
+    if not (is_real(fps) and fps > 0):
         raise ValueError(f"root: {path}: fps must be a positive number of frames per second, got {fps!r}")
     for key in ("data_path", "video_path"):
         if info.get(key) is not None and not isinstance(info[key], str):
@@ -167,8 +166,7 @@ def delta_indices(delta_timestamps, features: dict, fps: int, tolerance_s: float
     for key, deltas in delta_timestamps.items():
         if key not in features:
             raise ValueError(f"delta_timestamps: unknown key {key!r}; the features are {list(features)}")
-        finite = isinstance(deltas, (list, tuple)) and all(
-            isinstance(d, Real) and not isinstance(d, bool) and np.isfinite(d) for d in deltas)
+        finite = isinstance(deltas, (list, tuple)) and all(is_real(d) for d in deltas)
         if features[key]["dtype"] == "string" or not finite or len(deltas) == 0:
             raise ValueError(f"delta_timestamps: {key!r} needs a non-empty list of finite offsets (s) of a "
                              f"non-string feature, got {deltas!r}")
@@ -327,7 +325,7 @@ class LeRobotFolder(Dataset):
 
     def __init__(self, root, delta_timestamps=None, tolerance_s: float = TOLERANCE_S, cache_mb: float = CACHE_MB,
                  keys=None, video_threads: int = 1):
-        if isinstance(cache_mb, bool) or not isinstance(cache_mb, (int, float)) or not cache_mb > 0:
+        if not (is_real(cache_mb) and cache_mb > 0):
             raise ValueError(f"cache_mb: expected a positive number of MB, got {cache_mb!r}")
         self.root = Path(root)
         self.meta = read_info(self.root)

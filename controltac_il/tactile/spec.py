@@ -3,14 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
-import math
-import numbers
 from dataclasses import dataclass
 
-
-def _real(value) -> bool:
-    """A finite real number, numpy's included (not a bool, a string or None)."""
-    return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+from controltac_il.config import is_real
 
 
 @dataclass(frozen=True)
@@ -61,20 +56,20 @@ class SensorSpec:
                 raise ValueError(f"SensorSpec.{name} must be an int >= 8 pixels, got {v!r}")
         for name in ("mm_per_px", "gel_thickness_mm", "foundation_modulus", "smoothing_mm", "optics_gain", "tint_depth_mm"):
             v = getattr(self, name)
-            if not (_real(v) and v > 0):
+            if not (is_real(v) and v > 0):
                 raise ValueError(f"SensorSpec.{name} must be a finite number > 0, got {v!r}")
         for name in ("stiffening", "shear_compliance_mm_per_n", "noise_std"):
             v = getattr(self, name)
-            if not (_real(v) and v >= 0):
+            if not (is_real(v) and v >= 0):
                 raise ValueError(f"SensorSpec.{name} must be a finite number >= 0, got {v!r}")
         tint = self.contact_tint
-        if not (isinstance(tint, (tuple, list)) and len(tint) == 3 and all(_real(v) for v in tint)):
+        if not (isinstance(tint, (tuple, list)) and len(tint) == 3 and all(is_real(v) for v in tint)):
             raise ValueError(f"SensorSpec.contact_tint must be 3 finite grey levels (R, G, B), got {self.contact_tint!r}")
-        if not (_real(self.conformity) and 0.0 <= self.conformity <= 1.0):
+        if not (is_real(self.conformity) and 0.0 <= self.conformity <= 1.0):
             raise ValueError(f"SensorSpec.conformity must be in [0, 1], got {self.conformity!r}")
-        if not (_real(self.vignetting) and 0.0 <= self.vignetting < 1.0):
+        if not (is_real(self.vignetting) and 0.0 <= self.vignetting < 1.0):
             raise ValueError(f"SensorSpec.vignetting must be in [0, 1), got {self.vignetting!r}")
-        if not (_real(self.light_elevation_deg) and 5.0 <= self.light_elevation_deg <= 85.0):
+        if not (is_real(self.light_elevation_deg) and 5.0 <= self.light_elevation_deg <= 85.0):
             raise ValueError(f"SensorSpec.light_elevation_deg must be in [5, 85], got {self.light_elevation_deg!r}")
 
     @classmethod
