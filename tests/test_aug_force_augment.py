@@ -261,6 +261,7 @@ def test_missing_estimator_is_a_clear_error(gen, tmp_path, monkeypatch):
     (dict(jitter=()), "jitter: expected a non-empty"),
     (dict(jitter="12"), "jitter: expected a non-empty"),  # never read as (1, 2)
     (dict(tactile_keys=["right"]), "tactile_keys: unknown tactile key 'right'"),
+    (dict(tactile_keys=5), "tactile_keys: expected non-empty key names"),
     (dict(mode="lazy"), "mode"),
     (dict(out_of_range="wrap"), "out_of_range"),
     (dict(seed=-1), "seed"),

@@ -44,6 +44,12 @@ def folder(tmp_path):
     return root
 
 
+def test_a_selection_that_is_not_names_is_refused(folder, tmp_path):
+    for field in ("cameras", "tactile_sensors"):
+        with pytest.raises(ValueError, match=f"^{field}: expected a name or a list of names, got 5$"):
+            EpisodeDataset(folder, stats_path=tmp_path / "s.json", **{field: 5})
+
+
 def test_chunk_size_is_a_count(folder, tmp_path):
     """A numpy int is a count; a bool or a float is not (True would read as a chunk of 1)."""
     assert type(EpisodeDataset(folder, chunk_size=np.int64(3), stats_path=tmp_path / "s.json").chunk_size) is int

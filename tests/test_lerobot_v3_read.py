@@ -433,6 +433,8 @@ def test_a_constant_action_dimension_gets_the_std_floor_as_an_hdf5_folder_does(f
 def test_a_tactile_sensor_the_dataset_lacks_is_refused_never_an_empty_selection(folder):
     from controltac_il.lerobot import LeRobotEpisodes
 
+    with pytest.raises(ValueError, match=r"^force_keys: expected \{tactile key: force key\}, got list$"):
+        LeRobotEpisodes(folder, chunk_size=2, tactile_keys=[LEFT], force_keys=[FORCE])
     with pytest.raises(ValueError, match=r"^tactile_sensors: \['gelsight_nope'\] are not tactile cameras of the dataset"):
         LeRobotEpisodes(folder, chunk_size=2, tactile_keys=[LEFT], tactile_sensors=["gelsight_nope"])
     assert LeRobotEpisodes(folder, chunk_size=2, tactile_keys=[LEFT], tactile_sensors=()).tactile_sensors == []

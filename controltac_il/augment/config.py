@@ -185,7 +185,7 @@ class ForceAugmentConfig:
     def _tactile_keys(cls, v):
         if v is None:
             return None
-        keys = (v,) if isinstance(v, str) else tuple(v)
+        keys = (v,) if isinstance(v, str) else tuple(v) if isinstance(v, (list, tuple)) else ()
         if not keys or not all(isinstance(k, str) and k for k in keys):
             raise ValueError("expected non-empty key names")
         return keys

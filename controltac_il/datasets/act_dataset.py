@@ -114,6 +114,8 @@ class EpisodeDataset(Dataset):
     def _select(field: str, wanted, available: list[str]) -> list[str]:
         if wanted is None:
             return list(available)
+        if not isinstance(wanted, (str, list, tuple)):
+            raise ValueError(f"{field}: expected a name or a list of names, got {wanted!r}")
         wanted = [wanted] if isinstance(wanted, str) else list(wanted)
         unknown = [w for w in wanted if w not in available]
         if unknown:

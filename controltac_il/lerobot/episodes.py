@@ -116,6 +116,8 @@ class LeRobotEpisodes(Dataset):
                 raise ValueError(f"force_keys: {odd} are not (3,) [Fx, Fy, Fz] N features; pass force_keys= naming "
                                  "the right ones")
             return found
+        if not isinstance(force_keys, dict):
+            raise ValueError(f"force_keys: expected {{tactile key: force key}}, got {type(force_keys).__name__}")
         bad = [f for k, f in force_keys.items() if k not in tactile or f not in features or
                tuple(features[f]["shape"]) != (3,)]
         if bad:
