@@ -272,6 +272,17 @@ def test_bad_arguments(data, gen, tmp_path, kw, match):
         ForceAugment(data, gen, cache_dir=tmp_path / "c", progress=False, **kw)
 
 
+def test_an_index_copies_or_item_of_the_wrong_kind_is_named(data, gen, tmp_path):
+    a = aug(data, gen, tmp_path, copies=1, steps=1)
+    assert torch.equal(a[np.int64(3)]["action"], a[3]["action"])
+    with pytest.raises(TypeError, match="^ForceAugment indices are ints, got str$"):
+        a["3"]
+    with pytest.raises(ValueError, match="^copies: expected None or an int >= 0, got 'x'$"):
+        a.summary(copies="x")
+    with pytest.raises(ValueError, match="^item: has no 'augment' record"):
+        a.info({})
+
+
 def test_a_dataset_or_generator_of_the_wrong_kind_is_named(data, gen, tmp_path):
     for dataset, generator, says in ((5, gen, "^dataset: expected a map-style dataset"),
                                      (data, 5, "^generator: expected a ForceGenerator")):

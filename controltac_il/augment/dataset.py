@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import operator
 import os
 import sys
 import time
@@ -18,6 +19,7 @@ from controltac_il.cli import tty_only
 
 from controltac_il.augment import items as adapters
 from controltac_il.augment.config import BUILD, ForceAugmentConfig
+from controltac_il.config import is_int
 from controltac_il.augment.keys import resolve_keys
 from controltac_il.augment.online import EpisodeTables, OnlineGenerator
 from controltac_il.augment.provenance import CACHE_FORMAT, ChunkSpec, chunk_done, check_manifest, write_manifest
@@ -169,6 +171,10 @@ class ForceAugment(Dataset):
 
     def __getitem__(self, index: int) -> dict:
         n = len(self)
+        try:
+            index = operator.index(index)  # an int, a numpy int or a 0-d integer tensor
+        except TypeError:
+            raise TypeError(f"ForceAugment indices are ints, got {type(index).__name__}") from None
         if not -n <= index < n:
             raise IndexError(f"index {index} out of range for {n} items")
         copy, base = divmod(int(index) % n, self.n_base)
@@ -357,6 +363,8 @@ class ForceAugment(Dataset):
 
         From the cache's provenance in cache mode; from ``plan()`` (one pass over the data) online.
         """
+        if copies is not None and (not is_int(copies) or copies < 0):
+            raise ValueError(f"copies: expected None or an int >= 0, got {copies!r}")
         recs = self.provenance() if self.config.mode == "cache" else self.plan()
         recs = [r for r in recs if copies is None or r["copy"] <= copies]
         counts = {name: 0 for name in ("no_contact", "regenerated", "clamped", "skipped")}

@@ -59,7 +59,9 @@ def annotate(item: dict, copy: int, outcome: FrameOutcome, tactile_keys, labels:
 
 def info(item: dict, tactile_keys) -> dict:
     """Named columns of ``item["augment"]`` (an item's (K, 10) or a batch's (B, K, 10))."""
-    a = item["augment"]
+    a = item.get("augment") if isinstance(item, dict) else None
+    if a is None:
+        raise ValueError("item: has no 'augment' record; pass an item (or a batch) of this ForceAugment")
     status = a[..., 3].long()
     out = {"copy": a[..., 0, 0].long(), "offset": a[..., 0, 1], "jitter": a[..., 0, 2],
            "augmented": ((status == STATUS["regenerated"]) | (status == STATUS["clamped"])).any(-1)}
