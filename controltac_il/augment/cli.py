@@ -210,15 +210,12 @@ def _setup(args) -> ForceAugment:
 
 def load_models(args, pose: bool):
     """(generator, estimator or None) of the flags; UsageError naming the flag."""
-    import torch
-
-    try:
-        device = torch.device(args.device)
-    except (RuntimeError, ValueError) as exc:
-        raise UsageError("--device", f"expected a torch device such as cpu, cuda or cuda:0, got {args.device!r}") from exc
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise UsageError("--device", f"{args.device!r} asked for, but no CUDA device is available; use --device cpu")
     from controltac_il.generator import ForceGenerator
+    from controltac_il.training import device_problem
+
+    problem = device_problem(args.device)  # "--device ...: why", as the trainers say it
+    if problem:
+        raise UsageError(None, problem)
 
     estimator = None
     if args.estimator or args.generator is not None:  # a calibration bundle (--generator) brings its estimator
@@ -231,7 +228,7 @@ def load_models(args, pose: bool):
         except (ValueError, OSError) as exc:
             raise UsageError(flag, f"expected a force estimator checkpoint folder: {' '.join(str(exc).split())}") from exc
     try:
-        generator = ForceGenerator.from_pretrained(args.generator, device=device)
+        generator = ForceGenerator.from_pretrained(args.generator, device=args.device)
     except (ValueError, OSError) as exc:
         raise UsageError("--generator", f"expected a generator checkpoint folder (or default / fast / quality): "
                                         f"{' '.join(str(exc).split())}") from exc
