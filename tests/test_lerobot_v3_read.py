@@ -265,6 +265,9 @@ def test_a_forked_worker_frees_the_parents_decoders_without_hanging(folder):
     FFmpeg decoder deadlocks there, so the reader's decoders are single-threaded."""
     ds = LeRobotFolder(folder)
     ds[0], ds[len(ds) - 1]
+    # only this reader's decoders are left for the child to free, not other tests' garbage (the augment command,
+    # run in this process by other tests, decodes with FFmpeg's threads: as a command it never forks)
+    gc.collect()
     pid = os.fork()
     if pid == 0:
         ds._videos._streams.clear()
