@@ -19,7 +19,6 @@ from controltac_il.cli import tty_only
 
 from controltac_il.augment import items as adapters
 from controltac_il.augment.config import BUILD, ForceAugmentConfig
-from controltac_il.config import is_int
 from controltac_il.augment.keys import resolve_keys
 from controltac_il.augment.online import EpisodeTables, OnlineGenerator
 from controltac_il.augment.provenance import CACHE_FORMAT, ChunkSpec, chunk_done, check_manifest, write_manifest
@@ -27,6 +26,7 @@ from controltac_il.augment.reader import ChunkReader
 from controltac_il.augment.records import STATUS, FrameOutcome, KeyOutcome, annotate, info
 from controltac_il.augment.reference import EpisodeFrames, ReferenceForces
 from controltac_il.augment.writer import CacheWriter
+from controltac_il.config import is_int
 from controltac_il.io import cache_root, remove_leftovers
 
 

@@ -30,8 +30,8 @@ import torch
 from torch.utils.data import Dataset
 from tqdm import tqdm
 
-from controltac_il.datasets.act_dataset import STD_FLOOR
 from controltac_il.config import is_int
+from controltac_il.datasets.act_dataset import STD_FLOOR
 from controltac_il.datasets.background import estimate_background
 from controltac_il.datasets.checks import check_force_labels
 from controltac_il.lerobot.reader import LeRobotFolder, decode_png, numbers, read_info
