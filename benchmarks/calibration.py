@@ -293,13 +293,20 @@ def cpu_minutes(rows: list[dict]) -> float | None:
     return float(np.mean(cpu)) if cpu else None
 
 
+def mean_present(values: list) -> float | None:
+    """The mean of the values that exist: calibrate records no cross-validated ratio (None) where the constant's
+    held-out error is 0 or too few grasps were held out. None where no value exists."""
+    present = [v for v in values if v is not None]
+    return float(np.mean(present)) if present else None
+
+
 def summary(rows: list[dict], args, t0: float, show: bool = False) -> dict:
     """The results document of the sensors done so far: the mean of the unseen sensors against the targets (the
     MuJoCo scene's presses, of the training sensor, reported beside it)."""
     heldout = [r for r in rows if "draw" in r]
     rows_same = [r for r in rows if "draw" not in r]
     unseen = [r for r in rows_same if not r["sensor"].startswith("sim_record")] or rows_same
-    mean = {k: float(np.mean([r[k] for r in unseen])) for k in ("calibrated_ratio", "zero_shot_ratio", "cv_ratio",
+    mean = {k: mean_present([r[k] for r in unseen]) for k in ("calibrated_ratio", "zero_shot_ratio", "cv_ratio",
                                                              "generator_calibrated_ratio", "generator_zero_shot_ratio")}
     mean["minutes"] = cpu_minutes(unseen)
     verdict = {"estimator_ratio": mean["calibrated_ratio"], "generator_ratio": mean["generator_calibrated_ratio"],

@@ -149,3 +149,18 @@ def test_the_benchmark_runs_same_object_cases_first_then_draw_by_draw_and_skips_
     done = [{"sensor": "unseen_00/a"}, {"sensor": "unseen_01/b", "draw": 0}]
     assert [(c[0], c[3]) for c in todo_cases(sensors, (None, 0, 1), done)] == [
         ("unseen_01/b", None), ("unseen_00/a", 0), ("unseen_00/a", 1), ("unseen_01/b", 1)]
+
+
+def test_the_benchmarks_mean_leaves_out_a_sensor_calibrate_gave_no_cross_validated_ratio():
+    """calibrate records no cross-validated ratio (None) where the constant's held-out error is 0: the mean over
+    sensors is over those with one, and None where no sensor has one, never a TypeError from None in a mean."""
+    import argparse
+
+    from benchmarks.calibration import summary
+
+    figures = {"calibrated_ratio": 0.5, "zero_shot_ratio": 2.0, "generator_calibrated_ratio": 0.4,
+               "generator_zero_shot_ratio": 0.9, "minutes": 8.0}
+    rows = [{"sensor": "unseen_00/a", "cv_ratio": None, **figures}, {"sensor": "unseen_01/b", "cv_ratio": 0.6, **figures}]
+    out = summary(rows, argparse.Namespace(out="x.json", k=10), t0=0.0)
+    assert out["mean"]["cv_ratio"] == pytest.approx(0.6) and out["mean"]["calibrated_ratio"] == pytest.approx(0.5)
+    assert summary(rows[:1], argparse.Namespace(out="x.json"), t0=0.0)["mean"]["cv_ratio"] is None
