@@ -242,6 +242,27 @@ def test_a_float_tactile_image_outside_0_1_is_refused_never_rounded_to_white(gen
     assert not (tmp_path / "c").exists()
 
 
+class BFloat16(LeRobotLike):
+    """LeRobotLike whose tactile images are bfloat16 tensors in [0, 1] (a dtype NumPy has none of)."""
+
+    def __getitem__(self, i):
+        item = super().__getitem__(i)
+        item["observation.images.tactile_left"] = item["observation.images.tactile_left"].to(torch.bfloat16)
+        return item
+
+
+def test_a_bfloat16_tactile_image_is_augmented_and_written_back_in_bfloat16(gen, tmp_path):
+    ds = BFloat16([synthetic_episode(6, 0, range(1, 4), labels=False)])
+    with pytest.warns(UserWarning, match="background estimated"):
+        a = aug(ds, gen, tmp_path, copies=1, steps=1, estimator=tiny_estimator())
+    assert a.summary()["regenerated"] + a.summary()["clamped"] > 0
+    for i in range(len(a)):
+        item, src = a[i], ds[i % len(ds)]
+        assert item["observation.images.tactile_left"].dtype == torch.bfloat16
+        if int(a.info(item)["status.observation.images.tactile_left"]) == STATUS["no_contact"]:
+            assert torch.equal(item["observation.images.tactile_left"], src["observation.images.tactile_left"])
+
+
 def test_missing_estimator_is_a_clear_error(gen, tmp_path, monkeypatch):
     from controltac_il.estimators import ForceEstimator
 

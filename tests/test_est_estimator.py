@@ -57,6 +57,15 @@ def test_validate_accepts_torch_tensor():
     assert isinstance(validate_residuals(t), np.ndarray)
 
 
+def test_a_bfloat16_tensor_reads_as_the_same_float_pixels_and_is_range_checked(est):
+    """NumPy has no bfloat16: such a tensor (0-255 integers are exact in it) reads as float pixels, its forces those
+    of the same uint8 frames; out of range it is refused like any float array, never a TypeError from NumPy."""
+    r = np.random.default_rng(3).integers(0, 256, (2, 64, 80, 3), dtype=np.uint8)
+    np.testing.assert_allclose(est.predict(torch.from_numpy(r).to(torch.bfloat16)), est.predict(r), atol=1e-5)
+    with pytest.raises(ValueError, match=r"\[0, 255\]"):
+        est.predict(torch.full((1, 64, 80, 3), 300.0, dtype=torch.bfloat16))
+
+
 def test_preprocess_maps_offset_to_zero_and_resizes():
     cfg = EstimatorConfig(input_height=32, input_width=40)
     x = preprocess(np.full((2, 240, 320, 3), 127, np.uint8), cfg)

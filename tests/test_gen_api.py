@@ -295,6 +295,7 @@ def test_the_validated_range_and_residual_offset_have_one_owner():
     (lambda r: r[..., :2], "shape"),
     (lambda r: r[:0], "shape"),
     (lambda r: r.tolist(), "uint8 array"),
+    (lambda r: torch.from_numpy(r).to(torch.bfloat16), "dtype uint8 .*got torch.bfloat16$"),
 ])
 def test_bad_residuals_are_refused(gen, contacts, bad, match):
     ref, _ = contacts

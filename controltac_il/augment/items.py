@@ -7,13 +7,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from controltac_il.arrays import as_array
 from controltac_il.datasets.act_dataset import EpisodeDataset, EpisodeSubset
 from controltac_il.datasets.stage import FrameTable
-
-
-def as_array(value) -> np.ndarray:
-    """A tensor or array-like as a NumPy array (no copy for a CPU tensor)."""
-    return value.detach().cpu().numpy() if isinstance(value, torch.Tensor) else np.asarray(value)
 
 
 def is_chw(shape) -> bool:

@@ -19,7 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controltac_il.augment.items import as_array, to_hwc_uint8
+from controltac_il.arrays import as_array
+from controltac_il.augment.items import to_hwc_uint8
 from controltac_il.streams import BACKGROUND, FORCE, HDF5, LEROBOT, looks_tactile, rule_key, tactile_key
 
 OFFSET_TOLERANCE = 0.01  # frames: a delta_timestamp must be this close to a whole number of frames

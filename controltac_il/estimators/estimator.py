@@ -8,6 +8,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from controltac_il.arrays import as_array
 from controltac_il.checkpoint import (CARD_FILE, CONFIG_FILE, HASH_KEY, CheckpointError, load_folder, load_into,
                                       read_json, save_folder)
 from controltac_il.cli import RunFault
@@ -28,7 +29,7 @@ def validate_residuals(residuals, name: str = "residuals") -> np.ndarray:
     naming ``name`` and the expected form.
     """
     if isinstance(residuals, torch.Tensor):
-        residuals = residuals.detach().cpu().numpy()
+        residuals = as_array(residuals)
     if not isinstance(residuals, np.ndarray):
         raise ValueError(f"{name} must be a numpy array (N, H, W, 3) uint8, got {type(residuals).__name__}")
     if residuals.ndim != 4 or residuals.shape[-1] != 3:

@@ -25,7 +25,9 @@ DELTA_TARGET = "target force reference_force + delta_force"
 def check_residuals(x, name: str, model_hw: tuple[int, int]) -> np.ndarray:
     """uint8 (B, H, W, 3) images (numpy or torch) with B >= 1, H, W >= 8, whose resize to the model's (H, W) changes
     the aspect ratio by at most ``MAX_ASPECT_CHANGE`` -> the numpy array; else ValueError naming ``name``."""
-    if isinstance(x, torch.Tensor):
+    if isinstance(x, torch.Tensor):  # its dtype named as given (NumPy has no bfloat16)
+        if x.dtype != torch.uint8:
+            raise ValueError(f"{name} must have dtype uint8 (values 0-255), got {x.dtype}")
         x = x.detach().cpu().numpy()
     if not isinstance(x, np.ndarray):
         raise ValueError(f"{name} must be a uint8 array (B, H, W, 3), got {type(x).__name__}")
