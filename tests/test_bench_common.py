@@ -65,37 +65,25 @@ def test_every_benchmark_runs_its_main_under_guard():
     assert [name for name, calls in entries.items() if "guard" not in calls] == []
 
 
-USAGE_PROBE = """
-import contextlib, io, json, runpy, sys, warnings
-warnings.simplefilter("ignore", RuntimeWarning)  # runpy's note on a module one run before imported: one process
-out = {{}}
-for module in {modules!r}:
-    sys.argv = [module, "--no-such-flag"]
-    err = io.StringIO()
-    try:
-        with contextlib.redirect_stderr(err):
-            runpy.run_module(module, run_name="__main__", alter_sys=True)
-    except SystemExit as exc:
-        out[module] = [exc.code, err.getvalue()]
-print(json.dumps(out))
-"""
-
-
-def test_every_benchmarks_usage_error_starts_with_the_command_that_runs_it():
+def test_every_benchmarks_usage_error_starts_with_the_command_that_runs_it(monkeypatch, capsys):
     """``python -m benchmarks.X --no-such-flag``: one line ``python -m benchmarks.X: error: ...``, exit 2 (not the
-    file name argparse would take from sys.argv)."""
-    import json
+    file name argparse would take from sys.argv). Run as ``-m`` runs it, in this process (the libraries the
+    benchmarks import are loaded once for all of them)."""
+    import runpy
     import sys
+    import warnings
 
     root = Path(__file__).resolve().parents[1] / "benchmarks"
     modules = sorted("benchmarks." + p.relative_to(root).with_suffix("").as_posix().replace("/", ".")
                      .removesuffix(".__main__") for p in root.rglob("*.py") if _main_block_calls(p) is not None)
-    run = subprocess.run([sys.executable, "-c", USAGE_PROBE.format(modules=modules)], cwd=root.parent,
-                         capture_output=True, text=True, timeout=300)
-    assert run.returncode == 0, run.stderr[-2000:]
-    got = json.loads(run.stdout.strip().splitlines()[-1])
-    bad = {m: got.get(m) for m in modules
-           if got.get(m) is None or got[m][0] != 2 or not got[m][1].startswith(f"python -m {m}: error: ")
+    got = {}
+    for module in modules:
+        monkeypatch.setattr(sys, "argv", [module, "--no-such-flag"])
+        with warnings.catch_warnings(), pytest.raises(SystemExit) as exc:
+            warnings.simplefilter("ignore", RuntimeWarning)  # runpy's note on a module an earlier test imported
+            runpy.run_module(module, run_name="__main__", alter_sys=True)
+        got[module] = (exc.value.code, capsys.readouterr().err)
+    bad = {m: got[m] for m in modules if got[m][0] != 2 or not got[m][1].startswith(f"python -m {m}: error: ")
            or len(got[m][1].strip().splitlines()) != 1}
     assert len(modules) >= 20 and bad == {}
 
