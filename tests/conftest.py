@@ -21,6 +21,15 @@ def _torch_threads():
         torch.set_num_threads(THREADS)
 
 
+@pytest.fixture(autouse=True, scope="session")
+def _cache_in_tmp(tmp_path_factory):
+    """The tool's cache (normalisation stats, demos, ForceAugment caches) in this session's temporary folder, for
+    the tests and the commands they start: a test never writes the user's ~/.cache."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("CONTROLTAC_CACHE", str(tmp_path_factory.mktemp("cache")))
+        yield
+
+
 @pytest.fixture
 def clock():
     """A virtual clock (``hardware.interfaces.VirtualClock``) attached to this test's thread: time moves only when

@@ -9,6 +9,7 @@ from hardware.control_loop import ControlLoop, ControlLoopConfig, PolicyError
 from hardware.fakes import FakeArm, FakeGripper, SyntheticFrameSource
 from hardware.interfaces import VirtualClock
 from hardware.safety import SafetyLimits
+from hardware.temporal_ensembling import TemporalEnsembler
 from policies.act import ACT, ACTPolicy
 
 
@@ -31,14 +32,28 @@ def _policy(**kw):
 
 
 def test_act_drives_the_loop_with_ensembled_chunks():
+    """Each command is the temporal ensemble (ACT's k = 0.01) of the chunks ACT predicted so far, replayed by hand:
+    not the newest chunk's row, which differs from it by more than the tolerance."""
     clock, log, arm, gripper, cams, tac = _rig()
-    policy = _policy()
-    loop = ControlLoop(arm, policy, gripper=gripper, cameras=cams, tactile=tac, limits=SafetyLimits(), clock=clock,
-                       config=ControlLoopConfig(inference="sync", chunk_size=policy.config.chunk_size))
+    policy, chunks = _policy(), []
+
+    def recorded(obs):
+        chunks.append(np.array(policy(obs), dtype=np.float64))
+        return chunks[-1]
+
+    size = policy.config.chunk_size
+    loop = ControlLoop(arm, recorded, gripper=gripper, cameras=cams, tactile=tac, limits=SafetyLimits(), clock=clock,
+                       config=ControlLoopConfig(inference="sync", chunk_size=size))
     stats = loop.run(max_steps=5)
-    servos = [v for e, v in log if e == "servo"]
-    assert stats.steps == 5 and len(servos) == 5 and len(stats.inference_s) == 5
-    assert all(np.allclose(s, [0.4, 0.0, 0.2, 0.0], atol=0.02) for s in servos)
+    servos = np.array([v for e, v in log if e == "servo"])
+    assert stats.steps == 5 and len(servos) == 5 and len(chunks) == 5
+    ens = TemporalEnsembler(size, 5, 0.01)
+    for t, chunk in enumerate(chunks):
+        ens.add_chunk(t, chunk)
+    expected = np.array([ens.action(t)[:4] for t in range(5)])
+    np.testing.assert_allclose(servos, expected, atol=1e-7)
+    newest_rows = np.array([chunk[0, :4] for chunk in chunks])
+    assert np.abs(newest_rows - expected).max() > 1e-5  # the replay tells ensembling from taking the newest row
     assert log[-2:] == [("arm-stop", None), ("gripper-stop", None)]
 
 

@@ -106,12 +106,9 @@ def test_a_constant_state_dimension_and_a_one_frame_episode_give_finite_items(tm
     assert torch.isfinite(normalised).all() and normalised[2] == 0
 
 
-def test_stats_computed_once_and_saved_outside_data(folder, tmp_path):
-    os.environ["CONTROLTAC_CACHE"] = str(tmp_path / "cache")
-    try:
-        ds = EpisodeDataset(folder)
-    finally:
-        del os.environ["CONTROLTAC_CACHE"]
+def test_stats_computed_once_and_saved_outside_data(folder, tmp_path, monkeypatch):
+    monkeypatch.setenv("CONTROLTAC_CACHE", str(tmp_path / "cache"))
+    ds = EpisodeDataset(folder)
     assert ds.stats_path.is_file() and folder not in ds.stats_path.parents
     qpos = np.concatenate([synthetic_episode(9, 0).qpos, synthetic_episode(4, 1).qpos])
     np.testing.assert_allclose(ds.stats["qpos"]["mean"], qpos.mean(0), rtol=1e-6)

@@ -23,6 +23,15 @@ def env():
     e.close()
 
 
+@pytest.fixture(autouse=True)
+def _default_grip(request):
+    """A test that sets the shared env's grip force (``grasp``) leaves it at the scene's default for the next: no
+    test depends on the order xdist runs them in."""
+    yield
+    if "env" in request.fixturenames:
+        request.getfixturevalue("env").config.grip_force_range_n = PegInHoleConfig().grip_force_range_n
+
+
 def grasp(env, grip_n, seed=0, lift=True):
     """Reset with a fixed grip force, grasp the peg straight (no offset) and optionally lift it."""
     env.config.grip_force_range_n = (grip_n, grip_n)

@@ -1,6 +1,7 @@
 """Generator building blocks on random tensors: configs, autoencoder, DiT, DDIM sampler, checkpoints, train states."""
 
 import dataclasses
+import hashlib
 import json
 import math
 
@@ -208,10 +209,12 @@ def test_checkpoint_config_mismatch_is_a_clear_error(tmp_path):
 
 def test_checkpoint_refuses_pickles_and_missing_files(tmp_path):
     path, _, _, dit = make_checkpoint(tmp_path)
-    torch.save(dit.state_dict(), path / DIT_FILE)  # a pickle under the safetensors name
-    with pytest.raises(Exception) as e:
-        load_checkpoint(path)
-    assert not isinstance(e.value, (AttributeError, TypeError))
+    torch.save(dit.state_dict(), path / DIT_FILE)  # a pickle under the safetensors name, its card re-signed
+    card = json.loads((path / CARD_FILE).read_text())
+    card["weights_sha256"][DIT_FILE] = hashlib.sha256((path / DIT_FILE).read_bytes()).hexdigest()
+    (path / CARD_FILE).write_text(json.dumps(card))
+    with pytest.raises(CheckpointError, match=f"{DIT_FILE} is corrupted or not a safetensors file"):
+        load_checkpoint(path)  # refused before any byte is unpickled
     (path / AE_FILE).unlink()
     with pytest.raises(FileNotFoundError, match="autoencoder"):
         load_checkpoint(path)
