@@ -77,6 +77,15 @@ def test_bundle_loads_by_name_everywhere_and_moved_from_its_bases(bases, tmp_pat
     with pytest.warns(UserWarning, match="does not beat the constant baseline"):
         g, e = load_models(cli, pose=False)
     assert (g.checkpoint_hash, e.checkpoint_hash) == (gen.checkpoint_hash, "nominal")
+    cli = parser().parse_args(["--dataset", str(tmp_path), "--out", str(tmp_path / "c"), "--estimator", str(out)])
+    with pytest.warns(UserWarning, match="does not beat the constant baseline"):  # the bundle named as --estimator
+        assert load_models(cli, pose=False)[1].checkpoint_hash == "nominal"
+    from controltac_il.augment import ForceAugmentStage
+
+    stage = ForceAugmentStage(1, generator=str(out), steps=1, mode="online", tactile_keys=[GEL])
+    with pytest.warns(UserWarning, match="does not beat the constant baseline"):  # train_act.py --generator BUNDLE
+        augmented = stage(LeRobotLike(episodes(labels=False)))
+    assert augmented.dataset.estimator.checkpoint_hash == "nominal"
 
 
 def test_bad_presses_and_stopped_runs_are_one_line(bases, tmp_path, capsys):

@@ -49,7 +49,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--copies", type=int, default=None,
                    help=f"ForceAugment copies per episode, 1-9 (default {COPIES}; with --augment force only)")
     p.add_argument("--generator", default=None,
-                   help="with --augment force: a shipped preset (default, fast, quality) or a checkpoint folder (default: default)")
+                   help="with --augment force: a shipped preset (default, fast, quality), a checkpoint folder, or a "
+                        "calibration bundle, whose estimator reads unlabelled frames where calibration says it may "
+                        "(default: default)")
     p.add_argument("--demos", type=int, default=20, help="episodes collected for the embedded default (default 20)")
     p.add_argument("--resume", action="store_true", help="continue from OUT/last (same dataset and options)")
     p.add_argument("--overwrite", action="store_true",
@@ -89,6 +91,8 @@ def check_args(args: argparse.Namespace):
             raise ValueError(f"{flag} must be an integer >= {low}, got {value}")
     if args.copies is not None and args.augment != "force":
         raise ValueError(f"--copies {args.copies}: ForceAugment's copies per episode, used only with --augment force")
+    if args.generator is not None and args.augment != "force":
+        raise ValueError(f"--generator {args.generator}: ForceAugment's generator, used only with --augment force")
     if args.augment == "force" and not 1 <= augment_copies(args) <= 9:
         raise ValueError(f"--copies must be in 1..9 (ForceAugment copies per episode), got {args.copies}")
     if args.dataset is not None and not args.dataset.is_dir():

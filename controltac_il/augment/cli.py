@@ -224,7 +224,9 @@ def load_models(args, pose: bool):
 
         flag = "--estimator" if args.estimator else "--generator"
         try:
-            estimator = ForceEstimator.from_pretrained(args.estimator) if args.estimator else bundle_estimator(args.generator)
+            # a bundle as --estimator keeps its decision too: its estimator only where calibration said it may be used
+            path = args.estimator or args.generator
+            estimator = bundle_estimator(path) or (ForceEstimator.from_pretrained(path) if args.estimator else None)
         except (ValueError, OSError) as exc:
             raise UsageError(flag, f"expected a force estimator checkpoint folder: {' '.join(str(exc).split())}") from exc
     try:

@@ -10,7 +10,6 @@ from torch.utils.data import Subset
 from controltac_il.augment.config import ForceAugmentConfig
 from controltac_il.augment.dataset import ForceAugment
 from controltac_il.datasets.stage import Augmented
-from controltac_il.generator import ForceGenerator
 from controltac_il.generator.checkpoint import checkpoint_hash
 from controltac_il.generator.shipped import locate_checkpoint
 
@@ -42,9 +41,8 @@ class ForceAugmentStage:
 
     def __call__(self, train_set) -> Augmented:
         """ForceAugment over ``train_set`` (its first ``copies`` copies); the summary counts those copies' frames."""
-        t0 = time.perf_counter()
-        gen = ForceGenerator.from_pretrained(self.generator)
-        aug = ForceAugment(train_set, gen, copies=self.max_copies, seed=self.seed, steps=self.steps,
+        t0 = time.perf_counter()  # the path, not a loaded model: a calibration bundle brings its estimator (or declines)
+        aug = ForceAugment(train_set, self.generator, copies=self.max_copies, seed=self.seed, steps=self.steps,
                            cache_dir=self.cache_dir, **self.settings)
         summary = {**aug.summary(self.copies), "seconds": time.perf_counter() - t0}
         n = len(train_set)
