@@ -47,9 +47,12 @@ class SafetyLimits:
     max_step_m: largest translation between two consecutive commands, metres per control period
         (at most 0.1 m: 1 m/s at 10 Hz; a robot setup file further bounds it to 0.25 m/s at its rate).
     max_rotation_rad: largest yaw change between two consecutive commands, radians (at most 0.5; a robot
-        setup file: 1 rad/s at its rate).
+        setup file: 1 rad/s at its rate). Over the full circle (the default range) yaw turns the short way,
+        through ±pi; a narrower range is an arc the wrist never leaves, so yaw turns along it, never through
+        the excluded band.
     gripper_min / gripper_max: allowed gripper command range within [0, 1] (0 open, 1 closed).
     state_tolerance_m: a measured pose further than this outside the box is a violation (arm stopped).
+    state_tolerance_rad: a measured yaw further than this outside a narrower yaw range is a violation.
     """
 
     workspace_min: Vec3 = (0.2, -0.3, 0.0)
@@ -61,6 +64,7 @@ class SafetyLimits:
     gripper_min: Float = Field(0.0, ge=0, le=1)
     gripper_max: Float = Field(1.0, ge=0, le=1)
     state_tolerance_m: Float = Field(0.02, gt=0, le=0.2)
+    state_tolerance_rad: Float = Field(0.05, gt=0, le=0.5)
 
     @model_validator(mode="after")
     def _ordered(self):
@@ -75,6 +79,11 @@ class SafetyLimits:
             problems.add("gripper_min", f"must be below gripper_max ({self.gripper_max})", self.gripper_min)
         problems.raise_any()
         return self
+
+    @property
+    def full_circle(self) -> bool:
+        """Whether every yaw is allowed (the range is [-pi, pi]): then yaw wraps through ±pi."""
+        return self.yaw_min == -np.pi and self.yaw_max == np.pi
 
 
 @dataclass
@@ -118,6 +127,10 @@ class SafetyFilter:
                 f"measured position {np.round(p[:3], 4).tolist()} m is outside the workspace box "
                 f"{list(lo)}..{list(hi)} by more than {tol} m"
             )
+        yaw, lim = float(wrap_angle(p[3])), self.limits
+        if not lim.full_circle and not lim.yaw_min - lim.state_tolerance_rad <= yaw <= lim.yaw_max + lim.state_tolerance_rad:
+            raise SafetyViolation(f"measured yaw {yaw:.4f} rad is outside the yaw range [{lim.yaw_min}, {lim.yaw_max}] "
+                                  f"by more than {lim.state_tolerance_rad} rad")
 
     def __call__(self, action: np.ndarray) -> np.ndarray:
         """Safe target (5,) float64 for ``action`` (5,); requires :meth:`reset` first."""
@@ -137,17 +150,25 @@ class SafetyFilter:
         if dist > lim.max_step_m:
             xyz = self._last[:3] + delta * (lim.max_step_m / dist)
             self.counts.step += 1
-        yaw = float(np.clip(wrap_angle(a[3]), lim.yaw_min, lim.yaw_max))
-        self.counts.yaw_range += int(yaw != float(wrap_angle(a[3])))
-        dyaw = float(wrap_angle(yaw - self._last[3]))
-        if abs(dyaw) > lim.max_rotation_rad:
-            yaw = float(wrap_angle(self._last[3] + np.sign(dyaw) * lim.max_rotation_rad))
-            self.counts.rotation += 1
+        yaw = self._yaw(a[3])
         grip = float(np.clip(a[4], lim.gripper_min, lim.gripper_max))
         self.counts.gripper += int(grip != a[4])
         out[:3], out[3], out[4] = xyz, yaw, grip
         self._last = out[:POSE_DIM].copy()
         return out
+
+    def _yaw(self, wanted: float) -> float:
+        """The commanded yaw (rad) for a wanted one: clipped into the range, then at most ``max_rotation_rad`` from
+        the last command, the short way over the full circle, along the arc of a narrower range."""
+        lim, last = self.limits, float(wrap_angle(self._last[3]))
+        target = float(wrap_angle(wanted))
+        yaw = float(np.clip(target, lim.yaw_min, lim.yaw_max))
+        self.counts.yaw_range += int(yaw != target)
+        dyaw = float(wrap_angle(yaw - last)) if lim.full_circle else yaw - last
+        if abs(dyaw) > lim.max_rotation_rad:
+            self.counts.rotation += 1
+            return float(wrap_angle(last + np.sign(dyaw) * lim.max_rotation_rad))
+        return yaw
 
 
 @dataclass

@@ -51,6 +51,27 @@ def test_yaw_step_wraps_through_pi():
     assert f.counts.rotation == 1
 
 
+def test_a_narrower_yaw_range_is_an_arc_the_wrist_never_leaves():
+    """With yaw in [-3, 3] the band through ±pi is excluded: a command across it turns the long way, along the arc,
+    and no commanded yaw leaves the range (over the full circle, 3.13 and -3.13 are 0.02 rad apart)."""
+    lim = SafetyLimits(workspace_min=(0.0, -0.5, 0.0), workspace_max=(1.0, 0.5, 0.5), yaw_min=-3.0, yaw_max=3.0,
+                       max_rotation_rad=0.1)
+    f = SafetyFilter(lim)
+    f.reset(np.array([0.5, 0.0, 0.2, 2.95]))
+    up = f(np.array([0.5, 0.0, 0.2, 3.13, 0.5]))  # past yaw_max: clipped to it
+    assert up[3] == 3.0 and f.counts.yaw_range == 1 and f.counts.rotation == 0
+    yaws = [f(np.array([0.5, 0.0, 0.2, -3.13, 0.5]))[3] for _ in range(5)]  # clipped to -3.0: the long way down
+    np.testing.assert_allclose(yaws, [2.9, 2.8, 2.7, 2.6, 2.5], atol=1e-12)
+    assert f.counts.rotation == 5
+    with pytest.raises(SafetyViolation, match=r"measured yaw 3\.1000 rad is outside the yaw range \[-3\.0, 3\.0\]"):
+        f.reset(np.array([0.5, 0.0, 0.2, 3.1]))
+    f.reset(np.array([0.5, 0.0, 0.2, 3.04]))  # within state_tolerance_rad (0.05): taken, and turned back inside
+    assert f(np.array([0.5, 0.0, 0.2, 3.0, 0.5]))[3] == 3.0
+    full = SafetyFilter(SafetyLimits(max_rotation_rad=0.1))
+    full.reset(np.array([0.5, 0.0, 0.2, 3.13]))  # any yaw is inside the full circle
+    assert full(np.array([0.5, 0.0, 0.2, -3.13, 0.5]))[3] == pytest.approx(-3.13)  # 0.0232 rad through the seam
+
+
 def test_gripper_clipped_to_limits():
     f = make_filter()
     assert f(np.array([0.5, 0, 0.2, 0, 1.0]))[4] == pytest.approx(0.9)
