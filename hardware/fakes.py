@@ -30,7 +30,8 @@ from hardware.interfaces import (
 class FakeArm(Arm):
     """Arm whose pose jumps to every target. ``error_code`` != 0 makes ``state``/``servo`` raise ArmFault;
     ``servo_delay_s`` makes each ``servo`` block that long (clock seconds: a VirtualClock lets the loop's
-    watchdog thread run meanwhile), like a hung controller."""
+    watchdog thread run meanwhile), like a hung controller. Like the xArm, a stopped arm refuses ``servo`` until
+    ``connect`` enables motion again."""
 
     def __init__(self, pose=(0.4, 0.0, 0.2, 0.0), clock: Clock | None = None, log: list | None = None):
         self.pose = np.asarray(pose, dtype=np.float64).copy()
@@ -50,14 +51,19 @@ class FakeArm(Arm):
         self._check()
         return ArmState(self.pose.copy(), self.clock.now())
 
+    def connect(self) -> None:
+        self.log.append(("arm-connect", None))
+        self.stopped = False
+
     def servo(self, target) -> None:
         self._check()
+        if self.stopped:
+            raise ArmFault("fake arm: stopped; call connect() to enable motion again")
         self.log.append(("servo", np.asarray(target, dtype=np.float64).copy()))
         if self.servo_delay_s:
             self.clock.sleep_until(self.clock.now() + self.servo_delay_s)
             self.log.append(("servo-returned", None))
         self.pose = np.asarray(target, dtype=np.float64).copy()
-        self.stopped = False
 
     def stop(self) -> None:
         self.log.append(("arm-stop", None))

@@ -233,7 +233,8 @@ class _Device(abc.ABC):
 
     @abc.abstractmethod
     def stop(self) -> None:
-        """Stop motion now. Safe to call repeatedly, from any thread, and before ``connect``."""
+        """Stop motion now. Safe to call repeatedly, from any thread, and before ``connect``. A stopped device may
+        refuse motion until ``connect`` makes it ready again (the xArm does)."""
 
     def close(self) -> None:
         """Release the connection (after ``stop``)."""

@@ -21,7 +21,7 @@ from controltac_il.tactile.dataset import load_dataset
 from controltac_il.tactile.residual import residual_magnitude, to_residual
 from envs.config import PegInHoleConfig
 from envs.sim_robot import SimRobot
-from hardware.interfaces import GRIPPER, ForceSample, ForceSensor, HardwareError, SensorError
+from hardware.interfaces import GRIPPER, Arm, ArmFault, ForceSample, ForceSensor, HardwareError, SensorError
 from hardware.ur import URArm, URForce
 from hardware.xarm import XArm, XArmForce
 
@@ -96,8 +96,34 @@ class Spiking(ForceSensor):
         return ForceSample(s.normal_n + (9.0 if s.normal_n > 4.0 else 0.0), s.timestamp)
 
 
-def test_force_past_the_abort_stops_backs_out_and_writes_nothing(tmp_path):
+class Latching(Arm):
+    """The simulated arm under the xArm's contract: once stopped, ``servo`` refuses until ``connect``."""
+
+    def __init__(self, inner):
+        self.inner, self.stopped = inner, False
+
+    def connect(self):
+        self.inner.connect()
+        self.stopped = False
+
+    def stop(self):
+        self.stopped = True
+        self.inner.stop()
+
+    def state(self):
+        return self.inner.state()
+
+    def servo(self, target):
+        if self.stopped:
+            raise ArmFault("stopped; call connect() to enable motion again")
+        self.inner.servo(target)
+
+
+@pytest.mark.parametrize("latching", [False, True])
+def test_force_past_the_abort_stops_backs_out_and_writes_nothing(tmp_path, latching):
+    """The abort stops the arm; backing out enables it again first (an xArm refuses motion once stopped)."""
     with SimRobot(SCENE, seed=0) as robot:
+        robot.arm = Latching(robot.arm) if latching else robot.arm
         with pytest.raises(ForceLimitExceeded, match="fz_abort 12"):
             record_presses(robot, "left", Spiking(robot.force["left"]), PressPlan(presses=2), robot.squeeze_pose(),
                            tmp_path / "recs")

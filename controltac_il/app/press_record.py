@@ -287,7 +287,9 @@ def record_presses(setup, sensor: str, force: ForceSensor, plan: PressPlan, star
 
 
 def _back_out(loop: ControlLoop, ctrl: PressController) -> None:
-    """After an abort: the same loop and limits take the finger back to the start, gripper open."""
+    """After an abort: the same loop and limits take the finger back to the start, gripper open (the arm enabled
+    again first: the abort stopped it, and an xArm refuses motion until then)."""
     ctrl.abort()
+    loop.arm.connect()
     loop.run(max_steps=ctrl.plan.steps_per_press(), on_step=lambda *_: ctrl.phase == "done")
 
