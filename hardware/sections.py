@@ -93,6 +93,11 @@ class RobotConfig:
         if self.type == "xarm" and self.ip is not None and ":" in self.ip:
             problems.add("ip", "the xArm SDK connects over IPv4 only: expected an address such as 192.168.1.221",
                          self.ip)
+        if any(abs(a) > np.pi for a in self.tool_rpy):
+            problems.add("tool_rpy", "each angle must be within [-pi, pi] rad (degrees?)", list(self.tool_rpy))
+        if np.linalg.norm(self.tool_rotvec) > np.pi + 1e-9:
+            problems.add("tool_rotvec", "a rotation vector's length is its angle, at most pi rad (degrees?)",
+                         list(self.tool_rotvec))
         if self.type == "ur" and self.model is None:
             problems.missing("model", f"required for a UR arm (its reach bounds the workspace): one of "
                                       f"{', '.join(MODELS_OF['ur'])}")

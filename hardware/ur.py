@@ -19,7 +19,7 @@ from controltac_il.config import one_line
 from controltac_il.extras import require
 from hardware.interfaces import Arm, ArmFault, ArmState, Clock, ForceSample, ForceSensor, SensorError, WallClock
 from hardware.net import preflight, unreachable
-from hardware.pose import tool_rotation, yaw_of
+from hardware.pose import tilt_problem, tool_rotation, yaw_of
 
 SAFETY_MODES = {1: "normal", 2: "reduced", 3: "protective stop", 4: "recovery", 5: "safeguard stop",
                 6: "system emergency stop", 7: "robot emergency stop", 8: "violation", 9: "fault",
@@ -93,7 +93,11 @@ class URArm(Arm):
     def state(self) -> ArmState:
         self.check()
         x, y, z, rx, ry, rz = self.receive.getActualTCPPose()
-        yaw = yaw_of(Rotation.from_rotvec([rx, ry, rz]), self.r0)
+        r = Rotation.from_rotvec([rx, ry, rz])
+        problem = tilt_problem(r, self.r0, "tool_rotvec")
+        if problem:
+            raise self._fault(problem)
+        yaw = yaw_of(r, self.r0)
         return ArmState(np.array([x, y, z, yaw]), self.clock.now())
 
     def servo(self, target) -> None:

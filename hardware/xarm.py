@@ -31,7 +31,7 @@ from controltac_il.extras import require
 from hardware.interfaces import (Arm, ArmFault, ArmState, Clock, ForceSample, ForceSensor, Gripper, GripperState, HardwareError,
                                  SensorError, WallClock)
 from hardware.net import preflight, unreachable
-from hardware.pose import tool_rotation, yaw_of
+from hardware.pose import tilt_problem, tool_rotation, yaw_of
 from hardware.safety import wrap_angle
 
 MODE_SERVO = 1
@@ -134,6 +134,9 @@ class XArm(Arm):
         self._ok(code, "get_position")
         x, y, z, roll, pitch, yaw = pose
         r = Rotation.from_euler("xyz", [roll, pitch, yaw])
+        problem = tilt_problem(r, self.r0, "tool_rpy")
+        if problem:
+            raise self._fault(problem)
         return ArmState(np.array([x / 1000, y / 1000, z / 1000, yaw_of(r, self.r0)]), self.clock.now(), err, warn)
 
     def _send(self, pose4: np.ndarray) -> int:

@@ -340,6 +340,25 @@ def test_ur_reduced_mode_still_moves():
     assert [c[0] for c in rtde.calls] == ["servoL", "servoL"]
 
 
+def test_a_tool_tilted_from_its_configured_orientation_is_a_fault_before_any_motion():
+    """The commands say [x, y, z, yaw] about a fixed tool orientation: a tool tilted 20 deg from it (or a setting
+    in the wrong units) would be turned by all of it within one period. The loop stops the arm instead."""
+    tilted = Rotation.from_euler("y", 0.35) * Rotation.from_euler("x", math.pi)  # 20 deg off straight down
+    api = StubXArmAPI(pose_mm=(400.0, 0.0, 200.0, *tilted.as_euler("xyz")))
+    arm = XArm("ip", api=api, stream_hz=None)
+    arm.connect()
+    with pytest.raises(ArmFault, match=r"the tool is tilted 20\.1 deg from the orientation tool_rpy configures"):
+        ControlLoop(arm, lambda obs: np.tile([0.4, 0.0, 0.2, 0.0, 0.0], (5, 1)), limits=SafetyLimits(),
+                    config=ControlLoopConfig(inference="sync", chunk_size=5), clock=VirtualClock()).run(max_steps=3)
+    assert "set_servo_cartesian" not in names(api.calls)
+    rtde = StubRTDE()
+    rtde.tcp = [0.4, 0.0, 0.2, *(Rotation.from_euler("z", 0.4) * Rotation.from_euler("x", math.pi - 0.1)).as_rotvec()]
+    with pytest.raises(ArmFault, match=r"tilted 5\.7 deg from the orientation tool_rotvec configures"):
+        URArm("ip", control=rtde, receive=rtde).state()
+    rtde.tcp[3:] = (Rotation.from_euler("z", 0.4) * Rotation.from_euler("x", math.pi - 0.05)).as_rotvec()
+    assert URArm("ip", control=rtde, receive=rtde).state().pose[3] == pytest.approx(0.4, abs=0.01)  # 2.9 deg: within
+
+
 @pytest.mark.parametrize("kwargs, field", [(dict(lookahead_time=0.5), "lookahead_time"), (dict(gain=50), "gain"),
                                            (dict(period_s=0), "period_s")])
 def test_ur_bad_settings(kwargs, field):
