@@ -25,6 +25,8 @@ from lerobot_fixtures import FORCES, FPS, LEFT, LENGTHS, RIGHT, WRIST, H, W, aug
 
 
 def test_originals_then_copies_renumbered_with_every_other_column_copied(written):
+    """Copies differ from their source only in the numbering, the regenerated tactile frames and their force labels
+    (the force a frame shows, in the label column's own type)."""
     root, out, counts, _ = written
     src, dst = pq.read_table(root / "data" / "chunk-000" / "file-000.parquet"), LeRobotFolder(out)
     assert counts["published"] and not staging_dir(out).exists()
@@ -37,8 +39,10 @@ def test_originals_then_copies_renumbered_with_every_other_column_copied(written
         assert got.column("index").to_pylist() == list(range(dst.episodes[j]["dataset_from_index"],
                                                               dst.episodes[j]["dataset_to_index"]))
         assert got.column("augment.copy").to_pylist() == [k] * LENGTHS[e]
-        same = [c for c in want.column_names if c not in ("episode_index", "index") and (k == 0 or c != LEFT)]
+        regenerated = (LEFT, *FORCES.values())
+        same = [c for c in want.column_names if c not in ("episode_index", "index") and (k == 0 or c not in regenerated)]
         assert all(got.column(c).equals(want.column(c)) for c in same)  # originals: bit for bit
+        assert all(got.schema.field(c).type == want.schema.field(c).type for c in want.column_names)
         if k == 0:
             assert got.column(LEFT).equals(want.column(LEFT)) and got.column("index").equals(want.column("index"))
     assert dst.tasks == ["task 0", "task 1"] and dst[len(dst) - 1]["task"] == "task 1"
@@ -62,6 +66,7 @@ def test_copies_hold_force_augments_frames_and_provenance(written):
         for key, name in ((LEFT, "gelsight_left"), (RIGHT, "gelsight_right")):
             status = int(info[f"status.{key}"])
             assert int(got[f"augment.{name}.status"]) == status
+            assert torch.equal(got[FORCES[key]], want[FORCES[key]])  # the label: the force the frame shows, as items
             if status in (STATUS["regenerated"], STATUS["clamped"]):
                 regenerated += 1
                 assert torch.allclose(got[f"augment.{name}.target_force"], info[f"target_force.{key}"])

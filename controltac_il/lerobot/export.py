@@ -329,10 +329,14 @@ class LeRobotExport:
     def _write_episode(self, j: int, src: _Source, regenerated: dict, prov: dict, counts: dict) -> dict:
         """Data file and videos of output episode ``j`` (a copy of ``src``); returns its meta row."""
         L, start, e = len(src.table), int(self.starts[j]), src.index
-        out = src.table
+        out, relabelled = src.table, []
         for key, (rows, images) in regenerated.items():
             if self.source.features[key]["dtype"] == "image" and len(rows):
                 out = _replace_images(out, key, rows, images)
+            label = self.aug.keys.labels[key]
+            if label is not None and len(rows):  # a regenerated frame's label is the force it was generated at
+                out = _replace_rows(out, label, rows, prov[f"{PREFIX}.{self.names[key]}.target_force"][rows])
+                relabelled.append(label)
         out = _set(out, "episode_index", np.full(L, j, np.int64))
         out = _set(out, "index", np.arange(start, start + L, dtype=np.int64))
         for name, values in prov.items():
@@ -351,7 +355,7 @@ class LeRobotExport:
             writer["regenerated"] += len(rows)
         for name, value in writer.items():
             counts[name] += value
-        for key in ("episode_index", "index", *prov):
+        for key in ("episode_index", "index", *relabelled, *prov):
             stats[key] = vector_stats(numbers(out.column(key)), key)
         row["stats"] = {key: stats[key] for key in self.features() if key in stats}
         return {**row, "writer": writer}
@@ -477,6 +481,14 @@ def _arrow(values: np.ndarray) -> pa.Array:
 def _set(table: pa.Table, name: str, values: np.ndarray) -> pa.Table:
     i = table.schema.get_field_index(name)
     return table.set_column(i, table.schema.field(i), pa.array(values, type=table.schema.field(i).type))
+
+
+def _replace_rows(table: pa.Table, name: str, rows: np.ndarray, values: np.ndarray) -> pa.Table:
+    """Vector column ``name`` with ``values`` (len(rows), D) at ``rows``, in the column's own type."""
+    i = table.schema.get_field_index(name)
+    column = numbers(table.column(i)).copy()
+    column[rows] = values
+    return table.set_column(i, table.schema.field(i), _arrow(column).cast(table.schema.field(i).type))
 
 
 def _replace_images(table: pa.Table, key: str, rows: np.ndarray, images: list) -> pa.Table:
