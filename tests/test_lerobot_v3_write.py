@@ -420,3 +420,30 @@ def test_train_act_names_a_lerobot_folders_tactile_cameras(written, tmp_path, mo
         assert train_act.main(["--dataset", str(root), "--out", str(tmp_path / "bad"), *flags, *args]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and named in err, err
+
+
+def test_an_augmented_folder_splits_by_recorded_episode_keeping_copies_out_of_validation(written, tmp_path):
+    """Training on a folder the augment command wrote holds out a recorded episode with all its copies: training
+    sees no copy of a validation episode, and validation is on recorded frames only."""
+    from controltac_il.lerobot import LeRobotEpisodes
+    from policies.act.data import split_by_episode
+
+    root, out, _, _ = written
+    ds = LeRobotEpisodes(out, chunk_size=4)
+    assert ds.recorded_episode == {j: j % 2 for j in range(6)}  # originals 0, 1; copy k of e at 2 k + e
+    assert LeRobotEpisodes(root, chunk_size=4).recorded_episode == {0: 0, 1: 1}
+    episodes, _ = ds.frame_table()
+    train, val = split_by_episode(ds, 0.5, seed=0, recorded=ds.recorded_episode)
+    (held,) = set(episodes[val].tolist())
+    assert held in (0, 1) and set(episodes[train].tolist()) == {j for j in range(6) if j % 2 != held}
+    assert len(val) == LENGTHS[held]
+    edited = tmp_path / "edited"
+    shutil.copytree(out, edited)
+    path = next(p for p in sorted((edited / "data").glob("*/*.parquet"))
+                if pq.read_table(p).column("episode_index")[0].as_py() == 2)
+    table = pq.read_table(path)
+    i = table.schema.get_field_index("augment.copy")
+    pq.write_table(table.set_column(i, table.schema.field(i), pa.array([2] * len(table), table.schema.field(i).type)),
+                   path)
+    with pytest.raises(ValueError, match=r"^root: edited's augment.copy column does not follow the augment command's"):
+        LeRobotEpisodes(edited, chunk_size=4)

@@ -15,6 +15,9 @@ Per item, from the folder's (``LeRobotFolder``, without LeRobot)::
 Default tactile keys: the cameras whose name holds "gelsight", "tactile" or "digit"; default force key of
 ``observation.images.<s>``: ``observation.<s>.force`` where the folder has it. ``stats`` (qpos and action
 mean / std, std floored at ``STD_FLOOR``) come from the data's columns, no image decoded.
+``recorded_episode`` says which recorded episode each episode is, or is a ForceAugment copy of (a folder the
+augment command wrote: originals first, then copy k of the n recorded episodes' episode e at k n + e), so that a
+split by episode keeps an episode and its copies on one side.
 """
 
 from __future__ import annotations
@@ -34,11 +37,13 @@ from controltac_il.config import is_int
 from controltac_il.datasets.act_dataset import STD_FLOOR
 from controltac_il.datasets.background import estimate_background
 from controltac_il.datasets.checks import check_force_labels
+from controltac_il.lerobot.export import PREFIX
 from controltac_il.lerobot.reader import LeRobotFolder, decode_png, numbers, read_info
 from controltac_il.streams import (HDF5, LEROBOT, LEROBOT_STATE, background_key, force_key, lerobot_name,
                                    lerobot_to_hdf5)
 
 TACTILE_WORDS = ("gelsight", "tactile", "digit")
+COPY = f"{PREFIX}.copy"  # the augment command's per-frame copy number (0: recorded)
 
 
 def _numeric(root: Path, keys: list[str]) -> dict[str, np.ndarray]:
@@ -99,12 +104,30 @@ class LeRobotEpisodes(Dataset):
         self.episode_ids = sorted(self.folder.episodes)
         self._position = {e: n for n, e in enumerate(self.episode_ids)}
         self.lengths = np.asarray([int(self.folder.episodes[e]["length"]) for e in self.episode_ids], np.int64)
-        columns = _numeric(self.root, list(dict.fromkeys([LEROBOT_STATE, "action", *self.force_keys.values()])))
+        copies = [COPY] if COPY in features else []
+        columns = _numeric(self.root, list(dict.fromkeys([LEROBOT_STATE, "action", *self.force_keys.values(), *copies])))
+        self.recorded_episode = self._recorded(columns.get(COPY))
         self.stats = {name: {"mean": v.mean(0).astype(np.float32), "std": np.maximum(v.std(0), STD_FLOOR).astype(np.float32)}
                       for name, v in (("qpos", columns[LEROBOT_STATE]), ("action", columns["action"]))}
         for key in self.force_keys.values():  # finite, in N, Fz > 0 pressing, as an HDF5 episode's labels
             check_force_labels(f"{self.root.name}: {key}", columns[key])
         self.backgrounds = self._backgrounds()
+
+    def _recorded(self, copy: np.ndarray | None) -> dict[int, int]:
+        """{episode: the recorded episode it is or copies}, from the ``augment.copy`` column (N, 1) in row order
+        (None: a folder ForceAugment did not write, every episode recorded); ValueError where that column does not
+        follow the augment command's layout."""
+        ids = self.episode_ids
+        if copy is None:
+            return {e: e for e in ids}
+        episodes, _ = self.frame_table()
+        first = {int(e): int(copy[i, 0]) for i, e in reversed(list(enumerate(episodes)))}
+        n = sum(first[e] == 0 for e in ids)
+        if n == 0 or len(ids) % n or any(first[e] != pos // n for pos, e in enumerate(ids)):
+            raise ValueError(f"root: {self.root.name}'s {COPY} column does not follow the augment command's layout "
+                             "(its recorded episodes first, then each copy of them in turn), so no episode can be "
+                             "told from its copies")
+        return {e: ids[pos % n] for pos, e in enumerate(ids)}
 
     @staticmethod
     def _forces(tactile: list[str], force_keys, features: dict) -> dict[str, str]:

@@ -47,18 +47,28 @@ def check_compatible(config: ACTConfig, spec: DataSpec, where: str = "dataset") 
         raise ValueError(f"{where} has qpos of dimension {spec.state_dim}, the checkpoint expects {config.state_dim}")
 
 
-def split_by_episode(ds: EpisodeDataset, val_fraction: float, seed: int = 0) -> tuple[list[int], list[int]]:
-    """Frame indices of (train, validation) with whole episodes held out; no validation for 1 episode."""
+def split_by_episode(ds: EpisodeDataset, val_fraction: float, seed: int = 0,
+                     recorded: dict[int, int] | None = None) -> tuple[list[int], list[int]]:
+    """Frame indices of (train, validation) with whole recorded episodes held out; no validation for 1 episode.
+
+    recorded: {episode: the recorded episode it is or is a generated copy of} (LeRobotEpisodes'; None: every
+    episode is recorded). A held-out episode's copies are in neither set: training never sees a copy of a
+    validation episode, and validation is on recorded frames only."""
     if not 0.0 <= val_fraction < 1.0:
         raise ValueError(f"val_fraction must be in [0, 1), got {val_fraction!r}")
     episodes, _ = ds.frame_table()
-    ids = np.unique(episodes)
+    if recorded is not None:
+        lookup = {int(e): recorded[int(e)] for e in np.unique(episodes)}
+        source = np.array([lookup[int(e)] for e in episodes], dtype=np.int64)
+    else:
+        source = np.asarray(episodes)
+    ids = np.unique(source)
     n_val = int(round(val_fraction * len(ids))) if len(ids) > 1 else 0
     if val_fraction > 0 and len(ids) > 1:
         n_val = max(n_val, 1)
     val_ids = set(np.random.default_rng(seed).permutation(ids)[:n_val].tolist())
-    is_val = np.isin(episodes, list(val_ids))
-    return np.flatnonzero(~is_val).tolist(), np.flatnonzero(is_val).tolist()
+    is_val = np.isin(source, list(val_ids))
+    return np.flatnonzero(~is_val).tolist(), np.flatnonzero(is_val & (source == episodes)).tolist()
 
 
 @dataclass
@@ -89,7 +99,7 @@ def load_training_data(root: str | Path, chunk_size: int, val_fraction: float = 
         raise ValueError(f"tactile_keys / force_keys: only for a LeRobot v3.0 folder; {root} has no meta/info.json")
     else:
         ds = EpisodeDataset(root, chunk_size=chunk_size, stats_path=stats_path, tactile_sensors=tactile_sensors)
-    train_idx, val_idx = split_by_episode(ds, val_fraction, seed)
+    train_idx, val_idx = split_by_episode(ds, val_fraction, seed, getattr(ds, "recorded_episode", None))
     episodes, _ = ds.frame_table()
     stats = {k: {m: np.asarray(v).astype(float).tolist() for m, v in d.items()} for k, d in ds.stats.items()}
     backgrounds = {s: np.asarray(ds.backgrounds[(0, s)]) for s in ds.tactile_sensors}
