@@ -447,3 +447,18 @@ def test_an_augmented_folder_splits_by_recorded_episode_keeping_copies_out_of_va
                    path)
     with pytest.raises(ValueError, match=r"^root: edited's augment.copy column does not follow the augment command's"):
         LeRobotEpisodes(edited, chunk_size=4)
+
+
+def test_tactile_cameras_by_name_or_key_and_a_warning_where_none_is_named_as_one(written, monkeypatch):
+    """train_act's --tactile-keys takes a camera's key or its name, as the augment command does; a folder whose
+    cameras none is named as a tactile sensor trains on cameras only, and says so (the policy would see no touch)."""
+    from controltac_il.lerobot import LeRobotEpisodes
+    from controltac_il.lerobot import episodes as module
+
+    root = written[0]
+    assert LeRobotEpisodes(root, tactile_keys=["gelsight_left"]).tactile_keys == {"gelsight_left": LEFT}
+    assert LeRobotEpisodes(root, tactile_keys=[RIGHT]).tactile_keys == {"gelsight_right": RIGHT}
+    monkeypatch.setattr(module, "TACTILE_WORDS", ("digit",))  # as a folder whose cameras are gs_left, gs_right
+    with pytest.warns(UserWarning, match=r"no camera's name holds digit, so none is taken as a tactile sensor"):
+        ds = LeRobotEpisodes(root)
+    assert ds.tactile_sensors == [] and ds.cameras == ["gelsight_left", "gelsight_right", "wrist"]

@@ -33,7 +33,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "tactile cameras are those named gelsight / tactile / digit, their force labels "
                         "observation.<camera>.force) (default: collect/reuse the embedded MuJoCo demos)")
     p.add_argument("--tactile-keys", nargs="+", default=None, metavar="KEY",
-                   help="LeRobot folder: its tactile cameras (default: cameras named gelsight / tactile / digit)")
+                   help="LeRobot folder: its tactile cameras, by name (gs_left) or key (observation.images.gs_left) "
+                        "(default: cameras named gelsight / tactile / digit)")
     p.add_argument("--force-keys", nargs="+", default=None, metavar="TACTILE_KEY=FORCE_KEY",
                    help="LeRobot folder: the force label of each tactile camera (default: observation.<camera>.force)")
     p.add_argument("--out", type=Path, default=Path("runs/act"), help="output folder (default: runs/act)")

@@ -40,7 +40,7 @@ from controltac_il.datasets.checks import check_force_labels
 from controltac_il.lerobot.export import PREFIX
 from controltac_il.lerobot.reader import LeRobotFolder, decode_png, numbers, read_info
 from controltac_il.streams import (HDF5, LEROBOT, LEROBOT_STATE, background_key, force_key, lerobot_name,
-                                   lerobot_to_hdf5)
+                                   lerobot_to_hdf5, tactile_key)
 
 TACTILE_WORDS = ("gelsight", "tactile", "digit")
 COPY = f"{PREFIX}.copy"  # the augment command's per-frame copy number (0: recorded)
@@ -71,7 +71,9 @@ class LeRobotEpisodes(Dataset):
     Args:
         root: the folder (never written to).
         chunk_size: actions per item (ACT's N_a), >= 1.
-        tactile_keys: camera keys that are tactile streams (default: names holding TACTILE_WORDS).
+        tactile_keys: camera keys that are tactile streams, or their names (``gs_left`` for
+            ``observation.images.gs_left``); default: the cameras whose names hold TACTILE_WORDS, with a warning
+            where none does (the policy would see no touch).
         force_keys: {tactile key: force feature} (default: ``observation.<s>.force`` where present).
         tactile_sensors: tactile names to return (None = all; () = none: a vision-only policy).
     """
@@ -86,7 +88,15 @@ class LeRobotEpisodes(Dataset):
             if key not in features:
                 raise ValueError(f"root: {self.root} has no {key!r} feature (ACT needs the state and the actions)")
         cams = [k for k, ft in features.items() if ft["dtype"] in ("image", "video")]
-        every = [k for k in cams if any(w in k for w in TACTILE_WORDS)] if tactile_keys is None else list(tactile_keys)
+        if tactile_keys is None:
+            every = [k for k in cams if any(w in k for w in TACTILE_WORDS)]
+            if not every and tactile_sensors != ():
+                warnings.warn(f"{self.root.name}: no camera's name holds {' / '.join(TACTILE_WORDS)}, so none is "
+                              f"taken as a tactile sensor (cameras: {cams}); name them with --tactile-keys "
+                              "(tactile_keys)", stacklevel=2)
+        else:
+            every = [tactile_key(k, LEROBOT) if k not in cams and tactile_key(k, LEROBOT) in cams else k
+                     for k in tactile_keys]
         unknown = [k for k in every if k not in cams]
         if unknown:
             raise ValueError(f"tactile_keys: {unknown} are not cameras of the dataset ({cams})")
