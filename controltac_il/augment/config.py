@@ -78,7 +78,8 @@ class ForceAugmentConfig:
 
     Each field's help is in its metadata (``ForceAugmentConfig.help()``); the list follows."""
 
-    copies: int = _setting(4, "augmented copies per episode (>= 0); the wrapper has (copies + 1) x the wrapped length",
+    copies: int = _setting(4, "augmented copies per episode (>= 0; the command needs >= 1); the wrapper has (copies + 1) x "
+                              "the wrapped length",
                            type=int)
     offset_range: tuple[float, float] = _setting(
         (-3.0, 10.0), "(low, high) N: the per-copy normal-force offset is drawn from U[low, high]",
@@ -93,7 +94,8 @@ class ForceAugmentConfig:
                                          type=float, nargs="+")
     tactile_keys: tuple[str, ...] | None = _setting(
         None, "item keys of the tactile images; None = every key containing 'tactile' (but not "
-              "'tactile_background'); a plain sensor name s means observation.tactile.s", nargs="+")
+              "'tactile_background'); a plain sensor name s means observation.tactile.s, or "
+              "observation.images.s where the items have that", nargs="+")
     mode: str = _setting("cache", "'cache' (generate once, store, read back) or 'online' (generate on access; the "
                                   "same bytes as a cache built with the same torch thread count, which a cache "
                                   "records: DataLoader workers run one thread)",
