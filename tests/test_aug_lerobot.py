@@ -214,8 +214,7 @@ def test_online_equals_cache_exactly_at_any_batch_size_on_real_looking_frames(tm
     try:
         gen, ds = ForceGenerator.from_pretrained(), LeRobotLike(sensor_episodes(), uint8_hwc=True)
         caches = [wrap(ds, gen, None, tmp_path, f"b{bs}", batch_size=bs, copies=2) for bs in (1, 5)]
-        assert len({c.cache_dir for c in caches}) == 1 or all(
-            c.settings() == caches[0].settings() for c in caches)  # batch_size is not a setting of the frames
+        assert all(c.settings() == caches[0].settings() for c in caches)  # batch_size is not a setting of the frames
         assert caches[0].summary()["regenerated"] > 0
         online = wrap(ds, gen, None, copies=2)
         got = by_index(online, {"generator": torch.Generator().manual_seed(0)})

@@ -119,7 +119,7 @@ def test_a_recording_without_frames_beside_its_log_is_named(tmp_path):
         recordings_to_presses(tmp_path, tmp_path / "out")
 
 
-def test_colour_adapter_undoes_another_optics_colour_mix(frames):
+def test_colour_adapter_undoes_another_optics_colour_mix():
     """Residuals of the shipped estimator's own sensor family, colour-mixed as another optics would: the adapter,
     fitted on Fz labels alone, reads Fz better than zero-shot and than the constant, and Fx / Fy exactly as the
     base does; it is another estimator by hash."""

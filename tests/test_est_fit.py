@@ -100,11 +100,11 @@ def test_train_config_validation_and_schedule():
         lrs.append(opt.param_groups[0]["lr"])
         opt.step()
         sched.step()
-    # the hand-written schedule it replaced: warm-up (s + 1) / warmup, then cosine to min_lr
-    old = [t.lr * (s + 1) / t.warmup if s < t.warmup else
+    # the schedule by hand: warm-up (s + 1) / warmup, then cosine to min_lr
+    by_hand = [t.lr * (s + 1) / t.warmup if s < t.warmup else
            t.min_lr + 0.5 * (t.lr - t.min_lr) * (1 + math.cos(math.pi * (s - t.warmup) / (t.steps - t.warmup)))
            for s in range(t.steps)]
-    np.testing.assert_allclose(lrs, old, rtol=1e-12)
+    np.testing.assert_allclose(lrs, by_hand, rtol=1e-12)
     assert lrs[0] == pytest.approx(1e-4) and lrs[9] == pytest.approx(1e-3)
     assert lrs[99] == pytest.approx(1e-5, rel=0.05)
 

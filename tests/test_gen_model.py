@@ -84,7 +84,7 @@ def test_dit_and_generator_config_reject_bad_fields():
         small_config(detail_gate=4.0)
 
 
-def test_configs_written_before_the_refinement_head_and_detail_gate_still_load():
+def test_a_config_without_the_refinement_head_and_detail_gate_loads_with_both_off():
     d = small_config().to_dict()
     del d["dit"]["conv_head_width"], d["detail_gate"]
     cfg = GeneratorConfig.from_dict(d)
@@ -336,7 +336,7 @@ def test_ema_model_is_the_warmed_up_exponential_average():
 
 
 def test_run_state_without_optimizer_state_is_refused_when_resuming(tmp_path):
-    """A state in another layout (e.g. the estimator's old ``opt.*`` keys) must not resume with a reset AdamW."""
+    """A state in another layout (e.g. keys ``opt.*`` where AdamW's are expected) must not resume with a reset AdamW."""
     m, opt = _adam()
     save_run_state(tmp_path / "s", {"m": m}, {"step": 3, "param_groups": opt.state_dict()["param_groups"]})
     with pytest.raises(CheckpointError, match="no optimizer state"):

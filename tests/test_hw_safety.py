@@ -1,5 +1,6 @@
 """Safety filter and watchdog: exact clamping semantics, counts, violations, bad configuration."""
 
+import dataclasses
 import math
 import re
 
@@ -119,7 +120,7 @@ def test_limits_take_numpy_values_and_are_frozen():
     lim = SafetyLimits(workspace_min=np.array([0.1, -0.2, 0.0]), workspace_max=(0.5, 0.2, 0.4),
                        max_step_m=np.float32(0.01), yaw_max=np.float64(1.0))
     assert lim.workspace_min == (0.1, -0.2, 0.0) and lim.max_step_m == pytest.approx(0.01) and lim.yaw_max == 1.0
-    with pytest.raises(Exception, match="cannot assign"):
+    with pytest.raises(dataclasses.FrozenInstanceError, match="cannot assign"):
         lim.max_step_m = 0.05
     with pytest.raises(ValueError, match="max_step_m"):
         SafetyLimits(max_step_m=True)  # a boolean is not a distance

@@ -233,14 +233,14 @@ def test_unknown_or_malformed_object_names_are_refused(name):
 
 def test_no_procedural_shape_is_a_bumpy_cap_the_held_out_beads_family():
     """By construction: bumps are never drawn on a shape with a spherical cap, so no training shape is in
-    textured_bead's family (a bumpy cap); procedural_0057 was one (cap r 2.51 mm, bumps every 0.92 mm)."""
+    textured_bead's family (a bumpy cap); procedural_0057's cap (r 2.51 mm) is smooth."""
     shapes = [procedural_indenter(k) for k in range(3000)]
     assert not [s.name for s in shapes if "cap" in s.description and "bumps" in s.description]
     assert sum("bumps" in s.description for s in shapes) > 200  # the other shapes keep their texture
-    old = procedural_indenter(57)
-    assert "cap" in old.description and "bumps" not in old.description
+    cap = procedural_indenter(57)
+    assert "cap" in cap.description and "bumps" not in cap.description
     u, v = np.meshgrid(np.linspace(-6, 6, 121), np.linspace(-6, 6, 121))
-    h = old.relief(u, v)
+    h = cap.relief(u, v)
     assert np.all(np.diff(h[60, 40:61]) >= -1e-9)  # a smooth cap rises monotonically towards its top
 
 
