@@ -37,6 +37,24 @@ def recorded(tmp_path_factory):
     return out, summary
 
 
+def test_a_press_is_written_by_the_writer_thread_never_the_control_thread(tmp_path, monkeypatch):
+    """PNG encoding (about 5 ms a frame) on the control thread would hold it past the watchdog window on a robot."""
+    import threading
+
+    writers, imwrite = set(), cv2.imwrite
+
+    def recording(path, image):
+        writers.add(threading.current_thread().name)
+        return imwrite(path, image)
+
+    monkeypatch.setattr(cv2, "imwrite", recording)
+    with SimRobot(SCENE, seed=0) as robot:
+        summary = record_presses(robot, "left", robot.force["left"], PressPlan(presses=1), robot.squeeze_pose(),
+                                 tmp_path / "recs")
+    assert summary["presses"] == 1 and len(list((tmp_path / "recs" / "press_000").glob("*.png"))) > 10
+    assert len(writers) == 1 and next(iter(writers)).startswith("press-writer")
+
+
 def _log(path: Path) -> np.ndarray:
     return np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
 

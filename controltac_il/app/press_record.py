@@ -213,28 +213,43 @@ class PressController:
 
 
 class _Recordings:
-    """One recording per press under ``root``: frames as PNG and the force log as CSV (``calibrate.recordings``)."""
+    """One recording per press under ``root``: frames as PNG and the force log as CSV (``calibrate.recordings``).
+
+    A closed press is written by a writer thread: PNG encoding (about 5 ms a frame, 50-80 frames a press) would
+    hold the control thread past its watchdog window. ``finish`` waits for the writes and raises their error."""
 
     def __init__(self, root: Path):
+        from concurrent.futures import ThreadPoolExecutor
+
         self.root, self.peaks = root, []
         self._frames: list[np.ndarray] = []
         self._rows: list[tuple[float, float]] = []
+        self._writer, self._writes = ThreadPoolExecutor(1, thread_name_prefix="press-writer"), []
 
     def add(self, frame: np.ndarray, t: float, fz: float) -> None:
         self._frames.append(frame)
         self._rows.append((t, fz))
 
     def close_press(self, index: int) -> None:
+        self.peaks.append(max(fz for _, fz in self._rows))
+        self._writes.append(self._writer.submit(self._write, index, self._frames, self._rows))
+        self._frames, self._rows = [], []
+
+    def _write(self, index: int, frames: list[np.ndarray], rows: list[tuple[float, float]]) -> None:
         import cv2
 
         folder = self.root / f"press_{index:03d}"
         folder.mkdir()
-        for k, frame in enumerate(self._frames):
+        for k, frame in enumerate(frames):
             cv2.imwrite(str(folder / f"frame_{k:05d}.png"), cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
-        lines = ["t,fz", *(f"{t:.6f},{fz:.6f}" for t, fz in self._rows)]
+        lines = ["t,fz", *(f"{t:.6f},{fz:.6f}" for t, fz in rows)]
         (self.root / f"press_{index:03d}.csv").write_text("\n".join(lines) + "\n")
-        self.peaks.append(max(fz for _, fz in self._rows))
-        self._frames, self._rows = [], []
+
+    def finish(self) -> None:
+        """Wait for every press's files; the first write's error, if any, is raised."""
+        self._writer.shutdown(wait=True)
+        for write in self._writes:
+            write.result()
 
 
 def record_presses(setup, sensor: str, force: ForceSensor, plan: PressPlan, start, out: str | Path,
@@ -276,6 +291,8 @@ def record_presses(setup, sensor: str, force: ForceSensor, plan: PressPlan, star
         except ForceLimitExceeded:
             _back_out(loop, ctrl)
             raise
+        finally:
+            recs.finish()
         if ctrl.phase != "done":
             raise HardwareError(f"the presses did not finish within {budget} control periods (press {ctrl.press} "
                                 f"in phase {ctrl.phase}); is the object between the fingers at the start pose?")
