@@ -5,8 +5,9 @@ current-based position control, so the fingers close to a position but squeeze w
 
 from __future__ import annotations
 
+from controltac_il.config import one_line
 from controltac_il.extras import require
-from hardware.interfaces import Clock, Gripper, GripperState, HardwareError, WallClock
+from hardware.interfaces import SERIAL_ERRORS, Clock, Gripper, GripperState, HardwareError, WallClock
 
 ADDR_OPERATING_MODE = 11  # 1 byte, EEPROM (write with torque off)
 ADDR_TORQUE_ENABLE = 64  # 1 byte
@@ -63,7 +64,11 @@ class DynamixelGripper(Gripper):
             raise HardwareError(f"{self._where()}: not connected (call connect())")
         problems = []
         for _ in range(1 + self.retries):
-            out = fn(self._port, self.dxl_id, *args)
+            try:
+                out = fn(self._port, self.dxl_id, *args)
+            except SERIAL_ERRORS as exc:  # a fault of the run (exit 1), never a traceback or a usage error
+                raise HardwareError(f"{self._where()}: {what}: the serial line failed: {one_line(exc)}; "
+                                    "unplugged?") from None
             value, result, error = (None, *out) if len(out) == 2 else out
             if result != dxl.COMM_SUCCESS:
                 problems.append(self._packet.getTxRxResult(result))

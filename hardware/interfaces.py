@@ -26,6 +26,14 @@ class HardwareError(RuntimeError):
     """A device reported a fault or stopped answering; the message says which and why."""
 
 
+try:  # what a serial line raises when its adapter is unplugged: pyserial's SerialException (an OSError), termios'
+    from termios import error as _TermiosError
+
+    SERIAL_ERRORS: tuple[type[BaseException], ...] = (OSError, _TermiosError)
+except ImportError:  # not POSIX
+    SERIAL_ERRORS = (OSError,)
+
+
 class ArmFault(HardwareError):
     """The arm controller reported an error code, a protective stop or lost connection."""
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from controltac_il.config import one_line
 from controltac_il.extras import require
-from hardware.interfaces import Clock, Gripper, GripperState, HardwareError, WallClock
+from hardware.interfaces import SERIAL_ERRORS, Clock, Gripper, GripperState, HardwareError, WallClock
 
 serial = require("serial", "robotiq", "the Robotiq gripper")
 
@@ -69,6 +69,14 @@ class RobotiqGripper(Gripper):
             raise HardwareError(f"robotiq on {self.port}: not connected (call connect())")
         frame = bytes([self.slave_id]) + pdu
         frame += crc16_modbus(frame).to_bytes(2, "little")
+        try:
+            return self._exchange(frame, pdu, what)
+        except SERIAL_ERRORS as exc:  # a fault of the run (exit 1), never a traceback or a usage error
+            raise HardwareError(f"robotiq on {self.port}: {what}: the serial line failed: {one_line(exc)}; "
+                                "unplugged?") from None
+
+    def _exchange(self, frame: bytes, pdu: bytes, what: str) -> bytes:
+        """One request with retries: the reply, checked; HardwareError naming what failed."""
         problems = []
         for _ in range(1 + self.retries):
             self._ser.reset_input_buffer()

@@ -237,3 +237,19 @@ def test_garbage_on_the_gripper_line_mid_run_stops_the_arm(kind):
         dev.garbage_replies = 0  # let the gripper's own stop on exit through
     events = [e for e, _ in log]
     assert events.count("servo") == 3 and events[-1] == "arm-stop"
+
+
+@pytest.mark.parametrize("kind", ["robotiq", "dynamixel"])
+def test_an_unplugged_adapter_is_a_hardware_error_never_a_traceback(kind):
+    """The device side of the pty closes, as a USB adapter pulled out: the next exchange fails in the serial stack
+    (termios' EIO, which is not an OSError) and is reported as a device fault, the run's exit 1."""
+    clock = VirtualClock()
+    device = (FakeRobotiq2F85 if kind == "robotiq" else FakeDynamixelServo)(clock=clock)
+    client = RobotiqGripper if kind == "robotiq" else DynamixelGripper
+    with device as dev:
+        gripper = client(dev.port, clock=clock)
+        gripper.connect()
+        dev.close()
+        with pytest.raises(HardwareError, match=r"the serial line failed: .*Input/output error.*; unplugged\?$"):
+            gripper.state()
+        gripper.close()
