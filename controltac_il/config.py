@@ -57,7 +57,7 @@ class JsonConfig:
 def one_line(exc: BaseException, flags: Mapping[str, str] | None = None) -> str:
     """One line for an error: a pydantic ValidationError becomes ``field: problem (got value)`` per error, the
     field spelled as its CLI flag where ``flags`` maps it (``{"steps": "--steps"}``); other errors their message
-    with line breaks folded."""
+    with line breaks folded, and their notes after it (e.g. a device that failed to stop after the fault)."""
     errors = getattr(exc, "errors", None)
     if callable(errors) and type(exc).__name__ == "ValidationError":
         grouped: dict[tuple[str, str], tuple[list[str], str]] = {}
@@ -78,7 +78,8 @@ def one_line(exc: BaseException, flags: Mapping[str, str] | None = None) -> str:
         parts = [f"{name}{'[' + ', '.join(items) + ']' if items else ''}: {msg}{shown}"
                  for (name, msg), (items, shown) in grouped.items()]
         return "; ".join(parts)
-    return " ".join(str(exc).split()) or type(exc).__name__
+    return "; ".join(" ".join(str(part).split()) for part in [str(exc) or type(exc).__name__,
+                                                             *getattr(exc, "__notes__", ())])
 
 
 def one_line_errors(cls):

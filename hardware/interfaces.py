@@ -251,11 +251,19 @@ class _Device(abc.ABC):
         self.connect()
         return self
 
-    def __exit__(self, *exc) -> None:
-        try:
-            self.stop()
-        finally:
-            self.close()
+    def __exit__(self, exc_type, exc, tb) -> None:
+        """Stop, then close, whatever happened. While an exception propagates (the fault that ended the run), a
+        failure to stop or close is a note on it, never its replacement."""
+        failures = []
+        for step in (self.stop, self.close):
+            try:
+                step()
+            except Exception as failure:  # noqa: BLE001 - whatever stop raised, close still runs
+                failures.append((step.__name__, failure))
+        if failures and exc is None:
+            raise failures[0][1]
+        for name, failure in failures:
+            exc.add_note(f"{type(self).__name__}.{name} failed too: {failure}")
 
 
 class Arm(_Device):

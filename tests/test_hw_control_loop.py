@@ -261,6 +261,29 @@ def test_arm_error_code_stops_arm():
     assert_stopped_after_last_command(log)
 
 
+class DeadGripper(FakeGripper):
+    """A gripper whose line died: stopping it fails."""
+
+    def stop(self):
+        raise SensorError("writing the action request failed")
+
+
+def test_a_device_that_fails_to_stop_on_exit_notes_it_on_the_fault_that_ended_the_run():
+    """The run's own fault (the arm's error code) is what surfaces; the gripper's failed stop is a note on it. With
+    no fault, a failed stop is raised."""
+    clock = VirtualClock()
+    loop, arm, log = make(clock, RampPolicy())
+    arm.error_code = 31
+    with pytest.raises(ArmFault, match="error code 31") as info:
+        with DeadGripper(clock, log):
+            loop.run(max_steps=3)
+    assert info.value.__notes__ == ["DeadGripper.stop failed too: writing the action request failed"]
+    assert one_line(info.value).endswith("error code 31; DeadGripper.stop failed too: writing the action request failed")
+    with pytest.raises(SensorError, match="writing the action request failed"):
+        with DeadGripper(clock, log):
+            pass
+
+
 def test_measured_pose_outside_workspace_stops_arm():
     loop, arm, log = make(VirtualClock(), RampPolicy())
 
