@@ -455,6 +455,8 @@ class ControlLoop:
             if watchdog.tripped is not None:
                 raise WatchdogTimeout(watchdog.tripped)
             self.arm.servo(target[:POSE_DIM])
+            if watchdog.tripped is not None:  # tripped while the arm's command was in flight: no gripper after it
+                raise WatchdogTimeout(watchdog.tripped)
             if self.gripper is not None:
                 self.gripper.command(float(target[GRIPPER]))
             self._last_grip = float(target[GRIPPER])

@@ -315,6 +315,7 @@ def test_hung_arm_is_stopped_by_the_watchdog_thread(inference):
     events = [e for e, _ in log]
     hung = events.index("servo-returned")
     assert "arm-stop" in events[:hung], "the watchdog thread must stop the arm while servo() hangs"
+    assert "gripper" not in events[hung:], "no gripper command after a servo() the watchdog stopped"
     # last command at t = 0.2 s, limit 0.2 s, checked every 0.05 s: stopped at 0.45 s, long before 0.9 s
     assert stop_times[0] == pytest.approx(0.45) and clock.now() == pytest.approx(0.9)
     assert_stopped_after_last_command(log)
