@@ -7,7 +7,8 @@ Duplicated keys and a missing ``limits`` section (the workspace box is the user'
 Beyond types and ranges, a setup must be physically plausible for its robot (:data:`ARM_MODELS`): the
 workspace box within the arm's reach and above its base, the largest step and turn per control period
 within 0.25 m/s and 1 rad/s at ``control.rate_hz``, gripper positions and IDs within the device's range,
-a controller address the SDK can connect to, sensible rates.
+a controller address the SDK can connect to, sensible rates, a robot's watchdog window between 1.5 periods and
+0.5 s with every camera's frames fresher than it.
 The chunk size and the ensembling decay are the policy's (its checkpoint): a setup file that states them is
 refused, and :func:`loop_config` checks the setup's timing against the policy's chunk (the inference deadline
 must fit in one chunk) when a deployment builds the loop, before anything connects.
@@ -45,6 +46,8 @@ class ConfigError(ValueError):
 MAX_SPEED_M_S = 0.25  # largest end-effector speed a setup may allow (max_step_m * rate_hz)
 MAX_TURN_RAD_S = 1.0  # largest yaw rate a setup may allow (max_rotation_rad * rate_hz)
 MAX_ROBOT_RATE_HZ = 100.0  # control rate of a real arm (the adapters stream between targets)
+MAX_WATCHDOG_S = 0.5  # longest a robot may go without a fresh command or frame before the watchdog stops it
+MIN_STALE_PERIODS = 1.5  # below, the watchdog trips between two commands on time
 CONNECT_TIMEOUT_S: float | None = 3.0  # an arm controller must accept a TCP connection within this (None: no pre-flight)
 
 
@@ -115,6 +118,8 @@ class SetupConfig:
             problems.add("gripper.type", "an xarm gripper needs robot.type xarm", self.gripper.type)
         _box_problems(problems, self.limits, self.robot.arm)
         _rate_problems(problems, self)
+        if self.robot.type != "sim":
+            _watchdog_problems(problems, self)
         problems.raise_any()
         return self
 
@@ -152,6 +157,25 @@ def _rate_problems(problems: Problems, cfg: SetupConfig) -> None:
                          f"{rate:g} Hz)", value)
     if cfg.robot.type == "xarm" and cfg.robot.stream_hz < rate:
         problems.add("robot.stream_hz", f"must be at least control.rate_hz ({rate:g})", cfg.robot.stream_hz)
+
+
+def _watchdog_problems(problems: Problems, cfg: SetupConfig) -> None:
+    """A robot's watchdog window (stale_after_periods periods) between MIN_STALE_PERIODS periods and
+    MAX_WATCHDOG_S, and every camera's frame interval inside it (else each frame would trip it)."""
+    control = cfg.control
+    window = control.stale_after_periods / control.rate_hz
+    if control.stale_after_periods < MIN_STALE_PERIODS:
+        problems.add("control.stale_after_periods", f"at least {MIN_STALE_PERIODS:g}: below, the watchdog trips "
+                     "between two commands sent on time", control.stale_after_periods)
+    elif window > MAX_WATCHDOG_S:
+        problems.add("control.stale_after_periods", f"{control.stale_after_periods:g} periods at "
+                     f"{control.rate_hz:g} Hz is {window:.3g} s without a command or frame before the arm stops; "
+                     f"at most {MAX_WATCHDOG_S:g} s", control.stale_after_periods)
+    for section, devices in (("cameras", cfg.cameras), ("tactile", cfg.tactile)):
+        for name, device in devices.items():
+            if device.fps is not None and 1.0 / device.fps >= window:
+                problems.add(f"{section}.{name}.fps", f"a frame every {1.0 / device.fps:.3g} s is no fresher than "
+                             f"the watchdog's {window:.3g} s window: every frame would stop the arm", device.fps)
 
 
 # -- reading ---------------------------------------------------------------------------------------

@@ -66,6 +66,15 @@ def with_(base, **sections):
     (with_(XARM, control={"chunk_size": 20}),  # the policy's (its checkpoint), checked against it at deployment
      r"control\.chunk_size: the chunk size is the policy's: deployment takes it from the checkpoint"),
     (with_(XARM, cameras={"wrist": {"device": 0, "fps": 500}}), r"cameras\.wrist\.fps: Input should be less than or equal to 240"),
+    # the watchdog: a window that catches a silent thread, and frames fresher than it
+    (with_(XARM, control={"stale_after_periods": 1e6}),
+     r"control\.stale_after_periods: 1e\+06 periods at 10 Hz is 1e\+05 s without a command or frame before the arm "
+     r"stops; at most 0\.5 s \(got 1000000\.0\)"),
+    (with_(XARM, control={"stale_after_periods": 0.5}),
+     r"control\.stale_after_periods: at least 1\.5: below, the watchdog trips between two commands sent on time"),
+    (with_(XARM, tactile={"left": {"fps": 1}}),
+     r"tactile\.left\.fps: a frame every 1 s is no fresher than the watchdog's 0\.2 s window: every frame would "
+     r"stop the arm \(got 1\.0\)"),
     (with_(XARM, cameras={"wrist": {"device": 0, "size": [240, 100000]}}),
      r"cameras\.wrist\.size\[1\]: Input should be less than or equal to 4096"),
     # addresses and models, per robot type
