@@ -37,8 +37,8 @@ from pydantic.dataclasses import dataclass as pydantic_dataclass
 from controltac_il.config import STRICT
 from controltac_il.streams import LOOP, LOOP_STATE, background_key, image_key, tactile_key
 from hardware.fields import Float, Int, Problems
-from hardware.interfaces import (ACTION_DIM, GRIPPER, POSE_DIM, Arm, ArmState, Clock, FrameSource, Gripper, HardwareError,
-                                 WallClock)
+from hardware.interfaces import (ACTION_DIM, GRIPPER, POSE_DIM, YAW, Arm, ArmState, Clock, FrameSource, Gripper,
+                                 HardwareError, WallClock)
 from hardware.safety import SafetyCounts, SafetyFilter, SafetyLimits, SafetyViolation, Watchdog, WatchdogTimeout
 from hardware.temporal_ensembling import TemporalEnsembler
 
@@ -341,7 +341,7 @@ class ControlLoop:
             raise ValueError(f"max_steps must be a positive integer or None, got {max_steps!r}")
         cfg, clock = self.config, self.clock
         self.stats = stats = LoopStats(cfg.period_s)
-        ensembler = TemporalEnsembler(cfg.chunk_size, ACTION_DIM, cfg.ensemble_k)
+        ensembler = TemporalEnsembler(cfg.chunk_size, ACTION_DIM, cfg.ensemble_k, angle_dims=(YAW,))
         safety = SafetyFilter(self.limits)
         stats.safety = safety.counts
         watchdog = Watchdog(cfg.stale_after_periods * cfg.period_s, clock)

@@ -19,6 +19,7 @@ import numpy as np
 ACTION_NAMES = ("x", "y", "z", "yaw", "gripper")  # the action and qpos layout everywhere: m, m, m, rad, [0, 1]
 POSE_DIM = ACTION_NAMES.index("gripper")  # the pose part, x, y, z (m), yaw (rad), comes first
 GRIPPER = POSE_DIM  # index of the gripper command in an action
+YAW = ACTION_NAMES.index("yaw")  # index of the yaw (rad), an angle
 ACTION_DIM = len(ACTION_NAMES)  # pose + gripper command
 
 

@@ -3,7 +3,9 @@
 A chunk predicted from the observation at step ``t0`` holds actions for steps ``t0 .. t0+len-1``.
 The action at step ``t`` is the weighted mean of the chunks that cover ``t``, ordered oldest
 first, with weights ``w_i = exp(-k * i)`` (``i = 0`` is the OLDEST prediction, as in ACT's
-``all_time_actions`` with ``k = 0.01``), normalised to sum to one.
+``all_time_actions`` with ``k = 0.01``), normalised to sum to one. An angle (``angle_dims``, e.g. yaw) votes
+unwrapped to within pi of the oldest vote, so 3.13 and -3.13 rad (one heading) blend near pi, not to 0; votes that
+need no unwrapping blend exactly as numbers.
 """
 
 from __future__ import annotations
@@ -28,16 +30,20 @@ class TemporalEnsembler:
     chunk_size: largest chunk length accepted (ACT's N_a, 20 in the paper).
     action_dim: width A of an action vector.
     k: decay of the weights exp(-k * i) from the oldest prediction (0.01 in ACT); k >= 0.
+    angle_dims: the action entries that are angles in radians, blended as headings (see the module docstring).
     Thread-safe: a policy thread may call :meth:`add_chunk` while the control loop calls :meth:`action`.
     """
 
-    def __init__(self, chunk_size: int, action_dim: int, k: float = 0.01):
+    def __init__(self, chunk_size: int, action_dim: int, k: float = 0.01, angle_dims: tuple[int, ...] = ()):
         for name, value in (("chunk_size", chunk_size), ("action_dim", action_dim)):
             if not is_int(value) or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
         if not is_real(k) or k < 0:
             raise ValueError(f"k must be a finite number >= 0, got {k!r}")
+        if not all(is_int(d) and 0 <= d < action_dim for d in angle_dims):
+            raise ValueError(f"angle_dims must be action entries in [0, {action_dim}), got {angle_dims!r}")
         self.chunk_size, self.action_dim, self.k = int(chunk_size), int(action_dim), float(k)
+        self.angle_dims = tuple(int(d) for d in angle_dims)
         self._starts: list[int] = []  # sorted t0 of the chunks kept
         self._chunks: list[np.ndarray] = []
         self._lock = threading.Lock()
@@ -77,7 +83,10 @@ class TemporalEnsembler:
             raise LookupError(f"no predicted chunk covers step {t}")
         with np.errstate(over="ignore"):  # k * i past float range is -inf: its weight exp(-inf) is exactly 0
             w = np.exp(-self.k * np.arange(len(votes)))
-        return (w / w.sum()) @ np.stack(votes)
+        votes = np.stack(votes)
+        for d in self.angle_dims:  # each vote the nearest equivalent of itself to the oldest one
+            votes[:, d] -= 2 * np.pi * np.round((votes[:, d] - votes[0, d]) / (2 * np.pi))
+        return (w / w.sum()) @ votes
 
     def reset(self) -> None:
         """Forget every chunk (start of an episode)."""

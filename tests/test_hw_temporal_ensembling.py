@@ -94,10 +94,28 @@ def test_bad_chunks_are_rejected(chunk, match):
                                            (dict(chunk_size=True, action_dim=1), "chunk_size"),
                                            (dict(chunk_size=1, action_dim=1, k=None), "k"),
                                            (dict(chunk_size=1, action_dim=1, k="0.01"), "k"),
-                                           (dict(chunk_size=1, action_dim=1, k=float("inf")), "k")])
+                                           (dict(chunk_size=1, action_dim=1, k=float("inf")), "k"),
+                                           (dict(chunk_size=1, action_dim=2, angle_dims=(2,)), "angle_dims"),
+                                           (dict(chunk_size=1, action_dim=2, angle_dims=(0.5,)), "angle_dims")])
 def test_bad_construction_names_the_argument(kwargs, match):
     with pytest.raises(ValueError, match=f"^{match} must be"):
         TemporalEnsembler(**kwargs)
+
+
+def test_an_angle_blends_as_a_heading_across_pi_and_as_a_number_away_from_it():
+    """3.13 and -3.13 rad are one heading 0.0232 rad wide: blended near pi, not to 0 (the filter would then turn the
+    wrist half a turn); votes that need no unwrapping blend exactly as numbers, so nothing else changes."""
+    ens = TemporalEnsembler(2, 2, k=0.0, angle_dims=(1,))
+    ens.add_chunk(0, [[0.0, 3.13], [1.0, 3.13]])
+    ens.add_chunk(1, [[3.0, -3.13], [5.0, -3.13]])
+    blended = ens.action(1)
+    assert blended[0] == 2.0 and blended[1] == pytest.approx(np.pi, abs=1e-12)  # (3.13 + 2 pi - 3.13) / 2
+    plain = TemporalEnsembler(2, 2, k=0.01)
+    near = TemporalEnsembler(2, 2, k=0.01, angle_dims=(1,))
+    for ens in (plain, near):
+        ens.add_chunk(0, [[0.0, 0.4], [1.0, 0.5]])
+        ens.add_chunk(1, [[3.0, -0.2], [5.0, 0.1]])
+    assert np.array_equal(plain.action(1), near.action(1))
 
 
 @pytest.mark.parametrize("t", [1.5, "1", float("nan"), None])
