@@ -262,7 +262,8 @@ class ControlLoop:
 
     arm, gripper: connected devices (the caller opens and closes them; the loop only stops them).
     cameras, tactile: frame sources by name -> observation keys ``images/<name>``, ``tactile/<name>``.
-    limits: safety limits between policy and arm. config: timing and inference settings.
+    limits: safety limits between policy and arm (required: no box is assumed). config: timing and inference
+        settings.
     clock: time source; ``WallClock()`` for a robot, a :class:`~hardware.interfaces.VirtualClock` shared
         with a simulated robot's frame sources to run faster than real time.
     watchdog_thread: also check the watchdog from its own thread, which stops the arm while the control
@@ -277,14 +278,17 @@ class ControlLoop:
         gripper: Gripper | None = None,
         cameras: Mapping[str, FrameSource] | None = None,
         tactile: Mapping[str, FrameSource] | None = None,
-        limits: SafetyLimits | None = None,
+        limits: SafetyLimits,
         config: ControlLoopConfig | None = None,
         clock: Clock | None = None,
         watchdog_thread: bool | None = None,
     ):
         self.arm, self.policy, self.gripper = arm, policy, gripper
         self.cameras, self.tactile = dict(cameras or {}), dict(tactile or {})
-        self.limits = limits or SafetyLimits()
+        if not isinstance(limits, SafetyLimits):
+            raise ValueError(f"limits: expected SafetyLimits (the workspace box is the caller's to state), got "
+                             f"{type(limits).__name__}")
+        self.limits = limits
         self.config = config or ControlLoopConfig()
         self.clock = clock or WallClock()
         self.watchdog_thread = self.clock.realtime if watchdog_thread is None else watchdog_thread

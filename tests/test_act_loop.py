@@ -59,7 +59,7 @@ def test_act_drives_the_loop_with_ensembled_chunks():
 
 def test_missing_camera_stops_the_arm_before_any_motion():
     clock, log, arm, gripper, cams, tac = _rig(cameras=("third_view",))
-    loop = ControlLoop(arm, _policy(), gripper=gripper, cameras=cams, tactile=tac, clock=clock,
+    loop = ControlLoop(arm, _policy(), gripper=gripper, cameras=cams, tactile=tac, clock=clock, limits=SafetyLimits(),
                        config=ControlLoopConfig(inference="sync", chunk_size=6))
     with pytest.raises(PolicyError, match="images/wrist"):
         loop.run(max_steps=5)
@@ -68,7 +68,7 @@ def test_missing_camera_stops_the_arm_before_any_motion():
 
 def test_sensor_without_background_uses_the_checkpoint_one_or_fails_clearly():
     clock, log, arm, gripper, cams, tac = _rig(background=False)
-    loop = ControlLoop(arm, _policy(), gripper=gripper, cameras=cams, tactile=tac, clock=clock,
+    loop = ControlLoop(arm, _policy(), gripper=gripper, cameras=cams, tactile=tac, clock=clock, limits=SafetyLimits(),
                        config=ControlLoopConfig(inference="sync", chunk_size=6))
     with pytest.raises(PolicyError, match="tactile_background/left"):
         loop.run(max_steps=2)
@@ -76,6 +76,6 @@ def test_sensor_without_background_uses_the_checkpoint_one_or_fails_clearly():
     policy = _policy()
     policy.backgrounds = {s: np.full((24, 32, 3), 100, np.uint8) for s in ("left", "right")}
     clock, log, arm, gripper, cams, tac = _rig(background=False)
-    loop = ControlLoop(arm, policy, gripper=gripper, cameras=cams, tactile=tac, clock=clock,
+    loop = ControlLoop(arm, policy, gripper=gripper, cameras=cams, tactile=tac, clock=clock, limits=SafetyLimits(),
                        config=ControlLoopConfig(inference="sync", chunk_size=6))
     assert loop.run(max_steps=2).steps == 2

@@ -303,7 +303,8 @@ def test_ur_faults_are_named_and_stop_the_loop(fault, match):
 
     arm = URArm("ip", control=rtde, receive=rtde)
     arm.connect()
-    loop = ControlLoop(arm, hold, config=ControlLoopConfig(inference="sync", chunk_size=5), clock=VirtualClock())
+    loop = ControlLoop(arm, hold, config=ControlLoopConfig(inference="sync", chunk_size=5), clock=VirtualClock(),
+                       limits=SafetyLimits())
 
     def inject(step, obs, target):
         if step == 2:

@@ -14,6 +14,7 @@ from hardware.cameras import GelSightMini, OpenCVFrameSource, crop_and_resize, f
 from hardware.control_loop import ControlLoop, ControlLoopConfig
 from hardware.fakes import FakeArm
 from hardware.interfaces import SensorError
+from hardware.safety import SafetyLimits
 
 MAGENTA_BGR = (255, 0, 255)
 RAW_H, RAW_W = 600, 800  # 15 % of each side removed leaves 420 x 560 = 1.75 x (240 x 320)
@@ -144,7 +145,8 @@ def test_sensor_unplugged_mid_run_stops_the_arm(tmp_path, sensor_frames, clock):
     with GelSightMini("left", video, background_frames=3, clock=clock) as gs:
         # frames 1-3 (t = 0 .. 0.08 s) are the background, the last frame comes at 0.2 s, the end of the file at
         # 0.24 s: the loop (steps at 0.08, 0.18, 0.28 s) commands twice, then finds the sensor gone
-        loop = ControlLoop(arm, hold, tactile={"left": gs}, config=ControlLoopConfig(inference="sync"), clock=clock)
+        loop = ControlLoop(arm, hold, tactile={"left": gs}, config=ControlLoopConfig(inference="sync"), clock=clock,
+                           limits=SafetyLimits())
         with pytest.raises(SensorError, match="left: capture stopped delivering frames after 6 frames"):
             loop.run(max_steps=100)
     events = [e for e, _ in log]

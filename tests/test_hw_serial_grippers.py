@@ -215,6 +215,8 @@ def test_garbage_on_the_gripper_line_mid_run_stops_the_arm(kind):
 
     from hardware.control_loop import ControlLoop, ControlLoopConfig
     from hardware.fakes import FakeArm
+    from hardware.safety import SafetyLimits
+
     def close(obs):
         return np.tile(np.r_[obs["qpos"][:4], 1.0], (5, 1))
 
@@ -223,7 +225,7 @@ def test_garbage_on_the_gripper_line_mid_run_stops_the_arm(kind):
     client = RobotiqGripper if kind == "robotiq" else DynamixelGripper
     log = []
     with device as dev, client(dev.port, clock=clock) as gripper:
-        loop = ControlLoop(FakeArm(log=log, clock=clock), close, gripper=gripper, clock=clock,
+        loop = ControlLoop(FakeArm(log=log, clock=clock), close, gripper=gripper, clock=clock, limits=SafetyLimits(),
                            config=ControlLoopConfig(inference="sync", chunk_size=5))
 
         def inject(step, obs, target):
