@@ -109,14 +109,18 @@ class ControlLoopConfig(LoopTiming):
                    ensemble_k=ensemble_k)
 
     @model_validator(mode="after")
-    def _deadline_within_a_chunk(self):
+    def _within_a_chunk(self):
+        """The async deadline, and the sync query interval, fit in one chunk."""
         chunk_s = self.chunk_size * self.period_s
+        problems = Problems("ControlLoopConfig")
+        if self.inference == "sync" and self.query_every > self.chunk_size:
+            problems.add("query_every", f"more steps between policy calls than one chunk covers (chunk_size "
+                         f"{self.chunk_size}): the loop would run out of actions and stop", self.query_every)
         if self.inference == "async" and self.inference_deadline_s > chunk_s + 1e-9:
-            problems = Problems("ControlLoopConfig")
             problems.add("inference_deadline_s", f"longer than one chunk of the policy (chunk_size {self.chunk_size} "
                          f"x {self.period_s:g} s = {chunk_s:g} s): asynchronous inference runs out of actions first, "
                          f"so the deadline would never fire; at most {chunk_s:g} s", self.inference_deadline_s)
-            problems.raise_any()
+        problems.raise_any()
         return self
 
 

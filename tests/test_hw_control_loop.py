@@ -179,11 +179,11 @@ def test_late_async_policy_stops_arm():
 
 
 def test_chunks_running_out_is_a_late_policy():
-    # sync mode querying every 10 steps with 5-step chunks: step 5 has no action
-    loop, arm, log = make(VirtualClock(), RampPolicy(chunk=5), query_every=10)
-    with pytest.raises(PolicyLateError, match="no action for step 5"):
+    # sync mode querying every 4 steps, the policy's chunks shorter than it says (3 of 5 steps): step 3 has no action
+    loop, arm, log = make(VirtualClock(), RampPolicy(chunk=3), query_every=4)
+    with pytest.raises(PolicyLateError, match="no action for step 3"):
         loop.run(max_steps=20)
-    assert len(commands(log)) == 5
+    assert len(commands(log)) == 3
     assert_stopped_after_last_command(log)
 
 
@@ -342,7 +342,9 @@ def test_ctrl_c_stops_arm_and_propagates():
 @pytest.mark.parametrize(
     "kwargs, field",
     [(dict(rate_hz=0), "rate_hz"), (dict(chunk_size=0), "chunk_size"), (dict(inference="threads"), "inference"),
-     (dict(query_every=1.5), "query_every"), (dict(stale_after_periods=-1), "stale_after_periods")],
+     (dict(query_every=1.5), "query_every"), (dict(stale_after_periods=-1), "stale_after_periods"),
+     (dict(inference="sync", chunk_size=5, query_every=6), r"more steps between policy calls than one chunk covers "
+                                                            r"\(chunk_size 5\)")],
 )
 def test_config_validation_names_the_field(kwargs, field):
     with pytest.raises(ValueError, match=field):
