@@ -299,6 +299,7 @@ class ControlLoop:
         self.stats = LoopStats(self.config.period_s)
         self._device_lock = threading.Lock()
         self._last_grip = 0.0
+        self._trip_problems: list[str] = []
 
     # -- observation -------------------------------------------------------------------------
     def _observe(self, watchdog: Watchdog) -> tuple[dict[str, np.ndarray], ArmState]:
@@ -332,11 +333,12 @@ class ControlLoop:
         return problems
 
     def _watchdog_trip(self) -> None:
-        # called from the watchdog thread when the control thread went silent: stop now, without the lock
+        # called from the watchdog thread when the control thread went silent: stop now, without the lock; a
+        # failure is noted on the fault the control thread then raises
         try:
             self.arm.stop()
-        except Exception:
-            pass
+        except Exception as exc:  # noqa: BLE001 - whatever the arm raised, the watchdog thread must not die
+            self._trip_problems.append(f"the watchdog's arm.stop() failed: {type(exc).__name__}: {exc}")
 
     # -- main loop ---------------------------------------------------------------------------
     def run(self, max_steps: int | None = None,
@@ -349,6 +351,7 @@ class ControlLoop:
             raise ValueError(f"max_steps must be a positive integer or None, got {max_steps!r}")
         cfg, clock = self.config, self.clock
         self.stats = stats = LoopStats(cfg.period_s)
+        self._trip_problems = []
         ensembler = TemporalEnsembler(cfg.chunk_size, ACTION_DIM, cfg.ensemble_k, angle_dims=(YAW,))
         safety = SafetyFilter(self.limits)
         stats.safety = safety.counts
@@ -371,7 +374,7 @@ class ControlLoop:
                 watchdog.start(self._watchdog_trip)
             self._cycles(max_steps, on_step, ensembler, safety, watchdog, worker)
         except BaseException as exc:
-            problems = self._stop_devices()
+            problems = self._trip_problems + self._stop_devices()
             stats.stop_reason = (
                 "Ctrl-C" if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
             )

@@ -321,6 +321,31 @@ def test_hung_arm_is_stopped_by_the_watchdog_thread(inference):
     assert_stopped_after_last_command(log)
 
 
+def test_a_failed_stop_from_the_watchdog_thread_is_noted_on_the_fault():
+    """The watchdog thread must not die of the arm's error, nor leave no trace of it: the control thread's
+    WatchdogTimeout carries it (the loop's own stop afterwards worked)."""
+    clock = VirtualClock()
+    loop, arm, log = make(clock, RampPolicy(chunk=5), watchdog_thread=True)
+    failures = ["controller unreachable"]
+
+    def stop():
+        if failures:
+            raise ArmFault(failures.pop())
+        FakeArm.stop(arm)
+
+    arm.stop = stop
+
+    def on_step(step, obs, target):
+        if step == 2:
+            arm.servo_delay_s = 0.6
+        return False
+
+    with pytest.raises(WatchdogTimeout) as info:
+        loop.run(max_steps=20, on_step=on_step)
+    assert info.value.__notes__ == ["the watchdog's arm.stop() failed: ArmFault: controller unreachable"]
+    assert log[-2:] == [("arm-stop", None), ("gripper-stop", None)]
+
+
 def test_ctrl_c_stops_arm_and_propagates():
     loop, arm, log = make(VirtualClock(), RampPolicy(), inference="async")
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
