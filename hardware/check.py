@@ -1,11 +1,13 @@
-"""Check a setup file, and optionally the devices it names, without moving anything.
+"""Check a setup file, and optionally the devices it names, without moving the arm.
 
     python -m hardware.check hardware/configs/xarm7_gelsight.yaml            # validate the file
     python -m hardware.check my_setup.yaml --connect --seconds 3             # connect, read, report
 
 With --connect: connects the arm and gripper, starts every camera and GelSight (capturing the
 backgrounds, so keep the gels untouched), then prints the arm pose, the gripper position and each
-sensor's frame rate and newest-frame age; the arm is stopped and everything closed at the end.
+sensor's frame rate and newest-frame age; the arm is stopped and everything closed at the end. The arm is
+never commanded, but connecting a gripper may move it: a Robotiq activates (its fingers open and close once) and a
+Dynamixel's torque is switched off and on; either drops what it holds, so empty the gripper first.
 
 Exit status: 0 valid (and, with --connect, every device answered); 2 the file is invalid (one line on
 stderr naming the file, the field and the expected form: fix the file); 1 a device could not be reached or
@@ -37,7 +39,8 @@ def main(argv=None) -> int:
     p = ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0],
                        formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     p.add_argument("config", help="setup YAML file (see hardware/configs/)")
-    p.add_argument("--connect", action="store_true", help="also connect the devices and read them (no motion)")
+    p.add_argument("--connect", action="store_true", help="also connect the devices and read them (the arm is never commanded; connecting a "
+                        "Robotiq or Dynamixel gripper may move it: empty it first)")
     p.add_argument("--seconds", type=float, default=2.0, help="how long to watch the sensors with --connect (s)")
     args = p.parse_args(argv)
     if not 0 <= args.seconds < float("inf"):  # 0: read each device once

@@ -402,7 +402,10 @@ class ControlLoop:
             start = clock.now()
             stats.cycle_starts.append(start)
             obs, state = self._observe(watchdog)  # fresh at step 0 too: the warm-up may have taken seconds
-            safety.check_state(state.pose)
+            if step == 0:  # the first command is one step from where the arm is now, not before the warm-up
+                safety.reset(state.pose)
+            else:
+                safety.check_state(state.pose)
             watchdog.check(start)
             if worker is not None:
                 self._poll_worker(worker, step, obs, start)

@@ -321,6 +321,23 @@ def test_hung_arm_is_stopped_by_the_watchdog_thread(inference):
     assert_stopped_after_last_command(log)
 
 
+def test_the_first_command_is_one_step_from_where_the_arm_is_after_the_warm_up():
+    """The arm drifted 8 cm during the policy's warm-up (the first call): the first command moves at most
+    max_step_m (5 cm) from where the arm is then, not from where it was before."""
+    clock = VirtualClock()
+
+    class Drifting(RampPolicy):
+        def __call__(self, obs):
+            if self.calls == 0:
+                arm.pose = arm.pose + [0.08, 0.0, 0.0, 0.0]
+            return super().__call__(obs)
+
+    loop, arm, log = make(clock, Drifting(chunk=5))
+    loop.run(max_steps=1)
+    first = commands(log)[0]
+    assert np.linalg.norm(first[:3] - [0.48, 0.0, 0.2]) == pytest.approx(0.05)  # toward the chunk's 0.401 m
+
+
 def test_a_failed_stop_from_the_watchdog_thread_is_noted_on_the_fault():
     """The watchdog thread must not die of the arm's error, nor leave no trace of it: the control thread's
     WatchdogTimeout carries it (the loop's own stop afterwards worked)."""
