@@ -235,7 +235,8 @@ class VirtualClock(Clock):
 
 
 class _Device(abc.ABC):
-    """Connect on ``__enter__``; on ``__exit__`` stop (whatever happened) and then close."""
+    """Connect on ``__enter__`` (a connect that fails stops and closes what it opened); on ``__exit__`` stop
+    (whatever happened) and then close."""
 
     def connect(self) -> None:
         """Open the connection and make the device ready to move."""
@@ -249,7 +250,11 @@ class _Device(abc.ABC):
         """Release the connection (after ``stop``)."""
 
     def __enter__(self):
-        self.connect()
+        try:
+            self.connect()
+        except BaseException as exc:  # a with-block's exit never runs for a failed enter: release the port now
+            self.__exit__(type(exc), exc, exc.__traceback__)
+            raise
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
@@ -295,7 +300,8 @@ class Gripper(_Device):
 
 
 class _Stream(abc.ABC):
-    """A sensor read in the loop: ``start`` on ``__enter__``, ``close`` on ``__exit__``."""
+    """A sensor read in the loop: ``start`` on ``__enter__`` (a start that fails closes what it opened),
+    ``close`` on ``__exit__``."""
 
     def start(self) -> None:
         """Open the device and begin reading."""
@@ -304,7 +310,14 @@ class _Stream(abc.ABC):
         """Stop reading and release the device."""
 
     def __enter__(self):
-        self.start()
+        try:
+            self.start()
+        except BaseException as exc:
+            try:
+                self.close()
+            except Exception as failure:  # noqa: BLE001 - the failed start is the error to report
+                exc.add_note(f"{type(self).__name__}.close failed too: {failure}")
+            raise
         return self
 
     def __exit__(self, *exc) -> None:

@@ -108,6 +108,16 @@ def test_dynamixel_silent_servo_and_wrong_id():
         g.close()
 
 
+def test_a_connect_that_fails_in_a_with_block_releases_the_port():
+    """A with-block never exits a failed enter: the gripper closes the port its connect opened before raising."""
+    with FakeDynamixelServo(dxl_id=1) as dev:
+        g = DynamixelGripper(dev.port, dxl_id=2, retries=0)
+        with pytest.raises(HardwareError, match="ping failed"):
+            with g:
+                pass
+        assert g._port is None
+
+
 def test_fake_servo_answers_a_bad_crc_with_the_crc_error():
     with FakeDynamixelServo() as dev:
         ping = bytearray.fromhex("FF FF FD 00 01 03 00 01 19 4E")
