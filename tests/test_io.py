@@ -106,6 +106,7 @@ def test_leftovers_of_a_live_writer_are_kept(tmp_path):
     folder.mkdir()
     left = killed_writer(folder)
     ours = [folder / n for n in left]
+    assert ours  # the killed writer left its temporary files
     # pretend they belong to a process that is still running (this one's parent)
     alive = []
     for p in ours:
