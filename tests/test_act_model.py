@@ -35,6 +35,9 @@ def test_presets_follow_paper_defaults():
 def test_config_rejects_bad_values(kwargs, field):
     with pytest.raises(ValueError, match=field):
         ACTConfig(**kwargs)
+
+
+def test_an_unknown_preset_is_refused_by_name():
     with pytest.raises(ValueError, match="preset"):
         ACTConfig.from_preset("tpu")
 

@@ -39,6 +39,9 @@ def test_touch_critical_is_a_named_preset_and_the_default_scene_is_unchanged():
 def test_bad_variant_settings_name_the_field(bad, match):
     with pytest.raises(ValueError, match=match):
         PegInHoleConfig.touch_critical(**bad)
+
+
+def test_an_offset_without_the_variant_and_an_unknown_scene_are_refused_by_name():
     with pytest.raises(ValueError, match="peg_in_hand"):
         PegInHoleConfig(in_hand_offset_mm=(5.0, 8.0))
     with pytest.raises(ValueError, match="scene"):

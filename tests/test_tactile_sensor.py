@@ -227,6 +227,9 @@ def test_procedural_shapes_are_pure_functions_of_their_index_and_press_like_any_
 def test_unknown_or_malformed_object_names_are_refused(name):
     with pytest.raises(ValueError, match="unknown object"):
         get_indenter(name)
+
+
+def test_a_negative_procedural_index_is_refused():
     with pytest.raises(ValueError, match="index"):
         procedural_indenter(-1)
 
