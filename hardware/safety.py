@@ -31,6 +31,9 @@ class WatchdogTimeout(HardwareError):
     """No fresh command or sensor frame within the watchdog timeout."""
 
 
+FULL_CIRCLE_SLACK = 1e-4  # rad: a yaw range this close to 2 pi (e.g. +-3.14159, 5e-6 short) is the full circle
+
+
 def wrap_angle(a):
     """Angle(s) wrapped into [-pi, pi); angles already inside are returned exactly."""
     a = np.asarray(a, dtype=np.float64)
@@ -48,8 +51,9 @@ class SafetyLimits:
         (at most 0.1 m: 1 m/s at 10 Hz; a robot setup file further bounds it to 0.25 m/s at its rate).
     max_rotation_rad: largest yaw change between two consecutive commands, radians (at most 0.5; a robot
         setup file: 1 rad/s at its rate). Over the full circle (the default range) yaw turns the short way,
-        through ±pi; a narrower range is an arc the wrist never leaves, so yaw turns along it, never through
-        the excluded band.
+        through ±pi; a narrower range is an arc (yaw_min counter-clockwise to yaw_max) the wrist never leaves: a
+        wanted yaw outside it goes to its nearer end, and yaw turns along the arc, never through the band it
+        excludes.
     gripper_min / gripper_max: allowed gripper command range within [0, 1] (0 open, 1 closed).
     state_tolerance_m: a measured pose further than this outside the box is a violation (arm stopped).
     state_tolerance_rad: a measured yaw further than this outside a narrower yaw range is a violation.
@@ -82,8 +86,15 @@ class SafetyLimits:
 
     @property
     def full_circle(self) -> bool:
-        """Whether every yaw is allowed (the range is [-pi, pi]): then yaw wraps through ±pi."""
-        return self.yaw_min == -np.pi and self.yaw_max == np.pi
+        """Whether every yaw is allowed (the range spans 2 pi, to within FULL_CIRCLE_SLACK): yaw wraps through ±pi."""
+        return self.yaw_max - self.yaw_min >= 2 * np.pi - FULL_CIRCLE_SLACK
+
+    def arc_position(self, yaw: float) -> float:
+        """Where heading ``yaw`` (rad) lies along the yaw range, an arc from yaw_min counter-clockwise to yaw_max:
+        in [0, yaw_max - yaw_min] inside it; outside, past the nearer end (below 0 nearer yaw_min)."""
+        u = float((yaw - self.yaw_min) % (2 * np.pi))
+        span = self.yaw_max - self.yaw_min
+        return u - 2 * np.pi if u > span and 2 * np.pi - u < u - span else u
 
 
 @dataclass
@@ -116,7 +127,9 @@ class SafetyFilter:
         self._last = np.asarray(pose, dtype=np.float64).copy()
 
     def check_state(self, pose: np.ndarray) -> None:
-        """Raise :class:`SafetyViolation` when the measured pose is non-finite or outside the box by more than the tolerance."""
+        """Raise :class:`SafetyViolation` when the measured pose is non-finite, outside the box by more than
+        ``state_tolerance_m``, or (a range narrower than the full circle) its yaw outside the range by more than
+        ``state_tolerance_rad``."""
         p = np.asarray(pose, dtype=np.float64)
         if p.shape != (POSE_DIM,) or not np.isfinite(p).all():
             raise SafetyViolation(f"measured pose must be 4 finite numbers [x, y, z, yaw], got {p!r}")
@@ -127,10 +140,13 @@ class SafetyFilter:
                 f"measured position {np.round(p[:3], 4).tolist()} m is outside the workspace box "
                 f"{list(lo)}..{list(hi)} by more than {tol} m"
             )
-        yaw, lim = float(wrap_angle(p[3])), self.limits
-        if not lim.full_circle and not lim.yaw_min - lim.state_tolerance_rad <= yaw <= lim.yaw_max + lim.state_tolerance_rad:
-            raise SafetyViolation(f"measured yaw {yaw:.4f} rad is outside the yaw range [{lim.yaw_min}, {lim.yaw_max}] "
-                                  f"by more than {lim.state_tolerance_rad} rad")
+        lim = self.limits
+        if lim.full_circle:
+            return
+        u, tol = lim.arc_position(p[3]), lim.state_tolerance_rad
+        if not -tol <= u <= lim.yaw_max - lim.yaw_min + tol:
+            raise SafetyViolation(f"measured yaw {float(wrap_angle(p[3])):.4f} rad is outside the yaw range "
+                                  f"[{lim.yaw_min}, {lim.yaw_max}] by more than {tol} rad")
 
     def __call__(self, action: np.ndarray) -> np.ndarray:
         """Safe target (5,) float64 for ``action`` (5,); requires :meth:`reset` first."""
@@ -158,16 +174,22 @@ class SafetyFilter:
         return out
 
     def _yaw(self, wanted: float) -> float:
-        """The commanded yaw (rad) for a wanted one: clipped into the range, then at most ``max_rotation_rad`` from
-        the last command, the short way over the full circle, along the arc of a narrower range."""
-        lim, last = self.limits, float(wrap_angle(self._last[3]))
-        target = float(wrap_angle(wanted))
-        yaw = float(np.clip(target, lim.yaw_min, lim.yaw_max))
-        self.counts.yaw_range += int(yaw != target)
-        dyaw = float(wrap_angle(yaw - last)) if lim.full_circle else yaw - last
-        if abs(dyaw) > lim.max_rotation_rad:
+        """The commanded yaw (rad) for a wanted one, at most ``max_rotation_rad`` from the last command: the short
+        way over the full circle; on a narrower range clipped to its nearer end, then along the arc."""
+        lim = self.limits
+        step = lim.max_rotation_rad
+        if lim.full_circle:
+            last, yaw = float(wrap_angle(self._last[3])), float(wrap_angle(wanted))
+            move = float(wrap_angle(yaw - last))
+        else:
+            last, target = lim.arc_position(self._last[3]), lim.arc_position(wanted)
+            along = float(np.clip(target, 0.0, lim.yaw_max - lim.yaw_min))
+            self.counts.yaw_range += int(along != target)
+            last, move = last + lim.yaw_min, along - last
+            yaw = float(wrap_angle(lim.yaw_min + along))
+        if abs(move) > step:
             self.counts.rotation += 1
-            return float(wrap_angle(last + np.sign(dyaw) * lim.max_rotation_rad))
+            return float(wrap_angle(last + np.sign(move) * step))
         return yaw
 
 

@@ -73,6 +73,23 @@ def test_a_narrower_yaw_range_is_an_arc_the_wrist_never_leaves():
     assert full(np.array([0.5, 0.0, 0.2, -3.13, 0.5]))[3] == pytest.approx(-3.13)  # 0.0232 rad through the seam
 
 
+def _yaws(yaw_min, yaw_max, start, wanted, steps=3):
+    f = SafetyFilter(SafetyLimits(yaw_min=yaw_min, yaw_max=yaw_max, max_rotation_rad=0.1))
+    f.reset(np.array([0.5, 0.0, 0.2, start]))
+    return [float(f(np.array([0.5, 0.0, 0.2, wanted, 0.5]))[3]) for _ in range(steps)]
+
+
+def test_a_yaw_range_is_an_arc_on_the_circle_clipped_to_its_nearer_end():
+    """A range ending at pi holds pi (which wraps to -pi); a wanted yaw past one end goes to that end, not to the
+    other across the circle; a range typed as +-3.14159 is the full circle; a measured yaw at either end is in."""
+    assert [abs(y) for y in _yaws(0.0, math.pi, 3.0, math.pi)] == pytest.approx([3.1, math.pi, math.pi])
+    assert _yaws(-1.0, 3.0, 2.95, 3.2) == pytest.approx([3.0, 3.0, 3.0])  # 3.2 is nearer 3.0 than -1.0
+    assert _yaws(-1.0, 3.0, 2.95, -1.3) == pytest.approx([2.85, 2.75, 2.65])  # nearer -1.0: the long way there
+    assert _yaws(-3.14159, 3.14159, 3.1, -3.1) == pytest.approx([-3.1] * 3)  # 0.08 rad through the seam
+    for low, high, measured in ((0.0, math.pi, math.pi), (-math.pi, 0.0, 3.13), (-math.pi, 0.0, -math.pi)):
+        SafetyFilter(SafetyLimits(yaw_min=low, yaw_max=high)).reset(np.array([0.5, 0.0, 0.2, measured]))
+
+
 def test_gripper_clipped_to_limits():
     f = make_filter()
     assert f(np.array([0.5, 0, 0.2, 0, 1.0]))[4] == pytest.approx(0.9)
