@@ -82,6 +82,15 @@ def one_line(exc: BaseException, flags: Mapping[str, str] | None = None) -> str:
                                                              *getattr(exc, "__notes__", ())])
 
 
+def add_note(exc: BaseException, note: str) -> None:
+    """``exc.add_note(note)``, also on Python 3.10 (which has no add_note but keeps ``__notes__``): what else went
+    wrong while ``exc`` propagated, printed after its message by :func:`one_line`."""
+    if hasattr(exc, "add_note"):
+        exc.add_note(note)
+    else:
+        exc.__notes__ = [*getattr(exc, "__notes__", ()), note]
+
+
 def one_line_errors(cls):
     """Class decorator for a pydantic dataclass: its constructor (``dataclasses.replace`` included) raises
     a ValueError of one line naming the field(s) (``one_line``) instead of the multi-line ValidationError."""

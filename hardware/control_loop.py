@@ -34,7 +34,7 @@ import numpy as np
 from pydantic import Field, model_validator
 from pydantic.dataclasses import dataclass as pydantic_dataclass
 
-from controltac_il.config import STRICT
+from controltac_il.config import STRICT, add_note
 from controltac_il.streams import LOOP, LOOP_STATE, background_key, image_key, tactile_key
 from hardware.fields import Float, Int, Problems
 from hardware.interfaces import (ACTION_DIM, GRIPPER, POSE_DIM, YAW, Arm, ArmState, Clock, FrameSource, Gripper,
@@ -379,7 +379,7 @@ class ControlLoop:
                 "Ctrl-C" if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
             )
             for p in problems:
-                exc.add_note(p)
+                add_note(exc, p)
             raise
         else:
             problems = self._stop_devices()

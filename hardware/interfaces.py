@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from controltac_il.config import add_note
+
 ACTION_NAMES = ("x", "y", "z", "yaw", "gripper")  # the action and qpos layout everywhere: m, m, m, rad, [0, 1]
 POSE_DIM = ACTION_NAMES.index("gripper")  # the pose part, x, y, z (m), yaw (rad), comes first
 GRIPPER = POSE_DIM  # index of the gripper command in an action
@@ -266,10 +268,14 @@ class _Device(abc.ABC):
                 step()
             except Exception as failure:  # noqa: BLE001 - whatever stop raised, close still runs
                 failures.append((step.__name__, failure))
-        if failures and exc is None:
-            raise failures[0][1]
+        if not failures:
+            return
+        first = failures[0][1] if exc is None else exc  # without a fault in flight, the first failure is raised
         for name, failure in failures:
-            exc.add_note(f"{type(self).__name__}.{name} failed too: {failure}")
+            if failure is not first:
+                add_note(first, f"{type(self).__name__}.{name} failed too: {failure}")
+        if exc is None:
+            raise first
 
 
 class Arm(_Device):
@@ -313,15 +319,18 @@ class _Stream(abc.ABC):
         try:
             self.start()
         except BaseException as exc:
-            try:
-                self.close()
-            except Exception as failure:  # noqa: BLE001 - the failed start is the error to report
-                exc.add_note(f"{type(self).__name__}.close failed too: {failure}")
+            self.__exit__(type(exc), exc, exc.__traceback__)
             raise
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, exc_type, exc, tb) -> None:
+        """Close; while an exception propagates, a failure to close is a note on it, never its replacement."""
+        try:
+            self.close()
+        except Exception as failure:  # noqa: BLE001 - the fault in flight is the error to report
+            if exc is None:
+                raise
+            add_note(exc, f"{type(self).__name__}.close failed too: {failure}")
 
 
 class FrameSource(_Stream):

@@ -283,6 +283,15 @@ def test_a_device_that_fails_to_stop_on_exit_notes_it_on_the_fault_that_ended_th
         with DeadGripper(clock, log):
             pass
 
+    class Unclosable(DeadGripper):
+        def close(self):
+            raise OSError("port vanished")
+
+    with pytest.raises(SensorError) as info:  # no fault in flight: the stop's failure, the close's noted on it
+        with Unclosable(clock, log):
+            pass
+    assert info.value.__notes__ == ["Unclosable.close failed too: port vanished"]
+
 
 def test_measured_pose_outside_workspace_stops_arm():
     loop, arm, log = make(VirtualClock(), RampPolicy())
