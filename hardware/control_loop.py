@@ -374,7 +374,9 @@ class ControlLoop:
                 watchdog.start(self._watchdog_trip)
             self._cycles(max_steps, on_step, ensembler, safety, watchdog, worker)
         except BaseException as exc:
-            problems = self._trip_problems + self._stop_devices()
+            problems = self._stop_devices()
+            watchdog.stop()  # joined: a stop the watchdog thread was still making has failed or not by now
+            problems = self._trip_problems + problems
             stats.stop_reason = (
                 "Ctrl-C" if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
             )
