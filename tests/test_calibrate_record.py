@@ -55,6 +55,15 @@ def test_a_press_is_written_by_the_writer_thread_never_the_control_thread(tmp_pa
     assert len(writers) == 1 and next(iter(writers)).startswith("press-writer")
 
 
+def test_a_png_that_cannot_be_written_stops_the_recording_unpublished(tmp_path, monkeypatch):
+    monkeypatch.setattr(cv2, "imwrite", lambda path, image: False)  # as OpenCV answers a full disk
+    with SimRobot(SCENE, seed=0) as robot:
+        with pytest.raises(OSError, match=r"frame_00000\.png: the PNG could not be written"):
+            record_presses(robot, "left", robot.force["left"], PressPlan(presses=1), robot.squeeze_pose(),
+                           tmp_path / "recs")
+    assert list(tmp_path.iterdir()) == []
+
+
 def _log(path: Path) -> np.ndarray:
     return np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
 
@@ -147,6 +156,25 @@ def test_force_past_the_abort_stops_backs_out_and_writes_nothing(tmp_path, latch
                            tmp_path / "recs")
         assert robot.command[GRIPPER] == 0.0 and robot.force["left"].read().normal_n < 0.2  # released
     assert list(tmp_path.iterdir()) == []  # nothing written, no partial folder
+
+
+class Faulted(Latching):
+    """An arm whose controller raised its own error at the abort (e.g. its collision stop)."""
+
+    def state(self):
+        if self.stopped:
+            raise ArmFault("controller error code 22 (self-collision); clear it on the controller")
+        return super().state()
+
+
+def test_the_back_out_never_clears_an_error_the_controller_raised(tmp_path):
+    with SimRobot(SCENE, seed=0) as robot:
+        robot.arm = Faulted(robot.arm)
+        with pytest.raises(ArmFault, match="error code 22") as info:
+            record_presses(robot, "left", Spiking(robot.force["left"]), PressPlan(presses=2), robot.squeeze_pose(),
+                           tmp_path / "recs")
+        assert robot.arm.stopped  # never enabled again, never moved
+    assert isinstance(info.value.__context__, ForceLimitExceeded)
 
 
 class Blind(ForceSensor):

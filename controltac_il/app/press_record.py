@@ -33,7 +33,7 @@ import numpy as np
 from pydantic import Field, model_validator
 from pydantic.dataclasses import dataclass
 
-from controltac_il.config import STRICT
+from controltac_il.config import STRICT, add_note
 from controltac_il.generator.forces import VALIDATED_RANGE
 from controltac_il.io import atomic_dir, write_json
 from controltac_il.streams import LOOP, LOOP_STATE, tactile_key
@@ -216,7 +216,8 @@ class _Recordings:
     """One recording per press under ``root``: frames as PNG and the force log as CSV (``calibrate.recordings``).
 
     A closed press is written by a writer thread: PNG encoding (about 5 ms a frame, 50-80 frames a press) would
-    hold the control thread past its watchdog window. ``finish`` waits for the writes and raises their error."""
+    hold the control thread past its watchdog window. ``finish`` waits for the writes and raises their error (a
+    note on the run's own fault where it failed first)."""
 
     def __init__(self, root: Path):
         from concurrent.futures import ThreadPoolExecutor
@@ -241,15 +242,21 @@ class _Recordings:
         folder = self.root / f"press_{index:03d}"
         folder.mkdir()
         for k, frame in enumerate(frames):
-            cv2.imwrite(str(folder / f"frame_{k:05d}.png"), cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+            path = folder / f"frame_{k:05d}.png"
+            if not cv2.imwrite(str(path), cv2.cvtColor(frame, cv2.COLOR_RGB2BGR)):
+                raise OSError(f"{path}: the PNG could not be written")
         lines = ["t,fz", *(f"{t:.6f},{fz:.6f}" for t, fz in rows)]
         (self.root / f"press_{index:03d}.csv").write_text("\n".join(lines) + "\n")
 
-    def finish(self) -> None:
-        """Wait for every press's files; the first write's error, if any, is raised."""
+    def finish(self, failure: BaseException | None = None) -> None:
+        """Wait for every press's files. The first write's error is raised, or noted on ``failure``, the fault the
+        run already ended with."""
         self._writer.shutdown(wait=True)
-        for write in self._writes:
-            write.result()
+        errors = [w.exception() for w in self._writes if w.exception() is not None]
+        if errors and failure is None:
+            raise errors[0]
+        if errors:
+            add_note(failure, f"writing the recordings failed too: {errors[0]}")
 
 
 def record_presses(setup, sensor: str, force: ForceSensor, plan: PressPlan, start, out: str | Path,
@@ -287,12 +294,15 @@ def record_presses(setup, sensor: str, force: ForceSensor, plan: PressPlan, star
             return ctrl.phase == "done"
 
         try:
-            stats = loop.run(max_steps=budget, on_step=on_step)
-        except ForceLimitExceeded:
-            _back_out(loop, ctrl)
+            try:
+                stats = loop.run(max_steps=budget, on_step=on_step)
+            except ForceLimitExceeded:
+                _back_out(loop, ctrl)
+                raise
+        except BaseException as exc:
+            recs.finish(exc)
             raise
-        finally:
-            recs.finish()
+        recs.finish()
         if ctrl.phase != "done":
             raise HardwareError(f"the presses did not finish within {budget} control periods (press {ctrl.press} "
                                 f"in phase {ctrl.phase}); is the object between the fingers at the start pose?")
@@ -307,6 +317,7 @@ def _back_out(loop: ControlLoop, ctrl: PressController) -> None:
     """After an abort: the same loop and limits take the finger back to the start, gripper open (the arm enabled
     again first: the abort stopped it, and an xArm refuses motion until then)."""
     ctrl.abort()
+    loop.arm.state()  # an error the controller raised (its own collision stop) is the user's to clear, not ours
     loop.arm.connect()
     loop.run(max_steps=ctrl.plan.steps_per_press(), on_step=lambda *_: ctrl.phase == "done")
 

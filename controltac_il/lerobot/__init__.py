@@ -3,15 +3,16 @@
 Modules, one job each (after LeRobot's own ``datasets/``): ``reader`` (``LeRobotFolder``: a folder's items, as
 ``LeRobotDataset`` returns them), ``video`` (mp4 decoding and encoding with PyAV), ``stats`` (per-episode and
 dataset stats, as LeRobot computes them), ``writer`` (data parquet, PNG bytes and ``meta/`` files), ``episodes``
-(``LeRobotEpisodes``: a folder as ACT's training data), ``export`` (``LeRobotExport``: the augmented folder's
-episodes from a ForceAugment cache) and ``publish`` (``write_lerobot``: staging, resuming and publishing that
+(``LeRobotEpisodes``: a folder as ACT's training data), ``provenance`` (the ``augment.*`` features' names),
+``export`` (``LeRobotExport``: the augmented folder's episodes from a ForceAugment cache) and ``publish`` (``write_lerobot``: staging, resuming and publishing that
 folder). Format facts: ``docs/lerobot_v3_format.md``.
 """
 
 from controltac_il.lazy import exports
 
 _EXPORTS = {"LeRobotEpisodes": "controltac_il.lerobot.episodes",
-            **dict.fromkeys(("LeRobotExport", "PREFIX"), "controltac_il.lerobot.export"),
+            "LeRobotExport": "controltac_il.lerobot.export",
+            **dict.fromkeys(("COPY", "PREFIX"), "controltac_il.lerobot.provenance"),
             **dict.fromkeys(("ChunkGate", "check_destination", "read_record", "staging_dir", "write_lerobot"),
                             "controltac_il.lerobot.publish"),
             **dict.fromkeys(("LeRobotFolder", "decode_png", "numbers", "read_episode_stats", "read_episodes",

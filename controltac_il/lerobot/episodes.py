@@ -37,13 +37,12 @@ from controltac_il.config import is_int
 from controltac_il.datasets.act_dataset import STD_FLOOR
 from controltac_il.datasets.background import estimate_background
 from controltac_il.datasets.checks import check_force_labels
-from controltac_il.lerobot.export import PREFIX
+from controltac_il.lerobot.provenance import COPY
 from controltac_il.lerobot.reader import LeRobotFolder, decode_png, numbers, read_info
 from controltac_il.streams import (HDF5, LEROBOT, LEROBOT_STATE, background_key, force_key, lerobot_name,
                                    lerobot_to_hdf5, tactile_key)
 
 TACTILE_WORDS = ("gelsight", "tactile", "digit")
-COPY = f"{PREFIX}.copy"  # the augment command's per-frame copy number (0: recorded)
 
 
 def _numeric(root: Path, keys: list[str]) -> dict[str, np.ndarray]:

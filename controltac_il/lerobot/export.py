@@ -53,36 +53,14 @@ from tqdm import tqdm
 
 from controltac_il.cli import RunFault, tty_only
 from controltac_il.io import atomic_path, write_json
+from controltac_il.lerobot.provenance import COPY, PREFIX, provenance_features, provenance_names
 from controltac_il.lerobot.reader import decode_png, numbers, read_episode_stats
 from controltac_il.lerobot.stats import (STAT_NAMES, complete_stats, frame_histograms, histogram_stats, image_stats,
                                          sample_indices, vector_stats)
 from controltac_il.lerobot.video import decode_video, encode_video, video_codec
 from controltac_il.lerobot.writer import png_bytes, write_data_parquet
-from controltac_il.streams import lerobot_name
 
-PREFIX = "augment"
 DEFAULTS = ("timestamp", "frame_index", "episode_index", "index", "task_index")
-
-
-def provenance_names(tactile_keys) -> dict[str, str]:
-    """tactile key -> the camera name of its provenance features; ValueError naming ``tactile_keys``."""
-    names = {k: lerobot_name(k) for k in tactile_keys}
-    bad = [n for n in names.values() if "image" in n or list(names.values()).count(n) > 1]
-    if bad:
-        raise ValueError(f"tactile_keys: provenance features are named by each camera's last name part, which must "
-                         f"be unique and free of 'image'; got {list(names.values())}")
-    return names
-
-
-def provenance_features(names: dict[str, str]) -> dict:
-    """info.json features of the provenance columns."""
-    scalar = {"shape": [1], "names": None}
-    out = {f"{PREFIX}.copy": {"dtype": "int64", **scalar}, f"{PREFIX}.offset": {"dtype": "float32", **scalar},
-           f"{PREFIX}.jitter": {"dtype": "float32", **scalar}}
-    for n in names.values():
-        out[f"{PREFIX}.{n}.status"] = {"dtype": "int64", **scalar}
-        out[f"{PREFIX}.{n}.target_force"] = {"dtype": "float32", "shape": [3], "names": ["fx", "fy", "fz"]}
-    return out
 
 
 def check_tactile_features(features: dict, tactile_keys) -> None:
@@ -320,7 +298,7 @@ class LeRobotExport:
                         rows.append(i)
                         images.append(chunk.files[j].read(o.row))
                         force[j, i] = o.target
-        prov = {f"{PREFIX}.copy": np.full(L, k, np.int64), f"{PREFIX}.offset": offset, f"{PREFIX}.jitter": jitter}
+        prov = {COPY: np.full(L, k, np.int64), f"{PREFIX}.offset": offset, f"{PREFIX}.jitter": jitter}
         for j, key in enumerate(self.tactile):
             prov[f"{PREFIX}.{self.names[key]}.status"] = status[j]
             prov[f"{PREFIX}.{self.names[key]}.target_force"] = force[j]
@@ -335,8 +313,9 @@ class LeRobotExport:
                 out = _replace_images(out, key, rows, images)
             label = self.aug.keys.labels[key]
             if label is not None and len(rows):  # a regenerated frame's label is the force it was generated at
-                out = _replace_rows(out, label, rows, prov[f"{PREFIX}.{self.names[key]}.target_force"][rows])
-                relabelled.append(label)
+                forces = numbers(out.column(label)).copy()
+                forces[rows] = prov[f"{PREFIX}.{self.names[key]}.target_force"][rows]
+                out, relabelled = _set(out, label, forces), [*relabelled, label]
         out = _set(out, "episode_index", np.full(L, j, np.int64))
         out = _set(out, "index", np.arange(start, start + L, dtype=np.int64))
         for name, values in prov.items():
@@ -479,16 +458,9 @@ def _arrow(values: np.ndarray) -> pa.Array:
 
 
 def _set(table: pa.Table, name: str, values: np.ndarray) -> pa.Table:
+    """Column ``name`` replaced by ``values`` ((N,) or (N, D)), in the column's own type."""
     i = table.schema.get_field_index(name)
-    return table.set_column(i, table.schema.field(i), pa.array(values, type=table.schema.field(i).type))
-
-
-def _replace_rows(table: pa.Table, name: str, rows: np.ndarray, values: np.ndarray) -> pa.Table:
-    """Vector column ``name`` with ``values`` (len(rows), D) at ``rows``, in the column's own type."""
-    i = table.schema.get_field_index(name)
-    column = numbers(table.column(i)).copy()
-    column[rows] = values
-    return table.set_column(i, table.schema.field(i), _arrow(column).cast(table.schema.field(i).type))
+    return table.set_column(i, table.schema.field(i), _arrow(values).cast(table.schema.field(i).type))
 
 
 def _replace_images(table: pa.Table, key: str, rows: np.ndarray, images: list) -> pa.Table:

@@ -36,12 +36,13 @@ from typing import Callable
 import numpy as np
 
 from controltac_il.io import write_json
-from controltac_il.lerobot.export import PREFIX, LeRobotExport
+from controltac_il.lerobot.export import LeRobotExport
+from controltac_il.lerobot.provenance import COPY
 from controltac_il.lerobot.stats import aggregate_stats
 from controltac_il.lerobot.writer import write_meta
 
 WRITER_FORMAT = 2  # bump when what is written changes
-RECORD_FEATURE, RECORD_KEY = f"{PREFIX}.copy", "controltac_il_augment"  # where a published folder says what wrote it
+RECORD_FEATURE, RECORD_KEY = COPY, "controltac_il_augment"  # where a published folder says what wrote it
 ChunkDone = Callable[[Path, int, int], bool]  # (cache_dir, episode, copy) -> whether the cache holds that chunk
 
 
