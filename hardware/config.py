@@ -8,7 +8,7 @@ Beyond types and ranges, a setup must be physically plausible for its robot (:da
 workspace box within the arm's reach and above its base, the largest step and turn per control period
 within 0.25 m/s and 1 rad/s at ``control.rate_hz``, gripper positions and IDs within the device's range,
 a controller address the SDK can connect to, sensible rates, a robot's watchdog window between 1.5 periods and
-0.5 s with every camera's frames fresher than it.
+0.5 s with every camera's frame interval at most half of it.
 The chunk size and the ensembling decay are the policy's (its checkpoint): a setup file that states them is
 refused, and :func:`loop_config` checks the setup's timing against the policy's chunk (the inference deadline
 must fit in one chunk) when a deployment builds the loop, before anything connects.
@@ -161,7 +161,7 @@ def _rate_problems(problems: Problems, cfg: SetupConfig) -> None:
 
 def _watchdog_problems(problems: Problems, cfg: SetupConfig) -> None:
     """A robot's watchdog window (stale_after_periods periods) between MIN_STALE_PERIODS periods and
-    MAX_WATCHDOG_S, and every camera's frame interval inside it (else each frame would trip it)."""
+    MAX_WATCHDOG_S, and every camera's frame interval at most half of it (else frames on time would trip it)."""
     control = cfg.control
     window = control.stale_after_periods / control.rate_hz
     if control.stale_after_periods < MIN_STALE_PERIODS:
@@ -173,9 +173,10 @@ def _watchdog_problems(problems: Problems, cfg: SetupConfig) -> None:
                      f"at most {MAX_WATCHDOG_S:g} s", control.stale_after_periods)
     for section, devices in (("cameras", cfg.cameras), ("tactile", cfg.tactile)):
         for name, device in devices.items():
-            if device.fps is not None and 1.0 / device.fps >= window:
-                problems.add(f"{section}.{name}.fps", f"a frame every {1.0 / device.fps:.3g} s is no fresher than "
-                             f"the watchdog's {window:.3g} s window: every frame would stop the arm", device.fps)
+            if device.fps is not None and 1.0 / device.fps > window / 2:
+                problems.add(f"{section}.{name}.fps", f"a frame every {1.0 / device.fps:.3g} s: at most half the "
+                             f"watchdog's {window:.3g} s window (a frame's age reaches its interval plus the capture "
+                             "latency), else frames on time would stop the arm", device.fps)
 
 
 # -- reading ---------------------------------------------------------------------------------------

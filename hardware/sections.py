@@ -15,6 +15,7 @@ from pydantic_core import ArgsKwargs
 from controltac_il.config import STRICT
 from hardware.fields import Bool, Device, Float, Int, IPAddress, Problems, Size, Str, Vec2, Vec3
 
+ANGLE_SLACK = 1e-3  # rad: a tool angle written as 3.1416 is pi, not degrees
 
 @dataclass(frozen=True)
 class ArmModel:
@@ -93,9 +94,9 @@ class RobotConfig:
         if self.type == "xarm" and self.ip is not None and ":" in self.ip:
             problems.add("ip", "the xArm SDK connects over IPv4 only: expected an address such as 192.168.1.221",
                          self.ip)
-        if any(abs(a) > np.pi for a in self.tool_rpy):
+        if any(abs(a) > np.pi + ANGLE_SLACK for a in self.tool_rpy):
             problems.add("tool_rpy", "each angle must be within [-pi, pi] rad (degrees?)", list(self.tool_rpy))
-        if np.linalg.norm(self.tool_rotvec) > np.pi + 1e-9:
+        if np.linalg.norm(self.tool_rotvec) > np.pi + ANGLE_SLACK:
             problems.add("tool_rotvec", "a rotation vector's length is its angle, at most pi rad (degrees?)",
                          list(self.tool_rotvec))
         if self.type == "ur" and self.model is None:

@@ -65,6 +65,7 @@ def limits(**kw):
     ({"robot": {"type": "ur", "model": "ur5", "ip": "10.0.0.2", "gain": 5000}}, r"robot\.gain: Input should be less than or equal to 2000 \(got 5000\)"),
     ({"robot": {"type": "ur", "model": "ur5", "ip": "10.0.0.2", "iP": "y"}}, r"robot\.iP: Unexpected keyword argument \(got 'y'\)$"),
     ({"robot": {"type": "xarm", "ip": "10.0.0.2", "tool_rpy": [3.1, 0, 0]}}, r"robot\.tool_rpy: expected \[roll, pitch\] \(2 values\)"),
+    ({"robot": {"type": "xarm", "ip": "10.0.0.2", "tool_rpy": [3.2, 0]}}, r"robot\.tool_rpy: each angle must be within \[-pi, pi\]"),
     ({"robot": {"type": "xarm", "ip": "10.0.0.2", "tool_rpy": [180, 0]}}, r"robot\.tool_rpy: each angle must be within \[-pi, pi\] rad \(degrees\?\) \(got \[180\.0, 0\.0\]\)"),
     ({"robot": {"type": "ur", "model": "ur5", "ip": "10.0.0.2", "tool_rotvec": [0, 0, 4]}}, r"robot\.tool_rotvec: a rotation vector's length is its angle, at most pi rad"),
     ({"robot": {"type": "xarm", "ip": "10.0.0.2", "stop_on_warning": "yes"}}, r"robot\.stop_on_warning: Input should be a valid boolean"),
