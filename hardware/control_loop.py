@@ -39,7 +39,8 @@ from controltac_il.streams import LOOP, LOOP_STATE, background_key, image_key, t
 from hardware.fields import Float, Int, Problems
 from hardware.interfaces import (ACTION_DIM, GRIPPER, POSE_DIM, YAW, Arm, ArmState, Clock, FrameSource, Gripper,
                                  HardwareError, WallClock)
-from hardware.safety import SafetyCounts, SafetyFilter, SafetyLimits, SafetyViolation, Watchdog, WatchdogTimeout
+from hardware.safety import (SafetyCounts, SafetyFilter, SafetyLimits, SafetyViolation, Watchdog, WatchdogTimeout,
+                             checked_limits)
 from hardware.temporal_ensembling import TemporalEnsembler
 
 
@@ -289,10 +290,7 @@ class ControlLoop:
     ):
         self.arm, self.policy, self.gripper = arm, policy, gripper
         self.cameras, self.tactile = dict(cameras or {}), dict(tactile or {})
-        if not isinstance(limits, SafetyLimits):
-            raise ValueError(f"limits: expected SafetyLimits (the workspace box is the caller's to state), got "
-                             f"{type(limits).__name__}")
-        self.limits = limits
+        self.limits = checked_limits(limits)
         self.config = config or ControlLoopConfig()
         self.clock = clock or WallClock()
         self.watchdog_thread = self.clock.realtime if watchdog_thread is None else watchdog_thread

@@ -97,6 +97,14 @@ class SafetyLimits:
         return u - 2 * np.pi if u > span and 2 * np.pi - u < u - span else u
 
 
+def checked_limits(limits) -> SafetyLimits:
+    """``limits`` where it is :class:`SafetyLimits`; else ValueError (no workspace box is ever assumed)."""
+    if not isinstance(limits, SafetyLimits):
+        raise ValueError(f"limits: expected SafetyLimits (the workspace box is the caller's to state), got "
+                         f"{type(limits).__name__}")
+    return limits
+
+
 @dataclass
 class SafetyCounts:
     """How many commands each limit changed (clamps are counted, never silent)."""
@@ -115,9 +123,7 @@ class SafetyFilter:
     """Apply :class:`SafetyLimits` to a stream of actions ``[x, y, z, yaw, gripper]``."""
 
     def __init__(self, limits: SafetyLimits):
-        if not isinstance(limits, SafetyLimits):
-            raise ValueError(f"limits: expected SafetyLimits, got {type(limits).__name__}")
-        self.limits = limits
+        self.limits = checked_limits(limits)
         self.counts = SafetyCounts()
         self._last: np.ndarray | None = None  # last commanded pose (4,)
 

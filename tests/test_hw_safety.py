@@ -7,6 +7,7 @@ import re
 import numpy as np
 import pytest
 
+from hardware.control_loop import ControlLoop
 from hardware.interfaces import VirtualClock
 from hardware.safety import SafetyFilter, SafetyLimits, SafetyViolation, Watchdog, WatchdogTimeout, wrap_angle
 
@@ -176,7 +177,9 @@ def test_watchdog_thread_calls_on_trip():
     assert trip_times == [pytest.approx(0.0625)]  # the first check past the 0.05 s limit
 
 
-@pytest.mark.parametrize("make, says", [(lambda: SafetyFilter(None), "^limits: expected SafetyLimits, got NoneType$"),
+@pytest.mark.parametrize("make, says", [(lambda: ControlLoop(None, None, limits=None),
+                                         r"^limits: expected SafetyLimits \(the workspace box"),
+                                        (lambda: SafetyFilter(None), r"^limits: expected SafetyLimits \(the workspace box is the caller's to state\), got NoneType$"),
                                         (lambda: Watchdog("1", VirtualClock()), "^timeout_s must be a positive number"),
                                         (lambda: Watchdog(float("nan"), VirtualClock()), "^timeout_s must be a positive")])
 def test_a_filter_or_watchdog_without_real_limits_is_refused_in_one_line(make, says):
