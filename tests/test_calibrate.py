@@ -3,6 +3,7 @@ load by the bundle's name (ForceEstimator, ForceGenerator, ForceAugment, the aug
 bases; resume; one-line errors. Tiny bases (a generator trained here for 3 + 3 steps, a small estimator) keep it fast."""
 
 import json
+import re
 import shutil
 
 import numpy as np
@@ -242,3 +243,15 @@ def test_calibration_starts_from_the_quality_preset(bases, tmp_path):
     assert gen.config.dit == base.config.dit and gen.config.dit.hidden_size == 256
     x = np.full((2, 60, 80, 3), 127, np.uint8)
     assert gen.generate(x, np.zeros((2, 3), np.float32)).shape == x.shape
+
+
+@pytest.mark.parametrize("text", ["{}", "[1, 2]", "{\"estimator\": 3}", "not json"])
+def test_a_bundle_whose_record_holds_no_decision_is_refused_naming_it(tmp_path, text):
+    """A calibration.json no calibrate wrote: one line naming the file, never a KeyError from deep inside."""
+    from controltac_il.augment.reference import bundle_estimator
+    from controltac_il.estimators.estimator import BUNDLE_PART
+
+    (tmp_path / BUNDLE_PART).mkdir()
+    (tmp_path / "calibration.json").write_text(text)
+    with pytest.raises(ValueError, match=f"^{re.escape(str(tmp_path / 'calibration.json'))}: not a calibration record"):
+        bundle_estimator(tmp_path)

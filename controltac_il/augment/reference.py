@@ -66,7 +66,12 @@ def bundle_estimator(path):
     if not (Path(path) / BUNDLE_PART).is_dir():
         return None
     record = Path(path) / "calibration.json"
-    if record.is_file() and not json.loads(record.read_text())["estimator"].get("use_estimator", True):
+    try:
+        use = json.loads(record.read_text())["estimator"].get("use_estimator", True) if record.is_file() else True
+    except (ValueError, KeyError, TypeError, AttributeError) as exc:  # a record no calibrate wrote
+        raise ValueError(f"{record}: not a calibration record (no estimator decision: {type(exc).__name__} "
+                         f"{exc}); recalibrate the sensor") from None
+    if not use:
         warnings.warn(f"{path}: its calibrated estimator does not beat the constant baseline on held-out grasps; "
                       f"unlabelled frames take the nominal reference (0, 0, {NOMINAL_FZ:g}) N", stacklevel=3)
         return NominalEstimator()
