@@ -40,7 +40,7 @@ class TemporalEnsembler:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
         if not is_real(k) or k < 0:
             raise ValueError(f"k must be a finite number >= 0, got {k!r}")
-        if not all(is_int(d) and 0 <= d < action_dim for d in angle_dims):
+        if not isinstance(angle_dims, (tuple, list)) or not all(is_int(d) and 0 <= d < action_dim for d in angle_dims):
             raise ValueError(f"angle_dims must be action entries in [0, {action_dim}), got {angle_dims!r}")
         self.chunk_size, self.action_dim, self.k = int(chunk_size), int(action_dim), float(k)
         self.angle_dims = tuple(int(d) for d in angle_dims)

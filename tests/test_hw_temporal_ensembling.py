@@ -96,7 +96,8 @@ def test_bad_chunks_are_rejected(chunk, match):
                                            (dict(chunk_size=1, action_dim=1, k="0.01"), "k"),
                                            (dict(chunk_size=1, action_dim=1, k=float("inf")), "k"),
                                            (dict(chunk_size=1, action_dim=2, angle_dims=(2,)), "angle_dims"),
-                                           (dict(chunk_size=1, action_dim=2, angle_dims=(0.5,)), "angle_dims")])
+                                           (dict(chunk_size=1, action_dim=2, angle_dims=(0.5,)), "angle_dims"),
+                                           (dict(chunk_size=1, action_dim=2, angle_dims=1), "angle_dims")])
 def test_bad_construction_names_the_argument(kwargs, match):
     with pytest.raises(ValueError, match=f"^{match} must be"):
         TemporalEnsembler(**kwargs)
