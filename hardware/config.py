@@ -219,8 +219,8 @@ def _plain_data(v):
 
 def loop_config(cfg: SetupConfig, chunk_size: int, ensemble_k: float) -> ControlLoopConfig:
     """The control loop's settings for a policy with ``chunk_size`` and ``ensemble_k`` on this setup; a
-    ConfigError naming the file and the field (``control.inference_deadline_s``) when the setup's timing does
-    not fit the policy's chunk. Deployment calls it before anything connects."""
+    ConfigError naming the file and the field (``control.inference_deadline_s`` in async mode,
+    ``control.query_every`` in sync mode) when the setup's timing does not fit the policy's chunk. Deployment calls it before anything connects."""
     try:
         return ControlLoopConfig.for_policy(cfg.control, chunk_size, ensemble_k)
     except ValidationError as exc:

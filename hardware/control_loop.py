@@ -95,8 +95,9 @@ class ControlLoopConfig(LoopTiming):
     ensemble_k: temporal-ensembling decay, weights exp(-k * i) with i = 0 the oldest chunk (ACT: 0.01).
 
     With asynchronous inference, ``inference_deadline_s`` must fit in one chunk (``chunk_size`` periods):
-    a call running longer leaves the loop without actions first, so a longer deadline would never fire.
-    Checked here, against the chunk size the loop runs with (:meth:`for_policy` at deployment).
+    a call running longer leaves the loop without actions first, so a longer deadline would never fire. With
+    synchronous inference, ``query_every`` is at most one chunk, else the loop runs out of actions. Checked
+    here, against the chunk size the loop runs with (:meth:`for_policy` at deployment).
     """
 
     chunk_size: Int = Field(20, ge=1)
