@@ -462,3 +462,18 @@ def test_tactile_cameras_by_name_or_key_and_a_warning_where_none_is_named_as_one
     with pytest.warns(UserWarning, match=r"no camera's name holds digit, so none is taken as a tactile sensor"):
         ds = LeRobotEpisodes(root)
     assert ds.tactile_sensors == [] and ds.cameras == ["gelsight_left", "gelsight_right", "wrist"]
+
+
+def test_the_command_takes_a_folders_tactile_cameras_and_labels_as_train_act_does(written, tmp_path):
+    """Without --tactile-keys / --force-keys, a LeRobot folder's gelsight cameras and their observation.<camera>.force
+    labels are used (as train_act.py reads them): the same bytes as naming them."""
+    from controltac_il.generator.checkpoint import save_checkpoint
+
+    root, _, _, reference = written
+    g = reference.generator
+    ckpt = save_checkpoint(tmp_path / "gen", g.config, g.autoencoder, g.denoiser)
+    base = ["--dataset", str(root), "--generator", str(ckpt), "--steps", "1", "--copies", "1"]
+    named = ["--tactile-keys", LEFT, RIGHT, "--force-keys", *(f"{k}={v}" for k, v in FORCES.items())]
+    assert main([*base, "--out", str(tmp_path / "named"), *named]) == 0
+    assert main([*base, "--out", str(tmp_path / "default")]) == 0
+    assert tree_bytes(tmp_path / "default") == tree_bytes(tmp_path / "named")

@@ -74,11 +74,13 @@ def parser() -> argparse.ArgumentParser:
                     "augment.*, new meta and stats), ready for lerobot-train. Resumable (re-run the same command) "
                     "and shardable (torchrun --nproc_per_node N -m controltac_il.augment ...).")
     p.add_argument("--dataset", required=True, type=Path,
-                   help="folder of episode_<i>.hdf5 files, or a LeRobot v3.0 dataset folder (meta/info.json; name its "
-                        "tactile cameras with --tactile-keys); read-only")
+                   help="folder of episode_<i>.hdf5 files, or a LeRobot v3.0 dataset folder (meta/info.json; its "
+                        "tactile cameras are those named gelsight / tactile / digit unless --tactile-keys names them, "
+                        "as for train_act.py); read-only")
     p.add_argument("--force-keys", nargs="+", default=None, metavar="TACTILE_KEY=FORCE_KEY",
                    help="the force label [Fx, Fy, Fz] N of each tactile key, e.g. observation.images.gelsight_left="
-                        "observation.gelsight_left.force (default: our layout's rule; unlabelled keys use the estimator)")
+                        "observation.gelsight_left.force (default: observation.<camera>.force where a LeRobot folder "
+                        "has it, else our layout's rule; unlabelled keys use the estimator)")
     p.add_argument("--out", required=True, type=Path,
                    help="ACT episodes: the cache folder to create or complete. LeRobot: the augmented dataset folder "
                         "to write (new or empty; written under OUT.partial and renamed when complete)")
@@ -191,6 +193,7 @@ def _setup(args) -> ForceAugment:
             check_destination(args.dataset, args.out)
         except ValueError as exc:
             raise _field_error(exc, "--out") from exc
+        _lerobot_defaults(args.dataset, kwargs)
     elif args.out.exists() and not args.out.is_dir():
         raise UsageError("--out", f"expected a cache folder (new, empty, or a cache of these settings); "
                                   f"{args.out} is a file")
@@ -246,6 +249,24 @@ def _force_keys(pairs: list[str]) -> dict[str, str]:
     if not all("=" in x and all(x.split("=", 1)) for x in pairs):
         raise UsageError("--force-keys", f"expected TACTILE_KEY=FORCE_KEY pairs, got {' '.join(pairs)}")
     return dict(x.split("=", 1) for x in pairs)
+
+
+def _lerobot_defaults(root: Path, kwargs: dict) -> None:
+    """Where --tactile-keys / --force-keys are not given, a LeRobot folder's tactile cameras and force labels as
+    train_act.py takes them: cameras named gelsight / tactile / digit, labels observation.<camera>.force."""
+    from controltac_il.lerobot import read_info
+    from controltac_il.lerobot.episodes import default_force_keys, tactile_cameras
+    from controltac_il.streams import LEROBOT, tactile_key
+
+    try:
+        features = read_info(root)["features"]
+    except (ValueError, OSError) as exc:
+        raise _field_error(exc, "--dataset") from exc
+    if not kwargs.get("tactile_keys"):
+        kwargs["tactile_keys"] = tuple(tactile_cameras(features)) or None
+    if kwargs.get("force_keys") is None and kwargs.get("tactile_keys"):
+        full = [k if k in features else tactile_key(k, LEROBOT) for k in kwargs["tactile_keys"]]
+        kwargs["force_keys"] = default_force_keys(full, features) or None
 
 
 def _needed_keys(kwargs: dict) -> list[str] | None:

@@ -64,6 +64,18 @@ def _numeric(root: Path, keys: list[str]) -> dict[str, np.ndarray]:
     return out
 
 
+def tactile_cameras(features: dict) -> list[str]:
+    """The camera features (``info.json``'s) whose names hold one of TACTILE_WORDS: a folder's tactile streams
+    unless named otherwise (``train_act.py`` and the augment command alike)."""
+    return [k for k, ft in features.items() if ft["dtype"] in ("image", "video") and any(w in k for w in TACTILE_WORDS)]
+
+
+def default_force_keys(tactile: list[str], features: dict) -> dict[str, str]:
+    """{tactile camera key: its force label ``observation.<camera>.force``} where the folder has that feature."""
+    found = {k: force_key(lerobot_name(k), LEROBOT) for k in tactile}
+    return {k: f for k, f in found.items() if f in features}
+
+
 class LeRobotEpisodes(Dataset):
     """Frames of a LeRobot v3.0 folder as ``EpisodeDataset`` items (module docstring).
 
@@ -88,7 +100,7 @@ class LeRobotEpisodes(Dataset):
                 raise ValueError(f"root: {self.root} has no {key!r} feature (ACT needs the state and the actions)")
         cams = [k for k, ft in features.items() if ft["dtype"] in ("image", "video")]
         if tactile_keys is None:
-            every = [k for k in cams if any(w in k for w in TACTILE_WORDS)]
+            every = tactile_cameras(features)
             if not every and tactile_sensors != ():
                 warnings.warn(f"{self.root.name}: no camera's name holds {' / '.join(TACTILE_WORDS)}, so none is "
                               f"taken as a tactile sensor (cameras: {cams}); name them with --tactile-keys "
@@ -141,8 +153,7 @@ class LeRobotEpisodes(Dataset):
     @staticmethod
     def _forces(tactile: list[str], force_keys, features: dict) -> dict[str, str]:
         if force_keys is None:
-            found = {lerobot_name(k): force_key(lerobot_name(k), LEROBOT) for k in tactile}
-            found = {s: f for s, f in found.items() if f in features}
+            found = {lerobot_name(k): f for k, f in default_force_keys(tactile, features).items()}
             odd = [f"{f} {features[f]['shape']}" for f in found.values() if tuple(features[f]["shape"]) != (3,)]
             if odd:
                 raise ValueError(f"force_keys: {odd} are not (3,) [Fx, Fy, Fz] N features; pass force_keys= naming "
