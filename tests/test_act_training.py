@@ -152,7 +152,6 @@ def test_a_run_without_validation_writes_standard_json_and_resumes(tmp_path):
 
 def test_train_cli_reports_bad_input(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("CONTROLTAC_CACHE", str(tmp_path / "cache"))  # normalisation stats go there
-    sys.path.insert(0, str(REPO))  # train_act.py lives at the repository root
     from controltac_il.app import train_cli as train_act
 
     assert train_act.main(["--dataset", str(tmp_path / "nowhere"), "--out", str(tmp_path / "run")]) == 2
@@ -307,7 +306,6 @@ def test_chunk_size_longer_than_every_episode_is_refused(tmp_path):
 ])
 def test_train_cli_validation_errors_are_one_line_naming_the_flag(tmp_path, capsys, monkeypatch, flags, named):
     monkeypatch.setenv("CONTROLTAC_CACHE", str(tmp_path / "cache"))
-    sys.path.insert(0, str(REPO))
     from controltac_il.app import train_cli as train_act
 
     root = write_tiny_episodes(tmp_path / "demos", n=2)
@@ -319,7 +317,6 @@ def test_train_cli_validation_errors_are_one_line_naming_the_flag(tmp_path, caps
 
 def test_train_cli_data_errors_are_one_line_exit_2(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("CONTROLTAC_CACHE", str(tmp_path / "cache"))
-    sys.path.insert(0, str(REPO))
     from controltac_il.app import train_cli as train_act
 
     root = write_tiny_episodes(tmp_path / "demos", n=3)

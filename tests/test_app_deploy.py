@@ -1,8 +1,6 @@
 """Deployment through the wiring: checks before motion, Wilson interval, the deploy CLI's errors."""
 
 import math
-import sys
-from pathlib import Path
 
 import pytest
 import torch
@@ -13,9 +11,6 @@ from controltac_il.metrics import wilson_interval
 from hardware.config import ConfigError
 from hardware.safety import SafetyLimits
 from policies.act import ACT, ACTPolicy, save_checkpoint
-
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))  # deploy_policy.py lives at the repository root
 
 
 def test_wilson_interval_matches_hand_computation():

@@ -368,9 +368,6 @@ def test_items_can_hold_only_the_keys_asked_for(written):
 
 
 def test_train_act_takes_a_lerobot_folder_and_its_augmented_copy(written, tmp_path, monkeypatch):
-    import sys
-    from pathlib import Path
-
     from controltac_il.lerobot import LeRobotEpisodes
     from controltac_il.generator.checkpoint import save_checkpoint
 
@@ -386,7 +383,6 @@ def test_train_act_takes_a_lerobot_folder_and_its_augmented_copy(written, tmp_pa
     np.testing.assert_allclose(ds.stats["action"]["mean"], np.stack([LeRobotFolder(out)[i]["action"].numpy()
                                                                      for i in range(len(ds))]).mean(0), rtol=1e-6)
     monkeypatch.setenv("CONTROLTAC_CACHE", str(tmp_path / "cache"))
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     from controltac_il.app import train_cli as train_act
 
     g = reference.generator
@@ -401,12 +397,8 @@ def test_train_act_takes_a_lerobot_folder_and_its_augmented_copy(written, tmp_pa
 
 
 def test_train_act_names_a_lerobot_folders_tactile_cameras(written, tmp_path, monkeypatch, capsys):
-    import sys
-    from pathlib import Path
-
     root = written[0]
     monkeypatch.setenv("CONTROLTAC_CACHE", str(tmp_path / "cache"))
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     from controltac_il.app import train_cli as train_act
 
     flags = ["--steps", "1", "--batch-size", "2", "--chunk-size", "4", "--val-every", "1", "--threads", "1"]

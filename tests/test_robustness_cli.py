@@ -6,7 +6,6 @@ and Ctrl-C sent as a signal: ``python -m benchmarks.robustness --faults``; its j
 import subprocess
 import sys
 import types
-from pathlib import Path
 
 import pytest
 import torch
@@ -15,8 +14,6 @@ from act_fixtures import tiny_config
 from benchmarks.robustness.harness import CLEAR, SILENT, UNCLEAR, error_lines, judge_fault
 from policies.act import ACT, save_checkpoint
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))  # deploy_policy.py and train_act.py live at the repository root
 
 SETUP = ("robot: {type: xarm, ip: 127.0.0.1}\n"
          "cameras: {third_view: {device: /dev/video0}, wrist: {device: /dev/video1}}\n"
