@@ -199,8 +199,10 @@ class _PolicyWorker:
     :class:`~hardware.interfaces.VirtualClock` time waits for the call (it takes no virtual time
     unless the policy sleeps on the clock); on the wall clock the loop never waits for it."""
 
-    def __init__(self, policy: Policy, ensembler: TemporalEnsembler, clock: Clock, stats: LoopStats):
+    def __init__(self, policy: Policy, ensembler: TemporalEnsembler, clock: Clock, stats: LoopStats,
+                 deadline_s: float):
         self.policy, self.ensembler, self.clock, self.stats = policy, ensembler, clock, stats
+        self.deadline_s = deadline_s  # a call after the warm-up's (step 0) taking longer is late, its chunk unused
         self.busy_since: float | None = None
         self.busy_step: int | None = None
         self.error: BaseException | None = None
@@ -236,6 +238,10 @@ class _PolicyWorker:
             t0 = self.clock.now()
             try:
                 chunk = _validate_chunk(self.policy(obs), self.ensembler.chunk_size)
+                took = self.clock.now() - t0
+                if step > 0 and took > self.deadline_s:  # ended between two polls: late all the same
+                    raise PolicyLateError(f"policy inference on the observation of step {step} took {took:.3f} s, "
+                                          f"past inference_deadline_s = {self.deadline_s} s")
                 self.ensembler.add_chunk(step, chunk)
             except BaseException as exc:  # handed to the control thread, which stops the arm
                 self.error = exc
@@ -255,8 +261,8 @@ class _PolicyWorker:
             self._cv.notify()
 
 
-def _policy_error(exc: BaseException) -> PolicyError:
-    if isinstance(exc, PolicyError):
+def _policy_error(exc: BaseException) -> PolicyError | PolicyLateError:
+    if isinstance(exc, (PolicyError, PolicyLateError)):  # the loop's own verdicts on the policy, as they are
         return exc
     err = PolicyError(f"policy raised {type(exc).__name__}: {exc}")
     err.__cause__ = exc
@@ -361,7 +367,7 @@ class ControlLoop:
             obs, state = self._observe(watchdog)
             safety.reset(state.pose)
             if cfg.inference == "async":
-                worker = _PolicyWorker(self.policy, ensembler, clock, stats)
+                worker = _PolicyWorker(self.policy, ensembler, clock, stats, cfg.inference_deadline_s)
                 worker.submit(0, obs)
                 if not clock.wait(worker.chunk_ready, cfg.warmup_timeout_s):
                     raise PolicyLateError(f"no first chunk within warmup_timeout_s = {cfg.warmup_timeout_s} s")

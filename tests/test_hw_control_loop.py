@@ -178,6 +178,18 @@ def test_late_async_policy_stops_arm():
     assert_stopped_after_last_command(log)
 
 
+def test_an_async_call_past_its_deadline_is_late_even_when_it_ends_between_two_polls():
+    """The call submitted at step 1 (t = 0.1 s) takes 0.28 s against a 0.25 s deadline and ends at t = 0.38 s,
+    before the poll at 0.4 s could see it running: it is late all the same, its chunk never used."""
+    clock = VirtualClock()
+    policy = RampPolicy(chunk=5, late_on_call=2, late_s=0.28)
+    loop, arm, log = make(clock, policy, inference="async", inference_deadline_s=0.25)
+    with pytest.raises(PolicyLateError, match=r"on the observation of step 1 took 0\.280 s, past inference_deadline_s"):
+        loop.run(max_steps=50)
+    assert arm.stopped and len(commands(log)) == 4
+    assert_stopped_after_last_command(log)
+
+
 def test_chunks_running_out_is_a_late_policy():
     # sync mode querying every 4 steps, the policy's chunks shorter than it says (3 of 5 steps): step 3 has no action
     loop, arm, log = make(VirtualClock(), RampPolicy(chunk=3), query_every=4)
