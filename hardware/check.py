@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 
 import numpy as np
 from tqdm import tqdm
@@ -77,17 +76,17 @@ def _connect_and_report(cfg, seconds: float) -> None:
             print(f"gripper closing: {setup.gripper.state().position:.3f}")
         sources = {**{image_key(k, LOOP): v for k, v in setup.cameras.items()},
                    **{tactile_key(k, LOOP): v for k, v in setup.tactile.items()}}
-        first = {k: s.latest() for k, s in sources.items()}
-        end = time.monotonic() + seconds
+        first, clock = {k: s.latest() for k, s in sources.items()}, setup.clock  # the frames' own time base
+        end = clock.now() + seconds
         with tqdm(total=seconds, desc="watching sensors", unit="s", disable=None) as bar:
-            while (left := end - time.monotonic()) > 0:
-                time.sleep(min(0.1, left))
+            while (left := end - clock.now()) > 0:
+                clock.sleep_until(clock.now() + min(0.1, left))
                 bar.n = round(seconds - max(left, 0), 1)
                 bar.refresh()
         for k, s in sources.items():
             last = s.latest()
             fps = (last.index - first[k].index) / max(last.timestamp - first[k].timestamp, 1e-9)
-            age = time.monotonic() - last.timestamp
+            age = clock.now() - last.timestamp
             print(f"{k}: {last.image.shape[1]}x{last.image.shape[0]} at {fps:.1f} fps, newest frame {age * 1e3:.0f} ms old")
 
 
