@@ -375,8 +375,6 @@ class ControlLoop:
                     raise _policy_error(worker.error)
             else:
                 self._predict_sync(0, obs, ensembler, stats, deadline=cfg.warmup_timeout_s)
-            if self.watchdog_thread:
-                watchdog.start(self._watchdog_trip)
             self._cycles(max_steps, on_step, ensembler, safety, watchdog, worker)
         except BaseException as exc:
             problems = self._stop_devices()
@@ -411,6 +409,9 @@ class ControlLoop:
             obs, state = self._observe(watchdog)  # fresh at step 0 too: the warm-up may have taken seconds
             if step == 0:  # the first command is one step from where the arm is now, not before the warm-up
                 safety.reset(state.pose)
+                watchdog.feed("command", start)  # from here a silent control thread is a fault, the first command's too
+                if self.watchdog_thread:  # started on fresh frames: those fed before the warm-up are its age old
+                    watchdog.start(self._watchdog_trip)
             else:
                 safety.check_state(state.pose)
             watchdog.check(start)

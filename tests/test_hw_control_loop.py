@@ -384,6 +384,20 @@ def test_a_failed_stop_from_the_watchdog_thread_is_noted_on_the_fault():
     assert log[-2:] == [("arm-stop", None), ("gripper-stop", None)]
 
 
+def test_a_first_command_that_hangs_is_stopped_by_the_watchdog_thread_without_any_sensor():
+    """No camera or tactile feed to watch, and no command sent yet: the control thread is watched from its first
+    step all the same."""
+    clock, log = VirtualClock(), []
+    arm = FakeArm(START, clock, log)
+    arm.servo_delay_s = 1.0  # the very first servo() hangs
+    loop = ControlLoop(arm, RampPolicy(chunk=5), limits=LIMITS, clock=clock, watchdog_thread=True,
+                       config=ControlLoopConfig(inference="sync", chunk_size=5))
+    with pytest.raises(WatchdogTimeout, match=r"no fresh command"):
+        loop.run(max_steps=5)
+    events = [e for e, _ in log]
+    assert events.index("arm-stop") < events.index("servo-returned")  # stopped while servo() hung
+
+
 def test_ctrl_c_stops_arm_and_propagates():
     loop, arm, log = make(VirtualClock(), RampPolicy(), inference="async")
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
