@@ -12,12 +12,16 @@ need a robot or URSim, which cannot run here.
 
 from __future__ import annotations
 
+import contextlib
+from typing import Iterator
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from controltac_il.config import one_line
 from controltac_il.extras import require
-from hardware.interfaces import Arm, ArmFault, ArmState, Clock, ForceSample, ForceSensor, SensorError, WallClock
+from hardware.interfaces import (Arm, ArmFault, ArmState, Clock, ForceSample, ForceSensor, HardwareError, SensorError,
+                                 WallClock)
 from hardware.net import preflight, unreachable
 from hardware.pose import tilt_problem, tool_rotation, yaw_of
 
@@ -61,6 +65,17 @@ class URArm(Arm):
     def _fault(self, msg: str) -> ArmFault:
         return ArmFault(f"UR {self.ip}: {msg}")
 
+    @contextlib.contextmanager
+    def _sdk(self, what: str) -> Iterator[None]:
+        """ur-rtde's RuntimeError (its C++ exceptions, e.g. a connection dropped mid-call) as an ArmFault naming
+        ``what``: a device fault of the run, never a traceback. The adapter's own faults pass through."""
+        try:
+            yield
+        except HardwareError:
+            raise
+        except RuntimeError as exc:
+            raise self._fault(f"{what}: {one_line(exc)}") from None
+
     def connect(self) -> None:
         if self.receive is None or self.control is None:  # the SDK first: a missing extra needs no network to say so
             rtde_receive, rtde_control = (require(m, "ur", "the UR arm") for m in ("rtde_receive", "rtde_control"))
@@ -91,8 +106,9 @@ class URArm(Arm):
             raise self._fault("the RTDE control script is not running (stopped from the pendant?)")
 
     def state(self) -> ArmState:
-        self.check()
-        x, y, z, rx, ry, rz = self.receive.getActualTCPPose()
+        with self._sdk("reading the pose"):
+            self.check()
+            x, y, z, rx, ry, rz = self.receive.getActualTCPPose()
         r = Rotation.from_rotvec([rx, ry, rz])
         problem = tilt_problem(r, self.r0, "tool_rotvec")
         if problem:
@@ -101,25 +117,28 @@ class URArm(Arm):
         return ArmState(np.array([x, y, z, yaw]), self.clock.now())
 
     def servo(self, target) -> None:
-        self.check()
         x, y, z, yaw = (float(v) for v in target)
         pose = [x, y, z, *tool_rotation(yaw, self.r0).as_rotvec().tolist()]
-        ok = self.control.servoL(pose, self.speed, self.acceleration, self.period_s, self.lookahead_time, self.gain)
+        with self._sdk("servoL"):
+            self.check()
+            ok = self.control.servoL(pose, self.speed, self.acceleration, self.period_s, self.lookahead_time, self.gain)
         if ok is False:
             raise self._fault(f"servoL rejected the target {np.round(pose, 4).tolist()}")
 
     def stop(self) -> None:
         """servoStop: decelerate and leave servo mode."""
         if self.control is not None:
-            self.control.servoStop(self.acceleration * 4)
+            with self._sdk("servoStop"):
+                self.control.servoStop(self.acceleration * 4)
 
     def close(self) -> None:
         """stopScript and disconnect both interfaces."""
-        if self.control is not None:
-            self.control.stopScript()
-            self.control.disconnect()
-        if self.receive is not None:
-            self.receive.disconnect()
+        with self._sdk("closing the RTDE interfaces"):
+            if self.control is not None:
+                self.control.stopScript()
+                self.control.disconnect()
+            if self.receive is not None:
+                self.receive.disconnect()
 
 
 class URForce(ForceSensor):

@@ -318,6 +318,27 @@ def test_ur_faults_are_named_and_stop_the_loop(fault, match):
     assert kinds.count("servoL") == 3 and kinds[-1] == "servoStop"
 
 
+def test_ur_sdk_runtime_errors_are_arm_faults_naming_the_call_and_stop_the_loop():
+    """ur-rtde raises its C++ exceptions as RuntimeError (a connection dropped mid-call): an ArmFault naming the
+    call, so the run ends as a device fault (exit 1), never a traceback."""
+    rtde = StubRTDE()
+
+    def dropped(*args):
+        raise RuntimeError("RTDE control script is not running or connection lost")
+
+    arm = URArm("10.0.0.5", control=rtde, receive=rtde)
+    arm.connect()
+    rtde.servoL = dropped
+    with pytest.raises(ArmFault, match=r"^UR 10\.0\.0\.5: servoL: RTDE control script is not running"):
+        arm.servo([0.4, 0.0, 0.2, 0.0])
+    rtde.getActualTCPPose = dropped
+    with pytest.raises(ArmFault, match=r"^UR 10\.0\.0\.5: reading the pose: "):
+        arm.state()
+    rtde.servoStop = dropped
+    with pytest.raises(ArmFault, match=r"^UR 10\.0\.0\.5: servoStop: "):
+        arm.stop()
+
+
 def test_ur_reduced_mode_still_moves():
     # reduced mode (safety mode 2: the controller's slower, safety-limited mode) is not a fault: state is
     # read and every target still reaches servoL with the configured timing; only the other modes stop
