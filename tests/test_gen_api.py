@@ -193,8 +193,9 @@ def test_other_resolutions_come_back_at_their_size(gen, contacts):
     out = gen.generate(big, np.zeros((2, 3)), steps=STEPS)
     assert out.shape == big.shape and out.dtype == np.uint8
     small = gen.generate(ref[:2], np.zeros((2, 3)), steps=STEPS)
-    np.testing.assert_allclose(cv2.resize(out[0], (160, 120), interpolation=cv2.INTER_AREA).astype(float),
-                               small[0].astype(float), atol=40)
+    for big_out, small_out in zip(out, small):  # measured: mean 0.4-0.5, largest 3-9 grey levels; the contacts'
+        diff = np.abs(cv2.resize(big_out, (160, 120), interpolation=cv2.INTER_AREA).astype(float) - small_out)
+        assert diff.mean() < 1.5 and diff.max() <= 25, (diff.mean(), diff.max())  # own mean residual: 2.7-3.4
 
 
 def test_generate_images_matches_generate_on_residuals(gen, sensor, contacts):
