@@ -167,24 +167,17 @@ def test_async_policy_exception_stops_arm():
     assert_stopped_after_last_command(log)
 
 
-def test_late_async_policy_stops_arm():
+@pytest.mark.parametrize("late_s, says", [
+    (1.5, r"step 1 has run 0\.300 s, past inference_deadline_s = 0\.25 s"),  # still running at the poll of t = 0.4 s
+    (0.28, r"on the observation of step 1 took 0\.280 s, past inference_deadline_s"),  # ended at 0.38 s, between polls
+])
+def test_a_late_async_policy_stops_the_arm_whether_or_not_its_call_ended_between_two_polls(late_s, says):
+    """The call submitted at step 1 (t = 0.1 s) against a 0.25 s deadline: late at the next poll, its chunk never
+    used, whether it is still running then or ended just before."""
     clock = VirtualClock()
-    policy = RampPolicy(chunk=5, late_on_call=2, late_s=1.5)
+    policy = RampPolicy(chunk=5, late_on_call=2, late_s=late_s)
     loop, arm, log = make(clock, policy, inference="async", inference_deadline_s=0.25)
-    # the call submitted at step 1 (t = 0.1 s) is still running at step 4 (t = 0.4 s): 0.3 s > 0.25 s
-    with pytest.raises(PolicyLateError, match=r"step 1 has run 0\.300 s, past inference_deadline_s = 0\.25 s"):
-        loop.run(max_steps=50)
-    assert arm.stopped and len(commands(log)) == 4
-    assert_stopped_after_last_command(log)
-
-
-def test_an_async_call_past_its_deadline_is_late_even_when_it_ends_between_two_polls():
-    """The call submitted at step 1 (t = 0.1 s) takes 0.28 s against a 0.25 s deadline and ends at t = 0.38 s,
-    before the poll at 0.4 s could see it running: it is late all the same, its chunk never used."""
-    clock = VirtualClock()
-    policy = RampPolicy(chunk=5, late_on_call=2, late_s=0.28)
-    loop, arm, log = make(clock, policy, inference="async", inference_deadline_s=0.25)
-    with pytest.raises(PolicyLateError, match=r"on the observation of step 1 took 0\.280 s, past inference_deadline_s"):
+    with pytest.raises(PolicyLateError, match=says):
         loop.run(max_steps=50)
     assert arm.stopped and len(commands(log)) == 4
     assert_stopped_after_last_command(log)
