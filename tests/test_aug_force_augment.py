@@ -444,5 +444,25 @@ def test_an_unlabelled_frames_contact_needs_its_area_and_a_blank_frame_never_has
     keys = KeyMap(("t",), {"t": None}, {"t": None}, {"t": None}, {})
     frames = np.full((3, 10, 20, 3), 127, np.uint8)  # 200 pixels; frame 1: 10 contact pixels, frame 2: 9
     frames[1, 0, :10] = frames[2, 0, :9] = 160
-    assert ReferenceForces(keys, 0.5, 10 / 200).in_contact(frames, None).tolist() == [False, True, False]
-    assert ReferenceForces(keys, 0.5, 0.0).in_contact(frames, None).tolist() == [False, True, True]
+    assert ReferenceForces(keys, 0.5, 10 / 200).in_contact(frames, frames, None).tolist() == [False, True, False]
+    assert ReferenceForces(keys, 0.5, 0.0).in_contact(frames, frames, None).tolist() == [False, True, True]
+
+
+@pytest.mark.parametrize("value", [0, 255])
+@pytest.mark.parametrize("mode", ["cache", "online"])
+def test_a_blank_camera_frame_in_contact_is_kept_real_and_never_asked_of_the_generator(tmp_path, gen, mode, value):
+    """A dropped or overexposed frame (every value 0 or 255) inside a labelled grasp: its label says contact, but
+    it has nothing to generate from, so every copy keeps it real (no_contact) with a warning; its neighbours
+    are still regenerated."""
+
+    ep = synthetic_episode(12, 0, range(4, 10))
+    ep.tactile["left"][6] = value
+    write_episode(tmp_path / "demos" / "episode_0.hdf5", ep)
+    data = EpisodeDataset(tmp_path / "demos", chunk_size=1, stats_path=tmp_path / "stats.json")
+    with pytest.warns(UserWarning, match="every value 0 or 255"):
+        a = aug(data, gen, tmp_path, copies=2, mode=mode, out_of_range="clamp")
+        items = [a[len(data) + t] for t in range(12)]
+    status = [int(a.info(x)["status.observation.tactile.left"]) for x in items]
+    assert status[6] == STATUS["no_contact"]
+    assert torch.equal(items[6]["observation.tactile.left"], data[6]["observation.tactile.left"])
+    assert all(s in (STATUS["regenerated"], STATUS["clamped"]) for s in status[4:6] + status[7:10])

@@ -424,6 +424,23 @@ def test_moderate_aspect_changes_are_accepted(gen, size):
     assert out.shape == (1, *size, 3)
 
 
+def test_a_blank_reference_is_refused_by_row_and_a_nearly_blank_one_is_not(gen):
+    """Every value 0 or 255 (a dark, overexposed or dropped frame) has nothing to condition on: refused, naming
+    the first such row, through every entry point; one pixel off the rails makes it an image again."""
+    hw = gen.config.image_size
+    res = np.full((3, *hw, 3), 127, np.uint8)
+    res[1], res[2] = 0, 255
+    with pytest.raises(ValueError, match=r"reference_residuals\[1\] \(and 1 more\).*0 or 255"):
+        gen.generate(res, np.zeros((3, 3)), steps=1)
+    with pytest.raises(ValueError, match=r"reference_residuals\[1\]"):
+        gen.generate_at(res, [[0, 0, 4.0]] * 3, [[0, 0, 5.0]] * 3, steps=1)
+    bg = np.full((*hw, 3), 90, np.uint8)
+    with pytest.raises(ValueError, match=r"images\[1\]"):
+        gen.generate_images(res, bg, np.zeros((3, 3)), steps=1)
+    res[1:, 0, 0, 0] = 128
+    assert gen.generate(res, np.zeros((3, 3)), steps=1).shape == res.shape
+
+
 def test_a_nan_force_is_outside_the_validated_range_and_an_untrusted_estimate_of_it_reads_nominal():
     from controltac_il.augment.reference import working_reference
     from controltac_il.generator.forces import NOMINAL_FZ, VALIDATED_RANGE

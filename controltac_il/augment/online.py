@@ -102,7 +102,7 @@ class OnlineGenerator:
         else:
             background = self.keys.background(item, k)
             residual = to_residual(image, background)
-            ref = self.references.of_frame(residual, self.references.label(item, k))
+            ref = self.references.of_frame(image, residual, self.references.label(item, k))
         if ref is None:
             return KeyOutcome(STATUS["no_contact"]), None
         plan = plan_frame(cfg, episode, copy, frame, j, ref, self._fz(episode))

@@ -27,7 +27,7 @@ def working_reference(estimates: np.ndarray, policy: str) -> np.ndarray:
     fz = np.full(int(bad.sum()), NOMINAL_FZ) if policy == "nominal" else np.clip(out[bad, 2], *VALIDATED_RANGE.fz)
     out[bad] = np.stack([np.zeros_like(fz), np.zeros_like(fz), fz], axis=-1)
     return out
-from controltac_il.tactile.residual import contact_mask, to_residual
+from controltac_il.tactile.residual import blank, contact_mask, to_residual
 
 
 @dataclass
@@ -106,20 +106,26 @@ class ReferenceForces:
                     "estimator=ForceEstimator.from_pretrained(PATH) or record force labels") from exc
         return self._estimator
 
-    def in_contact(self, residuals: np.ndarray, labels: np.ndarray | None) -> np.ndarray:
-        """bool (T,): Fz >= contact_force with labels, else enough contact pixels in the residual."""
+    def in_contact(self, images: np.ndarray, residuals: np.ndarray, labels: np.ndarray | None) -> np.ndarray:
+        """bool (T,) for images and their residuals (T, H, W, 3): Fz >= contact_force with labels, else enough
+        contact pixels in the residual; never a blank image (every value 0 or 255), which is kept real."""
+        empty = blank(images)
+        if empty.any():
+            warnings.warn(f"{int(empty.sum())} tactile frame(s) have every value 0 or 255 (a dark, overexposed or "
+                          "dropped camera frame): kept real, never a reference", stacklevel=3)
         if labels is not None:
-            return labels[:, 2] >= self.contact_force
+            return (labels[:, 2] >= self.contact_force) & ~empty
         area = contact_mask(residuals).mean(axis=(1, 2))
-        return (area >= self.min_contact_area) & (area > 0)
+        return (area >= self.min_contact_area) & (area > 0) & ~empty
 
     def label(self, item: dict, key: str) -> np.ndarray | None:
         """Force label (3,) float64 of ``key`` in one item, or None when the items carry none."""
         return self.keys.label(item, key)
 
-    def of_frame(self, residual: np.ndarray, label: np.ndarray | None) -> np.ndarray | None:
-        """Reference force (3,) float64 of one residual (H, W, 3), or None when it is not in contact."""
-        if not self.in_contact(residual[None], None if label is None else label[None])[0]:
+    def of_frame(self, image: np.ndarray, residual: np.ndarray, label: np.ndarray | None) -> np.ndarray | None:
+        """Reference force (3,) float64 of one image and its residual (H, W, 3), or None when it is not in
+        contact."""
+        if not self.in_contact(image[None], residual[None], None if label is None else label[None])[0]:
             return None
         return label if label is not None else self.estimator.predict(residual[None])[0].astype(np.float64)
 
@@ -152,7 +158,7 @@ class ReferenceForces:
                 warnings.warn(f"items carry no background for {k!r}; background estimated per episode from "
                               "its own no-contact frames", stacklevel=3)
             res = to_residual(images, bg)
-            touch = self.in_contact(res, labels)
+            touch = self.in_contact(images, res, labels)
             ref = np.full((len(items), 3), np.nan)
             if labels is not None:
                 ref[:] = labels

@@ -1,7 +1,7 @@
 """What a generation call is given, checked, and the one range decision on its forces.
 
 ``check_residuals`` / ``check_forces`` / ``check_options`` refuse input the generator was never validated on (non-uint8
-or wrongly shaped images, images the resize to the model's size would distort, NaN/inf forces, bad step counts and
+or wrongly shaped or blank images, images the resize to the model's size would distort, NaN/inf forces, bad step counts and
 seeds); ``decide_forces`` applies ``forces.decide_targets`` (the validated range's one owner) to a request given as
 ΔF, ΔF with reference forces, or target forces with reference forces, and warns where the caller gets no decision.
 """
@@ -16,6 +16,7 @@ import torch
 
 from controltac_il.config import AUTO, is_int
 from controltac_il.generator.forces import VALIDATED_RANGE, TargetDecision, decide_targets
+from controltac_il.tactile.residual import blank
 
 # Largest change of aspect ratio (either way) the resize to the model's image size may make.
 MAX_ASPECT_CHANGE = 1.5
@@ -23,8 +24,9 @@ DELTA_TARGET = "target force reference_force + delta_force"
 
 
 def check_residuals(x, name: str, model_hw: tuple[int, int]) -> np.ndarray:
-    """uint8 (B, H, W, 3) images (numpy or torch) with B >= 1, H, W >= 8, whose resize to the model's (H, W) changes
-    the aspect ratio by at most ``MAX_ASPECT_CHANGE`` -> the numpy array; else ValueError naming ``name``."""
+    """uint8 (B, H, W, 3) images (numpy or torch) with B >= 1, H, W >= 8, none blank (``tactile.residual.blank``),
+    whose resize to the model's (H, W) changes the aspect ratio by at most ``MAX_ASPECT_CHANGE`` -> the numpy array;
+    else ValueError naming ``name``."""
     if isinstance(x, torch.Tensor):  # its dtype named as given (NumPy has no bfloat16)
         if x.dtype != torch.uint8:
             raise ValueError(f"{name} must have dtype uint8 (values 0-255), got {x.dtype}")
@@ -35,6 +37,10 @@ def check_residuals(x, name: str, model_hw: tuple[int, int]) -> np.ndarray:
         raise ValueError(f"{name} must have dtype uint8 (values 0-255), got {x.dtype}")
     if x.ndim != 4 or x.shape[-1] != 3 or x.shape[0] < 1 or min(x.shape[1:3]) < 8:
         raise ValueError(f"{name} must have shape (B, H, W, 3) with B >= 1 and H, W >= 8, got {x.shape}")
+    empty = np.flatnonzero(blank(x))
+    if empty.size:  # nothing to condition on: the model would invent a contact
+        raise ValueError(f"{name}[{empty[0]}] (and {empty.size - 1} more) has every value 0 or 255: a dark, "
+                         "overexposed or dropped camera frame, not a tactile image; leave it out or keep it real")
     (h, w), (mh, mw) = x.shape[1:3], model_hw
     change = (w / h) / (mw / mh)
     change = max(change, 1.0 / change)

@@ -48,3 +48,10 @@ def contact_mask(residual: np.ndarray, threshold: float = 12.0, min_pixels: int 
         counts = mask.reshape(*mask.shape[:-2], -1).sum(-1)
         mask = mask & (counts >= min_pixels)[..., None, None]
     return mask
+
+
+def blank(images: np.ndarray) -> np.ndarray:
+    """bool (...,): frames (..., H, W, 3) uint8 whose every value is 0 or 255 (a dark, overexposed or dropped
+    camera frame, or a residual no contact makes): no tactile information to read or to generate from."""
+    a = _check_image("image", images)
+    return ((a == 0) | (a == 255)).all(axis=(-3, -2, -1))
