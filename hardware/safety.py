@@ -2,7 +2,7 @@
 
 :class:`SafetyFilter` turns a policy action ``[x, y, z, yaw, gripper]`` into a target the arm may
 take: clamped into the workspace box, moved at most ``max_step_m`` and ``max_rotation_rad`` from the
-previous command, gripper clipped to its limits. A non-finite action or a measured pose outside the box
+previous command, kept within ``max_tracking_m`` of the measured position, gripper clipped to its limits. A non-finite action or a measured pose outside the box
 is a :class:`SafetyViolation` (the loop then stops the arm). :class:`Watchdog` stops the arm when no
 fresh command or sensor frame arrived within its timeout (two control periods by default).
 """
@@ -54,6 +54,10 @@ class SafetyLimits:
         through ±pi; a narrower range is an arc (yaw_min counter-clockwise to yaw_max) the wrist never leaves: a
         wanted yaw outside it goes to its nearer end, and yaw turns along the arc, never through the band it
         excludes.
+    max_tracking_m: largest distance between a command and the last measured position, metres (at least
+        max_step_m, at most 0.2; None: two steps, 2 x max_step_m): an arm blocked by contact is not pressed
+        harder as the policy's targets walk on, since position control pushes in proportion to that gap;
+        further commands are pulled toward the measured position.
     gripper_min / gripper_max: allowed gripper command range within [0, 1] (0 open, 1 closed).
     state_tolerance_m: a measured pose further than this outside the box is a violation (arm stopped).
     state_tolerance_rad: a measured yaw further than this outside a narrower yaw range is a violation.
@@ -65,6 +69,7 @@ class SafetyLimits:
     yaw_max: Float = Field(np.pi, ge=-np.pi, le=np.pi)
     max_step_m: Float = Field(0.02, gt=0, le=0.1)
     max_rotation_rad: Float = Field(0.1, gt=0, le=0.5)
+    max_tracking_m: Float | None = Field(None, gt=0, le=0.2)
     gripper_min: Float = Field(0.0, ge=0, le=1)
     gripper_max: Float = Field(1.0, ge=0, le=1)
     state_tolerance_m: Float = Field(0.02, gt=0, le=0.2)
@@ -79,10 +84,17 @@ class SafetyLimits:
                          list(self.workspace_min))
         if not self.yaw_min < self.yaw_max:
             problems.add("yaw_min", f"must be below yaw_max ({self.yaw_max})", self.yaw_min)
+        if self.max_tracking_m is not None and self.max_tracking_m < self.max_step_m:  # the arm could never be commanded one full step ahead
+            problems.add("max_tracking_m", f"must be at least max_step_m ({self.max_step_m})", self.max_tracking_m)
         if not self.gripper_min < self.gripper_max:
             problems.add("gripper_min", f"must be below gripper_max ({self.gripper_max})", self.gripper_min)
         problems.raise_any()
         return self
+
+    @property
+    def tracking_m(self) -> float:
+        """The largest command-to-measured distance in force, metres (``max_tracking_m`` or two steps)."""
+        return self.max_tracking_m if self.max_tracking_m is not None else 2 * self.max_step_m
 
     @property
     def full_circle(self) -> bool:
@@ -113,6 +125,7 @@ class SafetyCounts:
     yaw_range: int = 0
     step: int = 0
     rotation: int = 0
+    tracking: int = 0
     gripper: int = 0
 
     def as_dict(self) -> dict:
@@ -126,6 +139,7 @@ class SafetyFilter:
         self.limits = checked_limits(limits)
         self.counts = SafetyCounts()
         self._last: np.ndarray | None = None  # last commanded pose (4,)
+        self._measured: np.ndarray | None = None  # last measured pose (4,)
 
     def reset(self, pose: np.ndarray) -> None:
         """Start from the measured pose (4,); the first command moves at most one step from it."""
@@ -135,7 +149,7 @@ class SafetyFilter:
     def check_state(self, pose: np.ndarray) -> None:
         """Raise :class:`SafetyViolation` when the measured pose is non-finite, outside the box by more than
         ``state_tolerance_m``, or (a range narrower than the full circle) its yaw outside the range by more than
-        ``state_tolerance_rad``."""
+        ``state_tolerance_rad``; else the next commands stay within ``max_tracking_m`` of it."""
         p = np.asarray(pose, dtype=np.float64)
         if p.shape != (POSE_DIM,) or not np.isfinite(p).all():
             raise SafetyViolation(f"measured pose must be 4 finite numbers [x, y, z, yaw], got {p!r}")
@@ -146,6 +160,7 @@ class SafetyFilter:
                 f"measured position {np.round(p[:3], 4).tolist()} m is outside the workspace box "
                 f"{list(lo)}..{list(hi)} by more than {tol} m"
             )
+        self._measured = p.copy()
         lim = self.limits
         if lim.full_circle:
             return
@@ -172,6 +187,11 @@ class SafetyFilter:
         if dist > lim.max_step_m:
             xyz = self._last[:3] + delta * (lim.max_step_m / dist)
             self.counts.step += 1
+        gap = xyz - self._measured[:3]
+        ahead = float(np.linalg.norm(gap))
+        if ahead > lim.tracking_m:
+            xyz = np.clip(self._measured[:3] + gap * (lim.tracking_m / ahead), lo, hi)  # measured: maybe just outside
+            self.counts.tracking += 1
         yaw = self._yaw(a[3])
         grip = float(np.clip(a[4], lim.gripper_min, lim.gripper_max))
         self.counts.gripper += int(grip != a[4])

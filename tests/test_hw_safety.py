@@ -25,7 +25,7 @@ def test_action_within_limits_passes_unchanged():
     f = make_filter()
     a = np.array([0.505, 0.003, 0.2, 0.02, 0.5])
     np.testing.assert_array_equal(f(a), a)
-    assert f.counts.as_dict() == dict(workspace=0, yaw_range=0, step=0, rotation=0, gripper=0)
+    assert f.counts.as_dict() == dict(workspace=0, yaw_range=0, step=0, rotation=0, tracking=0, gripper=0)
 
 
 def test_large_step_is_scaled_along_its_direction():
@@ -35,6 +35,30 @@ def test_large_step_is_scaled_along_its_direction():
     assert f.counts.step == 1
     out2 = f(np.array([0.53, 0.04, 0.2, 0.0, 0.5]))  # the next step starts from the last command
     np.testing.assert_allclose(out2[:3], [0.512, 0.016, 0.2], atol=1e-12)
+
+
+def test_an_arm_blocked_by_contact_is_never_commanded_further_than_the_tracking_limit_ahead():
+    """A policy pushing down while the arm stays blocked: commands walk one step a period until they are two
+    steps (the default tracking limit) ahead of the measured pose, then stay there, pulled along the push; an
+    arm that follows is never pulled. A measured pose just outside the box does not pull a command out of it."""
+    f, push, zs = make_filter(), np.array([0.5, 0.0, 0.0, 0.0, 0.5]), []
+    for z in (0.2, 0.195, 0.195, 0.195, 0.195):  # moved half a step, then blocked at 0.195 m
+        f.check_state(np.array([0.5, 0.0, z, 0.0]))
+        zs.append(f(push)[2])
+    np.testing.assert_allclose(zs, [0.19, 0.18, 0.175, 0.175, 0.175], atol=1e-12)
+    assert LIMITS.tracking_m == 0.02 and f.counts.tracking == 3
+    g = make_filter()
+    for _ in range(5):  # the arm reaches every command: the step limit alone applies
+        out = g(push)
+        g.check_state(out[:4])
+    assert out[2] == pytest.approx(0.15) and g.counts.tracking == 0
+    h = make_filter(pose=(0.5, 0.0, 0.005, 0.0))
+    h.check_state(np.array([0.5, 0.0, -0.01, 0.0]))  # 1 cm below the floor: within state_tolerance_m
+    out = h(np.array([0.5, 0.0, 0.2, 0.0, 0.5]))
+    assert out[2] == pytest.approx(0.01) and h.counts.tracking == 1  # two steps ahead of -0.01 m, inside the box
+    wide = SafetyLimits(workspace_min=(0.0, -0.5, 0.0), workspace_max=(1.0, 0.5, 0.5), max_step_m=0.01,
+                        max_tracking_m=0.05)
+    assert wide.tracking_m == 0.05
 
 
 def test_workspace_clamp_then_step_limit():
@@ -125,7 +149,9 @@ def test_filter_requires_reset():
      (dict(max_step_m=0.5), r"max_step_m: Input should be less than or equal to 0\.1"),
      (dict(max_rotation_rad=-1), "max_rotation_rad"), (dict(max_rotation_rad=1.0), "max_rotation_rad"),
      (dict(gripper_min=0.5, gripper_max=0.2), "gripper_min: must be below gripper_max"),
-     (dict(yaw_min=-4.0), "yaw_min"), (dict(state_tolerance_m="2 cm"), "state_tolerance_m")],
+     (dict(yaw_min=-4.0), "yaw_min"), (dict(state_tolerance_m="2 cm"), "state_tolerance_m"),
+     (dict(max_step_m=0.02, max_tracking_m=0.015), r"max_tracking_m: must be at least max_step_m \(0\.02\)"),
+     (dict(max_tracking_m=0.3), r"max_tracking_m: Input should be less than or equal to 0\.2")],
 )
 def test_limits_validation_names_the_field(kwargs, field):
     """The limits a robot starts with: refused in one line naming the field (the constructor's own message)."""
