@@ -72,7 +72,8 @@ class GripperState:
 class Frame:
     """One image from a camera or tactile sensor.
 
-    image: uint8 (H, W, 3) RGB. timestamp: clock seconds when it was captured.
+    image: uint8 (H, W, 3) RGB. timestamp: seconds on the control loop's clock when it was captured (a stamp the loop's
+    clock has not reached is refused by its watchdog).
     index: sequence number of the frame since the source started (increments by one per new frame).
     """
 

@@ -84,7 +84,7 @@ class SafetyLimits:
                          list(self.workspace_min))
         if not self.yaw_min < self.yaw_max:
             problems.add("yaw_min", f"must be below yaw_max ({self.yaw_max})", self.yaw_min)
-        if self.max_tracking_m is not None and self.max_tracking_m < self.max_step_m:  # the arm could never be commanded one full step ahead
+        if self.max_tracking_m is not None and self.max_tracking_m < self.max_step_m:  # never one step ahead
             problems.add("max_tracking_m", f"must be at least max_step_m ({self.max_step_m})", self.max_tracking_m)
         if not self.gripper_min < self.gripper_max:
             problems.add("gripper_min", f"must be below gripper_max ({self.gripper_max})", self.gripper_min)
@@ -242,13 +242,21 @@ class Watchdog:
         self._thread: threading.Thread | None = None
 
     def feed(self, name: str, t: float) -> None:
-        """Record that ``name`` was fresh at clock time ``t`` (s)."""
+        """Record that ``name`` was fresh at clock time ``t`` (s). A ``t`` that is not a time already reached on
+        ``clock`` (NaN, inf, or ahead of it: a source stamping frames with another clock) would keep the feed fresh
+        for ever: :class:`SafetyViolation`."""
+        now = self.clock.now()
+        if not (is_real(t) and t <= now):
+            raise SafetyViolation(f"watchdog: {name.replace(':', ' ')} stamped {t!r}, not a time on the loop's clock "
+                                  f"(now {now:.3f} s): stamp frames with the loop's clock")
         with self._lock:
             self._fed[name] = max(t, self._fed.get(name, -np.inf))
 
     def check(self, now: float | None = None) -> None:
         """Raise :class:`WatchdogTimeout` (and remember it) when a feed is older than the timeout."""
         now = self.clock.now() if now is None else now
+        if not is_real(now):  # NaN: every age would compare False, never a trip
+            raise SafetyViolation(f"watchdog: checked at {now!r}, not a time")
         with self._lock:
             if self.tripped is None:
                 for name, t in self._fed.items():

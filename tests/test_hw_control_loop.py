@@ -244,6 +244,18 @@ def test_stale_tactile_frame_stops_arm():
     assert_stopped_after_last_command(log)
 
 
+def test_a_tactile_source_stamping_frames_with_another_clock_stops_the_arm_before_it_moves():
+    """A source stamping with the wall clock while the loop runs on its own: its frames would look fresh for
+    ever (a stamp ahead of the loop's clock is never stale), so the first one stops the arm."""
+    from hardware.interfaces import WallClock
+
+    loop, arm, log = make(VirtualClock(), RampPolicy())
+    loop.tactile["left"] = SyntheticFrameSource("left", (24, 32), WallClock(), background=True)
+    with pytest.raises(SafetyViolation, match=r"frame tactile/left stamped .*not a time on the loop's clock"):
+        loop.run(max_steps=20)
+    assert commands(log) == [] and ("arm-stop", None) in log
+
+
 def test_unplugged_sensor_stops_arm():
     loop, arm, log = make(VirtualClock(), RampPolicy())
     with pytest.raises(SensorError, match="left: device unplugged"):

@@ -186,6 +186,20 @@ def test_watchdog_trips_on_the_silent_feed_only():
         wd.check()
 
 
+@pytest.mark.parametrize("stamp", [float("nan"), float("inf"), 0.3])
+def test_a_feed_stamped_with_no_time_of_the_clock_is_refused(stamp):
+    """NaN, inf or a time the clock has not reached (another clock's) would keep a feed fresh for ever; a NaN
+    check time would never trip either."""
+    clock = VirtualClock()
+    clock.advance(0.2)
+    wd = Watchdog(0.1, clock)
+    with pytest.raises(SafetyViolation, match=r"watchdog: frame left stamped .*not a time on the loop's clock"):
+        wd.feed("frame:left", stamp)
+    wd.feed("frame:left", 0.2)
+    with pytest.raises(SafetyViolation, match="not a time"):
+        wd.check(float("nan"))
+
+
 def test_watchdog_thread_calls_on_trip():
     import threading
 
