@@ -37,7 +37,9 @@ FULL_CIRCLE_SLACK = 1e-4  # rad: a yaw range this close to 2 pi (e.g. +-3.14159,
 def wrap_angle(a):
     """Angle(s) wrapped into [-pi, pi); angles already inside are returned exactly."""
     a = np.asarray(a, dtype=np.float64)
-    return np.where((a >= -np.pi) & (a < np.pi), a, (a + np.pi) % (2 * np.pi) - np.pi)
+    r = (a + np.pi) % (2 * np.pi) - np.pi
+    r = np.where(r >= np.pi, r - 2 * np.pi, r)  # just below -pi, the modulo rounds up to 2 pi: pi, not -pi
+    return np.where((a >= -np.pi) & (a < np.pi), a, r)
 
 
 @one_line_errors

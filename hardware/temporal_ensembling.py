@@ -65,6 +65,7 @@ class TemporalEnsembler:
 
     def covers(self, t: int) -> bool:
         """True when at least one chunk holds an action for step ``t``."""
+        _check_step(t)
         with self._lock:
             return any(s <= t < s + len(c) for s, c in zip(self._starts, self._chunks))
 

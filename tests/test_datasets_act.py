@@ -157,7 +157,7 @@ def test_read_only_folder_is_untouched(folder, tmp_path):
 def test_missing_background_is_estimated_with_warning(tmp_path):
     root = tmp_path / "d"
     write_episode(root / "episode_0.hdf5", synthetic_episode(10, 0, background=False, force=False))
-    with pytest.warns(UserWarning, match="no tactile background for sensor 'left'.*6 no-contact"):
+    with pytest.warns(UserWarning, match=r"no tactile background for sensor 'left'.*6 frame\(s\) of the episode taken"):
         ds = EpisodeDataset(root, stats_path=tmp_path / "s.json")
     bg = ds[0]["observation.tactile_background.left"].permute(1, 2, 0).numpy().astype(int)
     assert np.abs(bg - 100).max() <= 2  # the blob (+60) frames are excluded
@@ -177,6 +177,17 @@ def test_estimate_background_prefers_force_labels():
         estimate_background(ep.tactile["left"], ep.force["left"][:3])
     with pytest.raises(ValueError, match="frames: expected uint8"):
         estimate_background(ep.tactile["left"].astype(np.float32))
+
+
+def test_labels_that_never_read_no_contact_fall_back_to_the_start_frames_with_a_warning():
+    """Every label above the no-contact force (in contact throughout, or an offset sensor): the labels cannot tell,
+    so the start frames are taken, and the warning says that they hold the contact if the episode starts in one."""
+    ep = synthetic_episode(10, 0, contact=range(4, 10))
+    force = ep.force["left"].copy()
+    force[:, 2] += 0.4  # a sensor offset: the first four frames are out of contact, no label reads it
+    with pytest.warns(UserWarning, match=r"no frame's force label is below 0\.1 N \(lowest 0\.40 N\)"):
+        bg, used = estimate_background(ep.tactile["left"], force)
+    assert used.tolist() == [0, 1, 2, 3] and np.abs(bg.astype(int) - 100).max() <= 2
 
 
 def test_bad_input(folder, tmp_path):
@@ -212,6 +223,7 @@ def _edit(path, key, value):
     ("observations/force/left", np.zeros((8, 3), np.float32), r"episode_0.hdf5: /observations/force/left has 8"),
     ("action", None, r"episode_0.hdf5: no /action"),
     ("observations/qpos", None, r"episode_0.hdf5: no /observations/qpos"),
+    ("observations/qpos", np.zeros((0, 4), np.float32), r"episode_0.hdf5: /observations/qpos has 0 frames; an episode"),
 ])
 def test_streams_of_one_episode_must_have_one_length(folder, tmp_path, key, value, message):
     _edit(folder / "episode_0.hdf5", key, value)

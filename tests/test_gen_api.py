@@ -288,6 +288,22 @@ def test_the_validated_range_and_residual_offset_have_one_owner():
         decide_targets([[0.0, 0.0, 5.0]], "wrap")
 
 
+def test_the_range_decision_refuses_what_is_not_a_batch_of_forces():
+    """A NaN target would come back NaN and marked clamped; a reference of another shape would broadcast
+    (one outside reference skipping every sample); a range with its bounds swapped puts every force outside."""
+    from controltac_il.generator.forces import ForceRange, decide_targets
+
+    with pytest.raises(ValueError, match=r"target force holds NaN or inf \(index 1\)"):
+        decide_targets([[0.0, 0.0, 5.0], [0.0, 0.0, np.nan]])  # clamping would return the NaN as "clamped"
+    with pytest.raises(ValueError, match=r"target force must have shape \(B, 3\)"):
+        decide_targets([0.0, 0.0, 5.0])
+    with pytest.raises(ValueError, match=r"reference_force must have the target force's shape \(2, 3\), got \(1, 3\)"):
+        decide_targets([[0.0, 0.0, 5.0]] * 2, reference_force=[[0.0, 0.0, 20.0]], reference_out_of_range="skip")
+    for bad in (dict(fz=(10.0, 1.0)), dict(fz=(np.nan, 10.0)), dict(shear_max=-1.0)):
+        with pytest.raises(ValueError, match="ForceRange: fz must be finite"):
+            ForceRange(**bad)
+
+
 # -- bad input ----------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("bad, match", [

@@ -68,6 +68,14 @@ def test_workspace_clamp_then_step_limit():
     assert f.counts.workspace == 1 and f.counts.step == 0
 
 
+def test_wrap_angle_lands_in_the_half_open_interval_at_its_seam():
+    """Just below -pi the modulo rounds up to 2 pi; the heading is -pi (pi is outside [-pi, pi))."""
+    below, above = np.nextafter(-math.pi, -np.inf), np.nextafter(math.pi, np.inf)
+    wrapped = wrap_angle(np.array([below, -math.pi, math.pi, above, 3 * math.pi, -3 * math.pi]))
+    assert ((wrapped >= -math.pi) & (wrapped < math.pi)).all(), wrapped.tolist()
+    assert wrapped[1] == -math.pi and wrapped[2] == -math.pi
+
+
 def test_yaw_step_wraps_through_pi():
     f = make_filter(pose=(0.5, 0.0, 0.2, math.pi - 0.02))
     out = f(np.array([0.5, 0.0, 0.2, -math.pi + 0.01, 0.5]))  # 0.03 rad across the seam: allowed

@@ -123,7 +123,7 @@ def test_an_angle_blends_as_a_heading_across_pi_and_as_a_number_away_from_it():
 def test_a_step_that_is_not_an_int_is_refused_never_truncated(t):
     ens = TemporalEnsembler(chunk_size=3, action_dim=1)
     ens.add_chunk(0, [[1], [2], [3]])
-    for call in (lambda: ens.add_chunk(t, [[5]]), lambda: ens.action(t)):
+    for call in (lambda: ens.add_chunk(t, [[5]]), lambda: ens.action(t), lambda: ens.covers(t)):
         with pytest.raises(ValueError, match=r"^t must be an int control step"):
             call()
     assert len(ens) == 1 and ens.action(np.int64(1))[0] == 2.0

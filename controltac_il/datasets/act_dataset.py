@@ -133,8 +133,7 @@ class EpisodeDataset(Dataset):
                 bg, used = estimate_background(frames, force)
                 warnings.warn(
                     f"{self.paths[n].name}: no tactile background for sensor {s!r}; estimated from "
-                    f"{len(used)} no-contact frame(s) of the episode "
-                    f"({'force labels' if force is not None else 'frames unchanged from the start'})",
+                    f"{len(used)} frame(s) of the episode taken as no-contact",
                     stacklevel=3,
                 )
             out[(n, s)] = bg

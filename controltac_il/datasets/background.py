@@ -1,12 +1,15 @@
 """Estimate a tactile sensor's no-contact background from an episode's own frames.
 
 Used where a recording has no ``/observations/tactile_background/<sensor>``. No-contact frames are
-those with a labelled normal force below ``no_contact_force`` (N) when labels exist; otherwise the
-frames that barely differ from the episode's first frames (a demonstration starts before the grasp).
-The background is the per-pixel median of those frames (median removes the sensor noise).
+those with a labelled normal force below ``no_contact_force`` (N) when labels exist; otherwise (or when
+no label is that low, with a warning) the frames that barely differ from the episode's first frames (a
+demonstration starts before the grasp). The background is the per-pixel median of those frames (median
+removes the sensor noise).
 """
 
 from __future__ import annotations
+
+import warnings
 
 import numpy as np
 
@@ -43,6 +46,11 @@ def estimate_background(
         if force.shape != (len(frames), 3):
             raise ValueError(f"force: expected shape ({len(frames)}, 3), got {force.shape}")
         idle = np.flatnonzero(force[:, 2] < no_contact_force)
+        if len(idle) == 0:  # in contact throughout, or a sensor reading an offset: the labels cannot say which
+            warnings.warn(f"no frame's force label is below {no_contact_force:g} N (lowest "
+                          f"{float(force[:, 2].min()):.2f} N): the background is taken from the frames unchanged "
+                          "from the episode's start, which hold the contact if it starts in one; record the "
+                          "no-contact background to be sure", stacklevel=2)
     if len(idle) == 0:
         start = np.median(frames[: min(5, len(frames))], axis=0).astype(np.uint8)
         change = changed_fraction(frames, start)

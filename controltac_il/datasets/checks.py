@@ -113,6 +113,8 @@ def check_episode(f: h5py.File, path: Path) -> int:
     action = _require(f, path, ACTION)
     _check_shapes(f, path)
     T = int(qpos.shape[0])
+    if T == 0:
+        raise ValueError(f"{path.name}: /{QPOS} has 0 frames; an episode needs at least one")
     per_frame = {ACTION: action, QPOS: qpos}
     if QVEL in f:
         per_frame[QVEL] = f[QVEL]

@@ -29,6 +29,13 @@ class ForceRange:
     shear_max: float = 1.0
     tolerance: float = 1e-6
 
+    def __post_init__(self):
+        lo, hi = self.fz
+        if not (np.isfinite([lo, hi, self.shear_max, self.tolerance]).all() and lo < hi
+                and self.shear_max >= 0 and self.tolerance >= 0):
+            raise ValueError(f"ForceRange: fz must be finite (low, high) with low < high and shear_max, tolerance "
+                             f"finite and >= 0, got fz={self.fz}, shear_max={self.shear_max}, tolerance={self.tolerance}")
+
     @property
     def low(self) -> np.ndarray:
         return np.array([-self.shear_max, -self.shear_max, self.fz[0]], np.float64)
@@ -93,7 +100,7 @@ class TargetDecision:
 def decide_targets(target_force, out_of_range: str = "clamp", force_range: ForceRange = VALIDATED_RANGE,
                    what: str = "target force", reference_force=None,
                    reference_out_of_range: str | None = None) -> TargetDecision:
-    """Apply ``out_of_range`` to requested targets (B, 3) N: "clamp" moves a target outside the range into
+    """Apply ``out_of_range`` to requested targets (B, 3) N, finite: "clamp" moves a target outside the range into
     it, "skip" leaves it ungenerated, "error" raises ValueError. Nothing else clamps a target.
 
     reference_force: optional (B, 3) N, the force each reference image shows. The generator was validated
@@ -109,9 +116,15 @@ def decide_targets(target_force, out_of_range: str = "clamp", force_range: Force
         raise ValueError(f"reference_out_of_range must be one of {REFERENCE_POLICIES} or None, "
                          f"got {reference_out_of_range!r}")
     requested = np.asarray(target_force, np.float64)
+    if requested.ndim != 2 or requested.shape[1] != 3:
+        raise ValueError(f"{what} must have shape (B, 3) [Fx, Fy, Fz] N, got {requested.shape}")
+    if not np.isfinite(requested).all():  # no range decision makes NaN a force: clamping would keep it
+        raise ValueError(f"{what} holds NaN or inf (index {int(np.flatnonzero(~np.isfinite(requested).all(1))[0])})")
     ref_out = None
     if reference_force is not None:
         ref = np.asarray(reference_force, np.float64)
+        if ref.shape != requested.shape:
+            raise ValueError(f"reference_force must have the {what}'s shape {requested.shape}, got {ref.shape}")
         ref_out = VALIDATED_RANGE.outside(ref).any(axis=-1)
         if ref_out.any() and reference_out_of_range == "error":
             first = int(np.flatnonzero(ref_out)[0])
