@@ -31,11 +31,19 @@ def provenance(name: str, doc: dict, generator: str | None, note: str = "") -> s
         why.append(f"measured on a dirty tree ({commit.removesuffix('-dirty')} plus uncommitted changes)")
     if generator is not None and generator != SHIPPED_GENERATOR:
         why.append(f"measured with the earlier generator {generator}, not the shipped default {SHIPPED_GENERATOR}")
-    where = f"`benchmarks/results/{name}`, commit {commit}, {date}"
+    where = f"`benchmarks/results/{name}`, commit {commit}, {date}{machine(doc['machine'])}"
     where += f", generator {generator}{note}" if generator else note
     if why:
         return f"*History (not reproducible from committed files): {'; '.join(why)}. Source: {where}.*"
     return f"*Source: {where}.*"
+
+
+def machine(m: dict) -> str:
+    """', on <the GPU, or the CPU and its cores>' from a results JSON's ``machine`` record ('' where it names none)."""
+    if m.get("cuda_device"):
+        return f", on {m['cuda_device']}"
+    cpu = " ".join(str(m.get("cpu") or "").split())
+    return f", on {cpu} ({m['cores']} cores)" if cpu and m.get("cores") else f", on {cpu}" if cpu else ""
 
 
 def recorded_generator(doc: dict) -> str | None:

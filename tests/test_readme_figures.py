@@ -181,6 +181,15 @@ def test_history_is_marked_for_a_dirty_tree_or_an_earlier_generator():
     assert "dirty tree" in ft.provenance("x.json", dirty, ft.SHIPPED_GENERATOR)
 
 
+def test_every_source_line_names_the_machine_its_figures_were_measured_on():
+    stamp = {"git_commit": "abc1234", "date_utc": "2026-01-01T00:00:00+00:00"}
+    cpu = {"machine": {**stamp, "cpu": "AMD  EPYC", "cores": 2, "cuda_device": None}}
+    gpu = {"machine": {**stamp, "cpu": "Intel Xeon", "cores": 16, "cuda_device": "NVIDIA H200"}}
+    assert ", on AMD EPYC (2 cores)." in ft.provenance("x.json", cpu, None)
+    assert ", on NVIDIA H200." in ft.provenance("x.json", gpu, None)
+    assert ft.provenance("x.json", {"machine": stamp}, None) == "*Source: `benchmarks/results/x.json`, commit abc1234, 2026-01-01.*"
+
+
 def test_the_shipped_generator_hash_is_the_default_checkpoints():
     from controltac_il.generator.checkpoint import checkpoint_hash
 
