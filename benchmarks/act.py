@@ -15,13 +15,14 @@ from __future__ import annotations
 
 import json
 import os
+import statistics
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from benchmarks.common import base_parser, median_time, print_table, write_results
+from benchmarks.common import base_parser, median_time, print_table, quartiles, timings, write_results
 from controltac_il.app.experiment import policy_meta
 from controltac_il.streams import LOOP, LOOP_STATE, background_key, image_key, tactile_key
 from policies.act.training import augment_change
@@ -52,10 +53,11 @@ def latency(quick: bool) -> list[dict]:
         model = ACT(ACTConfig.from_preset(preset))
         policy = ACTPolicy(model)
         obs = _observation()
-        t = median_time(lambda: policy.predict_chunk(obs), repeats=repeats, warmup=2)
+        wall = timings(lambda: policy.predict_chunk(obs), repeats=repeats, warmup=2)
         cpu = median_time(lambda: policy.predict_chunk(obs), repeats=repeats, clock=time.process_time)
         rows.append({"preset": preset, "params_M": sum(p.numel() for p in model.parameters()) / 1e6,
-                     "chunk": model.config.chunk_size, "ms_per_chunk": t * 1e3, "cpu_ms_per_chunk": cpu * 1e3,
+                     "chunk": model.config.chunk_size, "ms_per_chunk": statistics.median(wall) * 1e3,
+                     "ms_quartiles": [q * 1e3 for q in quartiles(wall)], "calls": repeats, "cpu_ms_per_chunk": cpu * 1e3,
                      "target_ms": 30.0 if preset == "cpu" else None,
                      "threads": torch.get_num_threads()})
     return rows

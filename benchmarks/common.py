@@ -102,9 +102,9 @@ def machine_info() -> dict:
     }
 
 
-def median_time(fn: Callable[[], object], repeats: int = 5, warmup: int = 1,
-                clock: Callable[[], float] = time.perf_counter) -> float:
-    """Median time of ``fn()`` in seconds over ``repeats`` runs after ``warmup`` runs.
+def timings(fn: Callable[[], object], repeats: int = 5, warmup: int = 1,
+            clock: Callable[[], float] = time.perf_counter) -> list[float]:
+    """Times of ``fn()`` in seconds, ``repeats`` runs after ``warmup`` runs.
 
     ``clock``: ``time.perf_counter`` (wall time, default) or ``time.process_time`` (this process's CPU
     time: not inflated when other processes share the cores).
@@ -116,7 +116,19 @@ def median_time(fn: Callable[[], object], repeats: int = 5, warmup: int = 1,
         t0 = clock()
         fn()
         times.append(clock() - t0)
-    return statistics.median(times)
+    return times
+
+
+def median_time(fn: Callable[[], object], repeats: int = 5, warmup: int = 1,
+                clock: Callable[[], float] = time.perf_counter) -> float:
+    """Median of :func:`timings` (s)."""
+    return statistics.median(timings(fn, repeats, warmup, clock))
+
+
+def quartiles(values: Sequence[float]) -> tuple[float, float]:
+    """(25th, 75th) percentile of ``values`` (at least 2): the spread a median is quoted with."""
+    q = statistics.quantiles(values, n=4, method="inclusive")
+    return q[0], q[2]
 
 
 def print_table(rows: Sequence[dict], columns: Sequence[str], title: str | None = None) -> None:

@@ -145,12 +145,20 @@ def headline() -> str:
          src["touch_il_verdict.json"]],
         [f"MuJoCo scene speed ({full['setting']} rendered)", f"{full['realtime_factor']:.1f}× real time "
          f"({full['ms_per_step']:.1f} ms per 100 ms step); scripted expert {expert['successes']}/{expert['episodes']}",
-         f"one timing, no interval; expert [{lo}, {hi}] % (Wilson 95 %)",
+         f"{_spread(full, 'step', 'steps')}; expert [{lo}, {hi}] % (Wilson 95 %)",
          "[scene](docs/act_and_deployment.md#scene-speed)", src["env.json"]],
         [f"ACT latency ({cpu['preset']} preset, {cpu['threads']} torch thread, CPU)",
          f"{cpu['ms_per_chunk']:.1f} ms per chunk of {cpu['chunk']} (target {cpu['target_ms']:.0f})",
-         "one timing, no interval", "[ACT](docs/act_and_deployment.md#speed)", src["act.json"]]]
+         _spread(cpu, "call", "calls"), "[ACT](docs/act_and_deployment.md#speed)", src["act.json"]]]
     return ft.table(["what", "measured", "error or interval", "details", "source (`benchmarks/results/`)"], rows)
+
+
+def _spread(row: dict, unit: str, count: str) -> str:
+    """The interquartile range of a timed median (ms), or that the JSON holds one timing."""
+    if "ms_quartiles" not in row:
+        return "one timing, no interval"
+    lo, hi = row["ms_quartiles"]
+    return f"{lo:.1f}–{hi:.1f} ms per {unit} (interquartile, {row[count]} {count})"
 
 
 def _preset_row(gen: dict, speed: dict, gpu: dict, fa: dict, name: str, src: dict) -> list:

@@ -23,7 +23,7 @@ os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 import mujoco  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
-from benchmarks.common import base_parser, median_time, print_table, write_results  # noqa: E402
+from benchmarks.common import base_parser, median_time, print_table, quartiles, write_results  # noqa: E402
 from envs.config import CAMERAS, PegInHoleConfig  # noqa: E402
 from envs.expert import ScriptedExpert  # noqa: E402
 from envs.peg_in_hole import PegInHoleEnv  # noqa: E402
@@ -56,7 +56,8 @@ def time_steps(config: PegInHoleConfig, seeds: list[int]) -> dict:
                     break
     period = 1.0 / config.control_hz
     w, c = statistics.median(wall), statistics.median(cpu)
-    return {"steps": len(wall), "ms_per_step": w * 1e3, "cpu_ms_per_step": c * 1e3, "steps_per_s": 1.0 / w,
+    return {"steps": len(wall), "ms_per_step": w * 1e3, "ms_quartiles": [q * 1e3 for q in quartiles(wall)],
+            "cpu_ms_per_step": c * 1e3, "steps_per_s": 1.0 / w,
             "realtime_factor": period / w, "realtime_factor_cpu": period / c}
 
 

@@ -95,3 +95,21 @@ def test_every_benchmark_refuses_a_folder_as_out_and_accepts_a_new_file_path(tmp
     err = capsys.readouterr().err.strip().splitlines()
     assert exc.value.code == 2 and len(err) == 1 and f"{tmp_path} is a folder; expected a JSON file path" in err[0]
     assert p.parse_args(["--out", str(tmp_path / "new" / "r.json")]).out == tmp_path / "new" / "r.json"
+
+
+def test_timings_skip_the_warm_up_and_quartiles_bracket_the_median():
+    """An injected clock: the calls take 1, 2, ..., 9 s after a 100 s warm-up call, which is never timed."""
+    from benchmarks.common import median_time, quartiles, timings
+
+    calls, durations = [], [100, *range(1, 10)]
+
+    def clock():  # the time at which the calls made so far have ended
+        return float(sum(durations[:len(calls)]))
+
+    def fn():
+        calls.append(1)
+
+    assert timings(fn, repeats=9, warmup=1, clock=clock) == [float(d) for d in range(1, 10)]
+    calls.clear()
+    assert median_time(fn, repeats=9, warmup=1, clock=clock) == 5.0
+    assert quartiles(list(range(1, 10))) == (3.0, 7.0)

@@ -194,3 +194,11 @@ def test_the_shipped_generator_hash_is_the_default_checkpoints():
     from controltac_il.generator.checkpoint import checkpoint_hash
 
     assert checkpoint_hash(ft.ROOT / "controltac_il/generator/checkpoints/default") == ft.SHIPPED_GENERATOR
+
+
+def test_a_timed_median_is_quoted_with_its_interquartile_range_or_as_one_timing():
+    from benchmarks.docs_figures import _spread
+
+    assert _spread({"ms_quartiles": [8.51, 9.46], "calls": 30}, "call", "calls") == \
+        "8.5–9.5 ms per call (interquartile, 30 calls)"
+    assert _spread({"ms_per_chunk": 9.0}, "call", "calls") == "one timing, no interval"
