@@ -448,8 +448,7 @@ def test_an_unlabelled_frames_contact_needs_its_area_and_a_blank_frame_never_has
     assert ReferenceForces(keys, 0.5, 0.0).in_contact(frames, frames, None).tolist() == [False, True, True]
 
 
-@pytest.mark.parametrize("value", [0, 255])
-@pytest.mark.parametrize("mode", ["cache", "online"])
+@pytest.mark.parametrize("mode, value", [("cache", 0), ("online", 255)])
 def test_a_blank_camera_frame_in_contact_is_kept_real_and_never_asked_of_the_generator(tmp_path, gen, mode, value):
     """A dropped or overexposed frame (every value 0 or 255) inside a labelled grasp: its label says contact, but
     it has nothing to generate from, so every copy keeps it real (no_contact) with a warning; its neighbours
