@@ -96,7 +96,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--episodes", type=int, default=50, help="number of episode files to write (default 50)")
     p.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
     p.add_argument("--overwrite", action="store_true",
-                   help="replace episode files already in --out (default: refuse to touch them)")
+                   help="replace an earlier collection in --out (only files this tool wrote; default: refuse to touch it)")
     p.add_argument("--seed", type=int, default=0, help="first scene seed; later episodes use the next seeds (default 0)")
     p.add_argument("--cameras", nargs="*", default=list(CAMERAS), choices=CAMERAS,
                    help="cameras to record (default: third_view wrist; none: no images)")
@@ -153,12 +153,29 @@ def parse_args(argv=None) -> argparse.Namespace:
     return args
 
 
+INFO_KEYS = ("episodes", "attempts", "failed_seeds", "config", "expert")
+
+
+def own_episode(path: Path) -> str | None:
+    """None for an episode file this tool wrote (a simulated peg-in-hole episode), else why not."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            sim, task = bool(f.attrs.get("sim", False)), f.attrs.get("task")
+    except OSError:
+        return "not an HDF5 file"
+    task = task.decode() if isinstance(task, bytes) else task
+    return None if sim and task == "peg_in_hole" else "not a simulated peg_in_hole episode"
+
+
 def main(argv=None) -> int:
     args = parse_args(argv)
     from tqdm import tqdm
 
     from controltac_il.datasets.episodes import episode_index, episode_paths, write_episode
     from controltac_il.io import write_json
+    from controltac_il.outputs import OutputInUse, claim_output, own_json
     from envs.expert import ExpertConfig, ScriptedExpert
     from envs.peg_in_hole import PegInHoleEnv
 
@@ -166,6 +183,12 @@ def main(argv=None) -> int:
     max_attempts = 2 * args.episodes + 10 if args.max_attempts is None else args.max_attempts
     existing = episode_paths(args.out) if args.out.is_dir() else []
     info = args.out / "collect_info.json"
+    try:  # only checks: files of the user's under our names are never replaced, not even with --overwrite
+        claim_output(args.out, {info.name: own_json(*INFO_KEYS), **{p.name: own_episode for p in existing}},
+                     resume=True, tool=PROG)
+    except OutputInUse as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
     if (existing or info.exists()) and not args.overwrite:
         what = f"{len(existing)} episode files" if existing else f"a {info.name} of an earlier collection"
         print(f"{PROG}: error: --out {args.out} already holds {what}; pass --overwrite to replace them",

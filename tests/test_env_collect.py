@@ -61,22 +61,28 @@ def test_recorded_episodes_feed_the_act_dataset(tmp_path):
     assert tuple(item["observation.images.wrist"].shape) == (3, 48, 64)
 
 
-def test_existing_episodes_are_kept_unless_overwrite(tmp_path):
+def test_an_earlier_collection_is_kept_unless_overwrite_and_files_of_the_users_never(tmp_path):
+    """--overwrite replaces only what this tool wrote; a file of the user's under its names (an episode_7.hdf5 that is
+    not a simulated episode, a collect_info.json of another tool) is refused with or without it, nothing changed."""
     out = tmp_path / "demos"
-    out.mkdir()
-    for i in range(3):  # a larger earlier collection
-        (out / f"episode_{i}.hdf5").write_bytes(b"old")
     args = ["--episodes", "1", "--out", str(out), "--cameras", "--camera-size", "48", "64", "--tactile-size", "60", "80"]
+    assert collect.main(args[:1] + ["2"] + args[2:]) == 0  # a larger earlier collection
+    first = (out / "episode_0.hdf5").read_bytes()
     assert collect.main(args) == 2
-    assert (out / "episode_0.hdf5").read_bytes() == b"old"
-    assert collect.main(args + ["--overwrite"]) == 0
+    assert (out / "episode_0.hdf5").read_bytes() == first
+    assert collect.main(args + ["--overwrite", "--seed", "5"]) == 0
     assert [p.name for p in episode_paths(out)] == ["episode_0.hdf5"]
-    assert len(read_episode(out / "episode_0.hdf5")) > 10
-    alone = tmp_path / "info_only"  # an earlier collection's record, its episodes moved away: kept as well
+    assert int(read_episode(out / "episode_0.hdf5").attrs["seed"]) >= 5
+    (out / "episode_7.hdf5").write_bytes(b"mine")
+    now = (out / "episode_0.hdf5").read_bytes()
+    assert collect.main(args + ["--overwrite"]) == 2
+    assert (out / "episode_7.hdf5").read_bytes() == b"mine" and (out / "episode_0.hdf5").read_bytes() == now
+    alone = tmp_path / "info_only"  # a record another tool wrote under the same name
     alone.mkdir()
     (alone / "collect_info.json").write_text("{}")
-    assert collect.main(["--episodes", "1", "--out", str(alone)]) == 2
-    assert (alone / "collect_info.json").read_text() == "{}"
+    for extra in ([], ["--overwrite"]):
+        assert collect.main(["--episodes", "1", "--out", str(alone), *extra]) == 2
+        assert (alone / "collect_info.json").read_text() == "{}" and not episode_paths(alone)
 
 
 def test_grip_force_range_and_no_tactile(tmp_path):
