@@ -42,6 +42,14 @@ def cache_root() -> Path:
 
 # --- permissions ----------------------------------------------------------------------------------
 
+def check_apart(source: str | os.PathLike, out: str | os.PathLike) -> None:
+    """ValueError naming ``out`` where it is the ``source`` folder, inside it or around it: a tool's output never
+    lands among the data it reads."""
+    source, out = Path(source).resolve(), Path(out).resolve()
+    if out == source or source in out.parents or out in source.parents:
+        raise ValueError(f"out: {out} must be a folder of its own, not the source {source}, inside it or around it")
+
+
 def current_umask() -> int:
     """The process's umask (read from /proc where possible: setting it to read it is not thread-safe)."""
     try:

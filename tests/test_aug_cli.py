@@ -135,6 +135,10 @@ def test_cli_bad_dataset_and_out_are_one_line_errors(setup, tmp_path, capsys):
     (mine / "notes.txt").write_text("mine")
     one_line_error(capsys, main(["--dataset", str(root), "--out", str(mine), *base]), "--out", "manifest")
     assert [p.name for p in mine.iterdir()] == ["notes.txt"]
+    before = tree_bytes(root)
+    for out in (root / "cache", root, tmp_path):  # inside the episodes' folder, the folder itself, around it
+        one_line_error(capsys, main(["--dataset", str(root), "--out", str(out), *base]), "--out", "inside it or around")
+    assert tree_bytes(root) == before
 
 
 def test_cli_cache_without_manifest_or_with_a_foreign_chunk(setup, tmp_path, capsys):

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 
 from controltac_il.augment.config import ForceAugmentConfig
 from controltac_il.cli import guard
+from controltac_il.io import check_apart
 
 if TYPE_CHECKING:  # the job's modules (torch, h5py) are imported inside it: --help stays light
     from controltac_il.augment.dataset import ForceAugment
@@ -197,6 +198,11 @@ def _setup(args) -> ForceAugment:
     elif args.out.exists() and not args.out.is_dir():
         raise UsageError("--out", f"expected a cache folder (new, empty, or a cache of these settings); "
                                   f"{args.out} is a file")
+    else:
+        try:
+            check_apart(args.dataset, args.out)
+        except ValueError as exc:
+            raise _field_error(exc, "--out") from exc
     dataset = _open_dataset(args.dataset, _needed_keys(kwargs) if lerobot else None)
     generator, estimator = load_models(args, bool(kwargs.get("pose_offset")))
     if lerobot:

@@ -35,7 +35,7 @@ from typing import Callable
 
 import numpy as np
 
-from controltac_il.io import write_json
+from controltac_il.io import check_apart, write_json
 from controltac_il.lerobot.export import LeRobotExport
 from controltac_il.lerobot.provenance import COPY
 from controltac_il.lerobot.stats import aggregate_stats
@@ -74,9 +74,8 @@ def read_record(folder: Path) -> dict | None:
 def check_destination(root: Path, out: Path) -> bool:
     """True when ``out`` already holds this tool's finished write (``read_record`` to compare); False when it can
     be written. ValueError naming ``out`` otherwise."""
-    root, out = Path(root).resolve(), Path(out).resolve()
-    if out == root or root in out.parents or out in root.parents:
-        raise ValueError(f"out: {out} must be a folder of its own, not the source {root}, inside it or around it")
+    check_apart(root, out)
+    out = Path(out).resolve()
     if out.exists() and not out.is_dir():
         raise ValueError(f"out: {out} is a file")
     if out.is_dir() and any(out.iterdir()):
