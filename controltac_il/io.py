@@ -50,6 +50,21 @@ def check_apart(source: str | os.PathLike, out: str | os.PathLike) -> None:
         raise ValueError(f"out: {out} must be a folder of its own, not the source {source}, inside it or around it")
 
 
+def unwritable(dest: str | os.PathLike) -> str | None:
+    """Why a new file or folder ``dest`` could not be made (its nearest existing folder refuses a file: read-only,
+    a pseudo file system, no permission), or None: checked before a long run, not after it."""
+    parent = Path(dest).absolute().parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        return f"{parent} is not a folder"
+    try:
+        with tempfile.NamedTemporaryFile(dir=parent, prefix=".controltac-probe-"):
+            return None
+    except OSError as exc:
+        return f"no file can be made in {parent} ({exc.strerror or exc})"
+
+
 def current_umask() -> int:
     """The process's umask (read from /proc where possible: setting it to read it is not thread-safe)."""
     try:

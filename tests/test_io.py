@@ -116,3 +116,14 @@ def test_leftovers_of_a_live_writer_are_kept(tmp_path):
     io.remove_leftovers(folder)
     assert sorted(p.name for p in folder.iterdir()) == sorted(alive)
     assert io.leftover_pid("results.json") is None and io.leftover_pid(".x.killed.tmp") is None
+
+
+def test_an_output_that_could_not_be_made_is_told_before_the_run_and_the_probe_leaves_nothing(tmp_path):
+    from controltac_il.io import unwritable
+
+    assert unwritable(tmp_path / "new" / "deeper" / "result.json") is None  # made later, under tmp_path
+    assert list(tmp_path.iterdir()) == []
+    (tmp_path / "file").write_text("x")
+    assert unwritable(tmp_path / "file" / "result.json") == f"{tmp_path / 'file'} is not a folder"
+    if Path("/proc/self").is_dir():  # a pseudo file system refuses new files, even to root
+        assert unwritable("/proc/result.json").startswith("no file can be made in /proc")

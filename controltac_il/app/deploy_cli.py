@@ -24,6 +24,7 @@ from pathlib import Path
 
 from controltac_il.app import EVAL_SEED, SCENES
 from controltac_il.cli import ArgumentParser, guard
+from controltac_il.io import unwritable
 
 PROG = "deploy_policy.py"
 
@@ -65,10 +66,12 @@ def check_args(args: argparse.Namespace) -> None:
         raise ValueError(f"--config {args.config}: a robot set-up, used only with --robot xarm|ur (the scene has its own)")
     if args.seed < 0:
         raise ValueError(f"--seed must be an integer >= 0 (the first scene seed), got {args.seed}")
-    if args.out is not None and (args.out.exists() or not args.out.parent.is_dir()):
+    if args.out is not None:
         where = ("exists: a result never replaces a file" if args.out.exists()
-                 else f"its folder {args.out.parent} does not exist or is not a folder")
-        raise ValueError(f"--out {args.out}: cannot write the result there ({where}); expected a new file path")
+                 else f"its folder {args.out.parent} does not exist or is not a folder" if not args.out.parent.is_dir()
+                 else unwritable(args.out))
+        if where:
+            raise ValueError(f"--out {args.out}: cannot write the result there ({where}); expected a new file path")
 
 
 def main(argv=None) -> int:

@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 
 from controltac_il.cli import ArgumentParser, RunFault, guard
+from controltac_il.io import unwritable
 
 PROG = "python -m controltac_il.calibrate record"
 PLAN_FLAGS = ("mode", "presses", "fz_max", "fz_abort", "spread_m", "seed", "fast_step", "slow_step", "max_travel")
@@ -65,6 +66,8 @@ def _run(args: argparse.Namespace) -> int:
         raise ValueError(one_line(exc, {k: "--" + k.replace("_", "-") for k in PLAN_FLAGS})) from None
     if args.out.exists():
         raise ValueError(f"--out {args.out} exists; recordings are written to a new folder")
+    if unwritable(args.out):
+        raise ValueError(f"--out {args.out}: {unwritable(args.out)}")
     from tqdm import tqdm
 
     with tqdm(total=plan.presses, unit="press", desc="calibration presses", disable=None) as bar:

@@ -34,7 +34,7 @@ from tqdm.auto import tqdm
 
 from controltac_il.cli import ArgumentParser
 from controltac_il.config import is_int
-from controltac_il.io import atomic_dir
+from controltac_il.io import atomic_dir, unwritable
 from controltac_il.tactile.indenters import INDENTERS, TRAIN_OBJECTS, get_indenter, procedural_objects
 from controltac_il.tactile.instances import FAMILIES, sensor_instance
 from controltac_il.tactile.residual import to_residual
@@ -380,6 +380,8 @@ def main(argv=None) -> Path:
     a = p.parse_args(argv)
     if Path(a.out).exists():
         p.error(f"--out {a.out} exists; choose a new folder (datasets are never overwritten)")
+    if unwritable(a.out):
+        p.error(f"--out {a.out}: {unwritable(a.out)}")
     if len(set(a.objects)) != len(a.objects):
         p.error(f"--objects must name each indenter once, got {' '.join(a.objects)}")
     if a.procedural < 0:
