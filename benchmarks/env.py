@@ -124,6 +124,8 @@ def main(argv=None) -> dict:
     p.add_argument("--seeds", type=int, default=None, help="expert episodes for the success rate (default 50, quick 10)")
     p.add_argument("--tight", action="store_true", help="also measure the expert on a tight Ø27 mm hole")
     args = p.parse_args(argv)
+    if args.seeds is not None and args.seeds < 1:
+        p.error(f"--seeds must be an int >= 1 (expert episodes), got {args.seeds}")
     n_seeds = args.seeds or (10 if args.quick else 50)
     timed = [0] if args.quick else [0, 1, 2]
     repeats = 5 if args.quick else 15

@@ -16,6 +16,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import tempfile
 import time
@@ -26,6 +27,7 @@ import numpy as np
 
 from benchmarks.common import base_parser, print_table, write_results
 from controltac_il.streams import LOOP_STATE
+from controltac_il.tactile.spec import IMAGE_SIDE_PX
 
 PROG = "python -m benchmarks.hardware"
 
@@ -115,6 +117,13 @@ def main(argv=None) -> dict:
     p.add_argument("--raw-hw", type=int, nargs=2, default=(600, 800), metavar=("H", "W"),
                    help="raw GelSight frame size written to the video file (before the 15%% crop)")
     args = p.parse_args(argv)
+    if args.steps is not None and args.steps < 1:
+        p.error(f"--steps must be an int >= 1 (control-loop cycles), got {args.steps}")
+    if not (math.isfinite(args.policy_ms) and args.policy_ms >= 0):
+        p.error(f"--policy-ms must be a finite number >= 0 (ms per chunk), got {args.policy_ms}")
+    lo, hi = IMAGE_SIDE_PX
+    if not all(lo <= v <= hi for v in args.raw_hw):
+        p.error(f"--raw-hw H W must be pixels, each in [{lo}, {hi}], got {args.raw_hw[0]} {args.raw_hw[1]}")
     steps = args.steps or (100 if args.quick else 300)
     loop = control_loop(steps, args.policy_ms)
     gel = gelsight_latency(3.0 if args.quick else 8.0, tuple(args.raw_hw))

@@ -121,6 +121,8 @@ def main(argv=None) -> dict:
     p.add_argument("--real-dir", type=Path, default=REAL_GELSIGHT, help="folder with real GelSight Mini frames")
     p.add_argument("--picture", type=Path, default=None, help="PNG of real frames above ours (default: beside --out)")
     args = p.parse_args(argv)
+    if args.real_dir != REAL_GELSIGHT and not args.real_dir.is_dir():  # the default may be absent: no comparison
+        p.error(f"--real-dir {args.real_dir} is not a folder")
     picture = args.picture or (args.out.with_name(args.out.stem + "_realism.png") if args.out else None)
     t0 = time.perf_counter()
     results = run(args.quick, args.real_dir, picture)

@@ -19,6 +19,7 @@ from pydantic import BeforeValidator, Field, ValidationInfo, field_validator, mo
 from pydantic.dataclasses import dataclass
 
 from controltac_il.config import STRICT, one_line_errors
+from controltac_il.tactile.spec import IMAGE_SIDE_PX
 from envs.geometry import HOME_TCP, PEG_RADIUS_M, PHYSICS_HZ, TABLE_HALF_SIZE_M, WALL_THICKNESS_M
 
 CAMERAS = ("third_view", "wrist")
@@ -120,8 +121,9 @@ def _size(value) -> tuple[int, int]:
     if len(items) != 2 or not all(isinstance(v, numbers.Integral) and not isinstance(v, bool) for v in items):
         raise ValueError("must be a (height, width) pair of ints")
     h, w = (int(v) for v in items)
-    if not (8 <= h <= 2048 and 8 <= w <= 2048):
-        raise ValueError("must be (height, width) in pixels, each in [8, 2048]")
+    lo, hi = IMAGE_SIDE_PX
+    if not (lo <= h <= hi and lo <= w <= hi):
+        raise ValueError(f"must be (height, width) in pixels, each in [{lo}, {hi}]")
     return h, w
 
 

@@ -2,6 +2,7 @@
 command line reports a fault as one line and an exit code."""
 
 import ast
+import re
 import subprocess
 from pathlib import Path
 
@@ -86,6 +87,21 @@ def test_every_benchmarks_usage_error_starts_with_the_command_that_runs_it(monke
     bad = {m: got[m] for m in modules if got[m][0] != 2 or not got[m][1].startswith(f"python -m {m}: error: ")
            or len(got[m][1].strip().splitlines()) != 1}
     assert len(modules) >= 20 and bad == {}
+
+
+@pytest.mark.parametrize("module, args, says", [
+    ("benchmarks.env", ["--seeds", "-1"], "--seeds must be an int >= 1"),  # a division by zero
+    ("benchmarks.hardware", ["--policy-ms", "nan"], "--policy-ms must be a finite number"),  # a policy's traceback
+    ("benchmarks.hardware", ["--raw-hw", "0", "0"], r"--raw-hw H W must be pixels, each in \[8, 2048\]"),
+    ("benchmarks.sensor", ["--real-dir", "/nonexistent/frames"], "--real-dir /nonexistent/frames is not a folder"),
+])
+def test_a_benchmark_refuses_a_value_it_cannot_run_with_before_it_starts(module, args, says, capsys):
+    import importlib
+
+    with pytest.raises(SystemExit) as exc:
+        importlib.import_module(module).main(args)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and len(err) == 1 and re.search(says, err[0]), err
 
 
 def test_every_benchmark_refuses_a_folder_as_out_and_accepts_a_new_file_path(tmp_path, capsys):

@@ -9,6 +9,7 @@ from pathlib import Path
 from controltac_il.calibrate import __doc__ as DOC
 from controltac_il.cli import ArgumentParser
 from controltac_il.calibrate.decision import MIN_GRASPS
+from controltac_il.tactile.spec import IMAGE_SIDE_PX
 
 PROG = "python -m controltac_il.calibrate"
 
@@ -57,6 +58,9 @@ def check(args: argparse.Namespace) -> None:
                              ("--dit-steps", args.dit_steps, 1), ("--batch", args.batch, 1), ("--stride", args.stride, 1)):
         if value < low:
             raise ValueError(f"{flag}: expected an int >= {low}, got {value}")
+    lo, hi = IMAGE_SIDE_PX
+    if not all(lo <= v <= hi for v in args.size):
+        raise ValueError(f"--size: expected H W in pixels, each in [{lo}, {hi}], got {args.size[0]} {args.size[1]}")
     if not 0 < args.val_fraction < 1:
         raise ValueError(f"--val-fraction: expected a share in (0, 1), got {args.val_fraction}")
     if not 0 < args.lr < float("inf"):

@@ -38,7 +38,7 @@ from controltac_il.io import atomic_dir, unwritable
 from controltac_il.tactile.indenters import INDENTERS, TRAIN_OBJECTS, get_indenter, procedural_objects
 from controltac_il.tactile.instances import FAMILIES, sensor_instance
 from controltac_il.tactile.residual import to_residual
-from controltac_il.tactile.spec import SensorSpec
+from controltac_il.tactile.spec import IMAGE_SIDE_PX, SensorSpec
 
 if TYPE_CHECKING:  # the sensor model (OpenCV) is imported where images are rendered: --help stays light
     from controltac_il.tactile.sensor import TactileSensor
@@ -356,7 +356,7 @@ def _parser() -> ArgumentParser:
     p.add_argument("--seed", type=int, default=d["seed"],
                    help=f"seeds poses, forces and sensor noise, >= 0 (default {d['seed']})")
     p.add_argument("--size", type=int, nargs=2, metavar=("H", "W"), default=None,
-                   help="render resolution in pixels, >= 8 at the pad's 3:4 aspect, same pad "
+                   help="render resolution in pixels, 8-2048 at the pad's 3:4 aspect, same pad "
                         "(default: GelSight Mini's native 240 320)")
     p.add_argument("--optics", choices=("three_light", "polynomial"), default=d["optics"],
                    help=f"sensor optics model (default {d['optics']})")
@@ -406,8 +406,8 @@ def main(argv=None) -> Path:
         try:
             spec = spec.scaled(*a.size)
         except ValueError:
-            p.error(f"--size H W must be ints >= 8 at the pad's {spec.height}:{spec.width} aspect "
-                    f"(e.g. 120 160), got {a.size[0]} {a.size[1]}")
+            p.error(f"--size H W must be ints in {list(IMAGE_SIDE_PX)} at the pad's {spec.height}:{spec.width} "
+                    f"aspect (e.g. 120 160), got {a.size[0]} {a.size[1]}")
     try:
         drawn = {} if a.instances is None else {"instances": a.instances}  # else write_dataset's default
         out = write_dataset(a.out, objects, a.poses_per_object, a.forces_per_pose, a.seed, spec, a.optics,

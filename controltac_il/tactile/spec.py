@@ -7,6 +7,8 @@ from dataclasses import dataclass
 
 from controltac_il.config import is_real
 
+IMAGE_SIDE_PX = (8, 2048)  # smallest and largest image side (pixels) any tactile or camera image may have
+
 
 @dataclass(frozen=True)
 class SensorSpec:
@@ -52,8 +54,8 @@ class SensorSpec:
     def __post_init__(self) -> None:
         for name in ("height", "width"):
             v = getattr(self, name)
-            if not isinstance(v, int) or v < 8:
-                raise ValueError(f"SensorSpec.{name} must be an int >= 8 pixels, got {v!r}")
+            if not isinstance(v, int) or not IMAGE_SIDE_PX[0] <= v <= IMAGE_SIDE_PX[1]:
+                raise ValueError(f"SensorSpec.{name} must be an int in {list(IMAGE_SIDE_PX)} pixels, got {v!r}")
         for name in ("mm_per_px", "gel_thickness_mm", "foundation_modulus", "smoothing_mm", "optics_gain", "tint_depth_mm"):
             v = getattr(self, name)
             if not (is_real(v) and v > 0):
@@ -79,8 +81,9 @@ class SensorSpec:
 
     def scaled(self, height: int, width: int) -> "SensorSpec":
         """The same physical pad sampled at ``height × width`` pixels (aspect ratio must match)."""
-        if not (isinstance(height, int) and isinstance(width, int) and height >= 8 and width >= 8):
-            raise ValueError(f"scaled(height, width) needs ints >= 8, got {(height, width)!r}")
+        lo, hi = IMAGE_SIDE_PX
+        if not (isinstance(height, int) and isinstance(width, int) and lo <= height <= hi and lo <= width <= hi):
+            raise ValueError(f"scaled(height, width) needs ints in [{lo}, {hi}], got {(height, width)!r}")
         if abs(height / width - self.height / self.width) > 0.02:
             raise ValueError(
                 f"scaled({height}, {width}) changes the aspect ratio {self.height}:{self.width}; "
