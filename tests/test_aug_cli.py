@@ -100,6 +100,9 @@ def one_line_error(capsys, code, *names):
     (["--offset-range", "5", "1"], ["--offset-range", "low 5"]),
     (["--offset-range", "nan", "1"], ["--offset-range", "finite"]),
     (["--jitter", "inf"], ["--jitter", "finite"]),
+    (["--offset-range", "1e9", "2e9"], ["--offset-range", "within +-10 N"]),  # every target would be clamped
+    (["--jitter", "0", "1e12"], ["--jitter", "within +-10 N"]),
+    (["--target-range", "1e9", "2e9"], ["--target-range", "<= 10 N"]),
     (["--seed", "-1"], ["--seed", ">= 0"]),
     (["--steps", "0"], ["--steps", ">= 1"]),
     (["--batch-size", "0"], ["--batch-size", ">= 1"]),

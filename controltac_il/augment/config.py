@@ -13,7 +13,7 @@ import numpy as np
 from pydantic import field_validator
 from pydantic.dataclasses import dataclass
 
-from controltac_il.generator.forces import NOMINAL_FZ
+from controltac_il.generator.forces import NOMINAL_FZ, VALIDATED_RANGE
 from controltac_il.config import AUTO, STRICT, is_int, one_line_errors, parse_batch_size
 
 MODES = ("cache", "online")
@@ -51,6 +51,19 @@ def _finite(value, what: str, count: int | None = None) -> tuple[float, ...]:
     if not out or (count is not None and len(out) != count) or not all(math.isfinite(x) for x in out):
         raise ValueError(f"expected {what}")
     return out
+
+
+# A normal-force shift (offset, jitter) or a target beyond the validated range's top leaves every target outside
+# it: each would be clamped or skipped, so such settings are refused rather than run.
+MAX_SHIFT_N = VALIDATED_RANGE.fz[1]
+
+
+def _shifts(values: tuple[float, ...], what: str) -> tuple[float, ...]:
+    """``values`` when each is within +-MAX_SHIFT_N, else ValueError naming the bound."""
+    if any(abs(x) > MAX_SHIFT_N for x in values):
+        raise ValueError(f"{what} must lie within +-{MAX_SHIFT_N:g} N (beyond it every target leaves the "
+                         "generator's validated range)")
+    return values
 
 
 def _number(value, what: str, low: float = 0.0, high: float = math.inf, none_ok: bool = False) -> float | None:
@@ -165,7 +178,7 @@ class ForceAugmentConfig:
         rng = _finite(v, "two finite numbers (low, high) in N", count=2)
         if rng[0] > rng[1]:
             raise ValueError(f"inverted: low {rng[0]:g} N is above high {rng[1]:g} N")
-        return rng
+        return _shifts(rng, "offsets")
 
     @field_validator("target_range", mode="before")
     @classmethod
@@ -173,14 +186,14 @@ class ForceAugmentConfig:
         if v is None:
             return None
         rng = _finite(v, "None or two finite numbers (low, high) in N", count=2)
-        if not 0 <= rng[0] <= rng[1]:
-            raise ValueError(f"expected 0 <= low <= high N, got {rng[0]:g} {rng[1]:g}")
+        if not 0 <= rng[0] <= rng[1] <= MAX_SHIFT_N:
+            raise ValueError(f"expected 0 <= low <= high <= {MAX_SHIFT_N:g} N (the validated range's top)")
         return rng
 
     @field_validator("jitter", mode="before")
     @classmethod
     def _jitter(cls, v):
-        return _finite(v, "a non-empty sequence of finite numbers in N")
+        return _shifts(_finite(v, "a non-empty sequence of finite numbers in N"), "jitter values")
 
     @field_validator("tactile_keys", mode="before")
     @classmethod
