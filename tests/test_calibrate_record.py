@@ -5,6 +5,7 @@ import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+import re
 import subprocess
 import sys
 import types
@@ -211,7 +212,9 @@ def test_a_plan_outside_the_limits_is_refused_before_anything_moves(tmp_path, ch
 
 
 @pytest.mark.parametrize("kw, field", [(dict(fz_max=10.5), "fz_max"), (dict(fz_max=9.0, fz_abort=9.0), "fz_abort"),
-                                       (dict(fz_abort=16.0), "fz_abort"), (dict(slow_step=0.05), "slow_step")])
+                                       (dict(fz_abort=16.0), "fz_abort"), (dict(slow_step=0.05), "slow_step"),
+                                       (dict(max_travel=1e9), "max_travel: a squeeze moves in closing fractions"),
+                                       (dict(fast_step=2.0), "fast_step: a squeeze")])
 def test_force_bounds_are_validated(kw, field):
     with pytest.raises(ValueError, match=field):
         PressPlan(**kw)
@@ -226,6 +229,24 @@ def test_cli_one_line_errors(tmp_path):
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "--fz-max" in bad.stderr
     bad = run("--sim", "--mode", "press", "--out", str(tmp_path / "r"))
     assert bad.returncode == 2 and "--mode squeeze" in bad.stderr and not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize("start, says", [(["nan", "0", "0.2", "0"], "start must be 4 finite numbers"),
+                                         (["1e9", "0", "0.2", "0"], "start: .* lies outside the workspace box")])
+def test_a_robot_start_outside_its_limits_is_refused_before_any_device_connects(tmp_path, monkeypatch, capsys,
+                                                                               start, says):
+    import hardware.config
+    from controltac_il.app.record_cli import main
+
+    def connect(cfg):
+        raise AssertionError("a device was connected")
+
+    monkeypatch.setattr(hardware.config, "open_setup", connect)
+    code = main(["--setup", str(REPO / "hardware" / "configs" / "xarm7_gelsight.yaml"), "--sensor", "left",
+                 "--start", *start, "--out", str(tmp_path / "r")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and re.search(says, err), err
+    assert not (tmp_path / "r").exists()
 
 
 class FakeRTDE:

@@ -82,9 +82,12 @@ class PressPlan:
     def _ordered(self):
         if self.fz_abort <= self.fz_max:
             raise ValueError(f"fz_abort={self.fz_abort} N must be above fz_max={self.fz_max} N")
-        fast, slow, _ = self.steps
+        fast, slow, travel = self.steps
         if slow > fast:
             raise ValueError(f"slow_step={slow} must not exceed fast_step={fast}")
+        if self.mode == "squeeze" and max(fast, travel) > 1.0:  # a closing fraction: 1 closes the gripper fully
+            raise ValueError(f"{'fast_step' if fast > 1.0 else 'max_travel'}: a squeeze moves in closing fractions, "
+                             f"at most 1, got {max(fast, travel):g}")
         return self
 
     @property

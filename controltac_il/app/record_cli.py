@@ -101,6 +101,7 @@ def _sim(args, plan, record_presses) -> dict:
 
 
 def _robot(args, plan, record_presses) -> dict:
+    from controltac_il.app.press_record import check_plan
     from hardware.config import load_setup, open_setup
     from hardware.ur import URArm, URForce
     from hardware.xarm import XArm, XArmForce
@@ -113,6 +114,7 @@ def _robot(args, plan, record_presses) -> dict:
     cfg = load_setup(args.setup)
     if args.sensor not in cfg.tactile:
         raise ValueError(f"--sensor {args.sensor!r}: {args.setup} names the tactile sensors {sorted(cfg.tactile)}")
+    check_plan(plan, cfg.limits, args.start, open_grip=0.0)  # before anything connects (a Robotiq activates)
     with open_setup(cfg) as setup:
         force = {URArm: URForce, XArm: XArmForce}.get(type(setup.arm))
         if force is None:
