@@ -339,3 +339,16 @@ def test_new_contact_marks_the_cells_a_harder_press_adds_and_the_weighted_loss_c
     pred[0, :, 0, 0] = 1.0  # the same error outside it
     assert inside.item() == pytest.approx(4 * prediction_loss(pred, target, weight).item())
     assert prediction_loss(pred, target).item() == pytest.approx(prediction_loss(pred, target, torch.ones(1, 1, 4, 4)).item())
+
+
+def test_every_training_flag_says_what_it_sets():
+    """``--help`` of both stages explains each flag, not only its default."""
+    import argparse
+
+    from controltac_il.generator.training.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    bare = [(stage, a.option_strings[0]) for stage, p in sub.choices.items() for a in p._actions
+            if a.option_strings and a.help != argparse.SUPPRESS
+            and (not a.help or a.help.startswith("(default"))]
+    assert bare == []

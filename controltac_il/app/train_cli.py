@@ -39,14 +39,16 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="LeRobot folder: the force label of each tactile camera (default: observation.<camera>.force)")
     p.add_argument("--out", type=Path, default=Path("runs/act"), help="output folder (default: runs/act)")
     p.add_argument("--preset", choices=("cpu", "gpu"), default="cpu",
-                   help="cpu: small CNN, dim 128 (minutes on 2 cores); gpu: ResNet-18, dim 512 (the paper's ACT)")
+                   help="cpu: small CNN, dim 128 (minutes on 2 cores); gpu: ResNet-18, dim 512 (the paper's ACT) "
+                        "(default cpu)")
     p.add_argument("--steps", type=int, default=2000, help="optimiser steps (default 2000)")
     p.add_argument("--batch-size", type=int, default=16, help="samples per step and process (default 16)")
     p.add_argument("--chunk-size", type=int, default=20, help="actions per chunk N_a (default 20, the paper's)")
     p.add_argument("--val-every", type=int, default=250, help="validate every N steps (default 250)")
     p.add_argument("--val-fraction", type=float, default=0.1, help="episodes held out for validation (default 0.1)")
     p.add_argument("--augment", choices=("none", "force"), default="none",
-                   help="force: add ForceAugment copies of every training episode (generated tactile frames)")
+                   help="force: add ForceAugment copies of every training episode (generated tactile frames) "
+                        "(default none)")
     p.add_argument("--copies", type=int, default=None,
                    help=f"ForceAugment copies per episode, 1-9 (default {COPIES}; with --augment force only)")
     p.add_argument("--generator", default=None,

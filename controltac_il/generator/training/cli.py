@@ -60,6 +60,31 @@ STAGE2_OUTPUTS = {
 }
 
 
+STAGE1_HELP = {
+    "dit_patch": "latent pixels per DiT token side", "ae_steps": "autoencoder training steps",
+    "ae_batch": "autoencoder batch (patches)", "dit_steps": "DiT training steps", "dit_batch": "DiT global batch (pairs)",
+    "warmup_steps": "linear LR warm-up steps", "checkpoint_every": "steps between state saves (and validations)",
+    "seed": "data order, noise, initialisation and the validation split", "no_contact_frames": "bare frames rendered",
+    "threads": "torch threads per process", "ae_lr": "autoencoder peak learning rate",
+    "ae_contact_weight": "extra autoencoder loss weight on contact pixels", "dit_lr": "DiT peak learning rate",
+    "min_lr_ratio": "cosine decay floor, a fraction of the peak LR", "ema_decay": "EMA decay of the shipped DiT weights",
+    "no_contact_prob": "share of no-contact pairs"}
+STAGE2_HELP = {
+    "procedural": "random training shapes besides the six training objects",
+    "scenes": "scenes rendered per object", "poses": "contact poses per scene (>= 2: pairs cross poses)",
+    "forces": "forces per pose", "size": "render size (pixels)", "instances": "training sensor instances drawn from",
+    "steps": "training steps", "batch": "batch (pairs)", "lr": "peak learning rate", "warmup_steps": "linear warm-up steps",
+    "min_lr_ratio": "cosine decay floor, a fraction of the peak LR", "ema_decay": "EMA decay of the shipped weights",
+    "one_step_fraction": "share of each batch at the last timestep, the one 1-step DDIM uses",
+    "mask_channels": "channels of the mask's latent features", "head_width": "the adapter's output head width",
+    "alignment_px": "uniform noise (+-, pixels) shifting each training mask: a user's mask is never exact",
+    "alignment_deg": "uniform noise (+-, degrees) rotating each training mask",
+    "val_objects": "procedural shapes held out as the run's validation split (0: none, the last step ships)",
+    "checkpoint_every": "steps between state saves (and validations)",
+    "seed": "scenes, pairs, noise and initialisation", "threads": "torch threads (None: torch's default)",
+    "device": "where the networks train: cpu or cuda (the data stays on the CPU)"}
+
+
 def stage1_options(p: argparse.ArgumentParser) -> None:
     """The ``stage1`` subcommand's options (``GeneratorTrainConfig``'s fields plus --resume and --overwrite)."""
     d = GeneratorTrainConfig.__dataclass_fields__
@@ -72,7 +97,9 @@ def stage1_options(p: argparse.ArgumentParser) -> None:
                    help=f"start the DiT from this run or checkpoint folder's DiT, or a shipped one ({', '.join(SHIPPED)}): "
                         "fine-tuning, e.g. on your own sensor's presses; same architecture and autoencoder")
     p.add_argument("--resume", action="store_true", help="continue from the states in --out (without it, --out must not hold states)")
-    p.add_argument("--image-size", type=int, nargs=2, default=d["image_size"].default, metavar=("H", "W"))
+    p.add_argument("--image-size", type=int, nargs=2, default=d["image_size"].default, metavar=("H", "W"),
+                   help=f"the model's input size (pixels); dataset images are resized to it "
+                        f"(default: {d['image_size'].default})")
     p.add_argument("--ae-channels", type=int, nargs="+", default=d["ae_channels"].default, help="autoencoder stage widths")
     p.add_argument("--latent-channels", type=int, default=d["latent_channels"].default, help="autoencoder latent channels")
     p.add_argument("--dit-preset", choices=sorted(DIT_PRESETS), default="small", help="DiT size (default: small)")
@@ -90,10 +117,13 @@ def stage1_options(p: argparse.ArgumentParser) -> None:
                         "every --checkpoint-every and the best step is shipped (default 0 = the last step)")
     for name in ("dit_patch", "ae_steps", "ae_batch", "dit_steps", "dit_batch", "warmup_steps", "checkpoint_every", "seed",
                  "no_contact_frames", "threads"):
-        p.add_argument("--" + name.replace("_", "-"), type=int, default=d[name].default)
+        p.add_argument("--" + name.replace("_", "-"), type=int, default=d[name].default,
+                       help=f"{STAGE1_HELP[name]} (default: {d[name].default})")
     for name in ("ae_lr", "ae_contact_weight", "dit_lr", "min_lr_ratio", "ema_decay", "no_contact_prob"):
-        p.add_argument("--" + name.replace("_", "-"), type=float, default=d[name].default)
-    p.add_argument("--ae-crop", type=int, nargs=2, default=d["ae_crop"].default, metavar=("H", "W"))
+        p.add_argument("--" + name.replace("_", "-"), type=float, default=d[name].default,
+                       help=f"{STAGE1_HELP[name]} (default: {d[name].default})")
+    p.add_argument("--ae-crop", type=int, nargs=2, default=d["ae_crop"].default, metavar=("H", "W"),
+                   help=f"autoencoder training patch (pixels, within --image-size; default: {d['ae_crop'].default})")
     p.add_argument("--anchor-to-reference", action="store_true", help="output = reference + decoded change")
     p.add_argument("--distinct-pairs", action="store_true", help="never pair a frame with itself (no ΔF = 0 identity)")
     p.add_argument("--increase-prob", type=float, default=0.0, metavar="P",
@@ -124,7 +154,8 @@ def stage2_options(p: argparse.ArgumentParser) -> None:
         default = f.default
         kw = {"nargs": 2, "type": int, "metavar": ("H", "W")} if f.name == "size" else {
             "type": float if isinstance(default, float) else str if isinstance(default, str) else int}
-        p.add_argument("--" + f.name.replace("_", "-"), default=default, help=f"(default: {default})", **kw)
+        p.add_argument("--" + f.name.replace("_", "-"), default=default, help=f"{STAGE2_HELP[f.name]} (default: {default})",
+                       **kw)
 
 
 def build_parser() -> argparse.ArgumentParser:
