@@ -90,7 +90,8 @@ def test_recordings_become_presses_with_their_backgrounds_and_lag(frames, tmp_pa
 @pytest.mark.parametrize("case, expected", [
     ("short_log", "png_session.csv: 3 force rows for"), ("all_contact", "no no-contact frame"),
     ("out_of_range", "no loading-ramp frame with Fz in the validated range"), ("no_fz", "no 'fz' column"),
-    ("bad_png", "000.png: not a readable image"), ("nan", "line 3: a force that is not finite")])
+    ("bad_png", "000.png: not a readable image"), ("nan", "line 3: a force that is not finite"),
+    ("lag", "--lag 6: png_session has 6 frames; a lag must be shorter")])
 def test_bad_recordings_name_the_file(frames, tmp_path, case, expected):
     imgs = frames[0][:6]
     fz = {"short_log": [0, 1, 2], "all_contact": [1, 2, 3, 4, 5, 6], "out_of_range": [0, 0, 0.6, 0.8, 0.9, 0],
@@ -99,7 +100,7 @@ def test_bad_recordings_name_the_file(frames, tmp_path, case, expected):
     if case == "bad_png":
         (tmp_path / "png_session" / "000.png").write_bytes(b"not a png")
     with pytest.raises(ValueError, match=expected) as info:
-        recordings_to_presses(tmp_path, tmp_path / "out", RecordingOptions(size=(60, 80)))
+        recordings_to_presses(tmp_path, tmp_path / "out", RecordingOptions(size=(60, 80), lag=6 if case == "lag" else 0))
     assert "png_session" in str(info.value) and "\n" not in str(info.value) and not (tmp_path / "out").exists()
 
 

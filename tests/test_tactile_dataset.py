@@ -159,6 +159,8 @@ def test_command_line_writes_the_same_bytes_as_the_call(tmp_path, capsys):
     (["--fz-range", "-1", "5"], "--fz-range"),
     (["--fz-range", "nan", "5"], "--fz-range"),
     (["--fz-range", "1", "inf"], "--fz-range"),
+    (["--fz-range", "1", "1e9"], "HIGH <= 60"),  # else the mechanics' "not reached within 50 mm"
+    (["--size", "99999", "133332"], "--size H W must be ints in [8, 2048]"),  # else a 40 GB allocation
     (["--shear-max", "nan"], "--shear-max"),
     (["--shear-max", "-1"], "--shear-max"),
     (["--seed", "-1"], "--seed"),

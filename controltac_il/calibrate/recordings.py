@@ -176,6 +176,9 @@ def read_recording(name: str, frames_path: Path, csv_path: Path, opts: Recording
     if len(forces) != len(frames):
         raise ValueError(f"{csv_path}: {len(forces)} force rows for {len(frames)} frames in {frames_path.name}; "
                          "one row per frame is needed")
+    if opts.lag != "auto" and abs(int(opts.lag)) >= len(frames):  # every label would be a held end of the log
+        raise ValueError(f"--lag {opts.lag}: {csv_path.stem} has {len(frames)} frames; a lag must be shorter than "
+                         "the recording (try --lag auto)")
     free = np.abs((forces if opts.lag == "auto" else shift(forces, opts.lag))[:, 2]) < opts.no_contact_force
     if not free.any():
         raise ValueError(f"{csv_path}: no no-contact frame (|Fz| < {opts.no_contact_force:g} N) for the background")

@@ -15,7 +15,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-MAX_PLAUSIBLE_FORCE_N = 60.0  # a GelSight Mini is rated to ~25 N: larger labels are in mN or wrong
+from controltac_il.tactile.spec import MAX_PLAUSIBLE_FORCE_N
+
 CONTACT_N = 0.05  # |F| above which a label counts as contact when checking the sign of Fz
 PER_FRAME_GROUPS = ("images", "tactile", "force")
 SHAPES = {"vector": (2, None, "(T, D)"), "images": (4, 3, "(T, H, W, 3)"), "tactile": (4, 3, "(T, H, W, 3)"),

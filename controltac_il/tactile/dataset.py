@@ -38,7 +38,7 @@ from controltac_il.io import atomic_dir, unwritable
 from controltac_il.tactile.indenters import INDENTERS, TRAIN_OBJECTS, get_indenter, procedural_objects
 from controltac_il.tactile.instances import FAMILIES, sensor_instance
 from controltac_il.tactile.residual import to_residual
-from controltac_il.tactile.spec import IMAGE_SIDE_PX, SensorSpec
+from controltac_il.tactile.spec import IMAGE_SIDE_PX, MAX_PLAUSIBLE_FORCE_N, SensorSpec
 
 if TYPE_CHECKING:  # the sensor model (OpenCV) is imported where images are rendered: --help stays light
     from controltac_il.tactile.sensor import TactileSensor
@@ -397,8 +397,9 @@ def main(argv=None) -> Path:
     if a.instances is not None and a.sensors is None:
         p.error(f"--instances {a.instances}: the number of randomised sensors to draw from, used only with --sensors")
     lo, hi = a.fz_range
-    if not (np.isfinite([lo, hi]).all() and 0 <= lo < hi):
-        p.error(f"--fz-range LOW HIGH must be finite newtons with 0 <= LOW < HIGH, got {lo:g} {hi:g}")
+    if not (np.isfinite([lo, hi]).all() and 0 <= lo < hi <= MAX_PLAUSIBLE_FORCE_N):
+        p.error(f"--fz-range LOW HIGH must be finite newtons with 0 <= LOW < HIGH <= {MAX_PLAUSIBLE_FORCE_N:g} "
+                f"(a GelSight Mini is rated to about 25 N), got {lo:g} {hi:g}")
     if not (np.isfinite(a.shear_max) and a.shear_max >= 0):
         p.error(f"--shear-max must be a finite number >= 0 N, got {a.shear_max:g}")
     spec = SensorSpec.gelsight_mini()
