@@ -492,3 +492,8 @@ def test_cli_takes_a_lerobot_folder_and_its_force_keys(folder, tmp_path, capsys)
     assert "6 episodes (3 original + 1 copies of each), 30 frames" in capsys.readouterr().out
     assert main([*args, "--force-keys", LEFT]) == 2
     assert "--force-keys: expected TACTILE_KEY=FORCE_KEY" in capsys.readouterr().err
+    bogus = ["--dataset", str(folder), "--out", str(tmp_path / "bogus"), "--generator", str(ckpt),
+             "--tactile-keys", "bogus"]
+    assert main(bogus) == 2
+    err = capsys.readouterr().err
+    assert f"--tactile-keys: 'bogus' is not a camera of {folder}; its cameras are [" in err and LEFT in err, err

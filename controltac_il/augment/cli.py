@@ -259,7 +259,8 @@ def _force_keys(pairs: list[str]) -> dict[str, str]:
 
 def _lerobot_defaults(root: Path, kwargs: dict) -> None:
     """Where --tactile-keys / --force-keys are not given, a LeRobot folder's tactile cameras and force labels as
-    train_act.py takes them: cameras named gelsight / tactile / digit, labels observation.<camera>.force."""
+    train_act.py takes them: cameras named gelsight / tactile / digit, labels observation.<camera>.force; a named
+    tactile key that is none of its cameras is refused, naming them."""
     from controltac_il.lerobot import read_info
     from controltac_il.lerobot.episodes import default_force_keys, tactile_cameras
     from controltac_il.streams import LEROBOT, tactile_key
@@ -270,6 +271,11 @@ def _lerobot_defaults(root: Path, kwargs: dict) -> None:
         raise _field_error(exc, "--dataset") from exc
     if not kwargs.get("tactile_keys"):
         kwargs["tactile_keys"] = tuple(tactile_cameras(features)) or None
+    unknown = [k for k in kwargs.get("tactile_keys") or ()
+               if k not in features and tactile_key(k, LEROBOT) not in features]
+    if unknown:
+        cameras = [k for k, f in features.items() if f.get("dtype") in ("video", "image")]
+        raise UsageError("--tactile-keys", f"{unknown[0]!r} is not a camera of {root}; its cameras are {cameras}")
     if kwargs.get("force_keys") is None and kwargs.get("tactile_keys"):
         full = [k if k in features else tactile_key(k, LEROBOT) for k in kwargs["tactile_keys"]]
         kwargs["force_keys"] = default_force_keys(full, features) or None
