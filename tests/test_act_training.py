@@ -302,7 +302,7 @@ def test_chunk_size_longer_than_every_episode_is_refused(tmp_path):
     (["--chunk-size", "0"], "--chunk-size"), (["--workers", "-1"], "--workers"), (["--copies", "0", "--augment", "force"], "--copies"),
     (["--copies", "3"], "--copies 3: ForceAugment's copies per episode, used only with --augment force"),
     (["--generator", "fast"], "--generator fast: ForceAugment's generator, used only with --augment force"),
-    (["--seed", "-1"], "--seed"),
+    (["--seed", "-1"], "--seed"), (["--demos", "5"], "--demos 5: the embedded demos' count, not used with --dataset"),
 ])
 def test_train_cli_validation_errors_are_one_line_naming_the_flag(tmp_path, capsys, monkeypatch, flags, named):
     monkeypatch.setenv("CONTROLTAC_CACHE", str(tmp_path / "cache"))
