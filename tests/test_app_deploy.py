@@ -1,6 +1,7 @@
 """Deployment through the wiring: checks before motion, Wilson interval, the deploy CLI's errors."""
 
 import math
+from pathlib import Path
 
 import pytest
 import torch
@@ -129,6 +130,7 @@ def test_deploy_cli_runs_the_touch_critical_scene(checkpoint, tmp_path):
     (["--threads", "0"], "--threads"), (["--grip-force", "9", "3"], "--grip-force"),
     (["--grip-force", "-1", "3"], "--grip-force"), (["--seed", "-1"], "--seed"),
     (["--config", "setup.yaml"], "--config setup.yaml: a robot set-up, used only with --robot xarm|ur"),
+    (["--max-steps", "5"], "--max-steps 5: a robot run's length; a simulated episode ends at its scene's"),
 ])
 def test_deploy_cli_validation_errors_are_one_line_naming_the_flag(checkpoint, capsys, flags, named):
     from controltac_il.app import deploy_cli as deploy_policy
@@ -136,6 +138,17 @@ def test_deploy_cli_validation_errors_are_one_line_naming_the_flag(checkpoint, c
     assert deploy_policy.main(["--robot", "sim", "--checkpoint", str(checkpoint), *flags]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and named in err[0], err
+
+
+@pytest.mark.parametrize("flag", [["--episodes", "5"], ["--seed", "3"], ["--scene", "touch_critical"],
+                                  ["--grip-force", "3", "5"]])
+def test_a_simulation_setting_given_for_a_robot_is_refused_not_ignored(checkpoint, capsys, flag):
+    from controltac_il.app import deploy_cli as deploy_policy
+
+    setup = Path(__file__).resolve().parents[1] / "hardware" / "configs" / "xarm7_gelsight.yaml"
+    assert deploy_policy.main(["--robot", "xarm", "--config", str(setup), "--checkpoint", str(checkpoint), *flag]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{flag[0]}: a simulated episode's setting, used only with --robot sim" in err[0], err
 
 
 def test_deploy_cli_never_writes_its_result_over_an_existing_file(checkpoint, tmp_path, capsys):

@@ -27,6 +27,7 @@ from controltac_il.cli import ArgumentParser, guard
 from controltac_il.io import unwritable
 
 PROG = "deploy_policy.py"
+SIM_DEFAULTS = {"episodes": 20, "seed": EVAL_SEED, "scene": "default"}  # --robot sim only
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -35,15 +36,16 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--checkpoint", type=Path, required=True,
                    help="checkpoint folder, or a train_act.py --out folder (its best/, else last/)")
     p.add_argument("--config", type=Path, default=None, help="robot set-up YAML (xarm / ur): devices, limits")
-    p.add_argument("--episodes", type=int, default=20, help="simulated episodes (default 20)")
-    p.add_argument("--seed", type=int, default=EVAL_SEED, help="first scene seed of the simulated episodes "
+    p.add_argument("--episodes", type=int, default=None, help=f"simulated episodes (default {SIM_DEFAULTS['episodes']})")
+    p.add_argument("--seed", type=int, default=None, help="first scene seed of the simulated episodes "
                    "(default: the evaluation seeds, disjoint from the demos')")
-    p.add_argument("--scene", default="default", choices=SCENES,
+    p.add_argument("--scene", default=None, choices=SCENES,
                    help="simulated scene: default (pick and insert) or touch_critical (peg held off-centre, "
                         "hidden from the cameras; see PegInHoleConfig.touch_critical)")
     p.add_argument("--grip-force", type=float, nargs=2, default=None, metavar=("LOW", "HIGH"),
                    help="simulated grip force range, N (default: the scene's, 3-9 / 4-7)")
-    p.add_argument("--max-steps", type=int, default=None, help="robot: stop after this many control steps")
+    p.add_argument("--max-steps", type=int, default=None,
+                   help="robot: stop after this many control steps (a simulated episode ends at its scene's)")
     p.add_argument("--threads", type=int, default=1,
                    help="torch CPU threads for inference (default 1: a 20 ms chunk gains little from more, and "
                         "spinning threads slow the simulator down on a busy machine)")
@@ -52,7 +54,15 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 
 def check_args(args: argparse.Namespace) -> None:
-    """ValueError (one line naming the flag and the expected form) for an option out of its range."""
+    """ValueError (one line naming the flag and the expected form) for an option out of its range, or one the
+    chosen robot does not use; fills the simulation's defaults."""
+    given = [f for f in (*SIM_DEFAULTS, "grip_force") if getattr(args, f) is not None]
+    if args.robot != "sim" and given:
+        raise ValueError(f"--{given[0].replace('_', '-')}: a simulated episode's setting, used only with --robot sim")
+    if args.robot == "sim" and args.max_steps is not None:
+        raise ValueError(f"--max-steps {args.max_steps}: a robot run's length; a simulated episode ends at its scene's")
+    for name, default in SIM_DEFAULTS.items():
+        setattr(args, name, default if getattr(args, name) is None else getattr(args, name))
     for flag, value in (("--episodes", args.episodes), ("--max-steps", args.max_steps), ("--threads", args.threads)):
         if value is not None and value < 1:
             raise ValueError(f"{flag} must be an integer >= 1, got {value}")
