@@ -113,6 +113,9 @@ def one_line_error(capsys, code, *names):
     (["--generator", "nowhere"], ["--generator", "nowhere"]),
     (["--estimator", "nowhere"], ["--estimator", "nowhere"]),
     (["--device", "banana"], ["--device", "banana"]),
+    (["--video-round-trip"], ["--video-round-trip", "LeRobot folder's output"]),  # ignored before, not refused
+    (["--export-workers", "2"], ["--export-workers", "ACT episodes"]),
+    (["--pose-adapter", "pose"], ["--pose-adapter", "only with --pose-offset"]),
 ])
 def test_cli_bad_flags_are_one_line_errors(setup, tmp_path, capsys, extra, names):
     root, ckpt = setup

@@ -91,14 +91,14 @@ def parser() -> argparse.ArgumentParser:
                         "folder, or a calibration bundle (python -m controltac_il.calibrate; its estimator too) "
                         "(default: default)")
     p.add_argument("--estimator", default=None, help="force estimator checkpoint (only for data without force labels)")
-    p.add_argument("--pose-adapter", default="pose",
+    p.add_argument("--pose-adapter", default=None,
                    help="with --pose-offset: the stage-2 pose adapter folder (default: pose, shipped for the default)")
     p.add_argument("--device", default="cpu", help="torch device for the generator (default cpu)")
     p.add_argument("--video-round-trip", action="store_true",
                    help="LeRobot: decode every re-encoded tactile video back and report the codec's round trip error "
                         "(MSE, PSNR of the regenerated frames) in the output's record; costs one decode per re-encoded "
                         "video (default off; data and videos written are the same)")
-    p.add_argument("--export-workers", type=int, default=1, metavar="N",
+    p.add_argument("--export-workers", type=int, default=None, metavar="N",
                    help="LeRobot: processes encoding output episodes' videos in parallel, each owning whole episodes "
                         "(default: 1; on a machine with many cores and the generator on a GPU, about cores - 2)")
     return p
@@ -169,10 +169,13 @@ def _setup(args) -> ForceAugment:
     from controltac_il.augment.dataset import ForceAugment
     from controltac_il.augment.provenance import StaleCacheError
 
-    if args.export_workers < 1:
+    if args.export_workers is not None and args.export_workers < 1:
         raise UsageError("--export-workers", f"expected an int >= 1 (processes writing output episodes), got "
                                              f"{args.export_workers}")
     kwargs = config_kwargs(args)
+    if args.pose_adapter is not None and not kwargs.get("pose_offset"):
+        raise UsageError("--pose-adapter", "the adapter that moves the contact, used only with --pose-offset")
+    args.pose_adapter = args.pose_adapter or "pose"
     if kwargs["copies"] < 1:
         raise UsageError("--copies", f"expected an int >= 1 (copy 0 is the real data: a cache of 0 copies holds "
                                      f"nothing), got {kwargs['copies']}")
@@ -187,6 +190,11 @@ def _setup(args) -> ForceAugment:
     if args.force_keys is not None:
         kwargs["force_keys"] = _force_keys(args.force_keys)
     lerobot = args.lerobot = (args.dataset / "meta" / "info.json").is_file()
+    lerobot_only = [f for f, given in (("--video-round-trip", args.video_round_trip),
+                                       ("--export-workers", args.export_workers is not None)) if given]
+    if lerobot_only and not lerobot:
+        raise UsageError(lerobot_only[0], "writes a LeRobot folder's output; --dataset holds ACT episodes (a cache)")
+    args.export_workers = args.export_workers or 1
     if lerobot:
         from controltac_il.lerobot import check_destination
 
