@@ -99,7 +99,9 @@ def test_bad_presses_and_stopped_runs_are_one_line(bases, tmp_path, capsys):
              (["--presses", str(presses), "--out", str(tmp_path / "o"), "--val-fraction", "1"], "--val-fraction: "),
              (["--presses", str(presses), "--out", str(tmp_path / "o"), "--device", "abacus"], "--device: "),
              (["--recordings", str(tmp_path), "--out", str(tmp_path / "o"), "--size", "0", "-5"],
-              "--size: expected H W in pixels, each in [8, 2048], got 0 -5")]  # else OpenCV's resize traceback
+              "--size: expected H W in pixels, each in [8, 2048], got 0 -5"),  # else OpenCV's resize traceback
+             (["--presses", str(presses), "--out", str(tmp_path / "o"), "--lag", "auto"],
+              "--lag: reads recordings, used only with --recordings")]  # ignored before
     (tmp_path / "s.partial").mkdir()
     cases.append((["--presses", str(presses), "--out", str(tmp_path / "s")], "--resume"))
     ds = load_dataset(presses)

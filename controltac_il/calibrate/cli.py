@@ -12,6 +12,7 @@ from controltac_il.calibrate.decision import MIN_GRASPS
 from controltac_il.tactile.spec import IMAGE_SIDE_PX
 
 PROG = "python -m controltac_il.calibrate"
+RECORDING_DEFAULTS = {"lag": 0, "stride": 1, "size": (240, 320)}  # --recordings only
 
 
 def _lag(text: str):
@@ -30,9 +31,11 @@ def parser() -> argparse.ArgumentParser:
     src.add_argument("--recordings", type=Path,
                      help="a folder of recordings: <name>.mp4 or <name>/ frames, with <name>.csv (column fz, N, one row a frame)")
     p.add_argument("--out", type=Path, required=True, help="the bundle folder to write (new)")
-    p.add_argument("--lag", type=_lag, default=0, help="recordings: force log shift in frames, or 'auto' (default 0)")
-    p.add_argument("--stride", type=int, default=1, help="recordings: keep every n-th ramp frame (default 1)")
-    p.add_argument("--size", type=int, nargs=2, default=(240, 320), metavar=("H", "W"),
+    p.add_argument("--lag", type=_lag, default=None,
+                   help=f"recordings: force log shift in frames, or 'auto' (default {RECORDING_DEFAULTS['lag']})")
+    p.add_argument("--stride", type=int, default=None,
+                   help=f"recordings: keep every n-th ramp frame (default {RECORDING_DEFAULTS['stride']})")
+    p.add_argument("--size", type=int, nargs=2, default=None, metavar=("H", "W"),
                    help="recordings: frame size written (default 240 320, the GelSight Mini's)")
     p.add_argument("--base-generator", default="default",
                    help="generator to fine-tune: a shipped preset (default, fast, quality) or a folder (default: default)")
@@ -53,7 +56,12 @@ def parser() -> argparse.ArgumentParser:
 
 
 def check(args: argparse.Namespace) -> None:
-    """ValueError naming the flag for a bad option or output."""
+    """ValueError naming the flag for a bad option or output; fills the recordings' defaults."""
+    given = [f for f in RECORDING_DEFAULTS if getattr(args, f) is not None]
+    if args.presses is not None and given:
+        raise ValueError(f"--{given[0]}: reads recordings, used only with --recordings (presses are labelled frames)")
+    for name, default in RECORDING_DEFAULTS.items():
+        setattr(args, name, default if getattr(args, name) is None else getattr(args, name))
     for flag, value, low in (("--estimator-steps", args.estimator_steps or 1, 1), ("--ae-steps", args.ae_steps, 0),
                              ("--dit-steps", args.dit_steps, 1), ("--batch", args.batch, 1), ("--stride", args.stride, 1)):
         if value < low:
