@@ -229,10 +229,14 @@ def test_cli_one_line_errors(tmp_path):
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "--fz-max" in bad.stderr
     bad = run("--sim", "--mode", "press", "--out", str(tmp_path / "r"))
     assert bad.returncode == 2 and "--mode squeeze" in bad.stderr and not (tmp_path / "r").exists()
+    bad = run("--sim", "--start", "0", "0", "0", "0", "--out", str(tmp_path / "r"))
+    assert bad.returncode == 2 and "--start: a robot's pose" in bad.stderr and not (tmp_path / "r").exists()
 
 
 @pytest.mark.parametrize("start, says", [(["nan", "0", "0.2", "0"], "start must be 4 finite numbers"),
-                                         (["1e9", "0", "0.2", "0"], "start: .* lies outside the workspace box")])
+                                         (["1e9", "0", "0.2", "0"], "start: .* lies outside the workspace box"),
+                                         (["0.4", "0", "0.2", "0", "--tactile-size", "120", "160"],
+                                          "--tactile-size: the simulation's")])
 def test_a_robot_start_outside_its_limits_is_refused_before_any_device_connects(tmp_path, monkeypatch, capsys,
                                                                                start, says):
     import hardware.config

@@ -44,8 +44,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--fast-step", type=float, default=None, help="per period: closing fraction or m (default: the mode's)")
     p.add_argument("--slow-step", type=float, default=None, help="per period on the ramp (default: the mode's)")
     p.add_argument("--max-travel", type=float, default=None, help="closing fraction or m in all (default: the mode's)")
-    p.add_argument("--tactile-size", type=int, nargs=2, default=(240, 320), metavar=("H", "W"),
-                   help="--sim: the rendered tactile frames (default 240 320)")
+    p.add_argument("--tactile-size", type=int, nargs=2, default=None, metavar=("H", "W"),
+                   help="--sim: the rendered tactile frames (default 240 320; a robot's size is its setup file's)")
     return p
 
 
@@ -59,6 +59,11 @@ def _run(args: argparse.Namespace) -> int:
     from controltac_il.config import one_line
     from hardware.interfaces import HardwareError
 
+    if args.sim and args.start is not None:
+        raise ValueError("--start: a robot's pose; the simulation squeezes the standing peg where it stands")
+    if not args.sim and args.tactile_size is not None:
+        raise ValueError(f"--tactile-size: the simulation's; a robot's frames have the size {args.setup} gives them")
+    args.tactile_size = args.tactile_size or (240, 320)
     mode = args.mode or ("squeeze" if args.sim else "press")
     try:
         plan = PressPlan(**{k: getattr(args, k) for k in PLAN_FLAGS if k != "mode"}, mode=mode)
