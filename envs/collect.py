@@ -102,9 +102,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="cameras to record (default: third_view wrist; none: no images)")
     p.add_argument("--camera-size", type=int, nargs=2, default=d.camera_size, metavar=("H", "W"),
                    help=f"camera image size in pixels (default {d.camera_size[0]} {d.camera_size[1]})")
-    p.add_argument("--tactile-size", type=int, nargs=2, default=d.tactile_size, metavar=("H", "W"),
+    p.add_argument("--tactile-size", type=int, nargs=2, default=None, metavar=("H", "W"),
                    help=f"tactile image size in pixels, GelSight Mini aspect 3:4 (default {d.tactile_size[0]} {d.tactile_size[1]})")
-    p.add_argument("--optics", default=d.tactile_optics, choices=OPTICS,
+    p.add_argument("--optics", default=None, choices=OPTICS,
                    help=f"tactile optics model (default {d.tactile_optics}, as the generator's training data)")
     p.add_argument("--no-tactile", action="store_true", help="record no tactile images (forces are still recorded)")
     p.add_argument("--scene", default="default", choices=SCENES,
@@ -138,6 +138,12 @@ def parse_args(argv=None) -> argparse.Namespace:
         p.error(f"--max-attempts must be an int >= --episodes ({args.episodes}), got {args.max_attempts}")
     if args.out.exists() and not args.out.is_dir():
         p.error(f"--out {args.out} exists and is not a folder; give a folder for the episode files")
+    tactile_only = [f for f, v in (("--tactile-size", args.tactile_size), ("--optics", args.optics)) if v is not None]
+    if args.no_tactile and tactile_only:
+        p.error(f"{tactile_only[0]}: sets the tactile images, which --no-tactile leaves out")
+    d = PegInHoleConfig()
+    args.tactile_size = args.tactile_size or d.tactile_size
+    args.optics = args.optics or d.tactile_optics
     try:
         overrides = dict(cameras=tuple(args.cameras), camera_size=tuple(args.camera_size),
                          tactile=not args.no_tactile, tactile_size=tuple(args.tactile_size), tactile_optics=args.optics)

@@ -110,6 +110,8 @@ def test_grip_force_range_and_no_tactile(tmp_path):
     (["--hole-diameter", "20"], "--hole-diameter"),
     (["--scene", "kitchen"], "--scene"),
     (["--episodes", "two"], "--episodes"),
+    (["--no-tactile", "--optics", "polynomial"], "--optics: sets the tactile images, which --no-tactile leaves out"),
+    (["--no-tactile", "--tactile-size", "60", "80"], "--tactile-size: sets the tactile images"),
 ])
 def test_bad_arguments_are_one_line_naming_the_flag(tmp_path, capsys, argv, flag):
     out = tmp_path / "demos"
