@@ -358,8 +358,8 @@ def _parser() -> ArgumentParser:
     p.add_argument("--size", type=int, nargs=2, metavar=("H", "W"), default=None,
                    help="render resolution in pixels, 8-2048 at the pad's 3:4 aspect, same pad "
                         "(default: GelSight Mini's native 240 320)")
-    p.add_argument("--optics", choices=("three_light", "polynomial"), default=d["optics"],
-                   help=f"sensor optics model (default {d['optics']})")
+    p.add_argument("--optics", choices=("three_light", "polynomial"), default=None,
+                   help=f"sensor optics model of the one sensor, without --sensors (default {d['optics']})")
     p.add_argument("--sensors", choices=FAMILIES, default=None,
                    help="sensor randomisation: render each contact pose with one instance of this family "
                         "(controltac_il.tactile.instances; 'unseen' is held out of training); default: one sensor, --optics")
@@ -396,6 +396,9 @@ def main(argv=None) -> Path:
         p.error(f"--workers must be an int >= 1, got {a.workers}")
     if a.instances is not None and a.sensors is None:
         p.error(f"--instances {a.instances}: the number of randomised sensors to draw from, used only with --sensors")
+    if a.optics is not None and a.sensors is not None:
+        p.error(f"--optics {a.optics}: the one sensor's optics; --sensors {a.sensors} draws each instance's own")
+    a.optics = a.optics or inspect.signature(write_dataset).parameters["optics"].default
     lo, hi = a.fz_range
     if not (np.isfinite([lo, hi]).all() and 0 <= lo < hi <= MAX_PLAUSIBLE_FORCE_N):
         p.error(f"--fz-range LOW HIGH must be finite newtons with 0 <= LOW < HIGH <= {MAX_PLAUSIBLE_FORCE_N:g} "
