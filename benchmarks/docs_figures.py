@@ -145,15 +145,15 @@ def headline() -> str:
          src["touch_il_verdict.json"]],
         [f"MuJoCo scene speed ({full['setting']} rendered)", f"{full['realtime_factor']:.1f}× real time "
          f"({full['ms_per_step']:.1f} ms per 100 ms step); scripted expert {expert['successes']}/{expert['episodes']}",
-         f"{_spread(full, 'step', 'steps')}; expert [{lo}, {hi}] % (Wilson 95 %)",
+         f"{timing_spread(full, 'step', 'steps')}; expert [{lo}, {hi}] % (Wilson 95 %)",
          "[scene](docs/act_and_deployment.md#scene-speed)", src["env.json"]],
         [f"ACT latency ({cpu['preset']} preset, {cpu['threads']} torch thread, CPU)",
          f"{cpu['ms_per_chunk']:.1f} ms per chunk of {cpu['chunk']} (target {cpu['target_ms']:.0f})",
-         _spread(cpu, "call", "calls"), "[ACT](docs/act_and_deployment.md#speed)", src["act.json"]]]
+         timing_spread(cpu, "call", "calls"), "[ACT](docs/act_and_deployment.md#speed)", src["act.json"]]]
     return ft.table(["what", "measured", "error or interval", "details", "source (`benchmarks/results/`)"], rows)
 
 
-def _spread(row: dict, unit: str, count: str) -> str:
+def timing_spread(row: dict, unit: str, count: str) -> str:
     """The interquartile range of a timed median (ms), or that the JSON holds one timing."""
     if "ms_quartiles" not in row:
         return "one timing, no interval"

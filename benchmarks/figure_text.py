@@ -39,11 +39,13 @@ def provenance(name: str, doc: dict, generator: str | None, note: str = "") -> s
 
 
 def machine(m: dict) -> str:
-    """', on <the GPU, or the CPU and its cores>' from a results JSON's ``machine`` record ('' where it names none)."""
-    if m.get("cuda_device"):
-        return f", on {m['cuda_device']}"
+    """', on <the CPU> (<cores> cores)[, with <the GPU>]' from a results JSON's ``machine`` record ('' where it names
+    neither): the host, whichever of its devices the figures were measured on (the block says which)."""
     cpu = " ".join(str(m.get("cpu") or "").split())
-    return f", on {cpu} ({m['cores']} cores)" if cpu and m.get("cores") else f", on {cpu}" if cpu else ""
+    host = f"{cpu} ({m['cores']} cores)" if cpu and m.get("cores") else cpu
+    gpu = m.get("cuda_device")
+    host = f"{host}, with {gpu}" if host and gpu else host or gpu or ""
+    return f", on {host}" if host else ""
 
 
 def recorded_generator(doc: dict) -> str | None:

@@ -186,7 +186,7 @@ def test_every_source_line_names_the_machine_its_figures_were_measured_on():
     cpu = {"machine": {**stamp, "cpu": "AMD  EPYC", "cores": 2, "cuda_device": None}}
     gpu = {"machine": {**stamp, "cpu": "Intel Xeon", "cores": 16, "cuda_device": "NVIDIA H200"}}
     assert ", on AMD EPYC (2 cores)." in ft.provenance("x.json", cpu, None)
-    assert ", on NVIDIA H200." in ft.provenance("x.json", gpu, None)
+    assert ", on Intel Xeon (16 cores), with NVIDIA H200." in ft.provenance("x.json", gpu, None)
     assert ft.provenance("x.json", {"machine": stamp}, None) == "*Source: `benchmarks/results/x.json`, commit abc1234, 2026-01-01.*"
 
 
@@ -197,8 +197,8 @@ def test_the_shipped_generator_hash_is_the_default_checkpoints():
 
 
 def test_a_timed_median_is_quoted_with_its_interquartile_range_or_as_one_timing():
-    from benchmarks.docs_figures import _spread
+    from benchmarks.docs_figures import timing_spread
 
-    assert _spread({"ms_quartiles": [8.51, 9.46], "calls": 30}, "call", "calls") == \
+    assert timing_spread({"ms_quartiles": [8.51, 9.46], "calls": 30}, "call", "calls") == \
         "8.5–9.5 ms per call (interquartile, 30 calls)"
-    assert _spread({"ms_per_chunk": 9.0}, "call", "calls") == "one timing, no interval"
+    assert timing_spread({"ms_per_chunk": 9.0}, "call", "calls") == "one timing, no interval"
