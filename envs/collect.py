@@ -159,7 +159,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     return args
 
 
-INFO_KEYS = ("episodes", "attempts", "failed_seeds", "config", "expert")
+INFO_KEYS = ("episodes", "attempts", "failed_seeds", "config", "expert")  # collect_info.json, in order
 
 
 def own_episode(path: Path) -> str | None:
@@ -221,10 +221,7 @@ def main(argv=None) -> int:
     for old in existing:  # --overwrite: the folder holds exactly the new episodes
         if episode_index(old) >= written:
             old.unlink()
-    write_json(info, {
-        "episodes": written, "attempts": attempts, "failed_seeds": failures,
-        "config": {k: v for k, v in vars(config).items()}, "expert": vars(ExpertConfig()),
-    })
+    write_json(info, dict(zip(INFO_KEYS, (written, attempts, failures, dict(vars(config)), vars(ExpertConfig())))))
     if not args.quiet:
         print(f"wrote {written} episodes to {args.out} ({attempts} attempts, {len(failures)} expert failures)")
     if written < args.episodes:

@@ -27,6 +27,7 @@ SENSORS = ("left", "right")
 OPTICS = ("polynomial", "three_light")
 CAMERA_LAYOUTS = ("side", "occluding")
 EVAL_SEED = 100_000  # first scene seed of every evaluation; demos use seeds below it
+DEMO_EPISODES = 20  # scripted-expert demos of the embedded default (train_act.py without --dataset)
 
 # Plausibility bounds of the checks (the scene's dimensions are envs.geometry's)
 WORKSPACE_Z_M = (0.0, 0.5)  # plausible TCP heights: on the table up to half a metre above it

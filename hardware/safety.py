@@ -59,7 +59,8 @@ class SafetyLimits:
     max_tracking_m: largest distance between a command and the last measured position, metres (at least
         max_step_m, at most 0.2; None: two steps, 2 x max_step_m): an arm blocked by contact is not pressed
         harder as the policy's targets walk on, since position control pushes in proportion to that gap;
-        further commands are pulled toward the measured position.
+        further commands are pulled toward the measured position. That pull may move a command by more than
+        max_step_m, always back toward where the arm is, never away from it.
     gripper_min / gripper_max: allowed gripper command range within [0, 1] (0 open, 1 closed).
     state_tolerance_m: a measured pose further than this outside the box is a violation (arm stopped).
     state_tolerance_rad: a measured yaw further than this outside a narrower yaw range is a violation.

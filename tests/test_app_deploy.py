@@ -131,6 +131,7 @@ def test_deploy_cli_runs_the_touch_critical_scene(checkpoint, tmp_path):
     (["--grip-force", "-1", "3"], "--grip-force"), (["--seed", "-1"], "--seed"),
     (["--config", "setup.yaml"], "--config setup.yaml: a robot set-up, used only with --robot xarm|ur"),
     (["--max-steps", "5"], "--max-steps 5: a robot run's length; a simulated episode ends at its scene's"),
+    (["--out", "/proc/controltac-result.json"], "cannot write the result there (no file can be made in /proc"),
 ])
 def test_deploy_cli_validation_errors_are_one_line_naming_the_flag(checkpoint, capsys, flags, named):
     from controltac_il.app import deploy_cli as deploy_policy

@@ -113,7 +113,7 @@ def one_line_error(capsys, code, *names):
     (["--generator", "nowhere"], ["--generator", "nowhere"]),
     (["--estimator", "nowhere"], ["--estimator", "nowhere"]),
     (["--device", "banana"], ["--device", "banana"]),
-    (["--video-round-trip"], ["--video-round-trip", "LeRobot folder's output"]),  # ignored before, not refused
+    (["--video-round-trip"], ["--video-round-trip", "LeRobot folder's output"]),
     (["--export-workers", "2"], ["--export-workers", "ACT episodes"]),
     (["--pose-adapter", "pose"], ["--pose-adapter", "only with --pose-offset"]),
 ])

@@ -101,7 +101,7 @@ def test_bad_presses_and_stopped_runs_are_one_line(bases, tmp_path, capsys):
              (["--recordings", str(tmp_path), "--out", str(tmp_path / "o"), "--size", "0", "-5"],
               "--size: expected H W in pixels, each in [8, 2048], got 0 -5"),  # else OpenCV's resize traceback
              (["--presses", str(presses), "--out", str(tmp_path / "o"), "--lag", "auto"],
-              "--lag: reads recordings, used only with --recordings")]  # ignored before
+              "--lag: reads recordings, used only with --recordings")]
     (tmp_path / "s.partial").mkdir()
     cases.append((["--presses", str(presses), "--out", str(tmp_path / "s")], "--resume"))
     ds = load_dataset(presses)

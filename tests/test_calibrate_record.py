@@ -231,6 +231,8 @@ def test_cli_one_line_errors(tmp_path):
     assert bad.returncode == 2 and "--mode squeeze" in bad.stderr and not (tmp_path / "r").exists()
     bad = run("--sim", "--start", "0", "0", "0", "0", "--out", str(tmp_path / "r"))
     assert bad.returncode == 2 and "--start: a robot's pose" in bad.stderr and not (tmp_path / "r").exists()
+    bad = run("--sim", "--out", "/proc/controltac-recordings")  # told before any press, not after them
+    assert bad.returncode == 2 and "--out /proc/controltac-recordings: no file can be made in /proc" in bad.stderr
 
 
 @pytest.mark.parametrize("start, says", [(["nan", "0", "0.2", "0"], "start must be 4 finite numbers"),

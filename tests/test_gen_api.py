@@ -451,8 +451,10 @@ def test_a_blank_reference_is_refused_by_row_and_a_nearly_blank_one_is_not(gen):
     with pytest.raises(ValueError, match=r"reference_residuals\[1\]"):
         gen.generate_at(res, [[0, 0, 4.0]] * 3, [[0, 0, 5.0]] * 3, steps=1)
     bg = np.full((*hw, 3), 90, np.uint8)
-    with pytest.raises(ValueError, match=r"images\[1\]"):
+    with pytest.raises(ValueError, match=r"images\[1\] \(and 1 more\)"):
         gen.generate_images(res, bg, np.zeros((3, 3)), steps=1)
+    with pytest.raises(ValueError, match=r"reference_residuals\[0\] has every value"):  # one row: no "and 0 more"
+        gen.generate(res[2:], np.zeros((1, 3)), steps=1)
     res[1:, 0, 0, 0] = 128
     assert gen.generate(res, np.zeros((3, 3)), steps=1).shape == res.shape
 

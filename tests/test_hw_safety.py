@@ -56,6 +56,11 @@ def test_an_arm_blocked_by_contact_is_never_commanded_further_than_the_tracking_
     h.check_state(np.array([0.5, 0.0, -0.01, 0.0]))  # 1 cm below the floor: within state_tolerance_m
     out = h(np.array([0.5, 0.0, 0.2, 0.0, 0.5]))
     assert out[2] == pytest.approx(0.01) and h.counts.tracking == 1  # two steps ahead of -0.01 m, inside the box
+    pushed = make_filter(pose=(0.5, 0.0, 0.2, 0.0))
+    pushed(np.array([0.5, 0.0, 0.19, 0.0, 0.5]))
+    pushed.check_state(np.array([0.5, 0.0, 0.13, 0.0]))  # pushed 6 cm down by the world, under the command
+    z = pushed(np.array([0.5, 0.0, 0.19, 0.0, 0.5]))[2]
+    assert z == pytest.approx(0.15) and pushed.counts.tracking == 1  # 4 cm back toward the arm in one period
     wide = SafetyLimits(workspace_min=(0.0, -0.5, 0.0), workspace_max=(1.0, 0.5, 0.5), max_step_m=0.01,
                         max_tracking_m=0.05)
     assert wide.tracking_m == 0.05

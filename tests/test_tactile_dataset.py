@@ -169,6 +169,7 @@ def test_command_line_writes_the_same_bytes_as_the_call(tmp_path, capsys):
     (["--workers", "0"], "--workers"),
     (["--instances", "5"], "--instances 5: the number of randomised sensors to draw from, used only with --sensors"),
     (["--sensors", "train", "--optics", "polynomial"], "--optics polynomial: the one sensor's optics; --sensors train"),
+    (["--out", "/proc/controltac-dataset"], "--out /proc/controltac-dataset: no file can be made in /proc"),
 ])
 def test_command_line_refuses_bad_arguments_by_name(tmp_path, capsys, argv, flag):
     with pytest.raises(SystemExit) as exit_:

@@ -10,8 +10,8 @@
 
 Only the scripts (``train_act.py``, ``deploy_policy.py``, ``python -m controltac_il``) and the
 benchmarks import this package, and they import nothing below it but the library (import-linter contracts in
-pyproject.toml; ``tests/test_architecture.py`` for the scripts). ``ACTTrainConfig``, ``EVAL_SEED`` and ``SCENES`` are
-the scripts' flags' targets.
+pyproject.toml; ``tests/test_architecture.py`` for the scripts). ``ACTTrainConfig``, ``DEMO_EPISODES``, ``EVAL_SEED`` and
+``SCENES`` are the scripts' flags' targets.
 """
 
 from controltac_il.lazy import exports
@@ -20,7 +20,7 @@ _EXPORTS = {**dict.fromkeys(("default_demos", "scene_fingerprint"), "controltac_
             **dict.fromkeys(("EvaluationError", "check_setup", "deploy", "deploy_on_robot", "evaluate_in_sim",
                              "load_policy"), "controltac_il.app.deploy"),
             "PipelineConfig": "controltac_il.app.job_config", "run_pipeline": "controltac_il.app.job",
-            "train_act": "controltac_il.app.train", **dict.fromkeys(("EVAL_SEED", "SCENES"), "envs.config"),
+            "train_act": "controltac_il.app.train", **dict.fromkeys(("DEMO_EPISODES", "EVAL_SEED", "SCENES"), "envs.config"),
             "ACTTrainConfig": "policies.act.training"}
 __getattr__, __dir__ = exports(__name__, _EXPORTS)
 __all__ = list(_EXPORTS)

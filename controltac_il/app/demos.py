@@ -10,6 +10,7 @@ import envs
 from controltac_il.io import atomic_dir, cache_root
 from controltac_il.tactile import optics, sensor
 from envs import collect
+from envs.config import DEMO_EPISODES
 
 
 def scene_fingerprint() -> str:
@@ -24,7 +25,7 @@ def scene_fingerprint() -> str:
     return h.hexdigest()[:10]
 
 
-def default_demos(episodes: int = 20, seed: int = 0, root: str | Path | None = None, scene: str = "default") -> Path:
+def default_demos(episodes: int = DEMO_EPISODES, seed: int = 0, root: str | Path | None = None, scene: str = "default") -> Path:
     """Folder of ``episodes`` scripted-expert peg-in-hole demos (collected once, then reused).
 
     scene: "default" or "touch_critical" (``envs.config.SCENES``). The cache folder is keyed by the

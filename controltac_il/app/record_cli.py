@@ -71,8 +71,9 @@ def _run(args: argparse.Namespace) -> int:
         raise ValueError(one_line(exc, {k: "--" + k.replace("_", "-") for k in PLAN_FLAGS})) from None
     if args.out.exists():
         raise ValueError(f"--out {args.out} exists; recordings are written to a new folder")
-    if unwritable(args.out):
-        raise ValueError(f"--out {args.out}: {unwritable(args.out)}")
+    why = unwritable(args.out)
+    if why:
+        raise ValueError(f"--out {args.out}: {why}")
     from tqdm import tqdm
 
     with tqdm(total=plan.presses, unit="press", desc="calibration presses", disable=None) as bar:

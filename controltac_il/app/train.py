@@ -7,10 +7,11 @@ from pathlib import Path
 
 from controltac_il.augment import ForceAugmentStage
 from controltac_il.app.demos import default_demos
+from envs.config import DEMO_EPISODES
 from policies.act.training import ACTTrainConfig, train_on_folder
 
 
-def train_act(out: str | Path, dataset: str | Path | None = None, *, demos: int = 20, preset: str = "cpu",
+def train_act(out: str | Path, dataset: str | Path | None = None, *, demos: int = DEMO_EPISODES, preset: str = "cpu",
               train_config: ACTTrainConfig | None = None, copies: int = 0, generator: str | Path | None = None,
               val_fraction: float = 0.1, chunk_size: int = 20, resume: bool = False, overwrite: bool = False,
               progress: bool = True, lerobot: dict | None = None) -> dict:

@@ -21,10 +21,10 @@ import os
 from pathlib import Path
 
 from controltac_il.cli import ArgumentParser
+from envs.config import DEMO_EPISODES
 
 
 COPIES = 2  # ForceAugment copies per episode by default (the verdict's fa2)
-DEMOS = 20  # episodes collected for the embedded default
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -57,7 +57,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "calibration bundle, whose estimator reads unlabelled frames where calibration says it may "
                         "(default: default)")
     p.add_argument("--demos", type=int, default=None,
-                   help=f"episodes collected for the embedded default, without --dataset (default {DEMOS})")
+                   help=f"episodes collected for the embedded default, without --dataset (default {DEMO_EPISODES})")
     p.add_argument("--resume", action="store_true", help="continue from OUT/last (same dataset and options)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace a previous run in OUT (only the last/, best/ and train_log.json this tool wrote)")
@@ -92,7 +92,7 @@ def check_args(args: argparse.Namespace):
         raise ValueError(f"--val-fraction must be in [0, 1) (a share of the episodes), got {args.val_fraction}")
     if args.demos is not None and args.dataset is not None:
         raise ValueError(f"--demos {args.demos}: the embedded demos' count, not used with --dataset")
-    args.demos = DEMOS if args.demos is None else args.demos
+    args.demos = DEMO_EPISODES if args.demos is None else args.demos
     for flag, value, low in (("--chunk-size", args.chunk_size, 1), ("--demos", args.demos, 1),
                              ("--threads", args.threads, 1)):
         if value is not None and value < low:

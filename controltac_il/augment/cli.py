@@ -279,10 +279,9 @@ def _lerobot_defaults(root: Path, kwargs: dict) -> None:
         raise _field_error(exc, "--dataset") from exc
     if not kwargs.get("tactile_keys"):
         kwargs["tactile_keys"] = tuple(tactile_cameras(features)) or None
-    unknown = [k for k in kwargs.get("tactile_keys") or ()
-               if k not in features and tactile_key(k, LEROBOT) not in features]
+    cameras = [k for k, f in features.items() if f.get("dtype") in ("video", "image")]
+    unknown = [k for k in kwargs.get("tactile_keys") or () if k not in cameras and tactile_key(k, LEROBOT) not in cameras]
     if unknown:
-        cameras = [k for k, f in features.items() if f.get("dtype") in ("video", "image")]
         raise UsageError("--tactile-keys", f"{unknown[0]!r} is not a camera of {root}; its cameras are {cameras}")
     if kwargs.get("force_keys") is None and kwargs.get("tactile_keys"):
         full = [k if k in features else tactile_key(k, LEROBOT) for k in kwargs["tactile_keys"]]

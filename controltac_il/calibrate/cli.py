@@ -12,7 +12,7 @@ from controltac_il.calibrate.decision import MIN_GRASPS
 from controltac_il.tactile.spec import IMAGE_SIDE_PX
 
 PROG = "python -m controltac_il.calibrate"
-RECORDING_DEFAULTS = {"lag": 0, "stride": 1, "size": (240, 320)}  # --recordings only
+RECORDING_FLAGS = ("lag", "stride", "size")  # --recordings only; their defaults are RecordingOptions'
 
 
 def _lag(text: str):
@@ -32,9 +32,9 @@ def parser() -> argparse.ArgumentParser:
                      help="a folder of recordings: <name>.mp4 or <name>/ frames, with <name>.csv (column fz, N, one row a frame)")
     p.add_argument("--out", type=Path, required=True, help="the bundle folder to write (new)")
     p.add_argument("--lag", type=_lag, default=None,
-                   help=f"recordings: force log shift in frames, or 'auto' (default {RECORDING_DEFAULTS['lag']})")
+                   help="recordings: force log shift in frames, or 'auto' (default 0)")
     p.add_argument("--stride", type=int, default=None,
-                   help=f"recordings: keep every n-th ramp frame (default {RECORDING_DEFAULTS['stride']})")
+                   help="recordings: keep every n-th ramp frame (default 1)")
     p.add_argument("--size", type=int, nargs=2, default=None, metavar=("H", "W"),
                    help="recordings: frame size written (default 240 320, the GelSight Mini's)")
     p.add_argument("--base-generator", default="default",
@@ -57,11 +57,13 @@ def parser() -> argparse.ArgumentParser:
 
 def check(args: argparse.Namespace) -> None:
     """ValueError naming the flag for a bad option or output; fills the recordings' defaults."""
-    given = [f for f in RECORDING_DEFAULTS if getattr(args, f) is not None]
+    from controltac_il.calibrate.recordings import RecordingOptions
+
+    given = [f for f in RECORDING_FLAGS if getattr(args, f) is not None]
     if args.presses is not None and given:
         raise ValueError(f"--{given[0]}: reads recordings, used only with --recordings (presses are labelled frames)")
-    for name, default in RECORDING_DEFAULTS.items():
-        setattr(args, name, default if getattr(args, name) is None else getattr(args, name))
+    for name in RECORDING_FLAGS:
+        setattr(args, name, getattr(RecordingOptions(), name) if getattr(args, name) is None else getattr(args, name))
     for flag, value, low in (("--estimator-steps", args.estimator_steps or 1, 1), ("--ae-steps", args.ae_steps, 0),
                              ("--dit-steps", args.dit_steps, 1), ("--batch", args.batch, 1), ("--stride", args.stride, 1)):
         if value < low:

@@ -48,7 +48,7 @@ def estimate_background(
         idle = np.flatnonzero(force[:, 2] < no_contact_force)
         if len(idle) == 0:  # in contact throughout, or a sensor reading an offset: the labels cannot say which
             warnings.warn(f"no frame's force label is below {no_contact_force:g} N (lowest "
-                          f"{float(force[:, 2].min()):.2f} N): the background is taken from the frames unchanged "
+                          f"{float(np.nanmin(force[:, 2])):.2f} N): the background is taken from the frames unchanged "
                           "from the episode's start, which hold the contact if it starts in one; record the "
                           "no-contact background to be sure", stacklevel=2)
     if len(idle) == 0:

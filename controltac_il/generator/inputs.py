@@ -39,8 +39,9 @@ def check_residuals(x, name: str, model_hw: tuple[int, int]) -> np.ndarray:
         raise ValueError(f"{name} must have shape (B, H, W, 3) with B >= 1 and H, W >= 8, got {x.shape}")
     empty = np.flatnonzero(blank(x))
     if empty.size:  # nothing to condition on: the model would invent a contact
-        raise ValueError(f"{name}[{empty[0]}] (and {empty.size - 1} more) has every value 0 or 255: a dark, "
-                         "overexposed or dropped camera frame, not a tactile image; leave it out or keep it real")
+        more = f" (and {empty.size - 1} more)" if empty.size > 1 else ""
+        raise ValueError(f"{name}[{empty[0]}]{more} has every value 0 or 255: a dark, overexposed or dropped camera "
+                         "frame, not a tactile image; leave it out or keep it real")
     (h, w), (mh, mw) = x.shape[1:3], model_hw
     change = (w / h) / (mw / mh)
     change = max(change, 1.0 / change)

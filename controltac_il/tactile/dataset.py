@@ -356,8 +356,8 @@ def _parser() -> ArgumentParser:
     p.add_argument("--seed", type=int, default=d["seed"],
                    help=f"seeds poses, forces and sensor noise, >= 0 (default {d['seed']})")
     p.add_argument("--size", type=int, nargs=2, metavar=("H", "W"), default=None,
-                   help="render resolution in pixels, 8-2048 at the pad's 3:4 aspect, same pad "
-                        "(default: GelSight Mini's native 240 320)")
+                   help=f"render resolution in pixels, {IMAGE_SIDE_PX[0]}-{IMAGE_SIDE_PX[1]} at the pad's 3:4 "
+                        "aspect, same pad (default: GelSight Mini's native 240 320)")
     p.add_argument("--optics", choices=("three_light", "polynomial"), default=None,
                    help=f"sensor optics model of the one sensor, without --sensors (default {d['optics']})")
     p.add_argument("--sensors", choices=FAMILIES, default=None,
@@ -380,8 +380,9 @@ def main(argv=None) -> Path:
     a = p.parse_args(argv)
     if Path(a.out).exists():
         p.error(f"--out {a.out} exists; choose a new folder (datasets are never overwritten)")
-    if unwritable(a.out):
-        p.error(f"--out {a.out}: {unwritable(a.out)}")
+    why = unwritable(a.out)
+    if why:
+        p.error(f"--out {a.out}: {why}")
     if len(set(a.objects)) != len(a.objects):
         p.error(f"--objects must name each indenter once, got {' '.join(a.objects)}")
     if a.procedural < 0:

@@ -52,6 +52,6 @@ def contact_mask(residual: np.ndarray, threshold: float = 12.0, min_pixels: int 
 
 def blank(images: np.ndarray) -> np.ndarray:
     """bool (...,): frames (..., H, W, 3) uint8 whose every value is 0 or 255 (a dark, overexposed or dropped
-    camera frame, or a residual no contact makes): no tactile information to read or to generate from."""
+    camera frame): no tactile information to read or to generate from."""
     a = _check_image("image", images)
     return ((a == 0) | (a == 255)).all(axis=(-3, -2, -1))

@@ -7,7 +7,8 @@ from dataclasses import dataclass
 
 from controltac_il.config import is_real
 
-IMAGE_SIDE_PX = (8, 2048)  # smallest and largest image side (pixels) any tactile or camera image may have
+# smallest and largest side (pixels) of an image rendered or read for training (a robot's cameras: hardware's bound)
+IMAGE_SIDE_PX = (8, 2048)
 MAX_PLAUSIBLE_FORCE_N = 60.0  # a GelSight Mini is rated to ~25 N: larger forces are in mN or wrong
 
 
