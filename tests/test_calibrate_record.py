@@ -229,10 +229,6 @@ def test_cli_one_line_errors(tmp_path):
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "--fz-max" in bad.stderr
     bad = run("--sim", "--mode", "press", "--out", str(tmp_path / "r"))
     assert bad.returncode == 2 and "--mode squeeze" in bad.stderr and not (tmp_path / "r").exists()
-    bad = run("--sim", "--start", "0", "0", "0", "0", "--out", str(tmp_path / "r"))
-    assert bad.returncode == 2 and "--start: a robot's pose" in bad.stderr and not (tmp_path / "r").exists()
-    bad = run("--sim", "--out", "/proc/controltac-recordings")  # told before any press, not after them
-    assert bad.returncode == 2 and "--out /proc/controltac-recordings: no file can be made in /proc" in bad.stderr
 
 
 @pytest.mark.parametrize("start, says", [(["nan", "0", "0.2", "0"], "start must be 4 finite numbers"),
@@ -253,6 +249,18 @@ def test_a_robot_start_outside_its_limits_is_refused_before_any_device_connects(
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and re.search(says, err), err
     assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize("args, says", [
+    (["--start", "0", "0", "0", "0", "--out", "r"], "--start: a robot's pose"),
+    (["--out", "/proc/controltac-recordings"], "--out /proc/controltac-recordings: no file can be made in /proc")])
+def test_sim_flags_a_press_cannot_use_are_refused_before_any_press(tmp_path, capsys, monkeypatch, args, says):
+    from controltac_il.app.record_cli import main
+
+    monkeypatch.chdir(tmp_path)
+    assert main(["--sim", *args]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and says in err and list(tmp_path.iterdir()) == [], err
 
 
 class FakeRTDE:
