@@ -95,15 +95,16 @@ class ForceAugmentConfig:
                               "the wrapped length",
                            type=int)
     offset_range: tuple[float, float] = _setting(
-        (-3.0, 10.0), "(low, high) N: the per-copy normal-force offset is drawn from U[low, high]",
+        (-3.0, 10.0), "(low, high) N, each within +-10: the per-copy normal-force offset is drawn from U[low, high]",
         type=float, nargs=2, metavar=("LOW", "HIGH"))
     target_range: tuple[float, float] | None = _setting(
-        None, "(low, high) N, or None: when set, each copy's offset is drawn so that the copy's targets spread over "
+        None, "(low, high) N in [0, 10], or None: when set, each copy's offset is drawn so that the copy's targets spread over "
               "this range instead of offset_range: offset = U[low, high] - the episode's median contact Fz (its "
               "reference forces over every tactile key), so the targets sit around U[low, high] N plus the jitter",
         type=float, nargs=2, metavar=("LOW", "HIGH"))
     jitter: tuple[float, ...] = _setting((-1.0, -0.5, 0.0, 0.5, 1.0),
-                                         "per-frame normal-force jitter values (N), one drawn uniformly per frame",
+                                         "per-frame normal-force jitter values (N, each within +-10), one drawn "
+                                         "uniformly per frame",
                                          type=float, nargs="+")
     tactile_keys: tuple[str, ...] | None = _setting(
         None, "item keys of the tactile images; None = every key containing 'tactile' (but not "
