@@ -9,6 +9,34 @@ PY=${PYTHON:-python3}
 export MUJOCO_GL=${MUJOCO_GL:-egl}
 export PYOPENGL_PLATFORM=${PYOPENGL_PLATFORM:-$MUJOCO_GL}
 
+requirements_met() {
+    # exit 0 when every requirement of pyproject.toml (its core and the all and dev extras) is installed at a
+    # version it accepts; anything it cannot tell (no tomllib or packaging) counts as not met
+    "$PY" - <<'EOF' 2>/dev/null
+import sys, tomllib
+from importlib import metadata
+from packaging.requirements import Requirement
+
+project = tomllib.load(open("pyproject.toml", "rb"))["project"]
+todo, seen = list(project["dependencies"]), set()
+todo += [r for extra in ("all", "dev") for r in project["optional-dependencies"][extra]]
+while todo:
+    req = Requirement(todo.pop())
+    if req.marker is not None and not req.marker.evaluate({"extra": ""}):
+        continue
+    if req.name == project["name"]:  # the project's own extras, e.g. controltac-il[ur,sim]
+        todo += [r for extra in req.extras - seen for r in project["optional-dependencies"][extra]]
+        seen |= req.extras
+        continue
+    try:
+        ok = req.specifier.contains(metadata.version(req.name), prereleases=True)
+    except metadata.PackageNotFoundError:
+        ok = False
+    if not ok:
+        sys.exit(1)
+EOF
+}
+
 setup() {
     # torch: keep whatever the user has (e.g. a CUDA build); on a machine without one install the CPU build,
     # because PyPI's Linux `torch` pulls several GB of CUDA wheels: on Linux from PyTorch's CPU index (offline,
@@ -46,7 +74,13 @@ setup() {
         if "$PY" -c "import sys, setuptools; sys.exit(int(setuptools.__version__.split('.')[0]) < 68)" 2>/dev/null; then
             isolation=(--no-build-isolation)
         fi
-        "$PY" -m pip install -q ${isolation[@]+"${isolation[@]}"} -e ".[all,dev]"
+        # where every requirement is already met (a fresh clone in a set-up environment, as in CI) only the
+        # project itself is installed: 14 s -> 4.4 s on the 2-core machine (2026-11-29)
+        if requirements_met; then
+            "$PY" -m pip install -q ${isolation[@]+"${isolation[@]}"} --no-deps -e .
+        else
+            "$PY" -m pip install -q ${isolation[@]+"${isolation[@]}"} -e ".[all,dev]"
+        fi
         echo "$want" > "$stamp"
     fi
 }
