@@ -67,7 +67,6 @@ setup() {
     local want
     want=$(cat pyproject.toml | sha1sum | cut -d' ' -f1)
     if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ] || ! "$PY" -c "import controltac_il" 2>/dev/null; then
-        echo "[setup] installing controltac-il and its dependencies"
         # the build backend already installed (setuptools >= 68, pyproject's requirement) builds the editable
         # wheel in place: 19 s -> 13 s on the 2-core machine, no isolated environment to provision
         local isolation=()
@@ -77,8 +76,10 @@ setup() {
         # where every requirement is already met (a fresh clone in a set-up environment, as in CI) only the
         # project itself is installed: 14 s -> 4.4 s on the 2-core machine (2026-11-29)
         if requirements_met; then
+            echo "[setup] installing controltac-il (its requirements are met)"
             "$PY" -m pip install -q ${isolation[@]+"${isolation[@]}"} --no-deps -e .
         else
+            echo "[setup] installing controltac-il and its dependencies"
             "$PY" -m pip install -q ${isolation[@]+"${isolation[@]}"} -e ".[all,dev]"
         fi
         echo "$want" > "$stamp"
