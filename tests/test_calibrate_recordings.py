@@ -91,17 +91,38 @@ def test_recordings_become_presses_with_their_backgrounds_and_lag(frames, tmp_pa
     ("short_log", "png_session.csv: 3 force rows for"), ("all_contact", "no no-contact frame"),
     ("out_of_range", "no loading-ramp frame with Fz in the validated range"), ("no_fz", "no 'fz' column"),
     ("bad_png", "000.png: not a readable image"), ("nan", "line 3: a force that is not finite"),
-    ("lag", "--lag 6: png_session has 6 frames; a lag must be shorter")])
+    ("lag", "--lag 6: png_session has 6 frames; a lag must be shorter"),
+    ("millinewtons", r"png_session.csv reaches 6000, above 60 N: are the labels in mN\?")])
 def test_bad_recordings_name_the_file(frames, tmp_path, case, expected):
     imgs = frames[0][:6]
     fz = {"short_log": [0, 1, 2], "all_contact": [1, 2, 3, 4, 5, 6], "out_of_range": [0, 0, 0.6, 0.8, 0.9, 0],
-          "nan": [0, "nan", 2, 3, 4, 0]}.get(case, [0, 0, 2, 4, 6, 0])
+          "nan": [0, "nan", 2, 3, 4, 0], "millinewtons": [0, 0, 2000, 4000, 6000, 0]}.get(case, [0, 0, 2, 4, 6, 0])
     write(tmp_path, "png_session", imgs, fz, header="force" if case == "no_fz" else "fz")
     if case == "bad_png":
         (tmp_path / "png_session" / "000.png").write_bytes(b"not a png")
     with pytest.raises(ValueError, match=expected) as info:
         recordings_to_presses(tmp_path, tmp_path / "out", RecordingOptions(size=(60, 80), lag=6 if case == "lag" else 0))
     assert "png_session" in str(info.value) and "\n" not in str(info.value) and not (tmp_path / "out").exists()
+
+
+def test_blank_frames_are_left_out_of_the_background_the_lag_and_the_ramps(frames, tmp_path):
+    """A dropped frame (all 0) inside a press and an overexposed one (all 255) among the no-contact frames: the
+    presses are the clean recording's less the dropped frame, with the same background and lag, and a warning."""
+    imgs, _ = frames
+    lagged = shift(RAMP[:, None], -1)[:, 0]
+    write(tmp_path / "clean", "s", imgs, lagged)
+    broken = imgs.copy()
+    broken[8], broken[1] = 0, 255  # frame 8: a ramp frame at 4.7 N; frame 1: before the first press
+    write(tmp_path / "broken", "s", broken, lagged)
+    opts = RecordingOptions(size=(60, 80), lag="auto")
+    clean = read_recording("s", tmp_path / "clean" / "s", tmp_path / "clean" / "s.csv", opts)
+    with pytest.warns(UserWarning, match=r"2 of 24 frames have every value 0 or 255.*left out"):
+        rec = read_recording("s", tmp_path / "broken" / "s", tmp_path / "broken" / "s.csv", opts)
+    assert rec.lag == clean.lag == 1 and np.array_equal(rec.background, clean.background)
+    dropped = np.flatnonzero(np.all(clean.frames == imgs[8], axis=(1, 2, 3)))
+    assert len(dropped) == 1 and len(rec.frames) == len(clean.frames) - 1
+    assert np.array_equal(rec.frames, np.delete(clean.frames, dropped, 0))
+    assert np.array_equal(rec.labels, np.delete(clean.labels, dropped, 0))
 
 
 def test_recordings_holding_one_press_in_all_are_refused_before_anything_is_written(frames, tmp_path):

@@ -13,7 +13,8 @@ Fz range, every ``stride``-th frame. The background is the per-pixel median of t
 ``lag`` shifts them (label[i] = force[i + lag]); ``lag="auto"`` picks, per recording, the shift in
 [-MAX_LAG, MAX_LAG] frames that maximises the rank correlation between the frames' contact signal (the mean residual
 above the contact gate: contact area weighted by depth, closer to linear in force than the area) and the force.
-Fz < 0 while pressing (a load cell's convention) is flipped. Written layout: ``tactile.dataset``'s FeelAnyForce
+Fz < 0 while pressing (a load cell's convention) is flipped. A frame whose every value is 0 or 255 (dark,
+overexposed or dropped) is left out of all of it, with a warning. Written layout: ``tactile.dataset``'s FeelAnyForce
 layout, one contact pose per press (object = recording name), ``backgrounds/<name>.png``, Fx = Fy = 0 where the
 CSV has no such column (``meta.json`` ``force_axes`` says which axes were measured).
 """
@@ -22,15 +23,17 @@ from __future__ import annotations
 
 import csv
 import json
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from controltac_il.datasets.checks import check_newtons
 from controltac_il.generator.forces import VALIDATED_RANGE
 from controltac_il.io import atomic_dir
-from controltac_il.tactile.residual import residual_magnitude, to_residual
+from controltac_il.tactile.residual import blank, residual_magnitude, to_residual
 from controltac_il.calibrate.decision import MIN_GRASPS
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv")
@@ -94,7 +97,8 @@ def read_frames(path: Path, size: tuple[int, int]) -> np.ndarray:
 
 def read_forces(path: Path) -> tuple[np.ndarray, list[str]]:
     """Forces float64 (T, 3) N from a CSV with a ``fz`` column (``fx``, ``fy`` optional), and the axes measured;
-    Fz flipped when pressing reads negative. ValueError naming the file, line and column."""
+    Fz flipped when pressing reads negative. ValueError naming the file, line and column, or the file for forces
+    beyond a GelSight's plausible range (a log in mN)."""
     with open(path, newline="") as f:
         reader = csv.DictReader(f)
         cols = {c.strip().lower(): c for c in reader.fieldnames or ()}
@@ -110,6 +114,7 @@ def read_forces(path: Path) -> tuple[np.ndarray, list[str]]:
     forces = np.asarray(rows, dtype=np.float64).reshape(-1, 3)
     if not np.isfinite(forces).all():
         raise ValueError(f"{path} line {2 + int(np.flatnonzero(~np.isfinite(forces).all(1))[0])}: a force that is not finite")
+    check_newtons(str(path), forces)
     if len(forces) and np.median(forces[np.argsort(-np.abs(forces[:, 2]))[: max(1, len(forces) // 10)], 2]) < 0:
         forces[:, 2] = -forces[:, 2]
     return forces, axes
@@ -127,9 +132,10 @@ def contact_signal(residual: np.ndarray) -> np.ndarray:
     return np.maximum(residual_magnitude(residual) - AREA_GATE, 0).mean(axis=(-2, -1)).astype(np.float64)
 
 
-def best_lag(signal: np.ndarray, fz: np.ndarray, max_lag: int = MAX_LAG) -> int:
+def best_lag(signal: np.ndarray, fz: np.ndarray, max_lag: int = MAX_LAG, valid: np.ndarray | None = None) -> int:
     """The shift in [-max_lag, max_lag] frames maximising the rank (Spearman) correlation of contact signal[i] and
-    Fz[i + lag] over the frames where both exist (no held ends); the smallest shift on ties, 0 for a flat signal.
+    Fz[i + lag] over the frames where both exist (no held ends) and ``valid[i]`` (bool (T,), default all); the
+    smallest shift on ties, 0 for a flat signal.
     Ranks, because the signal grows with force by a sensor's own concave law: a linear correlation prefers the shift
     that straightens the curve (0 of 24 lags recovered on ``benchmarks.calibration``'s grasps, against 21)."""
     from scipy.stats import spearmanr
@@ -137,6 +143,7 @@ def best_lag(signal: np.ndarray, fz: np.ndarray, max_lag: int = MAX_LAG) -> int:
     n, scores = len(fz), {}
     for lag in range(-max_lag, max_lag + 1):
         i = np.arange(max(0, -lag), min(n, n - lag))
+        i = i if valid is None else i[valid[i]]
         a, b = signal[i], fz[i + lag]
         ok = len(i) > 2 and np.ptp(a) > 0 and np.ptp(b) > 0
         scores[lag] = float(spearmanr(a, b).statistic) if ok else -np.inf
@@ -179,20 +186,24 @@ def read_recording(name: str, frames_path: Path, csv_path: Path, opts: Recording
     if opts.lag != "auto" and abs(int(opts.lag)) >= len(frames):  # every label would be a held end of the log
         raise ValueError(f"--lag {opts.lag}: {csv_path.stem} has {len(frames)} frames; a lag must be shorter than "
                          "the recording (try --lag auto)")
+    seen = ~blank(frames)  # a dark, overexposed or dropped frame shows nothing: in no background, ramp or lag
+    if not seen.all():
+        warnings.warn(f"{frames_path}: {int((~seen).sum())} of {len(frames)} frames have every value 0 or 255 (a "
+                      "dark, overexposed or dropped camera frame); left out")
     free = np.abs((forces if opts.lag == "auto" else shift(forces, opts.lag))[:, 2]) < opts.no_contact_force
-    if not free.any():
+    if not (free & seen).any():
         raise ValueError(f"{csv_path}: no no-contact frame (|Fz| < {opts.no_contact_force:g} N) for the background")
-    background = np.median(frames[free], axis=0).round().astype(np.uint8)
+    background = np.median(frames[free & seen], axis=0).round().astype(np.uint8)
     if opts.lag == "auto":
         signal = np.array([contact_signal(to_residual(f, background)) for f in frames])
-        lag = best_lag(signal, forces[:, 2])
+        lag = best_lag(signal, forces[:, 2], valid=seen)
     else:
         lag = int(opts.lag)
     labels = shift(forces, lag)
     low, high = VALIDATED_RANGE.fz
     keep, press = [], []
     for p, ramp in enumerate(presses(labels[:, 2], opts.contact_force)):
-        ramp = ramp[(labels[ramp, 2] >= low) & (labels[ramp, 2] <= high)][:: opts.stride]
+        ramp = ramp[(labels[ramp, 2] >= low) & (labels[ramp, 2] <= high) & seen[ramp]][:: opts.stride]
         keep.append(ramp)
         press.append(np.full(len(ramp), p))
     rows = np.concatenate(keep) if keep else np.zeros(0, int)

@@ -59,13 +59,18 @@ def check_finite(where: str, values: np.ndarray) -> None:
         raise ValueError(f"{where} holds NaN or inf (first at frame {int(np.flatnonzero(~ok)[0])})")
 
 
-def check_force_labels(where: str, force: np.ndarray) -> None:
-    """Refuse labels (T, 3) that are not finite, look like mN, or press with a negative Fz; ``where`` names them."""
-    check_finite(where, force)
+def check_newtons(where: str, force: np.ndarray) -> None:
+    """Refuse forces (...) beyond MAX_PLAUSIBLE_FORCE_N, most likely logged in mN; ``where`` names them."""
     peak = float(np.abs(force).max(initial=0.0))
     if peak > MAX_PLAUSIBLE_FORCE_N:
         raise ValueError(f"{where} reaches {peak:.4g}, above {MAX_PLAUSIBLE_FORCE_N:g} N: are the labels in mN? "
                          "Labels must be in N")
+
+
+def check_force_labels(where: str, force: np.ndarray) -> None:
+    """Refuse labels (T, 3) that are not finite, look like mN, or press with a negative Fz; ``where`` names them."""
+    check_finite(where, force)
+    check_newtons(where, force)
     contact = np.linalg.norm(force, axis=1) > CONTACT_N
     if contact.any() and float(np.median(force[contact, 2])) < 0:
         raise ValueError(f"{where} has a negative median Fz in contact; the convention is Fz > 0 pressing "
