@@ -81,6 +81,12 @@ def test_fit_rejects_bad_labels():
     x, f = blobs(8, 4)
     with pytest.raises(ValueError, match=r"forces must have shape \(N, 3\)"):
         fit(x, f[:, :2], TINY, EstimatorTrainConfig(steps=1), progress=False)
+    xv, fv = x[:4], f[:4].copy()
+    with pytest.raises(ValueError, match=r"val forces must have shape \(N, 3\) matching residuals \(N=3\)"):
+        fit(x, f, TINY, EstimatorTrainConfig(steps=1), val=(xv[:3], fv), progress=False)
+    fv[1, 0] = np.nan  # a NaN validation label would make every val MAE NaN, silently
+    with pytest.raises(ValueError, match="val forces contain NaN"):
+        fit(x, f, TINY, EstimatorTrainConfig(steps=1), val=(xv, fv), progress=False)
     f[0, 2] = np.nan
     with pytest.raises(ValueError, match="NaN"):
         fit(x, f, TINY, EstimatorTrainConfig(steps=1), progress=False)

@@ -56,15 +56,21 @@ def _load_state(path: Path | None, est: ForceEstimator, opt: torch.optim.Optimiz
     return meta
 
 
-def _prepared(residuals: np.ndarray, forces: np.ndarray, model_config: EstimatorConfig | None
-              ) -> tuple[EstimatorConfig, np.ndarray, np.ndarray]:
-    """(the model config with ``force_mean`` / ``force_std`` set from ``forces``, validated residuals, forces)."""
+def _checked(residuals: np.ndarray, forces: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """Validated residuals uint8 (N, H, W, 3) and forces float32 (N, 3) N; ValueError naming ``what``."""
     residuals = validate_residuals(residuals)
     forces = np.asarray(forces, dtype=np.float32)
     if forces.ndim != 2 or forces.shape[1] != 3 or len(forces) != len(residuals):
-        raise ValueError(f"forces must have shape (N, 3) matching residuals (N={len(residuals)}), got {forces.shape}")
+        raise ValueError(f"{what} must have shape (N, 3) matching residuals (N={len(residuals)}), got {forces.shape}")
     if not np.isfinite(forces).all():
-        raise ValueError("forces contain NaN or infinite values")
+        raise ValueError(f"{what} contain NaN or infinite values")
+    return residuals, forces
+
+
+def _prepared(residuals: np.ndarray, forces: np.ndarray, model_config: EstimatorConfig | None
+              ) -> tuple[EstimatorConfig, np.ndarray, np.ndarray]:
+    """(the model config with ``force_mean`` / ``force_std`` set from ``forces``, validated residuals, forces)."""
+    residuals, forces = _checked(residuals, forces, "forces")
     mean, std = force_stats(forces)
     cfg = EstimatorConfig(**{**(model_config or EstimatorConfig()).to_dict(), "force_mean": mean, "force_std": std})
     return cfg, residuals, forces
@@ -108,6 +114,7 @@ def fit(
     history (step, val MAE per axis).
     """
     train = train or EstimatorTrainConfig()
+    val = None if val is None else _checked(*val, "val forces")
     est, residuals, forces = _start(residuals, forces, model_config, init, train.seed)
     cfg = est.config
     x_all, y_all = _to_input(residuals, cfg), est.normalise_forces(torch.from_numpy(forces))
