@@ -172,6 +172,8 @@ def test_colour_adapter_undoes_another_optics_colour_mix():
     assert np.abs(tuned[:, 2] - shipped[:, 2]).min() > 0
     with pytest.raises(ValueError, match="one finite label"):
         fit_colour_adapter(base, res[:2], np.array([1.0, np.nan]))
+    with pytest.raises(ValueError, match=r"shape \(2,\), is needed; got \(2, 1\)"):  # would broadcast to (2, 2)
+        fit_colour_adapter(base, res[:2], np.array([[1.0], [2.0]]))
 
 
 def test_a_bundle_whose_estimator_is_useless_gives_the_nominal_reference(tmp_path):

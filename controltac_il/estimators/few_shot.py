@@ -37,8 +37,8 @@ def fit_colour_adapter(base: ForceEstimator, residuals: np.ndarray, fz: np.ndarr
     """A copy of ``base`` (weights frozen, shared values) whose colour mix is fitted on residuals uint8 (N, H, W, 3)
     labelled ``fz`` (N,) N; ValueError for a non-finite label or a NaN loss. Deterministic (full batch)."""
     fz = np.asarray(fz, dtype=np.float32)
-    if len(fz) != len(residuals) or not np.isfinite(fz).all():
-        raise ValueError("fz: one finite label (N) per residual is needed")
+    if fz.ndim != 1 or len(fz) != len(residuals) or not np.isfinite(fz).all():
+        raise ValueError(f"fz: one finite label per residual, shape ({len(residuals)},), is needed; got {fz.shape}")
     x = preprocess(validate_residuals(residuals), base.config)
     start = base.config.input_mix if base.config.input_mix is not None else np.eye(3)
     mix = torch.tensor(np.asarray(start), dtype=torch.float32, requires_grad=True)
@@ -70,6 +70,9 @@ def held_out_mae(pred: np.ndarray, fz: np.ndarray, constant) -> dict:
     held-out labels ``fz`` (N,), their ratio (None where the constant's MAE is 0) and the correlation; the numbers
     ``calibrate`` reports."""
     pred, fz = np.asarray(pred, np.float64), np.asarray(fz, np.float64)
+    if not len(fz) or pred.shape != fz.shape:
+        raise ValueError(f"held-out MAE: predictions {pred.shape} and labels {fz.shape} must be one per frame, at "
+                         "least one")
     mae, base = float(np.abs(pred - fz).mean()), float(np.abs(constant - fz).mean())
     corr = float(np.corrcoef(pred, fz)[0, 1]) if np.std(pred) > 0 and np.std(fz) > 0 else None
     return {"mae_n": mae, "constant_mae_n": base, "ratio_to_constant": mae / base if base > 0 else None, "corr": corr,
