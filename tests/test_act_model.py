@@ -108,8 +108,10 @@ def test_bad_batches_are_named():
     batch["observation.qpos"] = batch["observation.qpos"][:, :3]
     with pytest.raises(ValueError, match="qpos"):
         model.predict(batch)
-    for bad in ([0] * 5, [1, 1, float("inf"), 1, 1], [1, float("nan"), 1, 1, 1]):  # inf would zero that input
-        with pytest.raises(ValueError, match="^normalisation stats 'qpos': mean must be finite and std finite and > 0$"):
+    # inf would zero that input; 1e-30 (or a denormal) overflows the normalised input and every action is NaN
+    for bad in ([0] * 5, [1, 1, float("inf"), 1, 1], [1, float("nan"), 1, 1, 1], [1, 1e-30, 1, 1, 1], [9e-7] * 5):
+        with pytest.raises(ValueError, match=r"^normalisation stats 'qpos': mean must be finite and std finite and "
+                                             r">= 1e-06 \(a smaller one overflows the normalised input\)$"):
             model.set_stats({"qpos": {"mean": [0] * 5, "std": bad}, "action": {"mean": [0] * 5, "std": [1] * 5}})
     with pytest.raises(ValueError, match="expected 5"):
         model.set_stats({"qpos": {"mean": [0] * 4, "std": [1] * 4}, "action": {"mean": [0] * 5, "std": [1] * 5}})

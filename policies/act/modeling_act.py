@@ -21,6 +21,10 @@ from controltac_il.streams import HDF5, HDF5_STATE, background_key, image_key, t
 from policies.act.backbone import build_backbone, sine_positions_1d, sine_positions_2d
 from policies.act.configuration_act import ACTConfig
 
+# the smallest normalisation std accepted: at 1e-12 a tiny model's actions stay finite, at 1e-20 its LayerNorm
+# overflows and every action is NaN (qpos ~ 1 rad); the stats writers floor theirs at 1e-2
+MIN_STD = 1e-6
+
 
 def _encoder(cfg: ACTConfig, layers: int) -> nn.TransformerEncoder:
     layer = nn.TransformerEncoderLayer(cfg.dim_model, cfg.n_heads, cfg.dim_feedforward, cfg.dropout,
@@ -74,7 +78,8 @@ class ACT(nn.Module):
 
     # ------------------------------------------------------------------ normalisation
     def set_stats(self, stats: dict) -> None:
-        """Load ``{"qpos": {"mean": [D], "std": [D]}, "action": {"mean": [A], "std": [A]}}``."""
+        """Load ``{"qpos": {"mean": [D], "std": [D]}, "action": {"mean": [A], "std": [A]}}``; ValueError for a
+        missing or misshaped entry, a non-finite value or a std below MIN_STD."""
         for key, dim in (("qpos", self.config.state_dim), ("action", self.config.action_dim)):
             try:
                 mean = torch.as_tensor(stats[key]["mean"], dtype=torch.float32).reshape(-1)
@@ -84,8 +89,9 @@ class ACT(nn.Module):
             if mean.numel() != dim or std.numel() != dim:
                 raise ValueError(f"normalisation stats {key!r}: expected {dim} values, got mean {mean.numel()}, "
                                  f"std {std.numel()}")
-            if not torch.isfinite(mean).all() or not ((std > 0) & torch.isfinite(std)).all():
-                raise ValueError(f"normalisation stats {key!r}: mean must be finite and std finite and > 0")
+            if not torch.isfinite(mean).all() or not ((std >= MIN_STD) & torch.isfinite(std)).all():
+                raise ValueError(f"normalisation stats {key!r}: mean must be finite and std finite and >= {MIN_STD:g} "
+                                 "(a smaller one overflows the normalised input)")
             getattr(self, f"{key}_mean").copy_(mean)
             getattr(self, f"{key}_std").copy_(std)
 
