@@ -122,8 +122,9 @@ def test_no_contact_frames_and_noise_estimates():
     assert pixel_noise_std(empty) == pytest.approx(2.0, rel=0.1)
     x, _ = blobs(30, 5)  # noise 1.5 plus contact blobs: the neighbour-difference estimate ignores the blobs
     assert pixel_noise_std(x) == pytest.approx(1.5, rel=0.15)
-    with pytest.raises(ValueError, match="noise_std"):
-        no_contact_residuals(2, 8, 8, noise_std=-1.0)
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="noise_std"):
+            no_contact_residuals(2, 8, 8, noise_std=bad)
 
 
 def test_native_no_contact_matches_the_bare_sensor(tmp_path):

@@ -137,7 +137,8 @@ def test_scaled_keeps_the_pad():
 
 @pytest.mark.parametrize(
     "force, field",
-    [((0, 0, -1.0), "Fz"), ((0, 0, np.nan), "finite"), ((0, 0), "3 components"), ("abc", "force")],
+    [((0, 0, -1.0), "Fz"), ((0, 0, np.nan), "finite"), ((0, 0), "3 components"), ("abc", "force"),
+     ((1e38, 0, 5.0), r"within ±60 N per component"), ((0, 0, 4000.0), r"within ±60 N per component \(.*mN\?\)")],
 )
 def test_bad_force_is_rejected(quiet_sensor, force, field):
     with pytest.raises(ValueError, match=field):
@@ -157,6 +158,8 @@ def test_bad_object_pose_image_and_spec_are_rejected(quiet_sensor):
         quiet_sensor.render_penetration(np.zeros((10, 10)))
     with pytest.raises(ValueError, match="penetration_mm must be finite"):
         quiet_sensor.render_penetration(np.full((120, 160), -1.0))
+    with pytest.raises(ValueError, match="within ±60 N"):  # a shear of 1e38 N made every height NaN
+        quiet_sensor.render_penetration(np.zeros((120, 160)), shear=(1e38, 0.0))
     with pytest.raises(ValueError, match="foundation_modulus"):
         SensorSpec(foundation_modulus=0.0)
     with pytest.raises(ValueError, match="aspect ratio"):

@@ -11,7 +11,7 @@ from controltac_il.tactile import mechanics
 from controltac_il.tactile.indenters import get_indenter
 from controltac_il.tactile.optics import add_noise, contact_tint, load_background, make_optics, vignette
 from controltac_il.tactile.residual import to_residual
-from controltac_il.tactile.spec import SensorSpec
+from controltac_il.tactile.spec import MAX_PLAUSIBLE_FORCE_N, SensorSpec
 
 
 @dataclass(frozen=True)
@@ -41,7 +41,8 @@ class Contact:
 
 
 def check_force(force) -> tuple[float, float, float]:
-    """Validate a force [Fx, Fy, Fz] in N: three finite numbers with Fz >= 0 (pressing)."""
+    """Validate a force [Fx, Fy, Fz] in N: three finite numbers within ±MAX_PLAUSIBLE_FORCE_N (beyond it the shear
+    model's displacement overflows) with Fz >= 0 (pressing)."""
     try:
         f = np.asarray(force, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError):
@@ -50,6 +51,9 @@ def check_force(force) -> tuple[float, float, float]:
         raise ValueError(f"force must have 3 components [Fx, Fy, Fz] in N, got {f.size}")
     if not np.isfinite(f).all():
         raise ValueError(f"force must be finite [Fx, Fy, Fz] in N, got {f.tolist()}")
+    if np.abs(f).max() > MAX_PLAUSIBLE_FORCE_N:
+        raise ValueError(f"force must be within ±{MAX_PLAUSIBLE_FORCE_N:g} N per component (a GelSight's range; mN?), "
+                         f"got {f.tolist()}")
     if f[2] < 0:
         raise ValueError(f"force Fz must be >= 0 N (Fz > 0 presses), got {f[2]}")
     return float(f[0]), float(f[1]), float(f[2])
