@@ -116,12 +116,14 @@ def tested(units: dict, variant: str, seed: int, step: int, last: int, test_last
 
 def augment_counts(demos_dir: Path, variants) -> dict:
     """Build each ForceAugment variant's cache (before any worker reads it); per variant its summary, clamped share
-    of contact frames, histograms (1 N bins, 0-16 N) of the requested and used target Fz, and the cache's digest
-    (units from several machines count together only when their caches hold the same bytes)."""
+    of contact frames, histograms (1 N bins, 0-16 N) of the requested and used target Fz, and the digest of the
+    cache's generated frames (units from several machines count together only when their caches hold the same
+    frames)."""
     import numpy as np
 
     from benchmarks.verdict_protocols import FORCE_SETTINGS
     from controltac_il.app.experiment import training_split
+    from controltac_il.augment.provenance import frames_digest
 
     train, out = training_split(demos_dir), {}
     for v in (x for x in variants if x in FORCE_SETTINGS):
@@ -135,19 +137,8 @@ def augment_counts(demos_dir: Path, variants) -> dict:
                   "fz_bins_n": edges.tolist(), "requested_fz_hist": np.histogram(np.clip(asked, 0, 16.99), edges)[0].tolist(),
                   "used_fz_hist": np.histogram(np.clip(used, 0, 16.99), edges)[0].tolist(),
                   "requested_fz_quantiles": np.quantile(asked, [0.05, 0.5, 0.95]).round(2).tolist() if asked.size else [],
-                  "cache_digest": _folder_digest(Path(aug.dataset.cache_dir))}
+                  "cache_digest": frames_digest(Path(aug.dataset.cache_dir))}
     return out
-
-
-def _folder_digest(folder: Path) -> str:
-    """sha1 (16 hex) over the relative paths and bytes of every file under ``folder``."""
-    import hashlib
-
-    h = hashlib.sha1()
-    for path in sorted(p for p in folder.rglob("*") if p.is_file()):
-        h.update(str(path.relative_to(folder)).encode())
-        h.update(path.read_bytes())
-    return h.hexdigest()[:16]
 
 
 # --- command line ------------------------------------------------------------------------------------------------

@@ -237,3 +237,22 @@ def test_settings_the_generator_cannot_run_are_refused_before_the_cache_folder_i
         aug(data, gen, tmp_path, steps=100_000)
     assert not (tmp_path / "cache").exists()
     assert aug(data, gen, tmp_path, steps=1).summary()["tactile_frames"] > 0
+
+
+def test_the_frames_digest_is_the_same_for_the_same_frames_from_a_source_written_at_another_time(data, gen, tmp_path):
+    """Two machines that collect the same demos write them at other times: the manifests differ (the settings'
+    digest covers the files' modification times), the frames digest does not; one changed pixel changes it."""
+    from controltac_il.augment.provenance import MANIFEST, frames_digest
+
+    first = aug(data, gen, tmp_path, "first")
+    for path in data.root.iterdir():
+        os.utime(path, ns=(path.stat().st_atime_ns, path.stat().st_mtime_ns + 10**9))
+    again = EpisodeDataset(data.root, chunk_size=4, stats_path=tmp_path / "stats.json")
+    second = aug(again, gen, tmp_path, "second")
+    assert (first.cache_dir / MANIFEST).read_bytes() != (second.cache_dir / MANIFEST).read_bytes()
+    assert frames_digest(first.cache_dir) == frames_digest(second.cache_dir)
+    frame = sorted((second.cache_dir / "chunks").glob("*/*.npy"))[0]
+    pixels = np.load(frame)
+    pixels.flat[0] ^= 1
+    np.save(frame, pixels)
+    assert frames_digest(first.cache_dir) != frames_digest(second.cache_dir)

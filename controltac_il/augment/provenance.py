@@ -85,6 +85,17 @@ def chunk_dir(cache_dir: Path, episode: int, copy: int) -> Path:
     return cache_dir / "chunks" / f"e{episode:06d}_k{copy:03d}"
 
 
+def frames_digest(cache_dir: Path) -> str:
+    """sha1 (16 hex) over every chunk's generated frames (relative path and ``.npy`` bytes): equal for two caches
+    exactly when they hold the same frames, wherever they were built. The manifest and the chunks' provenance are
+    left out: both hold the settings' digest, which covers the source files' modification times."""
+    h = hashlib.sha1()
+    for path in sorted((cache_dir / "chunks").glob("*/*.npy")):
+        h.update(str(path.relative_to(cache_dir)).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()[:16]
+
+
 def chunk_done(cache_dir: Path, episode: int, copy: int) -> bool:
     return (chunk_dir(cache_dir, episode, copy) / PROVENANCE).is_file()
 
