@@ -244,11 +244,11 @@ def test_the_frames_digest_is_the_same_for_the_same_frames_from_a_source_written
     digest covers the files' modification times), the frames digest does not; one changed pixel changes it."""
     from controltac_il.augment.provenance import MANIFEST, frames_digest
 
-    first = aug(data, gen, tmp_path, "first")
+    first = aug(data, gen, tmp_path, "first", copies=1)
     for path in data.root.iterdir():
         os.utime(path, ns=(path.stat().st_atime_ns, path.stat().st_mtime_ns + 10**9))
     again = EpisodeDataset(data.root, chunk_size=4, stats_path=tmp_path / "stats.json")
-    second = aug(again, gen, tmp_path, "second")
+    second = aug(again, gen, tmp_path, "second", copies=1)
     assert (first.cache_dir / MANIFEST).read_bytes() != (second.cache_dir / MANIFEST).read_bytes()
     assert frames_digest(first.cache_dir) == frames_digest(second.cache_dir)
     frame = sorted((second.cache_dir / "chunks").glob("*/*.npy"))[0]
