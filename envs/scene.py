@@ -67,7 +67,7 @@ def build_model(
 
 
 def add_receptacle(spec: mujoco.MjSpec, r: float, depth: float, ring_segments: int, c: float) -> None:
-    """Fill the ``receptacle`` body: floor plate, wall ring (and chamfer ring when ``c`` > 0) of
+    """Fill the ``receptacle`` body: floor plate (drawn, group 0), wall ring (and chamfer ring when ``c`` > 0) of
     collision boxes (class "static", group 3) and the visual tube. r: hole radius, depth: rim to
     floor, c: chamfer width (m)."""
     body = spec.body("receptacle")
