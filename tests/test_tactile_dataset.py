@@ -83,6 +83,17 @@ def test_rewrite_replaces_existing_dataset_only_when_complete(tmp_path):
     _write(tmp_path / "d", seed=9)
     assert _digest(out) != before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["d"]
+    (tmp_path / "empty").mkdir()
+    _write(tmp_path / "empty")  # an empty folder is as good as a new one
+
+
+@pytest.mark.parametrize("mine", ["episode_0.hdf5", "manifest.csv"])  # a manifest without our meta.json is not ours
+def test_a_folder_of_the_users_is_never_replaced(tmp_path, mine):
+    (tmp_path / "d").mkdir()
+    (tmp_path / "d" / mine).write_text("the user's")
+    with pytest.raises(ValueError, match=r"^out_dir: .*d holds files this writer did not write"):
+        _write(tmp_path / "d")
+    assert [p.name for p in (tmp_path / "d").iterdir()] == [mine] and (tmp_path / "d" / mine).read_text() == "the user's"
 
 
 def _feelanyforce_like(root: Path, rows):

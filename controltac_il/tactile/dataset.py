@@ -83,6 +83,20 @@ def sample_contacts(objects: Sequence[str], poses_per_object: int, forces_per_po
             yield name, pid, pose, forces, [int(n) for n in noise]
 
 
+def _check_replaceable(out_dir: Path) -> None:
+    """``out_dir`` is new, empty, or a dataset this writer wrote (manifest.csv and meta.json with its "spec"), the
+    only folder it replaces; ValueError naming it otherwise (never replace the user's files)."""
+    if not out_dir.exists() or (out_dir.is_dir() and not any(out_dir.iterdir())):
+        return
+    try:
+        ours = (out_dir / "manifest.csv").is_file() and "spec" in json.loads((out_dir / "meta.json").read_text())
+    except (OSError, ValueError, TypeError):
+        ours = False
+    if not ours:
+        raise ValueError(f"out_dir: {out_dir} holds files this writer did not write (a rendered dataset has "
+                         "manifest.csv and meta.json); give a new or empty folder")
+
+
 def _check_write_args(objects: tuple, poses_per_object, forces_per_pose, seed, fz_range, shear_max, sensors,
                       instances) -> None:
     """ValueError naming the first bad argument of :func:`write_dataset`."""
@@ -128,6 +142,7 @@ def write_dataset(out_dir, objects: Sequence[str] = TRAIN_OBJECTS, poses_per_obj
         raise ValueError(f"workers must be an int >= 1, got {workers!r}")
     spec = spec or SensorSpec.gelsight_mini()
     out_dir = Path(out_dir)
+    _check_replaceable(out_dir)
     total = len(objects) * poses_per_object * forces_per_pose
     job = _RenderJob(objects, poses_per_object, forces_per_pose, seed, spec, optics, tuple(fz_range), shear_max,
                      sensors, instances)
