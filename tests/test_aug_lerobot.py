@@ -262,6 +262,19 @@ def test_labels_only_under_an_explicit_mapping(gen, est, tmp_path):
         ForceAugment(ds, gen, tactile_keys=[GEL], background_keys={GEL: "observation.state"}, mode="online")
 
 
+@pytest.mark.parametrize("scale, says", [(-1.0, "has a negative median Fz in contact"),
+                                         (1000.0, r"reaches .*, above 60 N: are the labels in mN\?")])
+def test_labels_pulling_or_in_millinewtons_are_refused_as_a_recorded_episodes_are(gen, est, tmp_path, scale, says):
+    """Else every copy of such an episode is silently no-contact (Fz < 0) or skipped (out of range)."""
+    eps = episodes()
+    for ep in eps.values():
+        ep.force["left"] *= scale
+    for cache in (tmp_path, None):  # built at construction; online, at the first augmented item
+        with pytest.raises(ValueError, match=rf"^{FORCE} \(episode 0\) {says}"):
+            aug = wrap(LeRobotLike(eps, labels=True), gen, est, cache, force_keys={GEL: FORCE})
+            aug[len(aug.dataset) + 4]
+
+
 def test_auto_detection_error_lists_the_image_keys(gen):
     ds = LeRobotLike(episodes())
     with pytest.raises(ValueError, match=r"tactile_keys: .*\['observation.images.gelsight', 'observation.images.wrist'\]"

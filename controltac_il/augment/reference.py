@@ -10,6 +10,7 @@ import numpy as np
 
 from controltac_il.augment.keys import KeyMap
 from controltac_il.datasets.background import estimate_background
+from controltac_il.datasets.checks import check_force_labels
 from controltac_il.generator.forces import NOMINAL_FZ, VALIDATED_RANGE
 
 
@@ -151,6 +152,8 @@ class ReferenceForces:
         for k in tactile_keys:
             images = np.stack([self.keys.image(it, k) for it in items])
             labels = np.stack([self.keys.label(it, k) for it in items]) if self.labelled[k] else None
+            if labels is not None:  # in N, Fz > 0 pressing: else every copy is silently no-contact or skipped
+                check_force_labels(f"{self.keys.labels[k]} (episode {episode})", labels)
             bg = self.keys.background(items[0], k)
             ep.background_source[k] = "recorded" if bg is not None else "estimated"
             if bg is None:
