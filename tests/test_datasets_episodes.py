@@ -20,7 +20,7 @@ def make_episode(T=6, seed=0, background=True, force=True):
                 "third_view": rng.integers(0, 256, (T, 8, 10, 3), dtype=np.uint8)},
         tactile={"left": tactile},
         tactile_background={"left": tactile[0].copy()} if background else {},
-        force={"left": rng.normal(size=(T, 3)).astype(np.float32)} if force else {},
+        force={"left": np.abs(rng.normal(size=(T, 3))).astype(np.float32)} if force else {},  # Fz > 0 pressing
         sim=True,
         attrs={"task": "peg_in_hole", "control_hz": 10.0},
     )
@@ -113,6 +113,13 @@ def test_an_existing_file_or_a_nan_is_refused_before_anything_is_written(tmp_pat
     ep.force = {"left": np.full((len(ep.qpos), 3), np.nan, np.float32)}
     with pytest.raises(ValueError, match=r"^force/left holds NaN or inf \(first at frame 0\)$"):
         write_episode(tmp_path / "force.hdf5", ep)
+    for scale, says in ((1000.0, "reaches .*, above 60 N: are the labels in mN"), (-1.0, "has a negative median Fz in contact")):
+        ep = make_episode()
+        ep.force = {"left": np.tile(np.float32([0.1, 0.0, 5.0]) * scale, (len(ep.qpos), 1))}
+        with pytest.raises(ValueError, match=f"^force/left {says}"):  # EpisodeDataset would refuse the file
+            write_episode(tmp_path / "force.hdf5", ep)
+    with pytest.raises(ValueError, match=r"^compression: expected one of \(None, 'gzip', 'lzf'\), got 'zip'$"):
+        write_episode(tmp_path / "zip.hdf5", make_episode(), compression="zip")
     assert sorted(os.listdir(tmp_path)) == ["episode_0.hdf5"]
 
 

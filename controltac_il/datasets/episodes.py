@@ -25,10 +25,12 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from controltac_il.datasets.checks import ACTION, NEEDS, OBSERVATIONS, QPOS, check_finite, open_episode
+from controltac_il.datasets.checks import (ACTION, NEEDS, OBSERVATIONS, QPOS, check_finite, check_force_labels,
+                                          open_episode)
 from controltac_il.io import atomic_path
 
 EPISODE_PATTERN = re.compile(r"^episode_(\d+)\.hdf5$")
+COMPRESSIONS = (None, "gzip", "lzf")  # h5py's filters that every install carries
 
 
 def _as_float32(name: str, value, ndim: int) -> np.ndarray:
@@ -129,18 +131,21 @@ def write_episode(path: str | os.PathLike, episode: Episode, compression: str | 
 
     Images are chunked one frame per chunk (fast random frame reads); ``compression`` (e.g. "gzip",
     "lzf") applies to image datasets only, default none (fastest reads). An existing ``path`` is refused
-    (ValueError) unless ``overwrite``.
+    (ValueError) unless ``overwrite``, as is anything a reader would refuse (NaN, force labels in mN or pulling).
     """
     if not isinstance(episode, Episode):
         raise ValueError(f"episode: expected an Episode, got {type(episode).__name__}")
     path = Path(path)
     if (path.exists() or path.is_symlink()) and not overwrite:
         raise ValueError(f"path: {path} already exists; write_episode replaces a file only with overwrite=True")
-    numbers = {"qpos": episode.qpos, "action": episode.action, "qvel": episode.qvel,
-               **{f"force/{k}": v for k, v in episode.force.items()}}
+    if compression not in COMPRESSIONS:
+        raise ValueError(f"compression: expected one of {COMPRESSIONS}, got {compression!r}")
+    numbers = {"qpos": episode.qpos, "action": episode.action, "qvel": episode.qvel}
     for name, values in numbers.items():  # what every reader would refuse: never written
         if values is not None:
             check_finite(name, values)
+    for name, values in episode.force.items():
+        check_force_labels(f"force/{name}", values)
     with atomic_path(path, suffix=".hdf5") as tmp:
         with h5py.File(tmp, "w") as f:
             f.attrs["sim"] = episode.sim
