@@ -187,7 +187,7 @@ def demo_episodes(folder: Path, n: int = 4, frames: int = 30, size=(24, 32), see
     """``n`` small synthetic ACT episodes (two cameras, two tactile sensors with backgrounds and forces), written
     over the probe's own earlier ones in ``folder``.
 
-    changes: per-episode overrides, e.g. ``force_scale=1000`` (labels in mN) or ``drop_tactile={"right": 0}``.
+    changes: ``drop_tactile_in=(e, ...)`` leaves the right sensor out of those episodes.
     """
     from controltac_il.datasets.episodes import Episode, write_episode
 
@@ -202,7 +202,6 @@ def demo_episodes(folder: Path, n: int = 4, frames: int = 30, size=(24, 32), see
         for s in tactile:
             tactile[s][frames // 2:, 8:16, 10:20] = 160 + rng.integers(0, 20)
             force[s][frames // 2:, 2] = 4.0 + e
-            force[s] *= changes.get("force_scale", 1.0)
         if e in changes.get("drop_tactile_in", ()):
             tactile.pop("right"), force.pop("right")
         images = {c: rng.integers(0, 255, (frames, *size, 3), dtype=np.uint8) for c in ("third_view", "wrist")}
