@@ -19,17 +19,17 @@ def est():
 def test_predict_shape_dtype_and_any_resolution(est):
     rng = np.random.default_rng(0)
     for h, w in [(64, 80), (128, 160), (240, 320)]:
-        out = est.predict(rng.integers(0, 256, (3, h, w, 3), dtype=np.uint8))
+        out = est.predict(rng.integers(110, 145, (3, h, w, 3), dtype=np.uint8))
         assert out.shape == (3, 3) and out.dtype == np.float32 and np.isfinite(out).all()
 
 
 def test_float_input_in_range_matches_uint8(est):
-    r = np.random.default_rng(1).integers(0, 256, (2, 128, 160, 3), dtype=np.uint8)
+    r = np.random.default_rng(1).integers(110, 145, (2, 128, 160, 3), dtype=np.uint8)
     np.testing.assert_allclose(est.predict(r), est.predict(r.astype(np.float32)), atol=1e-5)
 
 
 def test_batching_does_not_change_predictions(est):
-    r = np.random.default_rng(2).integers(100, 160, (7, 64, 80, 3), dtype=np.uint8)
+    r = np.random.default_rng(2).integers(110, 145, (7, 64, 80, 3), dtype=np.uint8)
     np.testing.assert_allclose(est.predict(r, batch_size=2), est.predict(r, batch_size=64), atol=1e-5)
 
 
@@ -44,12 +44,29 @@ def test_batching_does_not_change_predictions(est):
         (np.zeros((1, 64, 80, 3), bool), "dtype bool"),
         (np.full((1, 64, 80, 3), np.nan, np.float32), "NaN"),
         (np.full((1, 64, 80, 3), 300.0, np.float32), r"\[0, 255\]"),
+        (np.full((1, 64, 80, 3), 127 / 255, np.float32), r"values lie in \[0, 1\]; residual pixels are 0-255"),
         ([[1, 2, 3]], "numpy array"),
     ],
 )
 def test_bad_input_is_rejected_with_clear_error(est, bad, match):
     with pytest.raises(ValueError, match=match):
         est.predict(bad)
+
+
+def test_raw_sensor_frames_are_warned_about_and_residuals_are_not(est):
+    """A raw frame without contact read 17-20 N: the warning names the fix; the frame's residual passes quietly."""
+    import warnings
+
+    from controltac_il.tactile import SensorSpec, TactileSensor
+    from controltac_il.tactile.residual import to_residual
+
+    sensor = TactileSensor(SensorSpec.gelsight_mini().scaled(120, 160), seed=0)
+    raw = np.stack([sensor.press("big_sphere", (0, 0, 0), (0, 0, fz)).image for fz in (2.0, 6.0)])
+    with pytest.warns(UserWarning, match=r"2 of 2 frames sampled look like raw sensor frames.*to_residual"):
+        est.predict(raw)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        est.predict(to_residual(raw, sensor.background))
 
 
 def test_validate_accepts_torch_tensor():
@@ -60,7 +77,7 @@ def test_validate_accepts_torch_tensor():
 def test_a_bfloat16_tensor_reads_as_the_same_float_pixels_and_is_range_checked(est):
     """NumPy has no bfloat16: such a tensor (0-255 integers are exact in it) reads as float pixels, its forces those
     of the same uint8 frames; out of range it is refused like any float array, never a TypeError from NumPy."""
-    r = np.random.default_rng(3).integers(0, 256, (2, 64, 80, 3), dtype=np.uint8)
+    r = np.random.default_rng(3).integers(110, 145, (2, 64, 80, 3), dtype=np.uint8)
     np.testing.assert_allclose(est.predict(torch.from_numpy(r).to(torch.bfloat16)), est.predict(r), atol=1e-5)
     with pytest.raises(ValueError, match=r"\[0, 255\]"):
         est.predict(torch.full((1, 64, 80, 3), 300.0, dtype=torch.bfloat16))
@@ -76,7 +93,7 @@ def test_preprocess_maps_offset_to_zero_and_resizes():
 
 
 def test_save_load_round_trip_is_exact(est, tmp_path):
-    r = np.random.default_rng(3).integers(0, 256, (4, 128, 160, 3), dtype=np.uint8)
+    r = np.random.default_rng(3).integers(110, 145, (4, 128, 160, 3), dtype=np.uint8)
     est.save(tmp_path / "ck", card="# card\n")
     assert sorted(p.name for p in (tmp_path / "ck").iterdir()) == ["README.md", "config.json", "model.safetensors",
                                                                     "model_card.json"]

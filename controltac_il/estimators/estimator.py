@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -40,8 +41,6 @@ def validate_residuals(residuals, name: str = "residuals") -> np.ndarray:
     n, h, w, _ = residuals.shape
     if n == 0 or h < 8 or w < 8:
         raise ValueError(f"{name} must hold at least one image of at least 8x8 pixels, got shape {residuals.shape}")
-    if residuals.dtype == np.uint8:
-        return residuals
     if np.issubdtype(residuals.dtype, np.floating):
         if not np.isfinite(residuals).all():
             raise ValueError(f"{name} contains NaN or infinite values; expected 0-255 residual pixels")
@@ -50,8 +49,28 @@ def validate_residuals(residuals, name: str = "residuals") -> np.ndarray:
                 f"{name} values must lie in [0, 255] (residual with 127 offset), got "
                 f"[{residuals.min():.3g}, {residuals.max():.3g}]"
             )
-        return residuals
-    raise ValueError(f"{name} must be uint8 (or float in [0, 255]), got dtype {residuals.dtype}")
+        if residuals.max() <= 1:  # a residual sits at 127 away from contact: these are pixels scaled to [0, 1]
+            raise ValueError(f"{name} values lie in [0, 1]; residual pixels are 0-255 (multiply by 255, or pass uint8)")
+    elif residuals.dtype != np.uint8:
+        raise ValueError(f"{name} must be uint8 (or float in [0, 255]), got dtype {residuals.dtype}")
+    _warn_if_raw(residuals, name)
+    return residuals
+
+
+RAW_OFFSET = 20.0  # grey levels: a residual's typical pixel lies within ~2 of 127, a raw GelSight frame's 30 or more
+
+
+def _warn_if_raw(residuals: np.ndarray, name: str) -> None:
+    """Warn when most of (up to 16 of) the frames look like raw sensor frames, not residuals: the median pixel
+    (every 8th row and column) more than RAW_OFFSET grey levels from 127. The estimator then reads 17-20 N off a
+    frame without contact."""
+    frames = residuals[:: max(1, len(residuals) // 16)][:16, ::8, ::8].astype(np.float32)
+    offset = np.median(np.abs(frames - 127.0).max(axis=-1).reshape(len(frames), -1), axis=1)
+    raw = int((offset > RAW_OFFSET).sum())
+    if raw > len(frames) / 2:
+        warnings.warn(f"{name}: {raw} of {len(frames)} frames sampled look like raw sensor frames, not residuals "
+                      f"(median pixel {float(np.median(offset)):.0f} grey levels from 127); pass "
+                      "to_residual(frames, background)", stacklevel=3)
 
 
 def preprocess(residuals: np.ndarray | torch.Tensor, config: EstimatorConfig) -> torch.Tensor:
