@@ -263,6 +263,22 @@ def test_a_bfloat16_tactile_image_is_augmented_and_written_back_in_bfloat16(gen,
             assert torch.equal(item["observation.images.tactile_left"], src["observation.images.tactile_left"])
 
 
+def test_an_estimator_is_taken_as_a_folder_too_and_anything_else_is_refused(gen, tmp_path):
+    """As generator= is: a checkpoint folder loads; a string that is no folder or another object is one line."""
+    ds = LeRobotLike([synthetic_episode(6, 0, range(1, 4), labels=False)])
+    saved = tiny_estimator().save(tmp_path / "est")
+    with pytest.warns(UserWarning, match="background estimated"):
+        a = ForceAugment(ds, gen, copies=1, mode="online", estimator=str(saved))
+    from controltac_il.estimators import ForceEstimator
+
+    assert a.estimator.checkpoint_hash == ForceEstimator.from_pretrained(saved).checkpoint_hash is not None
+    with pytest.raises(ValueError, match=r"^estimator: expected a ForceEstimator, a checkpoint folder or a "
+                                         r"calibration bundle, got dict$"):
+        ForceAugment(ds, gen, copies=1, mode="online", estimator={"path": str(saved)})
+    with pytest.raises((ValueError, OSError), match="nowhere"):
+        ForceAugment(ds, gen, copies=1, mode="online", estimator=tmp_path / "nowhere")
+
+
 def test_missing_estimator_is_a_clear_error(gen, tmp_path, monkeypatch):
     from controltac_il.estimators import ForceEstimator
 

@@ -236,14 +236,12 @@ def load_models(args, pose: bool):
 
     estimator = None
     if args.estimator or args.generator is not None:  # a calibration bundle (--generator) brings its estimator
-        from controltac_il.augment.reference import bundle_estimator
-        from controltac_il.estimators import ForceEstimator
+        from controltac_il.augment.reference import bundle_estimator, estimator_at
 
         flag = "--estimator" if args.estimator else "--generator"
         try:
             # a bundle as --estimator keeps its decision too: its estimator only where calibration said it may be used
-            path = args.estimator or args.generator
-            estimator = bundle_estimator(path) or (ForceEstimator.from_pretrained(path) if args.estimator else None)
+            estimator = estimator_at(args.estimator) if args.estimator else bundle_estimator(args.generator)
         except (ValueError, OSError) as exc:
             raise UsageError(flag, f"expected a force estimator checkpoint folder: {' '.join(str(exc).split())}") from exc
     try:

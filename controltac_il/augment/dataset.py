@@ -24,7 +24,7 @@ from controltac_il.augment.online import EpisodeTables, OnlineGenerator
 from controltac_il.augment.provenance import CACHE_FORMAT, ChunkSpec, chunk_done, check_manifest, write_manifest
 from controltac_il.augment.reader import ChunkReader
 from controltac_il.augment.records import STATUS, FrameOutcome, KeyOutcome, annotate, info
-from controltac_il.augment.reference import EpisodeFrames, ReferenceForces
+from controltac_il.augment.reference import EpisodeFrames, ReferenceForces, bundle_estimator, estimator_at
 from controltac_il.augment.writer import CacheWriter
 from controltac_il.config import is_int
 from controltac_il.io import cache_root, remove_leftovers
@@ -39,9 +39,9 @@ class ForceAugment(Dataset):
         uint8, single frames or ``delta_timestamps`` windows with ``<key>_is_pad``; see ``keys``).
     generator: a ForceGenerator (controltac_il.generator), a checkpoint folder, or a calibration bundle
         (``python -m controltac_il.calibrate``); None = the shipped checkpoint.
-    estimator: a ForceEstimator for reference forces where the items carry no force labels (``force_keys``);
-        None = the bundle's estimator where ``generator`` names a bundle, else the shipped estimator, loaded only
-        when needed.
+    estimator: a ForceEstimator (or its checkpoint folder, or a calibration bundle) for reference forces where the
+        items carry no force labels (``force_keys``); None = the bundle's estimator where ``generator`` names a
+        bundle, else the shipped estimator, loaded only when needed.
     build: cache mode only: "now" generates the missing part of the cache at construction (this
         rank's share under torchrun, then waits for the other ranks); "require" expects a complete
         cache (error otherwise); "manual" leaves it to ``build_cache()`` (the CLI).
@@ -69,9 +69,12 @@ class ForceAugment(Dataset):
         adapters.check_probe(probe)
         self.keys = resolve_keys(probe, self.config, dataset)
         self.tactile_keys = self.keys.tactile_keys
+        if isinstance(estimator, (str, os.PathLike)):
+            estimator = estimator_at(estimator)
+        elif estimator is not None and not callable(getattr(estimator, "predict", None)):
+            raise ValueError(f"estimator: expected a ForceEstimator, a checkpoint folder or a calibration bundle, got "
+                             f"{type(estimator).__name__}")
         if isinstance(generator, (str, os.PathLike)) and estimator is None:
-            from controltac_il.augment.reference import bundle_estimator
-
             estimator = bundle_estimator(generator)  # a calibration bundle brings its estimator; else None
         self.references = ReferenceForces(self.keys, self.config.contact_force, self.config.min_contact_area, estimator,
                                           self.config.estimated_reference)

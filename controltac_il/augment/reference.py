@@ -79,6 +79,14 @@ def bundle_estimator(path):
     return ForceEstimator.from_pretrained(path)
 
 
+def estimator_at(path):
+    """The force estimator a checkpoint folder or a calibration bundle gives (a bundle's decision kept:
+    ``bundle_estimator``)."""
+    from controltac_il.estimators import ForceEstimator
+
+    return bundle_estimator(path) or ForceEstimator.from_pretrained(path)
+
+
 class ReferenceForces:
     """Contact and reference force of tactile frames, per tactile key (``keys``: where labels and
     backgrounds are found in an item)."""
