@@ -79,3 +79,22 @@ def test_sensor_without_background_uses_the_checkpoint_one_or_fails_clearly():
     loop = ControlLoop(arm, policy, gripper=gripper, cameras=cams, tactile=tac, clock=clock, limits=SafetyLimits(),
                        config=ControlLoopConfig(inference="sync", chunk_size=6))
     assert loop.run(max_steps=2).steps == 2
+
+
+def test_an_observation_with_a_non_finite_qpos_or_a_float_background_is_refused_naming_the_key():
+    """NaN in qpos made every action NaN; a float background in [0, 1] gave finite but wrong actions."""
+    from controltac_il.streams import LOOP, LOOP_STATE, background_key, image_key, tactile_key
+
+    policy = _policy()
+    frame = np.full((24, 32, 3), 120, np.uint8)
+    good = {LOOP_STATE: np.zeros(5, np.float32), **{image_key(c, LOOP): frame for c in ("third_view", "wrist")},
+            **{tactile_key(s, LOOP): frame for s in ("left", "right")},
+            **{background_key(s, LOOP): frame for s in ("left", "right")}}
+    assert np.isfinite(policy(good)).all()
+    bad_qpos = (np.array([0, np.nan, 0, 0, 0.0]), ["a"] * 5, np.zeros(4))
+    for qpos in bad_qpos:
+        with pytest.raises(ValueError, match=rf"^observation\['{LOOP_STATE}'\] must be 5 finite numbers"):
+            policy({**good, LOOP_STATE: qpos})
+    key = background_key("left", LOOP)
+    with pytest.raises(ValueError, match=rf"^observation\['{key}'\] must be uint8 \(H, W, 3\), got float32"):
+        policy({**good, key: frame.astype(np.float32) / 255})

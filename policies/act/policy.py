@@ -51,10 +51,12 @@ class ACTPolicy:
             raise ValueError(f"observation is missing {missing}; the checkpoint expects cameras "
                              f"{list(cfg.camera_names)} and tactile sensors {list(cfg.tactile_names)}")
         qpos = np.asarray(observation[LOOP_STATE])
-        if qpos.shape != (cfg.state_dim,):
-            raise ValueError(f"observation[{LOOP_STATE!r}] must have shape ({cfg.state_dim},), got {qpos.shape}")
-        for key in self._image_keys():
-            img = np.asarray(observation[key])
+        if qpos.shape != (cfg.state_dim,) or not np.issubdtype(qpos.dtype, np.number) or not np.isfinite(qpos).all():
+            raise ValueError(f"observation[{LOOP_STATE!r}] must be {cfg.state_dim} finite numbers, got "
+                             f"{qpos.dtype} {qpos.shape}: {qpos.tolist()}")
+        images = {key: np.asarray(observation[key]) for key in self._image_keys()}
+        images.update({background_key(s, LOOP): self._background(observation, s) for s in cfg.tactile_names})
+        for key, img in images.items():  # a float background in [0, 1] gave finite but wrong actions
             if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
                 raise ValueError(f"observation[{key!r}] must be uint8 (H, W, 3), got {img.dtype} {img.shape}")
 
