@@ -44,14 +44,18 @@ def parse_batch_size(text: str):
 
 class JsonConfig:
     """Mixin of the project's pydantic-dataclass configs: ``to_dict`` (JSON types, as ``config.json`` holds
-    them) and ``from_dict`` (validated; unknown fields refused, so a config from another version is an error)."""
+    them) and ``from_dict`` (validated; unknown fields refused, so a config from another version is an error;
+    :class:`FieldErrors`, one line)."""
 
     def to_dict(self) -> dict:
         return TypeAdapter(type(self)).dump_python(self, mode="json")
 
     @classmethod
     def from_dict(cls, d: dict):
-        return TypeAdapter(cls).validate_python(d)
+        try:
+            return TypeAdapter(cls).validate_python(d)
+        except ValidationError as exc:
+            raise FieldErrors(exc) from None
 
 
 def one_line(exc: BaseException, flags: Mapping[str, str] | None = None) -> str:
@@ -59,7 +63,7 @@ def one_line(exc: BaseException, flags: Mapping[str, str] | None = None) -> str:
     field spelled as its CLI flag where ``flags`` maps it (``{"steps": "--steps"}``); other errors their message
     with line breaks folded, and their notes after it (e.g. a device that failed to stop after the fault)."""
     errors = getattr(exc, "errors", None)
-    if callable(errors) and type(exc).__name__ == "ValidationError":
+    if callable(errors) and (type(exc).__name__ == "ValidationError" or isinstance(exc, FieldErrors)):
         grouped: dict[tuple[str, str], tuple[list[str], str]] = {}
         for err in exc.errors():
             loc = [str(x) for x in err.get("loc", ())]
@@ -91,9 +95,21 @@ def add_note(exc: BaseException, note: str) -> None:
         exc.__notes__ = [*getattr(exc, "__notes__", ()), note]
 
 
+class FieldErrors(ValueError):
+    """A pydantic ValidationError as a ValueError of one line naming the field(s) (``one_line``); ``errors()`` and
+    ``title`` kept, so that a command can still name its flags (``one_line(exc, flags)``)."""
+
+    def __init__(self, exc: ValidationError):
+        super().__init__(one_line(exc))
+        self._errors, self.title = exc.errors(), exc.title
+
+    def errors(self) -> list:
+        return self._errors
+
+
 def one_line_errors(cls):
     """Class decorator for a pydantic dataclass: its constructor (``dataclasses.replace`` included) raises
-    a ValueError of one line naming the field(s) (``one_line``) instead of the multi-line ValidationError."""
+    :class:`FieldErrors` instead of the multi-line ValidationError."""
     validate = cls.__init__
 
     @functools.wraps(validate)
@@ -101,7 +117,7 @@ def one_line_errors(cls):
         try:
             validate(self, *args, **kwargs)
         except ValidationError as exc:
-            raise ValueError(one_line(exc)) from None
+            raise FieldErrors(exc) from None
 
     cls.__init__ = __init__
     return cls

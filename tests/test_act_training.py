@@ -86,6 +86,23 @@ def test_train_config_validation():
         ACTTrainConfig(batch_size=-1)
 
 
+def test_every_model_and_training_config_refuses_a_bad_field_in_one_line_naming_it():
+    """What a script gets from the Python API, as a command prints it: not pydantic's four-line ValidationError."""
+    from controltac_il.estimators import EstimatorConfig, EstimatorTrainConfig
+    from controltac_il.generator import DiTConfig, GeneratorConfig
+    from controltac_il.generator.training.config import GeneratorTrainConfig
+
+    for make, field in ((lambda: ACTConfig.from_preset("cpu", chunk_size=0), "chunk_size"),
+                        (lambda: ACTConfig.from_dict({**tiny_config().to_dict(), "dim_model": "big"}), "dim_model"),
+                        (lambda: ACTTrainConfig(lr=-1.0), "lr"), (lambda: EstimatorConfig(hidden=0), "hidden"),
+                        (lambda: EstimatorTrainConfig(batch_size=0), "batch_size"), (lambda: DiTConfig(depth=0), "depth"),
+                        (lambda: GeneratorConfig(image_size=(0, 0)), "image_size"),
+                        (lambda: GeneratorTrainConfig(data="d", out="o", batch_size=0), "batch_size")):
+        with pytest.raises(ValueError) as info:
+            make()
+        assert str(info.value).startswith(field) and "\n" not in str(info.value)
+
+
 def write_tiny_episodes(root: Path, n: int = 3, T: int = 10, cameras=("third_view", "wrist"),
                         sensors=("left", "right"), action_dim: int = 5) -> Path:
     rng = np.random.default_rng(0)

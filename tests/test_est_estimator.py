@@ -129,7 +129,7 @@ def test_checkpoint_is_verified_against_its_card(est, tmp_path):
 
 
 def test_config_rejects_unknown_and_bad_fields(tmp_path):
-    with pytest.raises(ValueError, match=r"colour\n  Unexpected keyword argument"):
+    with pytest.raises(ValueError, match=r"^colour: Unexpected keyword argument"):
         EstimatorConfig.from_dict({"input_height": 64, "colour": 1})
     with pytest.raises(ValueError, match="force_std"):
         EstimatorConfig(force_std=(1.0, 0.0, 1.0))

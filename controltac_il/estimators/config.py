@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Annotated, Literal
 from pydantic import Field, model_validator
 from pydantic.dataclasses import dataclass
 
-from controltac_il.config import STRICT, JsonConfig, Positive
+from controltac_il.config import JsonConfig, Positive, STRICT, one_line_errors
 from controltac_il.tactile.residual import OFFSET
 
 if TYPE_CHECKING:
@@ -17,6 +17,7 @@ if TYPE_CHECKING:
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 
 
+@one_line_errors
 @dataclass(config=STRICT)
 class EstimatorConfig(JsonConfig):
     """Shape and normalisation of a :class:`~controltac_il.estimators.model.ForceCNN`; every field is
@@ -60,6 +61,7 @@ class EstimatorConfig(JsonConfig):
     extra: dict = field(default_factory=dict)
 
 
+@one_line_errors
 @dataclass(config=STRICT)
 class EstimatorTrainConfig:
     """Optimisation settings (pydantic: validated at construction, ValueError naming the field).

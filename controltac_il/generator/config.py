@@ -12,7 +12,7 @@ from typing import Annotated, Literal
 from pydantic import Field, model_validator
 from pydantic.dataclasses import dataclass
 
-from controltac_il.config import STRICT, JsonConfig, PosInt, Positive
+from controltac_il.config import JsonConfig, PosInt, Positive, STRICT, one_line_errors
 from controltac_il.generator.forces import VALIDATED_RANGE
 
 # Validated force range of the paper, owned by ``controltac_il.generator.forces`` (these are its aliases).
@@ -22,6 +22,7 @@ DETAIL_GATE_SIGMA_PX = 2.0  # smoothing of the contact magnitudes that gate the 
 
 
 
+@one_line_errors
 @dataclass(config=STRICT)
 class AutoencoderConfig(JsonConfig):
     """Compact deep-compression-style autoencoder for tactile residuals.
@@ -57,6 +58,7 @@ class AutoencoderConfig(JsonConfig):
         return (self.image_size[0] // self.factor, self.image_size[1] // self.factor)
 
 
+@one_line_errors
 @dataclass(config=STRICT)
 class DiTConfig(JsonConfig):
     """Diffusion transformer denoiser (DiT style, adaLN-Zero), conditioned on timestep and ΔF.
@@ -106,6 +108,7 @@ class DiTConfig(JsonConfig):
                    conv_head_width=conv_head_width)
 
 
+@one_line_errors
 @dataclass(config=STRICT)
 class DiffusionConfig(JsonConfig):
     """Noise schedule and sampler defaults (diffusers' DDIMScheduler).
@@ -129,6 +132,7 @@ class DiffusionConfig(JsonConfig):
         return self
 
 
+@one_line_errors
 @dataclass(config=STRICT)
 class GeneratorConfig(JsonConfig):
     """Everything needed to rebuild a trained generator (saved as ``config.json`` beside the weights).
@@ -182,6 +186,7 @@ class GeneratorConfig(JsonConfig):
         return self.diffusion.default_steps
 
 
+@one_line_errors
 @dataclass(config=STRICT)
 class PoseAdapterConfig(JsonConfig):
     """Stage-2 pose-control adapter over a frozen stage-1 generator (ControlNet-style), saved as its config.json.

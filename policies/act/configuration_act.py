@@ -12,7 +12,7 @@ from typing import Annotated, Literal
 from pydantic import AfterValidator, Field, model_validator
 from pydantic.dataclasses import dataclass
 
-from controltac_il.config import STRICT, JsonConfig, PosInt, Positive
+from controltac_il.config import JsonConfig, PosInt, Positive, STRICT, one_line_errors
 from controltac_il.streams import HDF5, HDF5_STATE, background_key, image_key, tactile_key
 
 NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
@@ -29,6 +29,7 @@ def _stream_names(names: tuple[str, ...]) -> tuple[str, ...]:
 Names = Annotated[tuple[str, ...], AfterValidator(_stream_names)]
 
 
+@one_line_errors
 @dataclass(config=STRICT)
 class ACTConfig(JsonConfig):
     """Architecture and loss of the ACT policy (CVAE with a transformer encoder/decoder).

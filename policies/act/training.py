@@ -33,7 +33,7 @@ from pydantic.dataclasses import dataclass
 from torch.utils.data import DataLoader, Dataset
 from tqdm import tqdm
 
-from controltac_il.config import STRICT, PosInt
+from controltac_il.config import PosInt, STRICT, one_line_errors
 from controltac_il.io import write_json
 from controltac_il.outputs import claim_output, own_checkpoint, own_json
 from controltac_il.streams import HDF5_STATE
@@ -44,6 +44,7 @@ from policies.act.checkpoint import (BACKGROUND_FILE, FORMAT, WEIGHTS_FILE, Chec
 from policies.act.configuration_act import ACTConfig
 from policies.act.modeling_act import ACT
 
+@one_line_errors
 @dataclass(config=STRICT)
 class ACTTrainConfig:
     """Optimisation schedule (pydantic: validated at construction, ValueError naming the field).

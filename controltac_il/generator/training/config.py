@@ -17,7 +17,7 @@ from pydantic import Field, model_validator
 from pydantic.dataclasses import dataclass
 
 from controltac_il.checkpoint import read_json
-from controltac_il.config import STRICT, PosInt, Positive
+from controltac_il.config import PosInt, Positive, STRICT, one_line_errors
 from controltac_il.generator.config import AutoencoderConfig, DiffusionConfig, DiTConfig
 from controltac_il.generator.forces import VALIDATED_RANGE
 
@@ -34,6 +34,7 @@ Count = Annotated[int, Field(ge=0)]
 Share = Annotated[float, Field(ge=0, lt=1)]
 
 
+@one_line_errors
 @dataclass(config=STRICT)
 class GeneratorTrainConfig:
     """Arguments of one stage-1 training run.
@@ -226,6 +227,7 @@ def model_card(cfg: GeneratorTrainConfig, data: PairData, ae: TactileAutoencoder
     }
 
 
+@one_line_errors
 @dataclass(config=STRICT)
 class PoseTrainConfig:
     """Arguments of one adapter training run.
