@@ -450,6 +450,8 @@ def test_tactile_cameras_by_name_or_key_and_a_warning_where_none_is_named_as_one
     root = written[0]
     assert LeRobotEpisodes(root, tactile_keys=["gelsight_left"]).tactile_keys == {"gelsight_left": LEFT}
     assert LeRobotEpisodes(root, tactile_keys=[RIGHT]).tactile_keys == {"gelsight_right": RIGHT}
+    one = LeRobotEpisodes(root, tactile_keys="gelsight_left", tactile_sensors="gelsight_left")  # a name, not letters
+    assert one.tactile_keys == {"gelsight_left": LEFT}
     monkeypatch.setattr(module, "TACTILE_WORDS", ("digit",))  # as a folder whose cameras are gs_left, gs_right
     with pytest.warns(UserWarning, match=r"no camera's name holds digit, so none is taken as a tactile sensor"):
         ds = LeRobotEpisodes(root)

@@ -92,6 +92,7 @@ class LeRobotEpisodes(Dataset):
     def __init__(self, root, chunk_size: int = 20, tactile_keys=None, force_keys=None, tactile_sensors=None):
         if not is_int(chunk_size) or chunk_size < 1:
             raise ValueError(f"chunk_size: expected an int >= 1, got {chunk_size!r}")
+        tactile_keys, tactile_sensors = ([x] if isinstance(x, str) else x for x in (tactile_keys, tactile_sensors))
         self.root, self.chunk_size = Path(root).resolve(), int(chunk_size)
         info = read_info(self.root)
         features, fps = info["features"], int(info["fps"])
