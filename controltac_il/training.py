@@ -192,18 +192,22 @@ def wrap(model: torch.nn.Module, world: int) -> torch.nn.Module:
 
 def parse_device(device) -> torch.device:
     """``device`` (a name such as cpu, cuda, cuda:0, or a torch.device) as a torch.device; ValueError naming
-    ``device`` for anything torch cannot read as one."""
+    ``device`` for anything torch cannot read as one, or a CUDA device this machine does not have."""
     try:
-        return torch.device(device)
+        parsed = torch.device(device)
     except (RuntimeError, TypeError, ValueError):
         raise ValueError(f"device: expected a torch device such as cpu, cuda or cuda:0, got {device!r}") from None
+    if parsed.type == "cuda" and (parsed.index or 0) >= torch.cuda.device_count():  # 0 without CUDA
+        raise ValueError(f"device: {str(parsed)!r}, but this machine has {torch.cuda.device_count()} CUDA device(s); "
+                         "use cpu")
+    return parsed
 
 
 def device_problem(name: str) -> str | None:
     """Why ``name`` cannot be trained on here (one line naming ``--device``), or None."""
     try:
-        device = parse_device(name)
-    except ValueError:
+        device = torch.device(name)
+    except (RuntimeError, TypeError, ValueError):
         device = None
     if device is None or device.type not in ("cpu", "cuda"):
         return f"--device: expected cpu, cuda or cuda:N, got {name!r}"

@@ -145,6 +145,9 @@ def test_checkpoint_round_trip(tmp_path):
         "tactile_background.safetensors"]
     loaded, backgrounds, meta = load_checkpoint(tmp_path / "ckpt")
     assert meta == {"step": 1} and loaded.config == model.config
+    for device, says in (("gpu", "expected a torch device"), (f"cuda:{torch.cuda.device_count()}", "CUDA device")):
+        with pytest.raises(ValueError, match=f"^device: .*{says}"):  # torch's own errors were tracebacks
+            load_checkpoint(tmp_path / "ckpt", device=device)
     assert all(np.array_equal(backgrounds[s], bg[s]) for s in bg)
     assert torch.equal(loaded.predict(batch), model.predict(batch))
     # the policy wrapper gives the same chunk from a numpy observation, with the stored background

@@ -228,6 +228,9 @@ def test_saving_never_replaces_a_file_or_folder_of_the_users(est, tmp_path):
     (lambda est, x: est.predict(x, batch_size=0), "^batch_size must be an int >= 1, got 0$"),
     (lambda est, x: est.predict(x, batch_size=2.5), "^batch_size must be an int >= 1, got 2.5$"),
     (lambda est, x: ForceEstimator(est.config, device="gpu"), "^device: expected a torch device such as cpu"),
+    # a CUDA device this machine lacks (every one, without CUDA): torch's AssertionError was a traceback
+    (lambda est, x: ForceEstimator(est.config, device=f"cuda:{torch.cuda.device_count()}"),
+     r"^device: 'cuda:\d+', but this machine has \d+ CUDA device\(s\); use cpu$"),
 ])
 def test_a_bad_batch_size_or_device_is_named(est, call, says):
     with pytest.raises(ValueError, match=says):

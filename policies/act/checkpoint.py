@@ -22,6 +22,7 @@ from controltac_il.checkpoint import (CONFIG_FILE, CheckpointError, MissingCheck
                                       read_json, save_folder)
 from controltac_il.config import one_line
 from controltac_il.run_state import load_run_state, save_run_state
+from controltac_il.training import parse_device
 from policies.act.configuration_act import ACTConfig
 from policies.act.modeling_act import ACT
 
@@ -74,7 +75,9 @@ def read_config(ckpt_dir: str | Path) -> tuple[ACTConfig, dict]:
 
 def load_checkpoint(ckpt_dir: str | Path, device: str | torch.device = "cpu"
                     ) -> tuple[ACT, dict[str, np.ndarray], dict]:
-    """Load (model in eval mode, tactile backgrounds by sensor, meta) from a checkpoint folder."""
+    """Load (model in eval mode, tactile backgrounds by sensor, meta) from a checkpoint folder; ValueError naming
+    ``device`` for one this machine does not have."""
+    device = parse_device(device)
     ckpt_dir = Path(ckpt_dir)
     config, meta = read_config(ckpt_dir)
     _, files = load_folder(ckpt_dir, (WEIGHTS_FILE,), optional=(BACKGROUND_FILE,))
