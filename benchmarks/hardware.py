@@ -40,7 +40,7 @@ def _stats_ms(values) -> dict:
 
 def control_loop(steps: int, policy_ms: float) -> dict:
     from hardware.control_loop import ControlLoop, ControlLoopConfig
-    from hardware.fakes import FakeArm, FakeGripper, SyntheticFrameSource
+    from hardware.fakes import FAKE_WORKSPACE, FakeArm, FakeGripper, SyntheticFrameSource
     from hardware.safety import SafetyLimits
 
     def slow_hold(obs):  # any callable is a policy; this one takes policy_ms of wall time, on purpose
@@ -51,7 +51,7 @@ def control_loop(steps: int, policy_ms: float) -> dict:
         FakeArm(), slow_hold, gripper=FakeGripper(),
         cameras={"third_view": SyntheticFrameSource("third_view")},
         tactile={s: SyntheticFrameSource(s, background=True) for s in ("left", "right")},
-        config=ControlLoopConfig(rate_hz=10.0, inference="async"), limits=SafetyLimits(),
+        config=ControlLoopConfig(rate_hz=10.0, inference="async"), limits=SafetyLimits(**FAKE_WORKSPACE),
     )
     stats = loop.run(max_steps=steps)
     s = stats.summary()

@@ -27,6 +27,10 @@ from hardware.interfaces import (
 )
 
 
+# the workspace box a dry run with FakeArm states (its start pose (0.4, 0, 0.2) m inside), as SafetyLimits' kwargs
+FAKE_WORKSPACE = {"workspace_min": (0.2, -0.3, 0.0), "workspace_max": (0.7, 0.3, 0.5)}
+
+
 class FakeArm(Arm):
     """Arm whose pose jumps to every target. ``error_code`` != 0 makes ``state``/``servo`` raise ArmFault;
     ``servo_delay_s`` makes each ``servo`` block that long (clock seconds: a VirtualClock lets the loop's

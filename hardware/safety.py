@@ -31,6 +31,7 @@ class WatchdogTimeout(HardwareError):
     """No fresh command or sensor frame within the watchdog timeout."""
 
 
+MAX_WORKSPACE_M = 2.0  # m from the base: beyond any tabletop arm's reach (a UR10e's is 1.3 m)
 FULL_CIRCLE_SLACK = 1e-4  # rad: a yaw range this close to 2 pi (e.g. +-3.14159, 5e-6 short) is the full circle
 
 
@@ -47,7 +48,8 @@ def wrap_angle(a):
 class SafetyLimits:
     """Limits enforced on every command; validated at construction (ValueError naming the field).
 
-    workspace_min / workspace_max: corners (x, y, z) of the allowed end-effector box, metres, base frame.
+    workspace_min / workspace_max: corners (x, y, z) of the allowed end-effector box, metres, base frame, within
+        ±MAX_WORKSPACE_M; required: the box is the set-up's to state.
     yaw_min / yaw_max: allowed yaw range, radians (within [-pi, pi]).
     max_step_m: largest translation between two consecutive commands, metres per control period
         (at most 0.1 m: 1 m/s at 10 Hz; a robot setup file further bounds it to 0.25 m/s at its rate).
@@ -66,8 +68,8 @@ class SafetyLimits:
     state_tolerance_rad: a measured yaw further than this outside a narrower yaw range is a violation.
     """
 
-    workspace_min: Vec3 = (0.2, -0.3, 0.0)
-    workspace_max: Vec3 = (0.7, 0.3, 0.5)
+    workspace_min: Vec3
+    workspace_max: Vec3
     yaw_min: Float = Field(-np.pi, ge=-np.pi, le=np.pi)
     yaw_max: Float = Field(np.pi, ge=-np.pi, le=np.pi)
     max_step_m: Float = Field(0.02, gt=0, le=0.1)
@@ -81,6 +83,10 @@ class SafetyLimits:
     @model_validator(mode="after")
     def _ordered(self):
         problems = Problems("SafetyLimits")
+        for name in ("workspace_min", "workspace_max"):  # millimetres would pass every other check
+            if max(abs(v) for v in getattr(self, name)) > MAX_WORKSPACE_M:
+                problems.add(name, f"must lie within ±{MAX_WORKSPACE_M:g} m of the base (metres, not mm)",
+                             list(getattr(self, name)))
         if not all(lo < hi for lo, hi in zip(self.workspace_min, self.workspace_max)):
             problems.add("workspace_min", f"must be below workspace_max on every axis (workspace_max "
                          f"{list(self.workspace_max)})",

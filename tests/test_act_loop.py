@@ -6,7 +6,7 @@ import torch
 
 from act_fixtures import tiny_config
 from hardware.control_loop import ControlLoop, ControlLoopConfig, PolicyError
-from hardware.fakes import FakeArm, FakeGripper, SyntheticFrameSource
+from hardware.fakes import FAKE_WORKSPACE, FakeArm, FakeGripper, SyntheticFrameSource
 from hardware.interfaces import VirtualClock
 from hardware.safety import SafetyLimits
 from hardware.temporal_ensembling import TemporalEnsembler
@@ -42,7 +42,7 @@ def test_act_drives_the_loop_with_ensembled_chunks():
         return chunks[-1]
 
     size = policy.config.chunk_size
-    loop = ControlLoop(arm, recorded, gripper=gripper, cameras=cams, tactile=tac, limits=SafetyLimits(), clock=clock,
+    loop = ControlLoop(arm, recorded, gripper=gripper, cameras=cams, tactile=tac, limits=SafetyLimits(**FAKE_WORKSPACE), clock=clock,
                        config=ControlLoopConfig(inference="sync", chunk_size=size))
     stats = loop.run(max_steps=5)
     servos = np.array([v for e, v in log if e == "servo"])
@@ -59,7 +59,7 @@ def test_act_drives_the_loop_with_ensembled_chunks():
 
 def test_missing_camera_stops_the_arm_before_any_motion():
     clock, log, arm, gripper, cams, tac = _rig(cameras=("third_view",))
-    loop = ControlLoop(arm, _policy(), gripper=gripper, cameras=cams, tactile=tac, clock=clock, limits=SafetyLimits(),
+    loop = ControlLoop(arm, _policy(), gripper=gripper, cameras=cams, tactile=tac, clock=clock, limits=SafetyLimits(**FAKE_WORKSPACE),
                        config=ControlLoopConfig(inference="sync", chunk_size=6))
     with pytest.raises(PolicyError, match="images/wrist"):
         loop.run(max_steps=5)
@@ -68,7 +68,7 @@ def test_missing_camera_stops_the_arm_before_any_motion():
 
 def test_sensor_without_background_uses_the_checkpoint_one_or_fails_clearly():
     clock, log, arm, gripper, cams, tac = _rig(background=False)
-    loop = ControlLoop(arm, _policy(), gripper=gripper, cameras=cams, tactile=tac, clock=clock, limits=SafetyLimits(),
+    loop = ControlLoop(arm, _policy(), gripper=gripper, cameras=cams, tactile=tac, clock=clock, limits=SafetyLimits(**FAKE_WORKSPACE),
                        config=ControlLoopConfig(inference="sync", chunk_size=6))
     with pytest.raises(PolicyError, match="tactile_background/left"):
         loop.run(max_steps=2)
@@ -76,7 +76,7 @@ def test_sensor_without_background_uses_the_checkpoint_one_or_fails_clearly():
     policy = _policy()
     policy.backgrounds = {s: np.full((24, 32, 3), 100, np.uint8) for s in ("left", "right")}
     clock, log, arm, gripper, cams, tac = _rig(background=False)
-    loop = ControlLoop(arm, policy, gripper=gripper, cameras=cams, tactile=tac, clock=clock, limits=SafetyLimits(),
+    loop = ControlLoop(arm, policy, gripper=gripper, cameras=cams, tactile=tac, clock=clock, limits=SafetyLimits(**FAKE_WORKSPACE),
                        config=ControlLoopConfig(inference="sync", chunk_size=6))
     assert loop.run(max_steps=2).steps == 2
 

@@ -10,6 +10,7 @@ from act_fixtures import tiny_config
 from controltac_il.app.deploy import WallTimed, check_setup, deploy, deploy_on_robot, load_policy
 from controltac_il.metrics import wilson_interval
 from hardware.config import ConfigError
+from hardware.fakes import FAKE_WORKSPACE
 from hardware.safety import SafetyLimits
 from policies.act import ACT, ACTPolicy, save_checkpoint
 
@@ -95,7 +96,7 @@ def test_deploy_runs_the_loop_with_the_policys_chunk(checkpoint):
     frames = {n: SyntheticFrameSource(n, (24, 32), clock, background=n in ("left", "right"))
               for n in ("third_view", "wrist", "left", "right")}
     setup = Setup(FakeArm((0.4, 0.0, 0.2, 0.0), clock), None, {n: frames[n] for n in ("third_view", "wrist")},
-                  {n: frames[n] for n in ("left", "right")}, SafetyLimits(), LoopTiming(inference="sync"), clock)
+                  {n: frames[n] for n in ("left", "right")}, SafetyLimits(**FAKE_WORKSPACE), LoopTiming(inference="sync"), clock)
     stats = deploy(setup, policy, max_steps=3)
     assert stats.steps == 3 and len(stats.inference_s) == 3 and set(stats.inference_s) == {0.0}  # clock seconds
     timed = WallTimed(policy)

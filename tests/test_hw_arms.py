@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from hardware.control_loop import ControlLoop, ControlLoopConfig
 from hardware.interfaces import ArmFault, HardwareError, VirtualClock
+from hardware.fakes import FAKE_WORKSPACE
 from hardware.safety import SafetyLimits
 from hardware.ur import URArm
 from hardware.xarm import XArm, XArmGripper
@@ -131,7 +132,7 @@ def test_xarm_fault_mid_run_stops_the_arm_in_the_loop():
 
     with XArm("ip", api=api, stream_hz=None) as arm:
         loop = ControlLoop(arm, hold, config=ControlLoopConfig(inference="sync", chunk_size=10),
-                           clock=VirtualClock(), limits=SafetyLimits())
+                           clock=VirtualClock(), limits=SafetyLimits(**FAKE_WORKSPACE))
         with pytest.raises(ArmFault, match="error code 22"):
             loop.run(max_steps=20, on_step=lambda s, o, t: s == 3 and setattr(api, "err", 22))
     n = names(api.calls)
@@ -304,7 +305,7 @@ def test_ur_faults_are_named_and_stop_the_loop(fault, match):
     arm = URArm("ip", control=rtde, receive=rtde)
     arm.connect()
     loop = ControlLoop(arm, hold, config=ControlLoopConfig(inference="sync", chunk_size=5), clock=VirtualClock(),
-                       limits=SafetyLimits())
+                       limits=SafetyLimits(**FAKE_WORKSPACE))
 
     def inject(step, obs, target):
         if step == 2:
@@ -370,7 +371,7 @@ def test_a_tool_tilted_from_its_configured_orientation_is_a_fault_before_any_mot
     arm = XArm("ip", api=api, stream_hz=None)
     arm.connect()
     with pytest.raises(ArmFault, match=r"the tool is tilted 20\.1 deg from the orientation tool_rpy configures"):
-        ControlLoop(arm, lambda obs: np.tile([0.4, 0.0, 0.2, 0.0, 0.0], (5, 1)), limits=SafetyLimits(),
+        ControlLoop(arm, lambda obs: np.tile([0.4, 0.0, 0.2, 0.0, 0.0], (5, 1)), limits=SafetyLimits(**FAKE_WORKSPACE),
                     config=ControlLoopConfig(inference="sync", chunk_size=5), clock=VirtualClock()).run(max_steps=3)
     assert "set_servo_cartesian" not in names(api.calls)
     rtde = StubRTDE()

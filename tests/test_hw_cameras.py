@@ -12,7 +12,7 @@ import pytest
 from controltac_il.tactile import SensorSpec, TactileSensor, to_residual
 from hardware.cameras import GelSightMini, OpenCVFrameSource, crop_and_resize, find_video_device
 from hardware.control_loop import ControlLoop, ControlLoopConfig
-from hardware.fakes import FakeArm
+from hardware.fakes import FAKE_WORKSPACE, FakeArm
 from hardware.interfaces import SensorError
 from hardware.safety import SafetyLimits
 
@@ -146,7 +146,7 @@ def test_sensor_unplugged_mid_run_stops_the_arm(tmp_path, sensor_frames, clock):
         # frames 1-3 (t = 0 .. 0.08 s) are the background, the last frame comes at 0.2 s, the end of the file at
         # 0.24 s: the loop (steps at 0.08, 0.18, 0.28 s) commands twice, then finds the sensor gone
         loop = ControlLoop(arm, hold, tactile={"left": gs}, config=ControlLoopConfig(inference="sync"), clock=clock,
-                           limits=SafetyLimits())
+                           limits=SafetyLimits(**FAKE_WORKSPACE))
         with pytest.raises(SensorError, match="left: capture stopped delivering frames after 6 frames"):
             loop.run(max_steps=100)
     events = [e for e, _ in log]

@@ -12,13 +12,13 @@ import pytest
 
 from controltac_il.config import one_line
 from hardware.control_loop import ControlLoop, ControlLoopConfig, LoopTiming, PolicyError, PolicyLateError
-from hardware.fakes import FakeArm, FakeGripper, SyntheticFrameSource
+from hardware.fakes import FAKE_WORKSPACE, FakeArm, FakeGripper, SyntheticFrameSource
 from hardware.interfaces import ArmFault, GripperState, SensorError, VirtualClock
 from hardware.safety import SafetyLimits, SafetyViolation, WatchdogTimeout
 from hardware.temporal_ensembling import TemporalEnsembler
 
 START = (0.4, 0.0, 0.2, 0.0)
-LIMITS = SafetyLimits(max_step_m=0.05, max_rotation_rad=0.2)
+LIMITS = SafetyLimits(**FAKE_WORKSPACE, max_step_m=0.05, max_rotation_rad=0.2)
 
 
 class RampPolicy:

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from hardware.control_loop import ControlLoop
+from hardware.fakes import FAKE_WORKSPACE
 from hardware.interfaces import VirtualClock
 from hardware.safety import SafetyFilter, SafetyLimits, SafetyViolation, Watchdog, WatchdogTimeout, wrap_angle
 
@@ -106,13 +107,13 @@ def test_a_narrower_yaw_range_is_an_arc_the_wrist_never_leaves():
         f.reset(np.array([0.5, 0.0, 0.2, 3.1]))
     f.reset(np.array([0.5, 0.0, 0.2, 3.04]))  # within state_tolerance_rad (0.05): taken, and turned back inside
     assert f(np.array([0.5, 0.0, 0.2, 3.0, 0.5]))[3] == 3.0
-    full = SafetyFilter(SafetyLimits(max_rotation_rad=0.1))
+    full = SafetyFilter(SafetyLimits(**FAKE_WORKSPACE, max_rotation_rad=0.1))
     full.reset(np.array([0.5, 0.0, 0.2, 3.13]))  # any yaw is inside the full circle
     assert full(np.array([0.5, 0.0, 0.2, -3.13, 0.5]))[3] == pytest.approx(-3.13)  # 0.0232 rad through the seam
 
 
 def _yaws(yaw_min, yaw_max, start, wanted, steps=3):
-    f = SafetyFilter(SafetyLimits(yaw_min=yaw_min, yaw_max=yaw_max, max_rotation_rad=0.1))
+    f = SafetyFilter(SafetyLimits(**FAKE_WORKSPACE, yaw_min=yaw_min, yaw_max=yaw_max, max_rotation_rad=0.1))
     f.reset(np.array([0.5, 0.0, 0.2, start]))
     return [float(f(np.array([0.5, 0.0, 0.2, wanted, 0.5]))[3]) for _ in range(steps)]
 
@@ -125,7 +126,7 @@ def test_a_yaw_range_is_an_arc_on_the_circle_clipped_to_its_nearer_end():
     assert _yaws(-1.0, 3.0, 2.95, -1.3) == pytest.approx([2.85, 2.75, 2.65])  # nearer -1.0: the long way there
     assert _yaws(-3.14159, 3.14159, 3.1, -3.1) == pytest.approx([-3.1] * 3)  # 0.08 rad through the seam
     for low, high, measured in ((0.0, math.pi, math.pi), (-math.pi, 0.0, 3.13), (-math.pi, 0.0, -math.pi)):
-        SafetyFilter(SafetyLimits(yaw_min=low, yaw_max=high)).reset(np.array([0.5, 0.0, 0.2, measured]))
+        SafetyFilter(SafetyLimits(**FAKE_WORKSPACE, yaw_min=low, yaw_max=high)).reset(np.array([0.5, 0.0, 0.2, measured]))
 
 
 def test_gripper_clipped_to_limits():
@@ -164,12 +165,17 @@ def test_filter_requires_reset():
      (dict(gripper_min=0.5, gripper_max=0.2), "gripper_min: must be below gripper_max"),
      (dict(yaw_min=-4.0), "yaw_min"), (dict(state_tolerance_m="2 cm"), "state_tolerance_m"),
      (dict(max_step_m=0.02, max_tracking_m=0.015), r"max_tracking_m: must be at least max_step_m \(0\.02\)"),
-     (dict(max_tracking_m=0.3), r"max_tracking_m: Input should be less than or equal to 0\.2")],
+     (dict(max_tracking_m=0.3), r"max_tracking_m: Input should be less than or equal to 0\.2"),
+     (dict(workspace_min=None, workspace_max=None), r"^workspace_min: Field required; workspace_max: Field required$"),
+     (dict(workspace_min=(200, -300, 0), workspace_max=(700, 300, 500)),  # millimetres
+      r"^workspace_min: must lie within ±2 m of the base \(metres, not mm\)")],
 )
 def test_limits_validation_names_the_field(kwargs, field):
-    """The limits a robot starts with: refused in one line naming the field (the constructor's own message)."""
+    """The limits a robot starts with: refused in one line naming the field (the constructor's own message); the
+    box has no default, a set-up states it (None here: not given)."""
+    given = {k: v for k, v in {**FAKE_WORKSPACE, **kwargs}.items() if v is not None}
     with pytest.raises(ValueError) as info:
-        SafetyLimits(**kwargs)
+        SafetyLimits(**given)
     assert re.search(field, str(info.value)) and "\n" not in str(info.value), str(info.value)
 
 
@@ -180,7 +186,7 @@ def test_limits_take_numpy_values_and_are_frozen():
     with pytest.raises(dataclasses.FrozenInstanceError, match="cannot assign"):
         lim.max_step_m = 0.05
     with pytest.raises(ValueError, match="max_step_m"):
-        SafetyLimits(max_step_m=True)  # a boolean is not a distance
+        SafetyLimits(**FAKE_WORKSPACE, max_step_m=True)  # a boolean is not a distance
 
 
 def test_watchdog_trips_on_the_silent_feed_only():

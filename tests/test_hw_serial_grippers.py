@@ -15,6 +15,7 @@ from hardware.dynamixel import (
     ADDR_TORQUE_ENABLE,
     DynamixelGripper,
 )
+from hardware.fakes import FAKE_WORKSPACE
 from hardware.fake_serial import FakeDynamixelServo, FakeRobotiq2F85, dxl_crc
 from hardware.interfaces import HardwareError, VirtualClock
 from hardware.robotiq import RobotiqGripper, crc16_modbus
@@ -235,7 +236,7 @@ def test_garbage_on_the_gripper_line_mid_run_stops_the_arm(kind):
     client = RobotiqGripper if kind == "robotiq" else DynamixelGripper
     log = []
     with device as dev, client(dev.port, clock=clock) as gripper:
-        loop = ControlLoop(FakeArm(log=log, clock=clock), close, gripper=gripper, clock=clock, limits=SafetyLimits(),
+        loop = ControlLoop(FakeArm(log=log, clock=clock), close, gripper=gripper, clock=clock, limits=SafetyLimits(**FAKE_WORKSPACE),
                            config=ControlLoopConfig(inference="sync", chunk_size=5))
 
         def inject(step, obs, target):

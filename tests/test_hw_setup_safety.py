@@ -37,8 +37,8 @@ def with_(base, **sections):
 
 @pytest.mark.parametrize("setup, message", [
     # reach and height, per arm model
-    (with_(XARM, **limits(workspace_min=[-100, -100, 0.02], workspace_max=[100, 100, 0.4])),
-     r"limits\.workspace_max: the box corner \[100\.0, 100\.0\] is 141\.42 m from the base axis, beyond the "
+    (with_(XARM, **limits(workspace_min=[-1.5, -1.5, 0.02], workspace_max=[1.5, 1.5, 0.4])),
+     r"limits\.workspace_max: the box corner \[1\.5, 1\.5\] is 2\.12 m from the base axis, beyond the "
      r"reach of an xArm 5/6/7 \(0\.7 m\): every corner of workspace_min\.\.workspace_max must lie within 0\.7 m"),
     (with_(XARM, **limits(workspace_max=[0.8, 0.25, 0.4])), r"limits\.workspace_max: the box corner \[0\.8, 0\.25\] is 0\.84 m"),
     (with_(XARM, **limits(workspace_max=[0.5, 0.25, 1.5])),
@@ -164,7 +164,7 @@ def test_nan_and_inf_in_the_file_are_refused(tmp_path, text, message):
 
 def test_check_cli_refuses_an_implausible_file_in_one_line(tmp_path, capsys):
     path = tmp_path / "far.yaml"
-    path.write_text(yaml.safe_dump(with_(XARM, **limits(workspace_min=[-100, -100, 0.0], workspace_max=[100, 100, 0.4]))))
+    path.write_text(yaml.safe_dump(with_(XARM, **limits(workspace_min=[-1.5, -1.5, 0.0], workspace_max=[1.5, 1.5, 0.4]))))
     assert check_main([str(path)]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and f"{path}: limits.workspace_max: the box corner" in err
@@ -182,7 +182,7 @@ def unchecked(cls, **values):
 
 
 def unvalidated(**limits_kw):
-    """A SetupConfig that skipped validation, with a ±100 m box and a 5 m step."""
+    """A SetupConfig that skipped validation, with a ±1.5 m box and a 5 m step."""
     good = parse_setup(XARM)
     bad_limits = unchecked(type(good.limits), **{**vars(good.limits), **limits_kw})
     return unchecked(SetupConfig, **{**vars(good), "limits": bad_limits})
@@ -213,7 +213,7 @@ def fake_xarm_sdk(monkeypatch):
 
 
 def test_devices_are_never_built_from_an_unvalidated_config(fake_xarm_sdk):
-    cfg = unvalidated(workspace_min=(-100.0, -100.0, 0.02), workspace_max=(100.0, 100.0, 0.4))
+    cfg = unvalidated(workspace_min=(-1.5, -1.5, 0.02), workspace_max=(1.5, 1.5, 0.4))
     for build in (lambda: build_arm(cfg), lambda: build_gripper(cfg, arm=None), lambda: open_setup(cfg).__enter__()):
         with pytest.raises(ConfigError, match=r"^setup: limits\.workspace_max: the box corner"):
             build()
