@@ -275,6 +275,15 @@ def test_labels_pulling_or_in_millinewtons_are_refused_as_a_recorded_episodes_ar
             aug[len(aug.dataset) + 4]
 
 
+def test_a_frame_of_another_size_is_named(gen, est):
+    eps = episodes()
+    eps[1].tactile["left"] = [f for f in eps[1].tactile["left"]]  # one frame of the episode resized, as a bad export
+    eps[1].tactile["left"][2] = np.zeros((16, 16, 3), np.uint8)
+    with pytest.raises(ValueError, match=rf"^{GEL}: episode 1's frame 2 is \(16, 16\), its first \(32, 32\); every "
+                                         "tactile frame of an episode needs one size$"):
+        wrap(LeRobotLike(eps, labels=True), gen, est, None, force_keys={GEL: FORCE})[len(eps[0].qpos) + 2 + 16]
+
+
 def test_auto_detection_error_lists_the_image_keys(gen):
     ds = LeRobotLike(episodes())
     with pytest.raises(ValueError, match=r"tactile_keys: .*\['observation.images.gelsight', 'observation.images.wrist'\]"

@@ -158,7 +158,13 @@ class ReferenceForces:
         """The EpisodeFrames of one episode's items (sorted by frame)."""
         ep = EpisodeFrames({}, {}, {}, {}, {})
         for k in tactile_keys:
-            images = np.stack([self.keys.image(it, k) for it in items])
+            frames = [self.keys.image(it, k) for it in items]
+            odd = [i for i, f in enumerate(frames) if f.shape != frames[0].shape]
+            if odd:
+                at = int(items[odd[0]].get("frame_index", odd[0]))
+                raise ValueError(f"{k}: episode {episode}'s frame {at} is {frames[odd[0]].shape[:2]}, its first "
+                                 f"{frames[0].shape[:2]}; every tactile frame of an episode needs one size")
+            images = np.stack(frames)
             labels = np.stack([self.keys.label(it, k) for it in items]) if self.labelled[k] else None
             if labels is not None:  # in N, Fz > 0 pressing: else every copy is silently no-contact or skipped
                 check_force_labels(f"{self.keys.labels[k]} (episode {episode})", labels)
