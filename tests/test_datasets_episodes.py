@@ -144,6 +144,7 @@ def test_episode_paths_sorted_numerically(tmp_path):
     (dict(qpos=np.array(["a"] * 6)), "qpos: expected a numeric array"),
     (dict(images={"a/b": np.zeros((6, 8, 10, 3), np.uint8)}), "without '/'"),
     (dict(attrs={"sim": 1}), "'sim' is reserved"),
+    (dict(sim="false"), r"^sim: expected True or False, got 'false'$"),  # bool("false") would be True
 ])
 def test_bad_input_names_the_field(change, match):
     ep = make_episode()

@@ -337,6 +337,9 @@ def test_a_force_that_is_not_finite_is_refused_naming_the_argument(gen, contacts
 
 def test_bad_forces_and_options_are_refused(gen, contacts):
     ref, _ = contacts
+    for bad in ([[0, 0, "2"]] * len(ref), [[False, False, True]] * len(ref), np.full((len(ref), 3), 1 + 1j)):
+        with pytest.raises(ValueError, match=r"^delta_force must be real numbers \(B, 3\) in N, got dtype"):
+            gen.generate(ref, bad)
     with pytest.raises(ValueError, match="rows but the batch has"):
         gen.generate(ref, np.zeros((len(ref) + 1, 3)))
     with pytest.raises(ValueError, match=r"\(B, 3\)"):

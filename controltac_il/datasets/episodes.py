@@ -115,6 +115,8 @@ class Episode:
                     f"tactile_background/{name}: expected shape {self.tactile[name].shape[1:]} like its "
                     f"tactile frames, got {bg.shape}"
                 )
+        if not isinstance(self.sim, (bool, np.bool_)):  # bool("false") is True
+            raise ValueError(f"sim: expected True or False, got {self.sim!r}")
         self.sim = bool(self.sim)
         if not isinstance(self.attrs, dict):
             raise ValueError(f"attrs: expected a dict, got {type(self.attrs).__name__}")

@@ -56,9 +56,12 @@ def check_residuals(x, name: str, model_hw: tuple[int, int]) -> np.ndarray:
 def check_forces(f, n: int, name: str) -> np.ndarray:
     """Finite forces (n, 3) [Fx, Fy, Fz] N (numpy, torch or nested lists) -> float64 (n, 3); else ValueError."""
     try:
-        f = np.asarray(f.detach().cpu() if isinstance(f, torch.Tensor) else f, dtype=np.float64)
+        raw = np.asarray(f.detach().cpu() if isinstance(f, torch.Tensor) else f)
     except (TypeError, ValueError) as e:
         raise ValueError(f"{name} must be a float array (B, 3) in N, got {f!r}") from e
+    if raw.dtype.kind not in "fiu":  # never a bool, a string or a complex number read as newtons
+        raise ValueError(f"{name} must be real numbers (B, 3) in N, got dtype {raw.dtype}")
+    f = raw.astype(np.float64)
     if f.ndim != 2 or f.shape[1] != 3:
         raise ValueError(f"{name} must have shape (B, 3) [Fx, Fy, Fz] in N, got {f.shape}")
     if f.shape[0] != n:
