@@ -408,7 +408,7 @@ def report(results: dict, proto: Protocol, seeds, runs: Path, out: Path | None, 
     units = {u["id"]: u for u in results["units"]}
     results["failed_units"] = [json.loads(f.read_text()) for f in sorted((runs / "failed").glob("*.json"))]
     results["power_statement"] = results["protocol"]["power"]["statement"]
-    results["augment_digests"] = sorted({u["augment_digest"] for u in results["units"]})  # one: same cache bytes
+    results["augment_digests"] = sorted({u["augment_digest"] for u in results["units"]})  # one: the same frames
     results["looks"], results["table"], results["comparisons"], results["policies"] = [], [], [], []
     looks = proto.looks or (Look(len(seeds), 0.05),)
     for k, (look, look_seeds) in enumerate(zip(looks, proto.look_seeds(seeds)), start=1):

@@ -55,7 +55,7 @@ class JsonConfig:
         try:
             return TypeAdapter(cls).validate_python(d)
         except ValidationError as exc:
-            raise FieldErrors(exc) from None
+            raise FieldErrors.of(exc) from None
 
 
 def one_line(exc: BaseException, flags: Mapping[str, str] | None = None) -> str:
@@ -97,14 +97,22 @@ def add_note(exc: BaseException, note: str) -> None:
 
 class FieldErrors(ValueError):
     """A pydantic ValidationError as a ValueError of one line naming the field(s) (``one_line``); ``errors()`` and
-    ``title`` kept, so that a command can still name its flags (``one_line(exc, flags)``)."""
+    ``title`` kept, so that a command can still name its flags (``one_line(exc, flags)``). Picklable: a config
+    refused in a worker process reaches the parent as this line."""
 
-    def __init__(self, exc: ValidationError):
-        super().__init__(one_line(exc))
-        self._errors, self.title = exc.errors(), exc.title
+    def __init__(self, message: str, errors: list, title: str):
+        super().__init__(message)
+        self._errors, self.title = errors, title
+
+    @classmethod
+    def of(cls, exc: ValidationError) -> "FieldErrors":
+        return cls(one_line(exc), exc.errors(include_url=False), exc.title)
 
     def errors(self) -> list:
         return self._errors
+
+    def __reduce__(self):
+        return type(self), (str(self), self._errors, self.title)
 
 
 def one_line_errors(cls):
@@ -117,7 +125,7 @@ def one_line_errors(cls):
         try:
             validate(self, *args, **kwargs)
         except ValidationError as exc:
-            raise FieldErrors(exc) from None
+            raise FieldErrors.of(exc) from None
 
     cls.__init__ = __init__
     return cls

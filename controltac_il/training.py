@@ -204,18 +204,12 @@ def parse_device(device) -> torch.device:
 
 
 def device_problem(name: str) -> str | None:
-    """Why ``name`` cannot be trained on here (one line naming ``--device``), or None."""
+    """Why ``name`` cannot be trained on here (``parse_device``'s line, naming ``--device``), or None."""
     try:
-        device = torch.device(name)
-    except (RuntimeError, TypeError, ValueError):
-        device = None
-    if device is None or device.type not in ("cpu", "cuda"):
-        return f"--device: expected cpu, cuda or cuda:N, got {name!r}"
-    if device.type == "cuda" and not torch.cuda.is_available():
-        return f"--device {name}: no CUDA device is available; use --device cpu"
-    if device.type == "cuda" and (device.index or 0) >= torch.cuda.device_count():
-        return f"--device {name}: this machine has {torch.cuda.device_count()} CUDA device(s)"
-    return None
+        device = parse_device(name)
+    except ValueError as exc:
+        return f"--{exc}"
+    return None if device.type in ("cpu", "cuda") else f"--device: expected cpu, cuda or cuda:N, got {name!r}"
 
 
 def device_name(device: str | torch.device) -> str:

@@ -30,7 +30,7 @@ import yaml
 from pydantic import Field, TypeAdapter, ValidationError, field_validator, model_validator
 from pydantic.dataclasses import dataclass as pydantic_dataclass
 
-from controltac_il.config import STRICT, one_line
+from controltac_il.config import STRICT, FieldErrors, one_line
 from hardware.control_loop import ControlLoopConfig, LoopTiming
 from hardware.fields import Problems, Str
 from hardware.sections import (ARM_MODELS, MODELS_OF, ArmModel, CameraConfig, GripperConfig,  # noqa: F401 - re-exported
@@ -223,7 +223,7 @@ def loop_config(cfg: SetupConfig, chunk_size: int, ensemble_k: float) -> Control
     ``control.query_every`` in sync mode) when the setup's timing does not fit the policy's chunk. Deployment calls it before anything connects."""
     try:
         return ControlLoopConfig.for_policy(cfg.control, chunk_size, ensemble_k)
-    except ValidationError as exc:
+    except (ValidationError, FieldErrors) as exc:
         names = {f.name: f"control.{f.name}" for f in fields(ControlLoopConfig)}
         raise ConfigError(f"{cfg.source}: {one_line(exc, names)}") from None
 

@@ -34,7 +34,7 @@ import numpy as np
 from pydantic import Field, model_validator
 from pydantic.dataclasses import dataclass as pydantic_dataclass
 
-from controltac_il.config import STRICT, add_note
+from controltac_il.config import STRICT, add_note, one_line_errors
 from controltac_il.streams import LOOP, LOOP_STATE, background_key, image_key, tactile_key
 from hardware.fields import Float, Int, Problems
 from hardware.interfaces import (ACTION_DIM, GRIPPER, POSE_DIM, YAW, Arm, ArmState, Clock, FrameSource, Gripper,
@@ -58,6 +58,7 @@ class Policy(Protocol):
     def __call__(self, observation: dict[str, np.ndarray]) -> np.ndarray: ...
 
 
+@one_line_errors
 @pydantic_dataclass(frozen=True, config=STRICT)
 class LoopTiming:
     """The loop's timing and inference settings, what a setup file states (its ``control`` section); validated at
@@ -87,6 +88,7 @@ class LoopTiming:
         return 1.0 / self.rate_hz
 
 
+@one_line_errors
 @pydantic_dataclass(frozen=True, config=STRICT)
 class ControlLoopConfig(LoopTiming):
     """Everything :class:`ControlLoop` runs on: :class:`LoopTiming` plus what the policy owns.

@@ -82,7 +82,7 @@ def test_sensor_without_background_uses_the_checkpoint_one_or_fails_clearly():
 
 
 def test_an_observation_with_a_non_finite_qpos_or_a_float_background_is_refused_naming_the_key():
-    """NaN in qpos made every action NaN; a float background in [0, 1] gave finite but wrong actions."""
+    """NaN in qpos would make every action NaN; a float background in [0, 1] finite but wrong actions."""
     from controltac_il.streams import LOOP, LOOP_STATE, background_key, image_key, tactile_key
 
     policy = _policy()

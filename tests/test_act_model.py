@@ -146,7 +146,7 @@ def test_checkpoint_round_trip(tmp_path):
     loaded, backgrounds, meta = load_checkpoint(tmp_path / "ckpt")
     assert meta == {"step": 1} and loaded.config == model.config
     for device, says in (("gpu", "expected a torch device"), (f"cuda:{torch.cuda.device_count()}", "CUDA device")):
-        with pytest.raises(ValueError, match=f"^device: .*{says}"):  # torch's own errors were tracebacks
+        with pytest.raises(ValueError, match=f"^device: .*{says}"):  # torch's own errors are tracebacks
             load_checkpoint(tmp_path / "ckpt", device=device)
     assert all(np.array_equal(backgrounds[s], bg[s]) for s in bg)
     assert torch.equal(loaded.predict(batch), model.predict(batch))

@@ -86,21 +86,38 @@ def test_train_config_validation():
         ACTTrainConfig(batch_size=-1)
 
 
-def test_every_model_and_training_config_refuses_a_bad_field_in_one_line_naming_it():
+def test_every_model_training_and_loop_config_refuses_a_bad_field_in_one_line_naming_it():
     """What a script gets from the Python API, as a command prints it: not pydantic's four-line ValidationError."""
+    from controltac_il.app.job_config import PipelineConfig
+    from controltac_il.app.press_record import PressPlan
     from controltac_il.estimators import EstimatorConfig, EstimatorTrainConfig
-    from controltac_il.generator import DiTConfig, GeneratorConfig
-    from controltac_il.generator.training.config import GeneratorTrainConfig
+    from controltac_il.generator import AutoencoderConfig, DiffusionConfig, DiTConfig, GeneratorConfig
+    from controltac_il.generator.config import PoseAdapterConfig
+    from controltac_il.generator.training.config import GeneratorTrainConfig, PoseTrainConfig
+    from hardware.control_loop import ControlLoopConfig, LoopTiming
 
     for make, field in ((lambda: ACTConfig.from_preset("cpu", chunk_size=0), "chunk_size"),
                         (lambda: ACTConfig.from_dict({**tiny_config().to_dict(), "dim_model": "big"}), "dim_model"),
                         (lambda: ACTTrainConfig(lr=-1.0), "lr"), (lambda: EstimatorConfig(hidden=0), "hidden"),
+                        (lambda: EstimatorConfig.from_dict({"hidden": 0}), "hidden"),
                         (lambda: EstimatorTrainConfig(batch_size=0), "batch_size"), (lambda: DiTConfig(depth=0), "depth"),
+                        (lambda: AutoencoderConfig(latent_channels=0), "latent_channels"),
+                        (lambda: DiffusionConfig(default_steps=0), "default_steps"),
+                        (lambda: PoseAdapterConfig(head_width=0), "head_width"),
                         (lambda: GeneratorConfig(image_size=(0, 0)), "image_size"),
-                        (lambda: GeneratorTrainConfig(data="d", out="o", batch_size=0), "batch_size")):
+                        (lambda: GeneratorTrainConfig(data="d", out="o", batch_size=0), "batch_size"),
+                        (lambda: PoseTrainConfig(out="o", steps=0), "steps"), (lambda: LoopTiming(rate_hz=0), "rate_hz"),
+                        (lambda: ControlLoopConfig(chunk_size=0), "chunk_size"),
+                        (lambda: PipelineConfig(demos=0), "demos"), (lambda: PressPlan(presses=0), "presses")):
         with pytest.raises(ValueError) as info:
             make()
-        assert str(info.value).startswith(field) and "\n" not in str(info.value)
+        assert str(info.value).startswith(field) and "\n" not in str(info.value), str(info.value)
+    import pickle
+
+    from controltac_il.config import one_line
+
+    again = pickle.loads(pickle.dumps(info.value))  # a config refused in a worker process reaches the parent whole
+    assert str(again) == str(info.value) and one_line(again, {"presses": "--presses"}).startswith("--presses: ")
 
 
 def write_tiny_episodes(root: Path, n: int = 3, T: int = 10, cameras=("third_view", "wrist"),

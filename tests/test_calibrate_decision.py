@@ -62,8 +62,8 @@ def test_a_constant_without_error_leaves_no_ratio_and_declines_with_valid_json()
     assert not d["use"] and d["ratio_to_constant"] is None and d["interval"] is None
     assert d["why"].startswith("estimator declined: the constant's held-out Fz MAE is 0 N")
     assert held_out_mae(np.full(9, 5.3), fz, 5.0)["ratio_to_constant"] is None
-    for pred, labels in ((np.zeros(0), np.zeros(0)), (np.full(9, 5.3), fz[:, None])):  # no frame; labels (N, 1)
-        with pytest.raises(ValueError, match="must be one per frame, at least one"):
+    for pred, labels in ((np.zeros(0), np.zeros(0)), (np.full(9, 5.3), fz[:, None]), (np.float64(5.3), 5.0)):
+        with pytest.raises(ValueError, match=r"one Fz per held-out frame \(N,\) each, N >= 1"):  # none; (N, 1); 0-d
             held_out_mae(pred, labels, 5.0)
     json.dumps({"rows": out, "decision": d}, allow_nan=False)
     assert grasp_table(out).splitlines()[2] == "| 0 | 3 | 0.30 | 0.00 | – (worse) |"

@@ -54,7 +54,7 @@ def test_bad_input_is_rejected_with_clear_error(est, bad, match):
 
 
 def test_raw_sensor_frames_are_warned_about_and_residuals_are_not(est):
-    """A raw frame without contact read 17-20 N: the warning names the fix; the frame's residual passes quietly."""
+    """A raw frame without contact reads 17-20 N: the warning names the fix; the frame's residual passes quietly."""
     import warnings
 
     from controltac_il.tactile import SensorSpec, TactileSensor
@@ -228,7 +228,7 @@ def test_saving_never_replaces_a_file_or_folder_of_the_users(est, tmp_path):
     (lambda est, x: est.predict(x, batch_size=0), "^batch_size must be an int >= 1, got 0$"),
     (lambda est, x: est.predict(x, batch_size=2.5), "^batch_size must be an int >= 1, got 2.5$"),
     (lambda est, x: ForceEstimator(est.config, device="gpu"), "^device: expected a torch device such as cpu"),
-    # a CUDA device this machine lacks (every one, without CUDA): torch's AssertionError was a traceback
+    # a CUDA device this machine lacks (every one, without CUDA): torch's AssertionError is a traceback
     (lambda est, x: ForceEstimator(est.config, device=f"cuda:{torch.cuda.device_count()}"),
      r"^device: 'cuda:\d+', but this machine has \d+ CUDA device\(s\); use cpu$"),
 ])

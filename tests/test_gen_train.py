@@ -150,7 +150,7 @@ def _exit(argv) -> int:
     (["--device", "abacus"], "--device"), (["--device", "mps"], "--device"),
     (["--autoencoder-from", "no_such_ae"], "--autoencoder-from no_such_ae: no such checkpoint folder"),
     (["--denoiser-from", "no_such_run"], "--denoiser-from no_such_run: no such checkpoint folder"),
-    pytest.param(["--device", "cuda"], "no CUDA device", marks=pytest.mark.skipif(
+    pytest.param(["--device", "cuda"], "--device: 'cuda', but this machine has 0 CUDA device(s)", marks=pytest.mark.skipif(
         __import__("torch").cuda.is_available(), reason="this machine has CUDA: the refusal is for machines without")),
 ])
 def test_bad_training_arguments_are_one_line_naming_the_flag(dataset, tmp_path, capsys, flags, named):

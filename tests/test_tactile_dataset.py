@@ -174,6 +174,7 @@ def test_command_line_writes_the_same_bytes_as_the_call(tmp_path, capsys):
     (["--size", "99999", "133332"], "--size H W must be ints in [8, 2048]"),  # else a 40 GB allocation
     (["--shear-max", "nan"], "--shear-max"),
     (["--shear-max", "-1"], "--shear-max"),
+    (["--shear-max", "80"], "--shear-max must be a finite number in [0, 60] N"),
     (["--seed", "-1"], "--seed"),
     (["--optics", "raytrace"], "--optics"),
     (["--procedural", "-2"], "--procedural"),
@@ -195,6 +196,8 @@ def test_command_line_refuses_bad_arguments_by_name(tmp_path, capsys, argv, flag
     (dict(shear_max=float("nan")), "shear_max"),
     (dict(seed=-1), "seed"),
     (dict(fz_range=(1.0, float("inf"))), "fz_range"),
+    # beyond the sensor model's ±60 N: refused before rendering, not by the first press that reaches it
+    (dict(fz_range=(1.0, 80.0)), r"^fz_range must be .* <= 60 N"), (dict(shear_max=80.0), r"^shear_max .*\[0, 60\] N"),
     (dict(forces_per_pose=0), "forces_per_pose"),
     (dict(workers=0), "workers"),
 ])

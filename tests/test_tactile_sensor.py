@@ -158,7 +158,7 @@ def test_bad_object_pose_image_and_spec_are_rejected(quiet_sensor):
         quiet_sensor.render_penetration(np.zeros((10, 10)))
     with pytest.raises(ValueError, match="penetration_mm must be finite"):
         quiet_sensor.render_penetration(np.full((120, 160), -1.0))
-    with pytest.raises(ValueError, match="within ±60 N"):  # a shear of 1e38 N made every height NaN
+    with pytest.raises(ValueError, match="within ±60 N"):  # a shear of 1e38 N would make every height NaN
         quiet_sensor.render_penetration(np.zeros((120, 160)), shear=(1e38, 0.0))
     with pytest.raises(ValueError, match="foundation_modulus"):
         SensorSpec(foundation_modulus=0.0)

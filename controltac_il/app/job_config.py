@@ -8,9 +8,10 @@ from typing import Annotated
 from pydantic import Field
 from pydantic.dataclasses import dataclass
 
-from controltac_il.config import STRICT
+from controltac_il.config import STRICT, one_line_errors
 
 
+@one_line_errors
 @dataclass(config=STRICT)
 class PipelineConfig:
     """The main job's sizes (defaults: the embedded default, < 15 min on 2 cores); validated at construction

@@ -33,7 +33,7 @@ import numpy as np
 from pydantic import Field, model_validator
 from pydantic.dataclasses import dataclass
 
-from controltac_il.config import STRICT, add_note
+from controltac_il.config import STRICT, add_note, one_line_errors
 from controltac_il.generator.forces import VALIDATED_RANGE
 from controltac_il.io import atomic_dir, write_json
 from controltac_il.streams import LOOP, LOOP_STATE, tactile_key
@@ -53,6 +53,7 @@ class ForceLimitExceeded(HardwareError):
     """The force read past the plan's ``fz_abort`` while pressing."""
 
 
+@one_line_errors
 @dataclass(frozen=True, config=STRICT)
 class PressPlan:
     """What the presses do; validated at construction (ValueError naming the field).

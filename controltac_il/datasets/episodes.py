@@ -131,8 +131,8 @@ def write_episode(path: str | os.PathLike, episode: Episode, compression: str | 
                   overwrite: bool = False) -> Path:
     """Write ``episode`` to ``path`` in the extended ACT layout, atomically; returns the path.
 
-    Images are chunked one frame per chunk (fast random frame reads); ``compression`` (e.g. "gzip",
-    "lzf") applies to image datasets only, default none (fastest reads). An existing ``path`` is refused
+    Images are chunked one frame per chunk (fast random frame reads); ``compression`` (None, "gzip" or "lzf":
+    COMPRESSIONS) applies to image datasets only, default none (fastest reads). An existing ``path`` is refused
     (ValueError) unless ``overwrite``, as is anything a reader would refuse (NaN, force labels in mN or pulling).
     """
     if not isinstance(episode, Episode):

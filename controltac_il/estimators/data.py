@@ -60,7 +60,7 @@ def native_no_contact(ds, n: int, size: tuple[int, int] | None = None, seed: int
 
 def no_contact_residuals(n: int, height: int, width: int, noise_std: float, seed: int = 0) -> np.ndarray:
     """``n`` residuals uint8 (n, H, W, 3) of frames without contact: 127 + Gaussian noise of ``noise_std``."""
-    if n < 0 or not (np.isfinite(noise_std) and noise_std >= 0):  # NaN gave blank frames, inf frames of 0 and 255
+    if n < 0 or not (np.isfinite(noise_std) and noise_std >= 0):  # NaN would give blank frames, inf frames of 0 and 255
         raise ValueError(f"no_contact_residuals needs n >= 0 and noise_std >= 0, got n={n}, noise_std={noise_std}")
     rng = np.random.default_rng(seed)
     noise = rng.normal(OFFSET, noise_std, size=(n, height, width, 3))

@@ -26,8 +26,9 @@ MODEL_NAME = "controltac-il force estimator (compact CNN: tactile residual -> [F
 def validate_residuals(residuals, name: str = "residuals") -> np.ndarray:
     """Check a batch of residual images and return it as a numpy array (N, H, W, 3).
 
-    Accepts uint8, or floats holding 0-255 values (finite); anything else raises ValueError
-    naming ``name`` and the expected form.
+    Accepts uint8, or floats holding 0-255 values (finite, not all within [0, 1]); anything else raises
+    ValueError naming ``name`` and the expected form. Frames that look like raw sensor frames, not residuals,
+    are warned about (``_warn_if_raw``).
     """
     if isinstance(residuals, torch.Tensor):
         residuals = as_array(residuals)
@@ -70,7 +71,7 @@ def _warn_if_raw(residuals: np.ndarray, name: str) -> None:
     if raw > len(frames) / 2:
         warnings.warn(f"{name}: {raw} of {len(frames)} frames sampled look like raw sensor frames, not residuals "
                       f"(median pixel {float(np.median(offset)):.0f} grey levels from 127); pass "
-                      "to_residual(frames, background)", stacklevel=3)
+                      "to_residual(frames, background)", stacklevel=4)  # the caller of predict
 
 
 def preprocess(residuals: np.ndarray | torch.Tensor, config: EstimatorConfig) -> torch.Tensor:

@@ -70,9 +70,8 @@ def held_out_mae(pred: np.ndarray, fz: np.ndarray, constant) -> dict:
     held-out labels ``fz`` (N,), their ratio (None where the constant's MAE is 0) and the correlation; the numbers
     ``calibrate`` reports."""
     pred, fz = np.asarray(pred, np.float64), np.asarray(fz, np.float64)
-    if not len(fz) or pred.shape != fz.shape:
-        raise ValueError(f"held-out MAE: predictions {pred.shape} and labels {fz.shape} must be one per frame, at "
-                         "least one")
+    if fz.ndim != 1 or not fz.size or pred.shape != fz.shape:
+        raise ValueError(f"pred {pred.shape} and fz {fz.shape}: one Fz per held-out frame (N,) each, N >= 1")
     mae, base = float(np.abs(pred - fz).mean()), float(np.abs(constant - fz).mean())
     corr = float(np.corrcoef(pred, fz)[0, 1]) if np.std(pred) > 0 and np.std(fz) > 0 else None
     return {"mae_n": mae, "constant_mae_n": base, "ratio_to_constant": mae / base if base > 0 else None, "corr": corr,

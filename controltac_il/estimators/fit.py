@@ -58,7 +58,7 @@ def _load_state(path: Path | None, est: ForceEstimator, opt: torch.optim.Optimiz
 
 def _checked(residuals: np.ndarray, forces: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray]:
     """Validated residuals uint8 (N, H, W, 3) and forces float32 (N, 3) N; ValueError naming ``what``."""
-    residuals = validate_residuals(residuals)
+    residuals = validate_residuals(residuals, "val residuals" if what.startswith("val") else "residuals")
     forces = np.asarray(forces, dtype=np.float32)
     if forces.ndim != 2 or forces.shape[1] != 3 or len(forces) != len(residuals):
         raise ValueError(f"{what} must have shape (N, 3) matching residuals (N={len(residuals)}), got {forces.shape}")

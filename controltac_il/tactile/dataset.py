@@ -113,11 +113,12 @@ def _check_write_args(objects: tuple, poses_per_object, forces_per_pose, seed, f
         lo, hi = (float(v) for v in fz_range)
     except (TypeError, ValueError):
         lo = hi = float("nan")
-    if not (np.isfinite([lo, hi]).all() and 0 <= lo < hi):
-        raise ValueError(f"fz_range must be (low, high) finite with 0 <= low < high N, got {fz_range!r}")
+    if not (np.isfinite([lo, hi]).all() and 0 <= lo < hi <= MAX_PLAUSIBLE_FORCE_N):
+        raise ValueError(f"fz_range must be (low, high) finite with 0 <= low < high <= {MAX_PLAUSIBLE_FORCE_N:g} N, "
+                         f"got {fz_range!r}")
     if not (isinstance(shear_max, numbers.Real) and not isinstance(shear_max, bool) and np.isfinite(shear_max)
-            and shear_max >= 0):
-        raise ValueError(f"shear_max must be a finite number >= 0 N, got {shear_max!r}")
+            and 0 <= shear_max <= MAX_PLAUSIBLE_FORCE_N):
+        raise ValueError(f"shear_max must be a finite number in [0, {MAX_PLAUSIBLE_FORCE_N:g}] N, got {shear_max!r}")
     if sensors is not None and not (sensors in FAMILIES and is_int(instances) and instances >= 1):
         raise ValueError(f"sensors must be None or one of {FAMILIES} with instances >= 1, got {sensors!r}, {instances!r}")
 
@@ -383,7 +384,7 @@ def _parser() -> ArgumentParser:
     p.add_argument("--fz-range", type=float, nargs=2, metavar=("LOW", "HIGH"), default=d["fz_range"],
                    help="normal force range in N, 0 <= LOW < HIGH, drawn uniformly (default {} {})".format(*d["fz_range"]))
     p.add_argument("--shear-max", type=float, default=d["shear_max"],
-                   help=f"|Fx|, |Fy| bound in N, >= 0 (default {d['shear_max']})")
+                   help=f"|Fx|, |Fy| bound in N, in [0, {MAX_PLAUSIBLE_FORCE_N:g}] (default {d['shear_max']})")
     p.add_argument("--workers", type=int, default=d["workers"],
                    help="processes rendering whole objects at once; the files are the same for any number "
                         f"(default {d['workers']})")
@@ -419,8 +420,8 @@ def main(argv=None) -> Path:
     if not (np.isfinite([lo, hi]).all() and 0 <= lo < hi <= MAX_PLAUSIBLE_FORCE_N):
         p.error(f"--fz-range LOW HIGH must be finite newtons with 0 <= LOW < HIGH <= {MAX_PLAUSIBLE_FORCE_N:g} "
                 f"(a GelSight Mini is rated to about 25 N), got {lo:g} {hi:g}")
-    if not (np.isfinite(a.shear_max) and a.shear_max >= 0):
-        p.error(f"--shear-max must be a finite number >= 0 N, got {a.shear_max:g}")
+    if not (np.isfinite(a.shear_max) and 0 <= a.shear_max <= MAX_PLAUSIBLE_FORCE_N):
+        p.error(f"--shear-max must be a finite number in [0, {MAX_PLAUSIBLE_FORCE_N:g}] N, got {a.shear_max:g}")
     spec = SensorSpec.gelsight_mini()
     if a.size is not None:
         try:

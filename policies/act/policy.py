@@ -56,7 +56,7 @@ class ACTPolicy:
                              f"{qpos.dtype} {qpos.shape}: {qpos.tolist()}")
         images = {key: np.asarray(observation[key]) for key in self._image_keys()}
         images.update({background_key(s, LOOP): self._background(observation, s) for s in cfg.tactile_names})
-        for key, img in images.items():  # a float background in [0, 1] gave finite but wrong actions
+        for key, img in images.items():  # a float background in [0, 1] would give finite but wrong actions
             if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
                 raise ValueError(f"observation[{key!r}] must be uint8 (H, W, 3), got {img.dtype} {img.shape}")
 
