@@ -1,6 +1,9 @@
-"""Tensors and array-likes as NumPy arrays: the one conversion every input check starts from."""
+"""Tensors and array-likes as NumPy arrays: the one conversion every input check starts from; and a dataset's
+item index."""
 
 from __future__ import annotations
+
+import operator
 
 import numpy as np
 import torch
@@ -13,3 +16,14 @@ def as_array(value) -> np.ndarray:
         return np.asarray(value)
     value = value.detach().cpu()
     return (value.float() if value.dtype == torch.bfloat16 else value).numpy()
+
+
+def as_index(index, dataset: str) -> int:
+    """A dataset's item index as an int: an int, a NumPy int or a 0-d integer tensor; TypeError naming ``dataset``
+    for anything else (1.7, "3" or True would be another item, silently)."""
+    if isinstance(index, bool):
+        raise TypeError(f"{dataset} indices are ints, got bool")
+    try:
+        return operator.index(index)
+    except TypeError:
+        raise TypeError(f"{dataset} indices are ints, got {type(index).__name__}") from None

@@ -79,6 +79,10 @@ def test_items_and_padded_chunks(folder, tmp_path):
     assert ds[-1]["frame_index"] == 3
     with pytest.raises(IndexError):
         ds[13]
+    assert ds[np.int64(9)]["frame_index"] == 0
+    for bad in (1.7, "3", True):  # each would be another item, silently
+        with pytest.raises(TypeError, match=f"^EpisodeDataset indices are ints, got {type(bad).__name__}$"):
+            ds[bad]
     ep_idx, fr_idx = ds.frame_table()
     assert ep_idx.tolist() == [0] * 9 + [1] * 4 and fr_idx.tolist() == list(range(9)) + list(range(4))
 

@@ -193,6 +193,8 @@ def test_items_follow_lerobot_conventions(folder):
     assert item["task"] == TASKS[0] and ds[-1]["task"] == TASKS[1]
     with pytest.raises(IndexError):
         ds[len(ds)]
+    with pytest.raises(TypeError, match="^LeRobotFolder indices are ints, got float$"):
+        ds[1.7]
 
 
 def test_windows_repeat_the_episode_edges_and_mark_them(folder):

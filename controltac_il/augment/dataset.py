@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import operator
 import os
 import sys
 import time
@@ -15,6 +14,8 @@ from pathlib import Path
 import numpy as np
 from torch.utils.data import Dataset
 from tqdm import tqdm
+
+from controltac_il.arrays import as_index
 from controltac_il.cli import tty_only
 
 from controltac_il.augment import items as adapters
@@ -174,10 +175,7 @@ class ForceAugment(Dataset):
 
     def __getitem__(self, index: int) -> dict:
         n = len(self)
-        try:
-            index = operator.index(index)  # an int, a numpy int or a 0-d integer tensor
-        except TypeError:
-            raise TypeError(f"ForceAugment indices are ints, got {type(index).__name__}") from None
+        index = as_index(index, "ForceAugment")
         if not -n <= index < n:
             raise IndexError(f"index {index} out of range for {n} items")
         copy, base = divmod(int(index) % n, self.n_base)

@@ -31,6 +31,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset, Subset
 
+from controltac_il.arrays import as_index
 from controltac_il.config import is_int
 from controltac_il.datasets.background import estimate_background
 from controltac_il.datasets.checks import (ACTION, QPOS, check_episode, check_same_layout, check_same_streams, layout,
@@ -230,7 +231,7 @@ class EpisodeDataset(Dataset):
 
     def item(self, index: int, skip_keys=()) -> dict:
         """Item ``index``; keys in ``skip_keys`` (e.g. a tactile image about to be replaced) are not read."""
-        n, t = self.locate(int(index))
+        n, t = self.locate(as_index(index, "EpisodeDataset"))
         h = self._handles(n)
         T = int(self.lengths[n])
         stop = min(t + self.chunk_size, T)

@@ -42,6 +42,7 @@ import pyarrow.parquet as pq
 import torch
 from torch.utils.data import Dataset
 
+from controltac_il.arrays import as_index
 from controltac_il.config import is_int, is_real
 from controltac_il.lerobot.video import TOLERANCE_S, VideoFrames
 
@@ -451,10 +452,10 @@ class LeRobotFolder(Dataset):
         return frames[0] if len(rows) == 1 else frames
 
     def __getitem__(self, index) -> dict:
-        n = len(self)
-        if not -n <= int(index) < n:
+        n, index = len(self), as_index(index, "LeRobotFolder")
+        if not -n <= index < n:
             raise IndexError(f"index {index} out of range for {n} frames")
-        i = int(index) % n
+        i = index % n
         ep = self.episodes[int(self._episode[i])]
         rows, pads = self._window(i, ep)
         item = {key: self._video(key, ep, rows.get(key, [i])) for key in self.video_keys if key in self.item_keys}
