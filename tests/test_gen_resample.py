@@ -55,6 +55,9 @@ def test_gaussian_taps_match_opencv_with_its_reflect_101_border():
     x[:, 0, :] = 500.0  # a bright edge row: the border rule decides the first rows
     ours = gaussian_blur(torch.from_numpy(x), 2.0, taps=True).numpy()
     np.testing.assert_allclose(ours, np.stack([cv2.GaussianBlur(im, (0, 0), 2.0) for im in x]), atol=1e-3)
+    for sigma, taps in ((0.0, True), (0.0, False), (float("nan"), True)):
+        with pytest.raises(ValueError, match=r"^sigma: expected a finite number of pixels > 0"):
+            gaussian_blur(torch.from_numpy(x), sigma, taps=taps)
 
 
 @pytest.fixture(scope="module")

@@ -123,8 +123,10 @@ def resize(x: torch.Tensor, hw: tuple[int, int], kind: str, taps: bool | None = 
 
 
 def gaussian_blur(x: torch.Tensor, sigma: float, taps: bool | None = None) -> torch.Tensor:
-    """float32 (B, H, W) blurred by a Gaussian of ``sigma`` px, as ``cv2.GaussianBlur(image, (0, 0), sigma)``;
-    ``taps`` as ``resize``."""
+    """float32 (B, H, W) blurred by a Gaussian of ``sigma`` px (finite, > 0), as ``cv2.GaussianBlur(image, (0, 0),
+    sigma)``; ``taps`` as ``resize``. ValueError for another sigma (0 would give NaN taps, or an OpenCV assertion)."""
+    if not (np.isfinite(sigma) and sigma > 0):
+        raise ValueError(f"sigma: expected a finite number of pixels > 0, got {sigma!r}")
     if not (x.device.type != "cpu" if taps is None else taps):
         return _opencv(x, lambda im: cv2.GaussianBlur(im, (0, 0), sigma))
     device = str(x.device)
