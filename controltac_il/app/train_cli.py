@@ -38,6 +38,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "(default: cameras named gelsight / tactile / digit)")
     p.add_argument("--force-keys", nargs="+", default=None, metavar="TACTILE_KEY=FORCE_KEY",
                    help="LeRobot folder: the force label of each tactile camera (default: observation.<camera>.force)")
+    p.add_argument("--background-image", nargs="+", default=None, metavar="TACTILE_KEY=PNG",
+                   help="LeRobot folder: the no-contact image of a tactile camera at rest (an RGB PNG at its frames' "
+                        "size), its background in every episode and in the checkpoint (default: estimated per "
+                        "episode from the episode's frames, which needs episodes that start out of contact)")
     p.add_argument("--out", type=Path, default=Path("runs/act"), help="output folder (default: runs/act)")
     p.add_argument("--preset", choices=("cpu", "gpu"), default="cpu",
                    help="cpu: small CNN, dim 128 (minutes on 2 cores); gpu: ResNet-18, dim 512 (the paper's ACT) "
@@ -85,6 +89,7 @@ def check_args(args: argparse.Namespace):
     """The run's ACTTrainConfig; ValueError (one line naming the flag and the expected form) for a bad option."""
     from controltac_il.config import one_line
     from controltac_il.app import ACTTrainConfig
+    from controltac_il.datasets.background import read_background_image
 
     if args.resume and args.overwrite:
         raise ValueError("--resume and --overwrite exclude each other: continue the run in --out, or replace it")
@@ -105,10 +110,16 @@ def check_args(args: argparse.Namespace):
         raise ValueError(f"--copies must be in 1..9 (ForceAugment copies per episode), got {args.copies}")
     if args.dataset is not None and not args.dataset.is_dir():
         raise ValueError(f"--dataset {args.dataset}: episode folder not found")
-    if args.force_keys is not None and not all("=" in x and all(x.split("=", 1)) for x in args.force_keys):
-        raise ValueError(f"--force-keys: expected TACTILE_KEY=FORCE_KEY pairs, got {' '.join(args.force_keys)}")
-    if (args.tactile_keys or args.force_keys) and not (args.dataset and (args.dataset / "meta" / "info.json").is_file()):
-        raise ValueError("--tactile-keys / --force-keys: only with a LeRobot v3.0 --dataset (a folder with meta/info.json)")
+    for flag, pairs, form in (("--force-keys", args.force_keys, "TACTILE_KEY=FORCE_KEY"),
+                              ("--background-image", args.background_image, "TACTILE_KEY=PNG")):
+        if pairs is not None and not all("=" in x and all(x.split("=", 1)) for x in pairs):
+            raise ValueError(f"{flag}: expected {form} pairs, got {' '.join(pairs)}")
+    if (args.tactile_keys or args.force_keys or args.background_image) and not (
+            args.dataset and (args.dataset / "meta" / "info.json").is_file()):
+        raise ValueError("--tactile-keys / --force-keys / --background-image: only with a LeRobot v3.0 --dataset (a "
+                         "folder with meta/info.json; ACT episodes hold their own /observations/tactile_background)")
+    for pair in args.background_image or ():
+        read_background_image(pair.split("=", 1)[1], field="--background-image")  # before any slow work
     try:
         return ACTTrainConfig(steps=args.steps, batch_size=args.batch_size, val_every=args.val_every,
                            save_every=args.checkpoint_every, num_workers=args.workers, seed=args.seed)
@@ -145,11 +156,13 @@ def run(args: argparse.Namespace, train_config=None) -> dict:
 
 
 def lerobot_keys(args: argparse.Namespace) -> dict | None:
-    """--tactile-keys / --force-keys as LeRobotEpisodes' arguments (None: its defaults)."""
+    """--tactile-keys / --force-keys / --background-image as LeRobotEpisodes' arguments (None: its defaults)."""
     keys = {}
     if args.tactile_keys:
         keys["tactile_keys"] = list(args.tactile_keys)
     if args.force_keys:
         keys["force_keys"] = dict(x.split("=", 1) for x in args.force_keys)
+    if args.background_image:
+        keys["background_images"] = dict(x.split("=", 1) for x in args.background_image)
     return keys or None
 

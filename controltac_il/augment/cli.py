@@ -22,6 +22,9 @@ if TYPE_CHECKING:  # the job's modules (torch, h5py) are imported inside it: --h
     from controltac_il.augment.dataset import ForceAugment
 
 PROG = "python -m controltac_il.augment"
+# settings given as KEY=VALUE pairs: their flag and its form
+MAP_FLAGS = {"force_keys": ("--force-keys", "TACTILE_KEY=FORCE_KEY"), "background_images": ("--background-image",
+                                                                                         "TACTILE_KEY=PNG")}
 
 
 class UsageError(ValueError):
@@ -82,6 +85,11 @@ def parser() -> argparse.ArgumentParser:
                    help="the force label [Fx, Fy, Fz] N of each tactile key, e.g. observation.images.gelsight_left="
                         "observation.gelsight_left.force (default: observation.<camera>.force where a LeRobot folder "
                         "has it, else our layout's rule; unlabelled keys use the estimator)")
+    p.add_argument("--background-image", nargs="+", default=None, metavar="TACTILE_KEY=PNG",
+                   help="the no-contact image of a tactile sensor at rest (an RGB PNG at the frames' size, e.g. "
+                        "gelsight_left=rest_left.png), used for every episode: for a LeRobot folder (which records "
+                        "no background) whose episodes start in contact (default: each episode's background "
+                        "estimated from its own no-contact frames)")
     p.add_argument("--out", required=True, type=Path,
                    help="ACT episodes: the cache folder to create or complete. LeRobot: the augmented dataset folder "
                         "to write (new or empty; written under OUT.partial and renamed when complete)")
@@ -157,6 +165,8 @@ def _field_error(exc: Exception, default_flag: str) -> UsageError:
     fields = {f.name for f in dataclasses.fields(ForceAugmentConfig) if f.metadata.get("cli") is not None}
     if m and m[1] in fields:
         return UsageError(_flag(m[1]), m[2])
+    if m and m[1] in MAP_FLAGS:
+        return UsageError(MAP_FLAGS[m[1]][0], m[2])
     if m and m[1] in ("dataset", "root"):
         return UsageError("--dataset", m[2])
     if m and m[1] == "out":
@@ -187,8 +197,7 @@ def _setup(args) -> ForceAugment:
         what = "does not exist" if not args.dataset.exists() else "is not a folder"
         raise UsageError("--dataset", f"expected a folder of episode_<i>.hdf5 files or a LeRobot v3.0 folder; "
                                       f"{args.dataset} {what}")
-    if args.force_keys is not None:
-        kwargs["force_keys"] = _force_keys(args.force_keys)
+    kwargs.update(_pairs(args))
     lerobot = args.lerobot = (args.dataset / "meta" / "info.json").is_file()
     lerobot_only = [f for f, given in (("--video-round-trip", args.video_round_trip),
                                        ("--export-workers", args.export_workers is not None)) if given]
@@ -257,10 +266,17 @@ def load_models(args, pose: bool):
     return generator, estimator
 
 
-def _force_keys(pairs: list[str]) -> dict[str, str]:
-    if not all("=" in x and all(x.split("=", 1)) for x in pairs):
-        raise UsageError("--force-keys", f"expected TACTILE_KEY=FORCE_KEY pairs, got {' '.join(pairs)}")
-    return dict(x.split("=", 1) for x in pairs)
+def _pairs(args) -> dict[str, dict[str, str]]:
+    """{setting: {key: value}} of the ``KEY=VALUE`` flags given (MAP_FLAGS); UsageError naming the flag for another
+    form."""
+    out = {}
+    for name, (flag, form) in MAP_FLAGS.items():
+        pairs = getattr(args, flag[2:].replace("-", "_"))
+        if pairs is not None and not all("=" in x and all(x.split("=", 1)) for x in pairs):
+            raise UsageError(flag, f"expected {form} pairs, got {' '.join(pairs)}")
+        if pairs is not None:
+            out[name] = dict(x.split("=", 1) for x in pairs)
+    return out
 
 
 def _lerobot_defaults(root: Path, kwargs: dict) -> None:

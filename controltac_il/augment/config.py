@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from dataclasses import field
 
 import numpy as np
@@ -142,6 +143,11 @@ class ForceAugmentConfig:
         None, "{tactile key: item key of its no-contact background image, or None}; keys left out follow the rule "
               "observation.tactile.<s> -> observation.tactile_background.<s>; none: estimated per episode from "
               "the episode's own frames", flag=False)
+    background_images: dict | None = _setting(
+        None, "{tactile key (or its sensor name): path of an 8-bit RGB image (PNG) of that sensor at rest, no "
+              "contact, at the frames' size}; used for every episode in place of the items' background or the "
+              "estimate (for recordings that start in contact, or hold no background: LeRobot folders); the cache "
+              "records each image's pixels' digest", flag=False)
     window_offsets: dict | None = _setting(
         None, "{tactile key: frame offsets of its window positions from the item's frame} for keys holding "
               "(T, C, H, W) windows; default: the dataset's delta_indices, else delta_timestamps x fps", flag=False)
@@ -234,6 +240,16 @@ class ForceAugmentConfig:
     @classmethod
     def _maps(cls, v):
         return _key_map(v)
+
+    @field_validator("background_images", mode="before")
+    @classmethod
+    def _images(cls, v):
+        if v is None:
+            return None
+        if not isinstance(v, dict) or not all(isinstance(k, str) and k and isinstance(p, (str, os.PathLike)) and str(p)
+                                              for k, p in v.items()):
+            raise ValueError("expected a dict {tactile key: image file path}")
+        return {k: os.fspath(p) for k, p in v.items()}
 
     @field_validator("window_offsets", mode="before")
     @classmethod

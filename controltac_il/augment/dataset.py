@@ -51,7 +51,7 @@ class ForceAugment(Dataset):
     a folder with content but no manifest is never used nor written into.
     settings: the ``ForceAugmentConfig`` fields (copies, offset_range, jitter, tactile_keys, mode, cache_dir,
         out_of_range, seed, steps, contact_force, min_contact_area, batch_size, force_keys, background_keys,
-        window_offsets, fps), by name.
+        background_images, window_offsets, fps), by name.
     Online mode on other datasets than ours (or ours without labels) first reads every episode once
     (backgrounds, contact and reference forces computed as the cache writer does, kept for the workers).
     """
@@ -89,7 +89,7 @@ class ForceAugment(Dataset):
             self._online = OnlineGenerator(self.generator, self.config, self.steps, self.keys, self.references)
             per_item = self.config.target_range is None and adapters.episode_source(dataset)[0] is not None and all(
                 self.labelled.values()) and all(
-                self.keys.backgrounds[k] is not None and self.keys.offsets[k] is None for k in self.tactile_keys)
+                self.keys.recorded(k) and self.keys.offsets[k] is None for k in self.tactile_keys)
             if not per_item:  # as the cache writer sees each episode (one background per episode, its estimates)
                 self._online.tables = self._episode_tables()
             return
@@ -139,7 +139,8 @@ class ForceAugment(Dataset):
         cfg = asdict(self.config)
         for k in ("mode", "cache_dir", "batch_size", "window_offsets", "fps"):  # do not change the frames
             cfg.pop(k)
-        cfg.pop("force_keys"), cfg.pop("background_keys")  # recorded below, only where given
+        for k in ("force_keys", "background_keys", "background_images"):  # recorded below, only where given
+            cfg.pop(k)
         cfg["steps"] = self.steps
         cfg["tactile_keys"] = list(self.tactile_keys)
         cfg["generator_hash"] = str(self.generator.checkpoint_hash)

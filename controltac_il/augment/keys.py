@@ -6,6 +6,8 @@ Force labels and backgrounds are looked up only under an explicit mapping (``for
 ``observation.tactile.<s>`` -> ``observation.force.<s>`` / ``observation.tactile_background.<s>``. The rule
 applies only to keys containing "tactile", so it never maps an image to itself; a key found by either way
 must hold a force (3,) N (a background: an image of the tactile image's size), else the set-up is refused.
+A background image given as a file (``background_images=`` {tactile key or sensor name: path}) is used for
+every item in place of either.
 
 A tactile key holding a window (T, C, H, W) (or (T, H, W, C)) needs the frame offset of each position from
 the item's frame: ``window_offsets=`` {key: [offsets]}, else the wrapped dataset's ``delta_indices``, else
@@ -15,12 +17,14 @@ its ``delta_timestamps`` (s) x ``fps`` (``fps=`` or the dataset's ``fps`` / ``me
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import hashlib
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from controltac_il.arrays import as_array
 from controltac_il.augment.items import to_hwc_uint8
+from controltac_il.datasets.background import check_background_size, read_background_image
 from controltac_il.streams import BACKGROUND, FORCE, HDF5, LEROBOT, looks_tactile, rule_key, tactile_key
 
 OFFSET_TOLERANCE = 0.01  # frames: a delta_timestamp must be this close to a whole number of frames
@@ -29,13 +33,16 @@ OFFSET_TOLERANCE = 0.01  # frames: a delta_timestamp must be this close to a who
 @dataclass(frozen=True)
 class KeyMap:
     """tactile_keys (augmented, in order); per tactile key: its force label key, background key (or None)
-    and window offsets (None: single frames); offsets of force label windows by label key."""
+    and window offsets (None: single frames); offsets of force label windows by label key; the background
+    images given as files (``background_images``: {tactile key: uint8 (H, W, 3)}), which take the place of an
+    item's background."""
 
     tactile_keys: tuple[str, ...]
     labels: dict
     backgrounds: dict
     offsets: dict
     label_offsets: dict
+    images: dict = field(default_factory=dict)
 
     def own(self, key: str) -> int | None:
         """Position of the item's own frame (offset 0) in ``key``'s window; None for single frames."""
@@ -59,8 +66,15 @@ class KeyMap:
         return value
 
     def background(self, item: dict, key: str) -> np.ndarray | None:
+        """uint8 (H, W, 3): the given image, else the item's background; None where neither exists."""
+        if key in self.images:
+            return self.images[key]
         bk = self.backgrounds[key]
         return None if bk is None else to_hwc_uint8(item[bk], bk)
+
+    def recorded(self, key: str) -> bool:
+        """Whether ``key``'s background is recorded (a given image or an item key), not estimated."""
+        return key in self.images or self.backgrounds[key] is not None
 
     def positions(self, item: dict, key: str, frame: int) -> list[tuple[int | None, int]]:
         """(position, frame) of every frame ``key`` holds, padded positions left out ((None, frame) alone
@@ -87,12 +101,15 @@ class KeyMap:
         return [p for p, o in enumerate(offsets) if frame + o == target_frame and not pad[p]]
 
     def settings(self, explicit_labels: bool, explicit_backgrounds: bool) -> dict:
-        """What the cache manifest records of the mapping beyond the tactile keys (only what was given)."""
+        """What the cache manifest records of the mapping beyond the tactile keys (only what was given; a given
+        image by its pixels' digest, so that moving the file keeps the cache and editing it does not)."""
         out = {}
         if explicit_labels:
             out["force_keys"] = {k: self.labels[k] for k in self.tactile_keys}
         if explicit_backgrounds:
             out["background_keys"] = {k: self.backgrounds[k] for k in self.tactile_keys}
+        if self.images:
+            out["background_images"] = {k: hashlib.sha256(v.tobytes()).hexdigest()[:16] for k, v in self.images.items()}
         return out
 
 
@@ -159,6 +176,7 @@ def resolve_keys(probe: dict, config, dataset) -> KeyMap:
         extra = sorted(set(getattr(config, name) or {}) - set(tactile))
         if extra:
             raise ValueError(f"{name}: {extra} are not tactile keys; the tactile keys are {list(tactile)}")
+    images = _background_images(probe, config.background_images, tactile)
     labels, backgrounds, offsets, label_offsets = {}, {}, {}, {}
     for k in tactile:
         shape = tuple(probe[k].shape)
@@ -167,14 +185,34 @@ def resolve_keys(probe: dict, config, dataset) -> KeyMap:
         if lk is not None:
             label_offsets.update(_check_label(dataset, probe, k, lk, config))
         bk = _mapped(probe, k, config.background_keys, BACKGROUND, "background_keys", tactile)
+        if bk is not None and k in images:
+            if (config.background_keys or {}).get(k) is not None:
+                raise ValueError(f"background_images: {k!r} also has background_keys {bk!r}; give one background")
+            bk = None  # the image given by name takes the place of the item's own
         if bk is not None:
             _check_background(probe, k, bk, offsets[k] is not None)
+        if k in images:
+            own = to_hwc_uint8(probe[k][0] if offsets[k] is not None else probe[k], k).shape[:2]
+            check_background_size(images[k], own, "background_images", repr(k))
         labels[k], backgrounds[k] = lk, bk
-    km = KeyMap(tactile, labels, backgrounds, offsets, label_offsets)
+    km = KeyMap(tactile, labels, backgrounds, offsets, label_offsets, images)
     for k in tactile:
         km.image(probe, k)
         km.positions(probe, k, 0)
     return km
+
+
+def _background_images(probe: dict, given: dict | None, tactile: tuple) -> dict:
+    """{tactile key: uint8 (H, W, 3)} of ``background_images`` (named by key or sensor name), read and checked."""
+    out = {}
+    for name, path in (given or {}).items():
+        key = next((c for c in (name, tactile_key(name, HDF5), tactile_key(name, LEROBOT)) if c in tactile), None)
+        if key is None:
+            raise ValueError(f"background_images: {name!r} is not a tactile key; the tactile keys are {list(tactile)}")
+        if key in out:
+            raise ValueError(f"background_images: {key!r} is named twice")
+        out[key] = read_background_image(path)
+    return out
 
 
 def _check_background(probe: dict, key: str, bk: str, windowed: bool) -> None:

@@ -173,7 +173,7 @@ class ReferenceForces:
             if bg is None:
                 bg, used = estimate_background(images, labels)
                 warnings.warn(f"items carry no background for {k!r}; background estimated per episode from "
-                              "its own no-contact frames", stacklevel=3)
+                              "its own no-contact frames (background_images= gives a recorded one)", stacklevel=3)
             res = to_residual(images, bg)
             touch = self.in_contact(images, res, labels)
             ref = np.full((len(items), 3), np.nan)

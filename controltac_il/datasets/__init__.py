@@ -4,7 +4,7 @@ training run meets its data through (``stage``)."""
 from controltac_il.lazy import exports
 
 _EXPORTS = {**dict.fromkeys(("EpisodeDataset", "EpisodeSubset"), "controltac_il.datasets.act_dataset"),
-            "estimate_background": "controltac_il.datasets.background",
+            **dict.fromkeys(("estimate_background", "read_background_image"), "controltac_il.datasets.background"),
             **dict.fromkeys(("Episode", "episode_index", "episode_paths", "read_episode", "write_episode"),
                             "controltac_il.datasets.episodes"),
             **dict.fromkeys(("Augmented", "AugmentStage", "FrameTable"), "controltac_il.datasets.stage")}

@@ -1,6 +1,7 @@
-"""Estimate a tactile sensor's no-contact background from an episode's own frames.
+"""A tactile sensor's no-contact background: estimated from an episode's own frames, or read from the image
+file a lab recorded of its sensor at rest (``read_background_image``).
 
-Used where a recording has no ``/observations/tactile_background/<sensor>``. No-contact frames are
+Estimated where a recording has no ``/observations/tactile_background/<sensor>``. No-contact frames are
 those with a labelled normal force below ``no_contact_force`` (N) when labels exist; otherwise (or when
 no label is that low, with a warning) the frames that barely differ from the episode's first frames (a
 demonstration starts before the grasp). The background is the per-pixel median of those frames (median
@@ -10,7 +11,9 @@ removes the sensor noise).
 from __future__ import annotations
 
 import warnings
+from pathlib import Path
 
+import cv2
 import numpy as np
 
 MAX_FRAMES = 64  # frames used for the median (evenly spaced), bounds memory and time
@@ -50,7 +53,7 @@ def estimate_background(
             warnings.warn(f"no frame's force label is below {no_contact_force:g} N (lowest "
                           f"{float(np.nanmin(force[:, 2])):.2f} N): the background is taken from the frames unchanged "
                           "from the episode's start, which hold the contact if it starts in one; record the "
-                          "no-contact background to be sure", stacklevel=2)
+                          "no-contact background to be sure (background_images=, --background-image)", stacklevel=2)
     if len(idle) == 0:
         start = np.median(frames[: min(5, len(frames))], axis=0).astype(np.uint8)
         change = changed_fraction(frames, start)
@@ -61,3 +64,26 @@ def estimate_background(
         idle = idle[np.linspace(0, len(idle) - 1, MAX_FRAMES).round().astype(np.int64)]
     background = np.median(frames[idle], axis=0).round().astype(np.uint8)
     return background, idle
+
+
+def read_background_image(path, field: str = "background_images") -> np.ndarray:
+    """The no-contact image a lab recorded of its sensor at rest (an 8-bit RGB PNG or JPEG file) as uint8
+    (H, W, 3) RGB; ValueError naming ``field`` and the file for a missing, unreadable or non-RGB one."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{field}: {path} is not a file (expected the sensor's no-contact image, a PNG)")
+    image = cv2.imdecode(np.fromfile(path, np.uint8), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise ValueError(f"{field}: {path} is not a readable image file (expected a PNG or JPEG)")
+    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[-1] != 3:
+        channels = image.shape[-1] if image.ndim == 3 else 1
+        raise ValueError(f"{field}: {path} is {image.dtype} with {channels} channel(s); expected an 8-bit RGB image "
+                         "(the tactile camera's own frames)")
+    return np.ascontiguousarray(image[..., ::-1])
+
+
+def check_background_size(image: np.ndarray, frame_hw: tuple, field: str, where: str) -> None:
+    """ValueError naming ``field`` when ``image`` (H, W, 3) is not the size ``frame_hw`` of ``where``'s frames."""
+    if tuple(image.shape[:2]) != tuple(frame_hw):
+        raise ValueError(f"{field}: the image for {where} is {image.shape[1]}x{image.shape[0]} (W x H); its "
+                         f"frames are {frame_hw[1]}x{frame_hw[0]}: record it with the same camera settings")

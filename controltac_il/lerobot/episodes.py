@@ -8,9 +8,10 @@ Per item, from the folder's (``LeRobotFolder``, without LeRobot)::
                                           episode's last action repeated past its end)
     camera observation.images.<c>      -> observation.images.<c>    uint8 (3, H, W)
     tactile camera (``tactile_keys``)  -> observation.tactile.<s>   uint8 (3, H, W), s = the camera's last name
-                                          part, with observation.tactile_background.<s> (estimated per episode
-                                          from its no-contact frames, ``background``) and, where the folder has
-                                          its label (``force_keys``), observation.force.<s> float32 (3,) N
+                                          part, with observation.tactile_background.<s> (``background_images``'
+                                          image, else estimated per episode from its no-contact frames) and, where
+                                          the folder has its label (``force_keys``), observation.force.<s>
+                                          float32 (3,) N
 
 Default tactile keys: the cameras whose name holds "gelsight", "tactile" or "digit"; default force key of
 ``observation.images.<s>``: ``observation.<s>.force`` where the folder has it. ``stats`` (qpos and action
@@ -35,7 +36,7 @@ from tqdm import tqdm
 
 from controltac_il.config import is_int
 from controltac_il.datasets.act_dataset import STD_FLOOR
-from controltac_il.datasets.background import estimate_background
+from controltac_il.datasets.background import check_background_size, estimate_background, read_background_image
 from controltac_il.datasets.checks import check_force_labels
 from controltac_il.lerobot.provenance import COPY
 from controltac_il.lerobot.reader import LeRobotFolder, decode_png, numbers, read_info
@@ -87,9 +88,12 @@ class LeRobotEpisodes(Dataset):
             where none does (the policy would see no touch).
         force_keys: {tactile key: force feature} (default: ``observation.<s>.force`` where present).
         tactile_sensors: tactile names to return (None = all; () = none: a vision-only policy).
+        background_images: {tactile key or name: path of an RGB image file of that sensor at rest, no contact}:
+            its background in every episode (default: estimated per episode from the episode's frames).
     """
 
-    def __init__(self, root, chunk_size: int = 20, tactile_keys=None, force_keys=None, tactile_sensors=None):
+    def __init__(self, root, chunk_size: int = 20, tactile_keys=None, force_keys=None, tactile_sensors=None,
+                 background_images=None):
         if not is_int(chunk_size) or chunk_size < 1:
             raise ValueError(f"chunk_size: expected an int >= 1, got {chunk_size!r}")
         tactile_keys, tactile_sensors = ([x] if isinstance(x, str) else x for x in (tactile_keys, tactile_sensors))
@@ -133,7 +137,7 @@ class LeRobotEpisodes(Dataset):
                       for name, v in (("qpos", columns[LEROBOT_STATE]), ("action", columns["action"]))}
         for key in self.force_keys.values():  # finite, in N, Fz > 0 pressing, as an HDF5 episode's labels
             check_force_labels(f"{self.root.name}: {key}", columns[key])
-        self.backgrounds = self._backgrounds()
+        self.backgrounds = self._backgrounds(self._given_backgrounds(background_images, features))
 
     def _recorded(self, copy: np.ndarray | None) -> dict[int, int]:
         """{episode: the recorded episode it is or copies}, from the ``augment.copy`` column (N, 1) in row order
@@ -168,16 +172,36 @@ class LeRobotEpisodes(Dataset):
             raise ValueError(f"force_keys: {bad} are not (3,) force features of tactile keys of the dataset")
         return {lerobot_name(k): f for k, f in force_keys.items()}
 
-    def _backgrounds(self) -> dict:
-        """{(episode position, sensor): uint8 (H, W, 3)}, each estimated from the episode's own frames."""
+    def _given_backgrounds(self, given, features: dict) -> dict[str, np.ndarray]:
+        """{sensor: uint8 (H, W, 3)} of ``background_images``, read and checked against the camera's frame size."""
+        if given is None:
+            return {}
+        if not isinstance(given, dict):
+            raise ValueError(f"background_images: expected {{tactile key: image file}}, got {type(given).__name__}")
         out = {}
-        if self.tactile_sensors:
+        for name, path in given.items():
+            s = next((n for n, k in self.tactile_keys.items() if name in (n, k)), None)
+            if s is None:
+                raise ValueError(f"background_images: {name!r} is not a tactile camera returned; those are "
+                                 f"{list(self.tactile_keys.values())}")
+            out[s] = read_background_image(path)
+            check_background_size(out[s], tuple(features[self.tactile_keys[s]]["shape"][:2]), "background_images",
+                                  self.tactile_keys[s])
+        return out
+
+    def _backgrounds(self, given: dict) -> dict:
+        """{(episode position, sensor): uint8 (H, W, 3)}: ``given``'s image, else estimated from the episode's own
+        frames."""
+        out = {(n, s): given[s] for n in range(len(self.episode_ids)) for s in given}
+        estimated = {s: k for s, k in self.tactile_keys.items() if s not in given}
+        if estimated:
             warnings.warn(f"{self.root.name}: LeRobot folders record no tactile background; estimated per episode "
-                          "from its no-contact frames", stacklevel=3)
+                          f"from its no-contact frames for {sorted(estimated)} (background_images: a recorded one)",
+                          stacklevel=3)
         for n, e in enumerate(tqdm(self.episode_ids, desc="tactile backgrounds", file=sys.stderr,
-                                   disable=True if not self.tactile_sensors else None)):
-            table = self.folder.episode_table(e) if self.tactile_sensors else None
-            for s, key in self.tactile_keys.items():
+                                   disable=True if not estimated else None)):
+            table = self.folder.episode_table(e) if estimated else None
+            for s, key in estimated.items():
                 frames = (self.folder.video_frames(key, e) if self.folder.features[key]["dtype"] == "video"
                           else _pngs(table.column(key), key, self.folder.data_file(e), e))
                 force = numbers(table.column(self.force_keys[s])).astype(np.float32) if s in self.force_keys else None

@@ -92,11 +92,12 @@ def load_training_data(root: str | Path, chunk_size: int, val_fraction: float = 
     ``meta/info.json``: :class:`LeRobotEpisodes`, its default tactile and force keys) and split it by episode.
 
     tactile_sensors: the tactile streams to train on (None = all; () = none, a vision-only policy).
-    lerobot: a LeRobot folder's ``tactile_keys`` / ``force_keys`` (``LeRobotEpisodes``; None: its defaults)."""
+    lerobot: a LeRobot folder's ``tactile_keys`` / ``force_keys`` / ``background_images`` (``LeRobotEpisodes``;
+        None: its defaults)."""
     if (Path(root) / "meta" / "info.json").is_file():
         ds = LeRobotEpisodes(root, chunk_size=chunk_size, tactile_sensors=tactile_sensors, **(lerobot or {}))
     elif lerobot:
-        raise ValueError(f"tactile_keys / force_keys: only for a LeRobot v3.0 folder; {root} has no meta/info.json")
+        raise ValueError(f"tactile_keys / force_keys / background_images: only for a LeRobot v3.0 folder; {root} has no meta/info.json")
     else:
         ds = EpisodeDataset(root, chunk_size=chunk_size, stats_path=stats_path, tactile_sensors=tactile_sensors)
     train_idx, val_idx = split_by_episode(ds, val_fraction, seed, getattr(ds, "recorded_episode", None))

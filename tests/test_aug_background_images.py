@@ -1,0 +1,103 @@
+"""A no-contact background given to ForceAugment as an image file (``background_images``): what a lab records of
+its sensor at rest when its dataset holds no background (a LeRobot folder) or its episodes start in contact."""
+
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+
+from aug_fixtures import synthetic_episode, tiny_estimator, tiny_generator
+from lerobot_like import BG, FORCE, GEL, LeRobotLike, episodes
+
+from controltac_il.augment import ForceAugment
+from controltac_il.datasets import read_background_image
+
+
+@pytest.fixture(scope="module")
+def gen():
+    return tiny_generator()
+
+
+def write_png(path, rgb):
+    assert cv2.imwrite(str(path), np.ascontiguousarray(rgb[..., ::-1]))
+    return path
+
+
+@pytest.fixture
+def rest(tmp_path):
+    """The synthetic sensor's no-contact image (every episode's recorded background) as a PNG."""
+    return write_png(tmp_path / "gelsight_rest.png", synthetic_episode(2, 0, ()).tactile_background["left"])
+
+
+def wrap(ds, gen, **kw):
+    return ForceAugment(ds, gen, copies=2, tactile_keys=[GEL], force_keys={GEL: FORCE}, progress=False, **kw)
+
+
+@pytest.mark.parametrize("mode", ["cache", "online"])
+def test_the_image_file_gives_the_frames_the_items_own_background_gives(gen, rest, tmp_path, mode):
+    where = (lambda name: {"cache_dir": tmp_path / name}) if mode == "cache" else (lambda name: {"mode": "online"})
+    items = wrap(LeRobotLike(episodes(), labels=True, backgrounds=True), gen, background_keys={GEL: BG}, **where("a"))
+    given = wrap(LeRobotLike(episodes(), labels=True), gen, background_images={"gelsight": rest}, **where("b"))
+    assert given.keys.images.keys() == {GEL}  # the sensor's name is taken for its key
+    n = items.n_base
+    assert len(given) == len(items) == 3 * n
+    for i in range(n, len(items)):
+        assert np.array_equal(given[i][GEL].numpy(), items[i][GEL].numpy()), i
+    assert {r["background"] for r in given.plan()} == {"recorded"}
+
+
+def test_the_cache_records_the_images_pixels_not_their_path(gen, rest, tmp_path):
+    ds = LeRobotLike(episodes(), labels=True)
+    moved = tmp_path / "moved.png"
+    shutil.copy(rest, moved)
+    first = wrap(ds, gen, background_images={GEL: rest}, mode="online").settings()["background_images"]
+    assert wrap(ds, gen, background_images={GEL: moved}, mode="online").settings()["background_images"] == first
+    edited = read_background_image(rest).copy()
+    edited[0, 0, 0] += 1
+    write_png(moved, edited)
+    assert wrap(ds, gen, background_images={GEL: moved}, mode="online").settings()["background_images"] != first
+    with pytest.warns(UserWarning, match="background estimated"):
+        assert "background_images" not in wrap(ds, gen, mode="online").settings()
+
+
+def test_an_image_beside_the_items_own_background_key_takes_its_place_unless_both_are_named(gen, rest):
+    ds = LeRobotLike(episodes(), labels=True, backgrounds=True)
+    with pytest.raises(ValueError, match=r"^background_images: 'observation.images.gelsight' also has background_keys"):
+        wrap(ds, gen, background_images={GEL: rest}, background_keys={GEL: BG}, mode="online")
+
+
+@pytest.mark.parametrize("case, match", [
+    ("missing", r"^background_images: .*nowhere.png is not a file"),
+    ("not_an_image", r"^background_images: .*notes.png is not a readable image file"),
+    ("grey", r"^background_images: .*grey.png is uint8 with 1 channel\(s\); expected an 8-bit RGB image"),
+    ("sixteen_bit", r"^background_images: .*deep.png is uint16 with 3 channel\(s\)"),
+    ("wrong_size", r"^background_images: the image for 'observation.images.gelsight' is 33x32 \(W x H\); its frames "
+                   r"are 32x32"),
+    ("unknown_key", r"^background_images: 'wrist' is not a tactile key; the tactile keys are "
+                    r"\['observation.images.gelsight'\]"),
+    ("not_a_dict", r"^background_images: expected a dict \{tactile key: image file path\}"),
+])
+def test_a_bad_background_image_is_refused_naming_the_setting_and_the_file(gen, rest, tmp_path, case, match):
+    (tmp_path / "notes.png").write_text("not an image")
+    write_png(tmp_path / "wide.png", np.full((32, 33, 3), 110, np.uint8))
+    cv2.imwrite(str(tmp_path / "grey.png"), np.full((32, 32), 110, np.uint8))
+    cv2.imwrite(str(tmp_path / "deep.png"), np.full((32, 32, 3), 110 * 256, np.uint16))
+    given = {"missing": {GEL: tmp_path / "nowhere.png"}, "not_an_image": {GEL: tmp_path / "notes.png"},
+             "grey": {GEL: tmp_path / "grey.png"}, "sixteen_bit": {GEL: tmp_path / "deep.png"},
+             "wrong_size": {GEL: tmp_path / "wide.png"}, "unknown_key": {"wrist": rest},
+             "not_a_dict": [rest]}[case]
+    with pytest.raises(ValueError, match=match):
+        wrap(LeRobotLike(episodes(), labels=True), gen, background_images=given, mode="online")
+
+
+def test_frames_without_labels_use_the_given_background_for_contact_and_the_estimator(gen, tmp_path):
+    """An episode that starts in contact has no frame to estimate a background from; the given one finds
+    its contact where the estimate (taken from contact frames) finds almost none."""
+    always = {0: synthetic_episode(6, 0, range(0, 6), labels=False)}
+    rest = write_png(tmp_path / "rest.png", always[0].tactile_background["left"])
+    kw = dict(copies=1, tactile_keys=[GEL], mode="online", estimator=tiny_estimator(), progress=False)
+    with pytest.warns(UserWarning, match="background estimated"):
+        estimated = ForceAugment(LeRobotLike(always), gen, **kw).summary()
+    given = ForceAugment(LeRobotLike(always), gen, background_images={GEL: rest}, **kw).summary()
+    assert given["no_contact"] == 0 < estimated["no_contact"] == estimated["tactile_frames"] == 6

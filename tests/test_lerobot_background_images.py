@@ -1,0 +1,91 @@
+"""A LeRobot folder records no tactile background: ``--background-image`` gives the one a lab recorded of its sensor
+at rest, to the augment command (ForceAugment's ``background_images``) and to train_act.py (``LeRobotEpisodes``,
+whose items and checkpoint carry it). The source folder: lerobot_fixtures."""
+
+import json
+import warnings
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from controltac_il.augment import ForceAugment, main
+from controltac_il.lerobot import LeRobotEpisodes, LeRobotFolder, read_record
+from lerobot_fixtures import FORCES, H, LEFT, RIGHT, W
+
+
+def write_png(path, rgb):
+    assert cv2.imwrite(str(path), np.ascontiguousarray(rgb[..., ::-1]))
+    return path
+
+
+@pytest.fixture
+def rest(tmp_path):
+    """gelsight_left's gel at rest, without the noise of its recorded frames."""
+    return write_png(tmp_path / "left_rest.png", np.full((H, W, 3), (100, 110, 120), np.uint8))
+
+
+def test_the_command_uses_the_image_and_records_its_digest(written, rest, tmp_path, capsys):
+    from controltac_il.generator.checkpoint import save_checkpoint
+
+    root, _, _, reference = written
+    g = reference.generator
+    ckpt = save_checkpoint(tmp_path / "gen", g.config, g.autoencoder, g.denoiser)
+    base = ["--dataset", str(root), "--generator", str(ckpt), "--steps", "1", "--copies", "1"]
+    assert main([*base, "--out", str(tmp_path / "out"), "--background-image", f"gelsight_left={rest}"]) == 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # gelsight_right's background is estimated
+        wrapper = ForceAugment(LeRobotFolder(root), g, tactile_keys=[LEFT, RIGHT], force_keys=FORCES, copies=1,
+                               steps=1, background_images={LEFT: rest}, mode="online", progress=False)
+    settings = read_record(tmp_path / "out")["settings"]
+    assert settings["background_images"] == wrapper.settings()["background_images"]
+    assert list(settings["background_images"]) == [LEFT]
+    written_copy = LeRobotFolder(tmp_path / "out")
+    n = len(LeRobotFolder(root))
+    for i in range(n):  # copy 1 of frame i is output row n + i, the wrapper's item n + i
+        assert np.array_equal(written_copy[n + i][LEFT].numpy(), wrapper[n + i][LEFT].numpy()), i
+    capsys.readouterr()
+    wide = write_png(tmp_path / "wide.png", np.full((H, W + 1, 3), 100, np.uint8))
+    for flag_value, expected in (("gelsight_left", "--background-image: expected TACTILE_KEY=PNG pairs"),
+                                 (f"gelsight_left={tmp_path / 'none.png'}", "--background-image: "),
+                                 (f"gelsight_left={wide}", f"--background-image: the image for '{LEFT}' is 33x32"),
+                                 (f"wrist={rest}", "--background-image: 'wrist' is not a tactile key")):
+        assert main([*base, "--out", str(tmp_path / "bad"), "--background-image", flag_value]) == 2, flag_value
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and expected in err, err
+    assert not (tmp_path / "bad").exists()
+
+
+def test_train_act_takes_the_image_for_its_items_and_checkpoint(written, rest, tmp_path, monkeypatch, capsys):
+    from controltac_il.app import train_cli as train_act
+    from policies.act.checkpoint import load_checkpoint
+
+    root = written[0]
+    monkeypatch.setenv("CONTROLTAC_CACHE", str(tmp_path / "cache"))
+    with pytest.warns(UserWarning, match=r"estimated per episode from its no-contact frames for \['gelsight_right'\]"):
+        ds = LeRobotEpisodes(root, chunk_size=4, background_images={"gelsight_left": rest})
+    given = cv2.imread(str(rest))[..., ::-1]
+    with pytest.warns(UserWarning, match="estimated per episode"):
+        estimated = LeRobotEpisodes(root, chunk_size=4)
+    for e in (0, 6):  # each episode's item: the given image, or the estimate without it
+        assert np.array_equal(ds[e]["observation.tactile_background.gelsight_left"].permute(1, 2, 0).numpy(), given)
+        left, right = (f"observation.tactile_background.gelsight_{s}" for s in ("left", "right"))
+        assert torch.equal(ds[e][right], estimated[e][right]) and not torch.equal(ds[e][right], ds[e][left])
+    flags = ["--steps", "1", "--batch-size", "2", "--chunk-size", "4", "--val-every", "1", "--threads", "1"]
+    assert train_act.main(["--dataset", str(root), "--out", str(tmp_path / "run"), *flags,
+                           "--background-image", f"{LEFT}={rest}"]) == 0
+    _, backgrounds, _ = load_checkpoint(tmp_path / "run" / "last")
+    assert np.array_equal(backgrounds["gelsight_left"], given)  # what deployment subtracts
+    assert json.loads((tmp_path / "run" / "last" / "config.json").read_text())["act"]["tactile_names"] == [
+        "gelsight_left", "gelsight_right"]
+    capsys.readouterr()
+    episodes = tmp_path / "episodes"
+    episodes.mkdir()
+    for args, expected in ((["--dataset", str(root), "--background-image", f"gelsight_left={tmp_path / 'no.png'}"],
+                            "--background-image: "),
+                           (["--dataset", str(episodes), "--background-image", f"left={rest}"],
+                            "only with a LeRobot v3.0 --dataset")):
+        assert train_act.main([*args, "--out", str(tmp_path / "bad"), *flags]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and expected in err, err
