@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 import pytest
 
+from controltac_il.datasets import read_background_image
 from hardware.interfaces import SensorError
 
 PLUGIN = Path(__file__).resolve().parents[1] / "plugins" / "lerobot_camera_gelsight"
@@ -109,6 +110,7 @@ def test_frames_are_240x320_rgb_uint8_with_the_background(frames_module, tmp_pat
         assert mae(gs.background, expected(False)) < 2.0 and not (gs.background == (255, 0, 255)).all(-1).any()
         saved = cv2.cvtColor(cv2.imread(str(tmp_path / "backgrounds" / "gs_left.png")), cv2.COLOR_BGR2RGB)
         assert np.array_equal(saved, gs.background)
+        assert np.array_equal(read_background_image(tmp_path / "backgrounds" / "gs_left.png"), gs.background)
         seen = [gs.next_frame(1.0) for _ in range(NO_CONTACT - 3 + CONTACT)]  # frames 4..7: the rest of the file
         for image, pressed in zip(seen, [False] + [True] * CONTACT):
             assert image.shape == (240, 320, 3) and image.dtype == np.uint8
