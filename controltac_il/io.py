@@ -8,9 +8,10 @@ What a writer leaves is what any program would: files ``0o666`` and folders ``0o
 
 A temporary path is named ``.<name>.controltac-<host>-<pid>-<random>.tmp[<suffix>]``, a pattern only this
 module produces. A process killed mid-write (SIGKILL, power loss) leaves one behind; a process's first
-atomic write into a folder removes every such leftover of this host whose process is no longer
-running (``remove_leftovers``; writers may call it themselves, e.g. when a run starts). Nothing else is ever removed: not a live writer's temporary path, not
-another host's (a shared filesystem), not a file of the user's whatever its name.
+atomic write into a folder removes every such leftover of this host whose process is no longer running
+(``remove_leftovers``; writers may call it themselves, e.g. when a run starts). Nothing else is ever removed: not
+a live writer's temporary path, not another host's (a shared filesystem), not a file of the user's whatever its
+name.
 """
 
 from __future__ import annotations
