@@ -45,3 +45,11 @@ def guard(prog: str, job: Callable[[], int | None], interrupted: str = "interrup
     except (ValueError, OSError, MissingExtra) as exc:
         print(f"{prog}: error: {one_line(exc)}", file=sys.stderr)
         return 2
+
+
+def key_value_pairs(flag: str, values: list[str], form: str) -> dict[str, str]:
+    """{key: value} of a flag's ``KEY=VALUE`` arguments (``form`` names them, e.g. TACTILE_KEY=PNG); ValueError
+    "<flag>: expected <form> pairs, got ..." for another form."""
+    if not all("=" in x and all(x.split("=", 1)) for x in values):
+        raise ValueError(f"{flag}: expected {form} pairs, got {' '.join(values)}")
+    return dict(x.split("=", 1) for x in values)

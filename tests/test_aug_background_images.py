@@ -7,11 +7,11 @@ import cv2
 import numpy as np
 import pytest
 
-from aug_fixtures import synthetic_episode, tiny_estimator, tiny_generator
+from aug_fixtures import make_folder, synthetic_episode, tiny_estimator, tiny_generator
 from lerobot_like import BG, FORCE, GEL, LeRobotLike, episodes
 
 from controltac_il.augment import ForceAugment
-from controltac_il.datasets import read_background_image
+from controltac_il.datasets import EpisodeDataset, read_background_image
 
 
 @pytest.fixture(scope="module")
@@ -61,15 +61,48 @@ def test_the_cache_records_the_images_pixels_not_their_path(gen, rest, tmp_path)
         assert "background_images" not in wrap(ds, gen, mode="online").settings()
 
 
-def test_an_image_beside_the_items_own_background_key_takes_its_place_unless_both_are_named(gen, rest):
-    ds = LeRobotLike(episodes(), labels=True, backgrounds=True)
-    with pytest.raises(ValueError, match=r"^background_images: 'observation.images.gelsight' also has background_keys"):
-        wrap(ds, gen, background_images={GEL: rest}, background_keys={GEL: BG}, mode="online")
+@pytest.mark.parametrize("mode", ["cache", "online"])
+def test_an_image_beside_the_items_own_background_takes_its_place_in_the_frames_and_the_items(gen, tmp_path, mode):
+    """Our episodes carry a recorded background (found by the naming rule): a given image replaces it in every
+    item served, copy 0 included, so a policy subtracts the background the frames were generated on."""
+    root = make_folder(tmp_path / "demos")
+    dark = write_png(tmp_path / "dark.png", np.full((32, 32, 3), 60, np.uint8))
+    ds = EpisodeDataset(root, chunk_size=2, stats_path=tmp_path / "stats.json")
+    aug = ForceAugment(ds, gen, copies=1, background_images={"left": dark}, progress=False,
+                       **({"cache_dir": tmp_path / "cache"} if mode == "cache" else {"mode": mode}))
+    key = "observation.tactile_background.left"
+    assert aug.keys.backgrounds["observation.tactile.left"] == key
+    assert ds[0][key].float().mean() == 110  # the recorded one, left alone in the wrapped dataset
+    for i in range(len(aug)):
+        assert (aug[i][key] == 60).all() and aug[i][key].dtype == ds[0][key].dtype, i
+    with pytest.raises(ValueError, match=r"^background_images: 'observation.tactile.left' also has background_keys"):
+        ForceAugment(ds, gen, background_images={"left": dark}, background_keys={"observation.tactile.left": key}, mode="online")
+
+
+def test_windows_take_the_image_as_they_take_the_items_background(gen, rest):
+    deltas = {GEL: [-0.2, -0.1, 0.0]}
+    items = wrap(LeRobotLike(episodes(), labels=True, backgrounds=True, delta_timestamps=deltas), gen,
+                 background_keys={GEL: BG}, mode="online")
+    given = wrap(LeRobotLike(episodes(), labels=True, delta_timestamps=deltas), gen,
+                 background_images={GEL: rest}, mode="online")
+    assert given.keys.offsets[GEL] == (-2, -1, 0)
+    for i in range(items.n_base, len(items)):
+        assert np.array_equal(given[i][GEL].numpy(), items[i][GEL].numpy()), i
+
+
+def test_a_jpeg_reads_as_rgb(tmp_path):
+    rgb = np.zeros((16, 24, 3), np.uint8)
+    rgb[..., 0] = 200  # red
+    assert cv2.imwrite(str(tmp_path / "rest.jpg"), rgb[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, 100])
+    image = read_background_image(tmp_path / "rest.jpg")
+    assert image.shape == (16, 24, 3) and np.abs(image.astype(int) - rgb).max() <= 2
 
 
 @pytest.mark.parametrize("case, match", [
     ("missing", r"^background_images: .*nowhere.png is not a file"),
     ("not_an_image", r"^background_images: .*notes.png is not a readable image file"),
+    ("empty", r"^background_images: .*empty.png is not a readable image file"),
+    ("not_a_path", r"^background_images: expected a dict \{tactile key: image file path\}"),
     ("grey", r"^background_images: .*grey.png is uint8 with 1 channel\(s\); expected an 8-bit RGB image"),
     ("sixteen_bit", r"^background_images: .*deep.png is uint16 with 3 channel\(s\)"),
     ("wrong_size", r"^background_images: the image for 'observation.images.gelsight' is 33x32 \(W x H\); its frames "
@@ -80,13 +113,14 @@ def test_an_image_beside_the_items_own_background_key_takes_its_place_unless_bot
 ])
 def test_a_bad_background_image_is_refused_naming_the_setting_and_the_file(gen, rest, tmp_path, case, match):
     (tmp_path / "notes.png").write_text("not an image")
+    (tmp_path / "empty.png").write_bytes(b"")
     write_png(tmp_path / "wide.png", np.full((32, 33, 3), 110, np.uint8))
     cv2.imwrite(str(tmp_path / "grey.png"), np.full((32, 32), 110, np.uint8))
     cv2.imwrite(str(tmp_path / "deep.png"), np.full((32, 32, 3), 110 * 256, np.uint16))
     given = {"missing": {GEL: tmp_path / "nowhere.png"}, "not_an_image": {GEL: tmp_path / "notes.png"},
              "grey": {GEL: tmp_path / "grey.png"}, "sixteen_bit": {GEL: tmp_path / "deep.png"},
              "wrong_size": {GEL: tmp_path / "wide.png"}, "unknown_key": {"wrist": rest},
-             "not_a_dict": [rest]}[case]
+             "not_a_dict": [rest], "empty": {GEL: tmp_path / "empty.png"}, "not_a_path": {GEL: 3}}[case]
     with pytest.raises(ValueError, match=match):
         wrap(LeRobotLike(episodes(), labels=True), gen, background_images=given, mode="online")
 

@@ -82,10 +82,33 @@ def test_train_act_takes_the_image_for_its_items_and_checkpoint(written, rest, t
     capsys.readouterr()
     episodes = tmp_path / "episodes"
     episodes.mkdir()
+    wide = write_png(tmp_path / "wide.png", np.full((H, W + 1, 3), 100, np.uint8))
     for args, expected in ((["--dataset", str(root), "--background-image", f"gelsight_left={tmp_path / 'no.png'}"],
                             "--background-image: "),
+                           (["--dataset", str(root), "--background-image", f"gelsight_left={wide}"],
+                            f"--background-image: the image for {LEFT} is 33x32"),
+                           (["--dataset", str(root), "--background-image", f"wrist={rest}"],
+                            "--background-image: 'wrist' is not a tactile camera returned"),
                            (["--dataset", str(episodes), "--background-image", f"left={rest}"],
                             "only with a LeRobot v3.0 --dataset")):
         assert train_act.main([*args, "--out", str(tmp_path / "bad"), *flags]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and expected in err, err
+
+
+def test_the_image_is_part_of_the_datas_identity_and_named_once(written, rest, tmp_path):
+    """A cache of ForceAugment copies over LeRobotEpisodes (train_act.py --augment force) is another cache when
+    the items' background changes; a camera named twice (its name and its key) is refused."""
+    root = written[0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        plain = LeRobotEpisodes(root, chunk_size=4)
+        given = LeRobotEpisodes(root, chunk_size=4, background_images={"observation.tactile.gelsight_left": rest})
+        assert given.backgrounds[(0, "gelsight_left")].mean() != plain.backgrounds[(0, "gelsight_left")].mean()
+        assert set(given.fingerprint()) - set(plain.fingerprint()) == {"background_images"}
+        generator = written[3].generator
+        settings = [ForceAugment(d, generator, copies=1, mode="online", progress=False).settings()["data"]
+                    for d in (plain, given)]
+    assert settings[0] != settings[1]
+    with pytest.raises(ValueError, match=rf"^background_images: '{LEFT}' is named twice"):
+        LeRobotEpisodes(root, background_images={"gelsight_left": rest, LEFT: rest})

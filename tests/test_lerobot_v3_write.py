@@ -408,7 +408,7 @@ def test_train_act_names_a_lerobot_folders_tactile_cameras(written, tmp_path, mo
     assert config["tactile_names"] == ["gelsight_left"] and config["camera_names"] == ["gelsight_right", "wrist"]
     capsys.readouterr()
     for args, named in ((["--force-keys", LEFT], "--force-keys: expected TACTILE_KEY=FORCE_KEY"),
-                        (["--tactile-keys", "observation.images.x"], "tactile_keys: ['observation.images.x']")):
+                        (["--tactile-keys", "observation.images.x"], "--tactile-keys: ['observation.images.x']")):
         assert train_act.main(["--dataset", str(root), "--out", str(tmp_path / "bad"), *flags, *args]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and named in err, err

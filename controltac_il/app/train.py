@@ -19,7 +19,8 @@ def train_act(out: str | Path, dataset: str | Path | None = None, *, demos: int 
 
     dataset: folder of ``episode_<i>.hdf5``; None collects (or reuses) ``demos`` scripted demos.
     copies: ForceAugment copies per training episode (0 = real data only), drawn with the training seed.
-    lerobot: for a LeRobot v3.0 ``dataset``, {"tactile_keys": [...], "force_keys": {...}} (None: by name).
+    lerobot: for a LeRobot v3.0 ``dataset``, {"tactile_keys": [...], "force_keys": {...}, "background_images":
+        {...}} (``LeRobotEpisodes``' arguments; None: by name, backgrounds estimated).
     resume / overwrite: continue the run in ``out`` / replace it (only what the training wrote); without
     either, an ``out`` holding a run is refused (``policies.act.training.train``).
     """

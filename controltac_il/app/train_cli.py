@@ -20,7 +20,7 @@ import json
 import os
 from pathlib import Path
 
-from controltac_il.cli import ArgumentParser
+from controltac_il.cli import ArgumentParser, key_value_pairs
 from envs.config import DEMO_EPISODES
 
 
@@ -78,6 +78,10 @@ FLAGS = {"steps": "--steps", "batch_size": "--batch-size", "val_every": "--val-e
          "num_workers": "--workers", "seed": "--seed"}
 
 
+# LeRobotEpisodes' settings -> the flags that set them
+LEROBOT_FLAGS = {"tactile_keys": "--tactile-keys", "force_keys": "--force-keys", "background_images": "--background-image"}
+
+
 def augment_copies(args: argparse.Namespace) -> int:
     """ForceAugment copies per episode: --copies (default COPIES) with --augment force, else 0."""
     if args.augment != "force":
@@ -110,16 +114,12 @@ def check_args(args: argparse.Namespace):
         raise ValueError(f"--copies must be in 1..9 (ForceAugment copies per episode), got {args.copies}")
     if args.dataset is not None and not args.dataset.is_dir():
         raise ValueError(f"--dataset {args.dataset}: episode folder not found")
-    for flag, pairs, form in (("--force-keys", args.force_keys, "TACTILE_KEY=FORCE_KEY"),
-                              ("--background-image", args.background_image, "TACTILE_KEY=PNG")):
-        if pairs is not None and not all("=" in x and all(x.split("=", 1)) for x in pairs):
-            raise ValueError(f"{flag}: expected {form} pairs, got {' '.join(pairs)}")
-    if (args.tactile_keys or args.force_keys or args.background_image) and not (
-            args.dataset and (args.dataset / "meta" / "info.json").is_file()):
+    keys = lerobot_keys(args) or {}  # the KEY=VALUE flags' form checked
+    if (keys or args.tactile_keys) and not (args.dataset and (args.dataset / "meta" / "info.json").is_file()):
         raise ValueError("--tactile-keys / --force-keys / --background-image: only with a LeRobot v3.0 --dataset (a "
                          "folder with meta/info.json; ACT episodes hold their own /observations/tactile_background)")
-    for pair in args.background_image or ():
-        read_background_image(pair.split("=", 1)[1], field="--background-image")  # before any slow work
+    for path in keys.get("background_images", {}).values():
+        read_background_image(path, field="--background-image")  # before any slow work
     try:
         return ACTTrainConfig(steps=args.steps, batch_size=args.batch_size, val_every=args.val_every,
                            save_every=args.checkpoint_every, num_workers=args.workers, seed=args.seed)
@@ -149,10 +149,16 @@ def run(args: argparse.Namespace, train_config=None) -> dict:
     if args.threads:
         torch.set_num_threads(args.threads)
     train_config = train_config or check_args(args)
-    return train_act(args.out, args.dataset, demos=args.demos, preset=args.preset, train_config=train_config,
-                     copies=augment_copies(args), generator=args.generator,
-                     val_fraction=args.val_fraction, chunk_size=args.chunk_size, resume=args.resume,
-                     overwrite=args.overwrite, lerobot=lerobot_keys(args))
+    try:
+        return train_act(args.out, args.dataset, demos=args.demos, preset=args.preset, train_config=train_config,
+                         copies=augment_copies(args), generator=args.generator,
+                         val_fraction=args.val_fraction, chunk_size=args.chunk_size, resume=args.resume,
+                         overwrite=args.overwrite, lerobot=lerobot_keys(args))
+    except ValueError as exc:  # a LeRobot folder's key setting ("tactile_keys: ...") named by its flag
+        field, _, rest = str(exc).partition(": ")
+        if field in LEROBOT_FLAGS:
+            raise ValueError(f"{LEROBOT_FLAGS[field]}: {rest}") from exc
+        raise
 
 
 def lerobot_keys(args: argparse.Namespace) -> dict | None:
@@ -161,8 +167,8 @@ def lerobot_keys(args: argparse.Namespace) -> dict | None:
     if args.tactile_keys:
         keys["tactile_keys"] = list(args.tactile_keys)
     if args.force_keys:
-        keys["force_keys"] = dict(x.split("=", 1) for x in args.force_keys)
+        keys["force_keys"] = key_value_pairs("--force-keys", args.force_keys, "TACTILE_KEY=FORCE_KEY")
     if args.background_image:
-        keys["background_images"] = dict(x.split("=", 1) for x in args.background_image)
+        keys["background_images"] = key_value_pairs("--background-image", args.background_image, "TACTILE_KEY=PNG")
     return keys or None
 

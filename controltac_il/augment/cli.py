@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from controltac_il.augment.config import ForceAugmentConfig
-from controltac_il.cli import guard
+from controltac_il.cli import guard, key_value_pairs
 from controltac_il.io import check_apart
 
 if TYPE_CHECKING:  # the job's modules (torch, h5py) are imported inside it: --help stays light
@@ -272,10 +272,10 @@ def _pairs(args) -> dict[str, dict[str, str]]:
     out = {}
     for name, (flag, form) in MAP_FLAGS.items():
         pairs = getattr(args, flag[2:].replace("-", "_"))
-        if pairs is not None and not all("=" in x and all(x.split("=", 1)) for x in pairs):
-            raise UsageError(flag, f"expected {form} pairs, got {' '.join(pairs)}")
-        if pairs is not None:
-            out[name] = dict(x.split("=", 1) for x in pairs)
+        try:
+            out.update({} if pairs is None else {name: key_value_pairs(flag, pairs, form)})
+        except ValueError as exc:
+            raise UsageError(flag, str(exc).partition(": ")[2]) from None
     return out
 
 

@@ -217,6 +217,7 @@ class ForceAugment(Dataset):
         return self._annotate(item, copy, outcome)
 
     def _annotate(self, item: dict, copy: int, outcome: FrameOutcome) -> dict:
+        self.keys.put_images(item)
         labels = {k: self.keys.label(item, k) for k in self.tactile_keys}
         return annotate(item, copy, outcome, self.tactile_keys, labels)
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from controltac_il.arrays import as_array
-from controltac_il.augment.items import to_hwc_uint8
+from controltac_il.augment.items import put_image, to_hwc_uint8
 from controltac_il.datasets.background import check_background_size, read_background_image
 from controltac_il.streams import BACKGROUND, FORCE, HDF5, LEROBOT, looks_tactile, rule_key, tactile_key
 
@@ -35,7 +35,7 @@ class KeyMap:
     """tactile_keys (augmented, in order); per tactile key: its force label key, background key (or None)
     and window offsets (None: single frames); offsets of force label windows by label key; the background
     images given as files (``background_images``: {tactile key: uint8 (H, W, 3)}), which take the place of an
-    item's background."""
+    item's background (and are put at its background key in the items served, ``put_images``)."""
 
     tactile_keys: tuple[str, ...]
     labels: dict
@@ -71,6 +71,13 @@ class KeyMap:
             return self.images[key]
         bk = self.backgrounds[key]
         return None if bk is None else to_hwc_uint8(item[bk], bk)
+
+    def put_images(self, item: dict) -> None:
+        """Put each given background image at the item's own background key, where it has one (in its layout
+        and dtype): a policy reading the item subtracts the background its regenerated frames were made on."""
+        for k, image in self.images.items():
+            if self.backgrounds[k] is not None:
+                put_image(item, self.backgrounds[k], image.copy())  # the items never share one buffer
 
     def recorded(self, key: str) -> bool:
         """Whether ``key``'s background is recorded (a given image or an item key), not estimated."""
@@ -185,10 +192,8 @@ def resolve_keys(probe: dict, config, dataset) -> KeyMap:
         if lk is not None:
             label_offsets.update(_check_label(dataset, probe, k, lk, config))
         bk = _mapped(probe, k, config.background_keys, BACKGROUND, "background_keys", tactile)
-        if bk is not None and k in images:
-            if (config.background_keys or {}).get(k) is not None:
-                raise ValueError(f"background_images: {k!r} also has background_keys {bk!r}; give one background")
-            bk = None  # the image given by name takes the place of the item's own
+        if bk is not None and k in images and (config.background_keys or {}).get(k) is not None:
+            raise ValueError(f"background_images: {k!r} also has background_keys {bk!r}; give one background")
         if bk is not None:
             _check_background(probe, k, bk, offsets[k] is not None)
         if k in images:

@@ -10,6 +10,7 @@ removes the sensor noise).
 
 from __future__ import annotations
 
+import os
 import warnings
 from pathlib import Path
 
@@ -69,10 +70,13 @@ def estimate_background(
 def read_background_image(path, field: str = "background_images") -> np.ndarray:
     """The no-contact image a lab recorded of its sensor at rest (an 8-bit RGB PNG or JPEG file) as uint8
     (H, W, 3) RGB; ValueError naming ``field`` and the file for a missing, unreadable or non-RGB one."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise ValueError(f"{field}: expected an image file's path, got {type(path).__name__}")
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"{field}: {path} is not a file (expected the sensor's no-contact image, a PNG)")
-    image = cv2.imdecode(np.fromfile(path, np.uint8), cv2.IMREAD_UNCHANGED)
+    data = np.fromfile(path, np.uint8)
+    image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if len(data) else None  # OpenCV asserts on empty bytes
     if image is None:
         raise ValueError(f"{field}: {path} is not a readable image file (expected a PNG or JPEG)")
     if image.dtype != np.uint8 or image.ndim != 3 or image.shape[-1] != 3:

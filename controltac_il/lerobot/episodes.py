@@ -23,6 +23,7 @@ split by episode keeps an episode and its copies on one side.
 
 from __future__ import annotations
 
+import hashlib
 import sys
 import warnings
 from pathlib import Path
@@ -137,7 +138,9 @@ class LeRobotEpisodes(Dataset):
                       for name, v in (("qpos", columns[LEROBOT_STATE]), ("action", columns["action"]))}
         for key in self.force_keys.values():  # finite, in N, Fz > 0 pressing, as an HDF5 episode's labels
             check_force_labels(f"{self.root.name}: {key}", columns[key])
-        self.backgrounds = self._backgrounds(self._given_backgrounds(background_images, features))
+        given = self._given_backgrounds(background_images, features)
+        self.backgrounds = self._backgrounds(given)
+        self._given = {s: hashlib.sha256(v.tobytes()).hexdigest()[:16] for s, v in given.items()}
 
     def _recorded(self, copy: np.ndarray | None) -> dict[int, int]:
         """{episode: the recorded episode it is or copies}, from the ``augment.copy`` column (N, 1) in row order
@@ -180,10 +183,12 @@ class LeRobotEpisodes(Dataset):
             raise ValueError(f"background_images: expected {{tactile key: image file}}, got {type(given).__name__}")
         out = {}
         for name, path in given.items():
-            s = next((n for n, k in self.tactile_keys.items() if name in (n, k)), None)
+            s = next((n for n, k in self.tactile_keys.items() if name in (n, k, tactile_key(n, HDF5))), None)
             if s is None:
                 raise ValueError(f"background_images: {name!r} is not a tactile camera returned; those are "
                                  f"{list(self.tactile_keys.values())}")
+            if s in out:
+                raise ValueError(f"background_images: {self.tactile_keys[s]!r} is named twice")
             out[s] = read_background_image(path)
             check_background_size(out[s], tuple(features[self.tactile_keys[s]]["shape"][:2]), "background_images",
                                   self.tactile_keys[s])
@@ -209,7 +214,9 @@ class LeRobotEpisodes(Dataset):
         return out
 
     def fingerprint(self) -> dict:
-        return {"root": str(self.root), **self.folder.fingerprint()}
+        """The folder's identity, and the given background images' pixels' digests (they change the items)."""
+        return {"root": str(self.root), **self.folder.fingerprint(),
+                **({"background_images": self._given} if self._given else {})}
 
     def __len__(self) -> int:
         return len(self.folder)

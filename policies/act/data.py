@@ -97,7 +97,8 @@ def load_training_data(root: str | Path, chunk_size: int, val_fraction: float = 
     if (Path(root) / "meta" / "info.json").is_file():
         ds = LeRobotEpisodes(root, chunk_size=chunk_size, tactile_sensors=tactile_sensors, **(lerobot or {}))
     elif lerobot:
-        raise ValueError(f"tactile_keys / force_keys / background_images: only for a LeRobot v3.0 folder; {root} has no meta/info.json")
+        raise ValueError(f"tactile_keys / force_keys / background_images: only for a LeRobot v3.0 folder; {root} "
+                         "has no meta/info.json")
     else:
         ds = EpisodeDataset(root, chunk_size=chunk_size, stats_path=stats_path, tactile_sensors=tactile_sensors)
     train_idx, val_idx = split_by_episode(ds, val_fraction, seed, getattr(ds, "recorded_episode", None))
