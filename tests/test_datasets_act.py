@@ -11,7 +11,8 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-from controltac_il.datasets import Episode, EpisodeDataset, estimate_background, write_episode
+from controltac_il.datasets import Episode, EpisodeDataset, estimate_background, read_background_image, write_episode
+from controltac_il.datasets.background import image_digests
 
 H, W = 12, 16
 
@@ -170,6 +171,31 @@ def test_missing_background_is_estimated_with_warning(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a recorded background: no estimate, no warning
         EpisodeDataset(root2, stats_path=tmp_path / "s2.json")
+
+
+def test_a_given_background_image_stands_in_every_episode_and_in_the_datas_identity(tmp_path):
+    """Episodes that start in contact: the image of the sensor at rest is every episode's background, in place of
+    the estimate, without a warning; the dataset's fingerprint (ForceAugment's caches, the stats) holds its digest."""
+    import cv2
+
+    root = tmp_path / "d"
+    for i in range(2):
+        write_episode(root / f"episode_{i}.hdf5", synthetic_episode(10, i, background=False, contact=range(0, 10)))
+    rest = tmp_path / "rest.png"
+    cv2.imwrite(str(rest), np.full((H, W, 3), 100, np.uint8))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        given = EpisodeDataset(root, stats_path=tmp_path / "s.json", background_images={"left": rest})
+    for i in (0, 10, 19):
+        assert (given[i]["observation.tactile_background.left"] == 100).all()
+    with pytest.warns(UserWarning, match="no tactile background"):
+        estimated = EpisodeDataset(root, stats_path=tmp_path / "s.json")
+    assert (estimated[0]["observation.tactile_background.left"] > 150).any()  # the estimate holds the contact
+    digest = image_digests({"left": read_background_image(rest)})
+    assert given.fingerprint() == {**estimated.fingerprint(), "background_images": digest}
+    with pytest.raises(ValueError, match=r"^background_images: 'right' is not a tactile sensor of the data; those "
+                                         r"are \['left'\]"):
+        EpisodeDataset(root, stats_path=tmp_path / "s.json", background_images={"right": rest})
 
 
 def test_estimate_background_prefers_force_labels():

@@ -1,6 +1,6 @@
 """A LeRobot folder records no tactile background: ``--background-image`` gives the one a lab recorded of its sensor
 at rest, to the augment command (ForceAugment's ``background_images``) and to train_act.py (``LeRobotEpisodes``,
-whose items and checkpoint carry it). The source folder: lerobot_fixtures."""
+and ``EpisodeDataset`` for ACT episodes, whose items and checkpoint carry it). The source folder: lerobot_fixtures."""
 
 import json
 import warnings
@@ -12,6 +12,7 @@ import torch
 
 from controltac_il.augment import ForceAugment, main
 from controltac_il.lerobot import LeRobotEpisodes, LeRobotFolder, read_record
+from aug_fixtures import make_folder
 from lerobot_fixtures import FORCES, H, LEFT, RIGHT, W
 
 
@@ -86,14 +87,19 @@ def test_train_act_takes_the_image_for_its_items_and_checkpoint(written, rest, t
     for args, expected in ((["--dataset", str(root), "--background-image", f"gelsight_left={tmp_path / 'no.png'}"],
                             "--background-image: "),
                            (["--dataset", str(root), "--background-image", f"gelsight_left={wide}"],
-                            f"--background-image: the image for {LEFT} is 33x32"),
+                            f"--background-image: the image for '{LEFT}' is 33x32"),
                            (["--dataset", str(root), "--background-image", f"wrist={rest}"],
-                            "--background-image: 'wrist' is not a tactile camera returned"),
-                           (["--dataset", str(episodes), "--background-image", f"left={rest}"],
+                            "--background-image: 'wrist' is not a tactile sensor of the data"),
+                           (["--dataset", str(episodes), "--tactile-keys", "left"],
                             "only with a LeRobot v3.0 --dataset")):
         assert train_act.main([*args, "--out", str(tmp_path / "bad"), *flags]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and expected in err, err
+    hdf5 = make_folder(tmp_path / "hdf5")  # ACT episodes (sensor "left", 32 x 32) take the flag too
+    dark = write_png(tmp_path / "dark.png", np.full((32, 32, 3), 60, np.uint8))
+    assert train_act.main(["--dataset", str(hdf5), "--out", str(tmp_path / "run_h5"), *flags,
+                           "--background-image", f"left={dark}"]) == 0
+    assert (load_checkpoint(tmp_path / "run_h5" / "last")[1]["left"] == 60).all()
 
 
 def test_the_image_is_part_of_the_datas_identity_and_named_once(written, rest, tmp_path):
@@ -110,5 +116,5 @@ def test_the_image_is_part_of_the_datas_identity_and_named_once(written, rest, t
         settings = [ForceAugment(d, generator, copies=1, mode="online", progress=False).settings()["data"]
                     for d in (plain, given)]
     assert settings[0] != settings[1]
-    with pytest.raises(ValueError, match=rf"^background_images: '{LEFT}' is named twice"):
+    with pytest.raises(ValueError, match=r"^background_images: 'gelsight_left' is named twice"):
         LeRobotEpisodes(root, background_images={"gelsight_left": rest, LEFT: rest})

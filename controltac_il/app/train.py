@@ -14,13 +14,13 @@ from policies.act.training import ACTTrainConfig, train_on_folder
 def train_act(out: str | Path, dataset: str | Path | None = None, *, demos: int = DEMO_EPISODES, preset: str = "cpu",
               train_config: ACTTrainConfig | None = None, copies: int = 0, generator: str | Path | None = None,
               val_fraction: float = 0.1, chunk_size: int = 20, resume: bool = False, overwrite: bool = False,
-              progress: bool = True, lerobot: dict | None = None) -> dict:
+              progress: bool = True, data_options: dict | None = None) -> dict:
     """Train into ``out`` (``last/``, ``best/``, ``train_log.json``); returns the training summary.
 
     dataset: folder of ``episode_<i>.hdf5``; None collects (or reuses) ``demos`` scripted demos.
     copies: ForceAugment copies per training episode (0 = real data only), drawn with the training seed.
-    lerobot: for a LeRobot v3.0 ``dataset``, {"tactile_keys": [...], "force_keys": {...}, "background_images":
-        {...}} (``LeRobotEpisodes``' arguments; None: by name, backgrounds estimated).
+    data_options: how to read ``dataset`` (``policies.act.data.load_training_data``): a LeRobot v3.0 folder's
+        {"tactile_keys": [...], "force_keys": {...}}, for either kind "background_images" (None: the defaults).
     resume / overwrite: continue the run in ``out`` / replace it (only what the training wrote); without
     either, an ``out`` holding a run is refused (``policies.act.training.train``).
     """
@@ -30,4 +30,4 @@ def train_act(out: str | Path, dataset: str | Path | None = None, *, demos: int 
     augment = ForceAugmentStage(copies, generator, seed=train_config.seed) if copies else None
     return train_on_folder(dataset, out, preset=preset, train_config=train_config, val_fraction=val_fraction,
                            augment=augment, resume=resume, overwrite=overwrite, chunk_size=chunk_size,
-                           progress=progress, lerobot=lerobot)
+                           progress=progress, data_options=data_options)

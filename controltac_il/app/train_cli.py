@@ -39,9 +39,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--force-keys", nargs="+", default=None, metavar="TACTILE_KEY=FORCE_KEY",
                    help="LeRobot folder: the force label of each tactile camera (default: observation.<camera>.force)")
     p.add_argument("--background-image", nargs="+", default=None, metavar="TACTILE_KEY=PNG",
-                   help="LeRobot folder: the no-contact image of a tactile camera at rest (an RGB PNG at its frames' "
-                        "size), its background in every episode and in the checkpoint (default: estimated per "
-                        "episode from the episode's frames, which needs episodes that start out of contact)")
+                   help="the no-contact image of a tactile sensor at rest (an RGB PNG at its frames' size; a "
+                        "LeRobot camera's name or key, or an episode folder's sensor name), its background in every "
+                        "episode and in the checkpoint (default: the episodes' recorded one, else estimated per "
+                        "episode from its frames, which needs episodes that start out of contact)")
     p.add_argument("--out", type=Path, default=Path("runs/act"), help="output folder (default: runs/act)")
     p.add_argument("--preset", choices=("cpu", "gpu"), default="cpu",
                    help="cpu: small CNN, dim 128 (minutes on 2 cores); gpu: ResNet-18, dim 512 (the paper's ACT) "
@@ -78,8 +79,8 @@ FLAGS = {"steps": "--steps", "batch_size": "--batch-size", "val_every": "--val-e
          "num_workers": "--workers", "seed": "--seed"}
 
 
-# LeRobotEpisodes' settings -> the flags that set them
-LEROBOT_FLAGS = {"tactile_keys": "--tactile-keys", "force_keys": "--force-keys", "background_images": "--background-image"}
+# the data options -> the flags that set them
+DATA_FLAGS = {"tactile_keys": "--tactile-keys", "force_keys": "--force-keys", "background_images": "--background-image"}
 
 
 def augment_copies(args: argparse.Namespace) -> int:
@@ -114,11 +115,11 @@ def check_args(args: argparse.Namespace):
         raise ValueError(f"--copies must be in 1..9 (ForceAugment copies per episode), got {args.copies}")
     if args.dataset is not None and not args.dataset.is_dir():
         raise ValueError(f"--dataset {args.dataset}: episode folder not found")
-    keys = lerobot_keys(args) or {}  # the KEY=VALUE flags' form checked
-    if (keys or args.tactile_keys) and not (args.dataset and (args.dataset / "meta" / "info.json").is_file()):
-        raise ValueError("--tactile-keys / --force-keys / --background-image: only with a LeRobot v3.0 --dataset (a "
-                         "folder with meta/info.json; ACT episodes hold their own /observations/tactile_background)")
-    for path in keys.get("background_images", {}).values():
+    options = data_options(args) or {}  # the KEY=VALUE flags' form checked
+    if (args.tactile_keys or args.force_keys) and not (args.dataset and (args.dataset / "meta" / "info.json").is_file()):
+        raise ValueError("--tactile-keys / --force-keys: only with a LeRobot v3.0 --dataset (a folder with "
+                         "meta/info.json)")
+    for path in options.get("background_images", {}).values():
         read_background_image(path, field="--background-image")  # before any slow work
     try:
         return ACTTrainConfig(steps=args.steps, batch_size=args.batch_size, val_every=args.val_every,
@@ -153,16 +154,17 @@ def run(args: argparse.Namespace, train_config=None) -> dict:
         return train_act(args.out, args.dataset, demos=args.demos, preset=args.preset, train_config=train_config,
                          copies=augment_copies(args), generator=args.generator,
                          val_fraction=args.val_fraction, chunk_size=args.chunk_size, resume=args.resume,
-                         overwrite=args.overwrite, lerobot=lerobot_keys(args))
-    except ValueError as exc:  # a LeRobot folder's key setting ("tactile_keys: ...") named by its flag
+                         overwrite=args.overwrite, data_options=data_options(args))
+    except ValueError as exc:  # a data option's error ("tactile_keys: ...") named by its flag
         field, _, rest = str(exc).partition(": ")
-        if field in LEROBOT_FLAGS:
-            raise ValueError(f"{LEROBOT_FLAGS[field]}: {rest}") from exc
+        if field in DATA_FLAGS:
+            raise ValueError(f"{DATA_FLAGS[field]}: {rest}") from exc
         raise
 
 
-def lerobot_keys(args: argparse.Namespace) -> dict | None:
-    """--tactile-keys / --force-keys / --background-image as LeRobotEpisodes' arguments (None: its defaults)."""
+def data_options(args: argparse.Namespace) -> dict | None:
+    """--tactile-keys / --force-keys / --background-image as ``load_training_data``'s data options (None: the
+    defaults)."""
     keys = {}
     if args.tactile_keys:
         keys["tactile_keys"] = list(args.tactile_keys)

@@ -17,14 +17,13 @@ its ``delta_timestamps`` (s) x ``fps`` (``fps=`` or the dataset's ``fps`` / ``me
 
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from controltac_il.arrays import as_array
 from controltac_il.augment.items import put_image, to_hwc_uint8
-from controltac_il.datasets.background import check_background_size, read_background_image
+from controltac_il.datasets.background import check_background_size, image_digests, read_background_image
 from controltac_il.streams import BACKGROUND, FORCE, HDF5, LEROBOT, looks_tactile, rule_key, tactile_key
 
 OFFSET_TOLERANCE = 0.01  # frames: a delta_timestamp must be this close to a whole number of frames
@@ -116,7 +115,7 @@ class KeyMap:
         if explicit_backgrounds:
             out["background_keys"] = {k: self.backgrounds[k] for k in self.tactile_keys}
         if self.images:
-            out["background_images"] = {k: hashlib.sha256(v.tobytes()).hexdigest()[:16] for k, v in self.images.items()}
+            out["background_images"] = image_digests(self.images)
         return out
 
 

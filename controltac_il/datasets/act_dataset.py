@@ -33,7 +33,7 @@ from torch.utils.data import Dataset, Subset
 
 from controltac_il.arrays import as_index
 from controltac_il.config import is_int
-from controltac_il.datasets.background import estimate_background
+from controltac_il.datasets.background import estimate_background, given_backgrounds, image_digests
 from controltac_il.datasets.checks import (ACTION, QPOS, check_episode, check_same_layout, check_same_streams, layout,
                                            open_episode, stream_path, streams)
 from controltac_il.datasets.episodes import episode_index, episode_paths
@@ -71,9 +71,12 @@ class EpisodeDataset(Dataset):
         tactile_sensors: tactile sensor names to return; None = all of the first episode.
         stats_path: JSON file for the qpos/action mean and std; None = a file named after the folder in
             ``default_stats_dir()``. Recomputed when the episode files change (see ``fingerprint``).
+        background_images: {tactile sensor (or its key observation.tactile.<s>): path of an RGB image file of it
+            at rest}: its background in every episode, in place of the recorded or estimated one.
     """
 
-    def __init__(self, root, chunk_size: int = 20, cameras=None, tactile_sensors=None, stats_path=None):
+    def __init__(self, root, chunk_size: int = 20, cameras=None, tactile_sensors=None, stats_path=None,
+                 background_images=None):
         if not is_int(chunk_size) or chunk_size < 1:
             raise ValueError(f"chunk_size: expected an int >= 1, got {chunk_size!r}")
         self.root = Path(root).resolve()
@@ -105,7 +108,10 @@ class EpisodeDataset(Dataset):
                     backgrounds[(n, s)] = f[key][()] if key in f else None
         self.lengths = np.asarray(lengths, dtype=np.int64)
         self.offsets = np.concatenate([[0], np.cumsum(self.lengths)])
-        self.backgrounds = self._fill_backgrounds(backgrounds)
+        given = given_backgrounds(background_images, {s: (tactile_key(s, HDF5),) for s in self.tactile_sensors},
+                                  {s: first_layout[stream_path("tactile", s)][:2] for s in self.tactile_sensors})
+        self._given = image_digests(given)
+        self.backgrounds = self._fill_backgrounds({(n, s): given.get(s, bg) for (n, s), bg in backgrounds.items()})
         self.stats_path = Path(stats_path) if stats_path is not None else self._default_stats_path()
         self.stats = self._load_or_compute_stats()
         self._files: dict[int, dict] = {}
@@ -143,7 +149,7 @@ class EpisodeDataset(Dataset):
     # --- normalisation statistics -------------------------------------------------------------
     def fingerprint(self) -> dict:
         """Identity of the data: per episode file name, size, modification time (ns), length and a
-        digest of its qpos and actions.
+        digest of its qpos and actions; the given background images' pixels' digests.
 
         Size and length alone do not tell a re-recorded folder from the old one (episodes of a
         fixed-length task match byte for byte in size); the trajectory digest and mtime do."""
@@ -151,7 +157,8 @@ class EpisodeDataset(Dataset):
         for p, n, digest in zip(self.paths, self.lengths, self._digests):
             st = p.stat()
             files.append([p.name, st.st_size, st.st_mtime_ns, int(n), digest])
-        return {"root": str(self.root), "files": files}
+        given = {"background_images": self._given} if self._given else {}  # they change the items
+        return {"root": str(self.root), "files": files, **given}
 
     def _default_stats_path(self) -> Path:
         digest = hashlib.sha256(str(self.root).encode()).hexdigest()[:16]

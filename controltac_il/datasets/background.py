@@ -10,6 +10,7 @@ removes the sensor noise).
 
 from __future__ import annotations
 
+import hashlib
 import os
 import warnings
 from pathlib import Path
@@ -91,3 +92,29 @@ def check_background_size(image: np.ndarray, frame_hw: tuple, field: str, where:
     if tuple(image.shape[:2]) != tuple(frame_hw):
         raise ValueError(f"{field}: the image for {where} is {image.shape[1]}x{image.shape[0]} (W x H); its "
                          f"frames are {frame_hw[1]}x{frame_hw[0]}: record it with the same camera settings")
+
+
+def given_backgrounds(given, names: dict[str, tuple[str, ...]], frame_hw: dict[str, tuple[int, int]]) -> dict:
+    """{sensor: uint8 (H, W, 3)} of ``background_images`` ({a sensor's name or one of its keys ``names[s]``:
+    image file}), read and checked against that sensor's frame size ``frame_hw[s]``; ValueError naming the
+    setting for an unknown or twice-named sensor."""
+    if given is None:
+        return {}
+    if not isinstance(given, dict):
+        raise ValueError(f"background_images: expected {{tactile sensor: image file}}, got {type(given).__name__}")
+    out = {}
+    for name, path in given.items():
+        s = next((s for s, keys in names.items() if name == s or name in keys), None)
+        if s is None:
+            raise ValueError(f"background_images: {name!r} is not a tactile sensor of the data; those are {list(names)}")
+        if s in out:
+            raise ValueError(f"background_images: {s!r} is named twice")
+        out[s] = read_background_image(path)
+        check_background_size(out[s], frame_hw[s], "background_images", repr(names[s][0]))
+    return out
+
+
+def image_digests(images: dict) -> dict[str, str]:
+    """{name: the first 16 hex digits of the SHA-256 of its pixels}: what a cache or fingerprint records of a
+    given image (moving the file keeps it, editing a pixel does not)."""
+    return {k: hashlib.sha256(np.ascontiguousarray(v).tobytes()).hexdigest()[:16] for k, v in images.items()}

@@ -23,7 +23,6 @@ split by episode keeps an episode and its copies on one side.
 
 from __future__ import annotations
 
-import hashlib
 import sys
 import warnings
 from pathlib import Path
@@ -37,7 +36,7 @@ from tqdm import tqdm
 
 from controltac_il.config import is_int
 from controltac_il.datasets.act_dataset import STD_FLOOR
-from controltac_il.datasets.background import check_background_size, estimate_background, read_background_image
+from controltac_il.datasets.background import estimate_background, given_backgrounds, image_digests
 from controltac_il.datasets.checks import check_force_labels
 from controltac_il.lerobot.provenance import COPY
 from controltac_il.lerobot.reader import LeRobotFolder, decode_png, numbers, read_info
@@ -138,9 +137,11 @@ class LeRobotEpisodes(Dataset):
                       for name, v in (("qpos", columns[LEROBOT_STATE]), ("action", columns["action"]))}
         for key in self.force_keys.values():  # finite, in N, Fz > 0 pressing, as an HDF5 episode's labels
             check_force_labels(f"{self.root.name}: {key}", columns[key])
-        given = self._given_backgrounds(background_images, features)
+        given = given_backgrounds(background_images,
+                                  {s: (k, tactile_key(s, HDF5)) for s, k in self.tactile_keys.items()},
+                                  {s: tuple(features[k]["shape"][:2]) for s, k in self.tactile_keys.items()})
         self.backgrounds = self._backgrounds(given)
-        self._given = {s: hashlib.sha256(v.tobytes()).hexdigest()[:16] for s, v in given.items()}
+        self._given = image_digests(given)
 
     def _recorded(self, copy: np.ndarray | None) -> dict[int, int]:
         """{episode: the recorded episode it is or copies}, from the ``augment.copy`` column (N, 1) in row order
@@ -174,25 +175,6 @@ class LeRobotEpisodes(Dataset):
         if bad:
             raise ValueError(f"force_keys: {bad} are not (3,) force features of tactile keys of the dataset")
         return {lerobot_name(k): f for k, f in force_keys.items()}
-
-    def _given_backgrounds(self, given, features: dict) -> dict[str, np.ndarray]:
-        """{sensor: uint8 (H, W, 3)} of ``background_images``, read and checked against the camera's frame size."""
-        if given is None:
-            return {}
-        if not isinstance(given, dict):
-            raise ValueError(f"background_images: expected {{tactile key: image file}}, got {type(given).__name__}")
-        out = {}
-        for name, path in given.items():
-            s = next((n for n, k in self.tactile_keys.items() if name in (n, k, tactile_key(n, HDF5))), None)
-            if s is None:
-                raise ValueError(f"background_images: {name!r} is not a tactile camera returned; those are "
-                                 f"{list(self.tactile_keys.values())}")
-            if s in out:
-                raise ValueError(f"background_images: {self.tactile_keys[s]!r} is named twice")
-            out[s] = read_background_image(path)
-            check_background_size(out[s], tuple(features[self.tactile_keys[s]]["shape"][:2]), "background_images",
-                                  self.tactile_keys[s])
-        return out
 
     def _backgrounds(self, given: dict) -> dict:
         """{(episode position, sensor): uint8 (H, W, 3)}: ``given``'s image, else estimated from the episode's own

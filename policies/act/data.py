@@ -87,20 +87,21 @@ class TrainingData:
 
 def load_training_data(root: str | Path, chunk_size: int, val_fraction: float = 0.1, seed: int = 0,
                        stats_path: str | Path | None = None, tactile_sensors=None,
-                       lerobot: dict | None = None) -> TrainingData:
+                       data_options: dict | None = None) -> TrainingData:
     """Open ``root`` (a folder of ACT episodes: :class:`EpisodeDataset`; a LeRobot v3.0 folder, with
     ``meta/info.json``: :class:`LeRobotEpisodes`, its default tactile and force keys) and split it by episode.
 
     tactile_sensors: the tactile streams to train on (None = all; () = none, a vision-only policy).
-    lerobot: a LeRobot folder's ``tactile_keys`` / ``force_keys`` / ``background_images`` (``LeRobotEpisodes``;
-        None: its defaults)."""
+    data_options: how to read it: a LeRobot folder's ``tactile_keys`` / ``force_keys``, and for either kind
+        ``background_images`` {tactile sensor: image file} (None: the defaults)."""
+    options = dict(data_options or {})
     if (Path(root) / "meta" / "info.json").is_file():
-        ds = LeRobotEpisodes(root, chunk_size=chunk_size, tactile_sensors=tactile_sensors, **(lerobot or {}))
-    elif lerobot:
-        raise ValueError(f"tactile_keys / force_keys / background_images: only for a LeRobot v3.0 folder; {root} "
-                         "has no meta/info.json")
+        ds = LeRobotEpisodes(root, chunk_size=chunk_size, tactile_sensors=tactile_sensors, **options)
+    elif set(options) - {"background_images"}:
+        raise ValueError(f"tactile_keys / force_keys: only for a LeRobot v3.0 folder; {root} has no meta/info.json")
     else:
-        ds = EpisodeDataset(root, chunk_size=chunk_size, stats_path=stats_path, tactile_sensors=tactile_sensors)
+        ds = EpisodeDataset(root, chunk_size=chunk_size, stats_path=stats_path, tactile_sensors=tactile_sensors,
+                            **options)
     train_idx, val_idx = split_by_episode(ds, val_fraction, seed, getattr(ds, "recorded_episode", None))
     episodes, _ = ds.frame_table()
     stats = {k: {m: np.asarray(v).astype(float).tolist() for m, v in d.items()} for k, d in ds.stats.items()}

@@ -293,11 +293,12 @@ def train_on_folder(dataset: str | Path, out_dir: str | Path, *, preset: str = "
                     val_fraction: float = 0.1, augment=None, resume: bool = False, overwrite: bool = False,
                     stats_path=None,
                     tactile_sensors=None, split_seed: int | None = None, progress: bool = True,
-                    lerobot: dict | None = None, **act_overrides) -> dict:
+                    data_options: dict | None = None, **act_overrides) -> dict:
     """Train ACT on a folder of episodes; the ACT config's data fields come from the episodes.
 
     tactile_sensors: tactile streams the policy reads (None = every one recorded; () = vision only).
-    lerobot: a LeRobot v3.0 folder's {"tactile_keys": [...], "force_keys": {...}} (None: the defaults by name).
+    data_options: how to read the data (``load_training_data``): a LeRobot v3.0 folder's {"tactile_keys": [...],
+        "force_keys": {...}}, for either kind "background_images" (None: the defaults).
     split_seed: seed of the train / validation split by episode (None = ``train_config.seed``), so that
         training seeds can vary on one split (and one ForceAugment cache).
     augment: optional ``AugmentStage`` (``controltac_il.datasets.stage``: e.g. ForceAugment copies of the training
@@ -312,7 +313,7 @@ def train_on_folder(dataset: str | Path, out_dir: str | Path, *, preset: str = "
     claim_output(out_dir, RUN_OUTPUTS, resume=resume or overwrite, tool="train_act.py")  # before any slow work
     if resume and not (Path(out_dir) / "last").is_dir():
         raise CheckpointError(f"--resume: no checkpoint to continue from at {Path(out_dir) / 'last'}")
-    data = load_training_data(dataset, chunk, val_fraction, split, stats_path, tactile_sensors, lerobot)
+    data = load_training_data(dataset, chunk, val_fraction, split, stats_path, tactile_sensors, data_options)
     if chunk > data.longest_episode:
         raise ValueError(f"chunk_size {chunk} (--chunk-size) is longer than every episode of {dataset} (the longest "
                          f"has {data.longest_episode} frames): most of each action chunk would be padding; use "
