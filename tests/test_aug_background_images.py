@@ -76,7 +76,8 @@ def test_an_image_beside_the_items_own_background_takes_its_place_in_the_frames_
     for i in range(len(aug)):
         assert (aug[i][key] == 60).all() and aug[i][key].dtype == ds[0][key].dtype, i
     with pytest.raises(ValueError, match=r"^background_images: 'observation.tactile.left' also has background_keys"):
-        ForceAugment(ds, gen, background_images={"left": dark}, background_keys={"observation.tactile.left": key}, mode="online")
+        ForceAugment(ds, gen, background_images={"left": dark}, background_keys={"observation.tactile.left": key},
+                     mode="online")
 
 
 def test_windows_take_the_image_as_they_take_the_items_background(gen, rest):

@@ -106,7 +106,8 @@ def given_backgrounds(given, names: dict[str, tuple[str, ...]], frame_hw: dict[s
     for name, path in given.items():
         s = next((s for s, keys in names.items() if name == s or name in keys), None)
         if s is None:
-            raise ValueError(f"background_images: {name!r} is not a tactile sensor of the data; those are {list(names)}")
+            raise ValueError(f"background_images: {name!r} is not a tactile sensor of the data; those are "
+                             f"{list(names)}")
         if s in out:
             raise ValueError(f"background_images: {s!r} is named twice")
         out[s] = read_background_image(path)
