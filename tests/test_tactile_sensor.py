@@ -122,6 +122,19 @@ def test_residual_round_trip():
     np.testing.assert_array_equal(from_residual(res, bg), img)  # exact within the ±127 range
 
 
+@pytest.mark.parametrize("kwargs, says", [({"threshold": "12"}, "threshold: expected grey levels in [0, 255), got '12'"),
+                                          ({"threshold": float("nan")}, "threshold: expected grey levels"),
+                                          ({"threshold": -1.0}, "threshold: expected grey levels"),
+                                          ({"min_pixels": 2.5}, "min_pixels: expected an int >= 0, got 2.5"),
+                                          ({"min_pixels": -1}, "min_pixels: expected an int >= 0")])
+def test_contact_mask_refuses_a_threshold_or_count_it_cannot_compare(kwargs, says):
+    res = np.full((4, 5, 3), 127, np.uint8)
+    assert contact_mask(res, threshold=np.float32(0.5), min_pixels=np.int64(0)).sum() == 0  # numpy scalars are fine
+    with pytest.raises(ValueError) as exc:
+        contact_mask(res, **kwargs)
+    assert str(exc.value).startswith(says)
+
+
 def test_render_penetration_matches_press(quiet_sensor):
     c = quiet_sensor.press("thin_cylinder", (0, 0, 0.5), (0.3, -0.2, 4.0))
     img = quiet_sensor.render_penetration(c.penetration_mm, shear=(0.3, -0.2))

@@ -43,6 +43,10 @@ def contact_mask(residual: np.ndarray, threshold: float = 12.0, min_pixels: int 
 
     With ``min_pixels`` > 0, an image with fewer contact pixels than that is treated as no contact.
     """
+    if isinstance(threshold, bool) or not isinstance(threshold, (int, float, np.number)) or not 0 <= threshold < 255:
+        raise ValueError(f"threshold: expected grey levels in [0, 255), got {threshold!r}")
+    if isinstance(min_pixels, bool) or not isinstance(min_pixels, (int, np.integer)) or min_pixels < 0:
+        raise ValueError(f"min_pixels: expected an int >= 0, got {min_pixels!r}")
     mask = residual_magnitude(residual) > threshold
     if min_pixels > 0:
         counts = mask.reshape(*mask.shape[:-2], -1).sum(-1)
