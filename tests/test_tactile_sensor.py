@@ -122,11 +122,12 @@ def test_residual_round_trip():
     np.testing.assert_array_equal(from_residual(res, bg), img)  # exact within the ±127 range
 
 
-@pytest.mark.parametrize("kwargs, says", [({"threshold": "12"}, "threshold: expected grey levels in [0, 255), got '12'"),
-                                          ({"threshold": float("nan")}, "threshold: expected grey levels"),
-                                          ({"threshold": -1.0}, "threshold: expected grey levels"),
-                                          ({"min_pixels": 2.5}, "min_pixels: expected an int >= 0, got 2.5"),
-                                          ({"min_pixels": -1}, "min_pixels: expected an int >= 0")])
+@pytest.mark.parametrize("kwargs, says", [
+    ({"threshold": "12"}, "threshold: expected grey levels in [0, 255), got '12'"),
+    ({"threshold": float("nan")}, "threshold: expected grey levels"),
+    ({"threshold": -1.0}, "threshold: expected grey levels"),
+    ({"min_pixels": 2.5}, "min_pixels: expected an int >= 0, got 2.5"),
+    ({"min_pixels": -1}, "min_pixels: expected an int >= 0")])
 def test_contact_mask_refuses_a_threshold_or_count_it_cannot_compare(kwargs, says):
     res = np.full((4, 5, 3), 127, np.uint8)
     assert contact_mask(res, threshold=np.float32(0.5), min_pixels=np.int64(0)).sum() == 0  # numpy scalars are fine
