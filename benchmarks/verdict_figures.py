@@ -83,13 +83,44 @@ def augment_table(doc: dict) -> str:
                      "frames regenerated"], rows)
 
 
+def seed_ranges(seeds) -> str:
+    """Seeds as runs of consecutive ones: [12, 13, 14, 20] -> "12–14, 20"."""
+    runs: list[list[int]] = []
+    for s in sorted(set(seeds)):
+        if runs and s == runs[-1][1] + 1:
+            runs[-1][1] = s
+        else:
+            runs.append([s, s])
+    return ", ".join(f"{a}–{b}" if b > a else str(a) for a, b in runs) or "–"
+
+
+def cache_table(doc: dict) -> str:
+    """Where a grid's augmented policies trained on more than one ForceAugment cache (a machine that rebuilt it):
+    per cache digest, the seeds whose tested policy (at the variant's step: its test units, or its training run
+    where it is tested at the last step) and whose full training run trained on it. Empty for one cache."""
+    digests = doc.get("augment_digests") or []
+    if len(digests) < 2:
+        return ""
+    rows = []
+    for v in doc.get("force_augment_counts", {}):
+        units = [u for u in doc["units"] if u["variant"] == v]
+        runs = [u for u in units if u["kind"] == "train"]
+        tested = [u for u in units if u["kind"] == "test"] or [u for u in runs if "test" in u]
+        step = doc.get("steps", {}).get(v, {}).get("step")
+        rows += [[f"`{d}`", v if step is None else f"{v} (step {step})",
+                  seed_ranges(u["seed"] for u in tested if u.get("augment_digest") == d),
+                  seed_ranges(u["seed"] for u in runs if u.get("augment_digest") == d)] for d in digests]
+    return ft.table(["ForceAugment cache", "variant (tested step)", "seeds whose tested policy trained on it",
+                     "seeds whose full-length training run did"], rows) if rows else ""
+
+
 def block(doc: dict, source: str) -> str:
     """The docs block: power, the looks (a sequential design), success, comparisons, validation curves,
-    ForceAugment's targets, the source line."""
+    ForceAugment's targets and caches, the source line."""
     power = doc["protocol"].get("power", {})
     statement = sequential_statement(power) if "mde_80" in power else doc["power_statement"]
     parts = [f"*Power, stated before any result: {statement}.*", looks_table(doc), success_table(doc),
-             comparisons_table(doc), validation_table(doc), augment_table(doc), source]
+             comparisons_table(doc), validation_table(doc), augment_table(doc), cache_table(doc), source]
     return "\n\n".join(p for p in parts if p)
 
 

@@ -182,3 +182,20 @@ def test_a_sequential_designs_power_sentence_is_written_from_its_numbers_not_the
     text = vf.block(doc, "")
     assert "80 % power at a 13-point effect" in text and "at 13%" not in text
     assert "10-point effect with 63% probability and a 13-point one with 84% (5% at look 1)" in text
+
+
+def test_the_cache_table_names_each_caches_seeds_only_where_a_grid_used_two():
+    """A machine that rebuilt the ForceAugment cache: each seed's tested policy (a test unit at fa2's step) and its
+    training run are listed under the cache they trained on; a grid on one cache has no table."""
+    doc = _v3_doc(trained=6, tested_seeds=6)
+    assert vf.cache_table(doc) == ""
+    doc["force_augment_counts"] = {"fa2": {}}
+    doc["steps"]["fa2"] = {"step": 6000}
+    doc["augment_digests"] = ["old", "new"]
+    for u in doc["units"]:
+        u["augment_digest"] = "old" if u["seed"] < 15 else "new"
+    doc["units"] += [{"kind": "test", "variant": "fa2", "seed": s, "augment_digest": "old" if s < 13 else "new"}
+                     for s in (12, 13, 14)]  # seeds 13 and 14 retrained to step 6000 on the new machine
+    assert vf.seed_ranges([20, 12, 13, 14, 17, 18]) == "12–14, 17–18, 20" and vf.seed_ranges([]) == "–"
+    table = vf.cache_table(doc).splitlines()
+    assert table[2:] == ["| `old` | fa2 (step 6000) | 12 | 12–14 |", "| `new` | fa2 (step 6000) | 13–14 | 15–17 |"]
