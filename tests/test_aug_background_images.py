@@ -108,7 +108,7 @@ def test_a_jpeg_reads_as_rgb(tmp_path):
     ("sixteen_bit", r"^background_images: .*deep.png is uint16 with 3 channel\(s\)"),
     ("wrong_size", r"^background_images: the image for 'observation.images.gelsight' is 33x32 \(W x H\); its frames "
                    r"are 32x32"),
-    ("unknown_key", r"^background_images: 'wrist' is not a tactile key; the tactile keys are "
+    ("unknown_key", r"^background_images: 'wrist' is not a tactile sensor of the data; those are "
                     r"\['observation.images.gelsight'\]"),
     ("not_a_dict", r"^background_images: expected a dict \{tactile key: image file path\}"),
 ])

@@ -51,7 +51,7 @@ def test_the_command_uses_the_image_and_records_its_digest(written, rest, tmp_pa
     for flag_value, expected in (("gelsight_left", "--background-image: expected TACTILE_KEY=PNG pairs"),
                                  (f"gelsight_left={tmp_path / 'none.png'}", "--background-image: "),
                                  (f"gelsight_left={wide}", f"--background-image: the image for '{LEFT}' is 33x32"),
-                                 (f"wrist={rest}", "--background-image: 'wrist' is not a tactile key")):
+                                 (f"wrist={rest}", "--background-image: 'wrist' is not a tactile sensor of the data")):
         assert main([*base, "--out", str(tmp_path / "bad"), "--background-image", flag_value]) == 2, flag_value
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and expected in err, err

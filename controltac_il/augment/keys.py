@@ -23,8 +23,8 @@ import numpy as np
 
 from controltac_il.arrays import as_array
 from controltac_il.augment.items import put_image, to_hwc_uint8
-from controltac_il.datasets.background import check_background_size, image_digests, read_background_image
-from controltac_il.streams import BACKGROUND, FORCE, HDF5, LEROBOT, looks_tactile, rule_key, tactile_key
+from controltac_il.datasets.background import given_backgrounds, image_digests
+from controltac_il.streams import BACKGROUND, FORCE, HDF5, LEROBOT, lerobot_name, looks_tactile, rule_key, tactile_key
 
 OFFSET_TOLERANCE = 0.01  # frames: a delta_timestamp must be this close to a whole number of frames
 
@@ -182,7 +182,9 @@ def resolve_keys(probe: dict, config, dataset) -> KeyMap:
         extra = sorted(set(getattr(config, name) or {}) - set(tactile))
         if extra:
             raise ValueError(f"{name}: {extra} are not tactile keys; the tactile keys are {list(tactile)}")
-    images = _background_images(probe, config.background_images, tactile)
+    images = given_backgrounds(config.background_images, {k: (k, lerobot_name(k)) for k in tactile},
+                               {k: to_hwc_uint8(probe[k][0] if len(probe[k].shape) == 4 else probe[k], k).shape[:2]
+                                for k in tactile}) if config.background_images else {}
     labels, backgrounds, offsets, label_offsets = {}, {}, {}, {}
     for k in tactile:
         shape = tuple(probe[k].shape)
@@ -195,28 +197,12 @@ def resolve_keys(probe: dict, config, dataset) -> KeyMap:
             raise ValueError(f"background_images: {k!r} also has background_keys {bk!r}; give one background")
         if bk is not None:
             _check_background(probe, k, bk, offsets[k] is not None)
-        if k in images:
-            own = to_hwc_uint8(probe[k][0] if offsets[k] is not None else probe[k], k).shape[:2]
-            check_background_size(images[k], own, "background_images", repr(k))
         labels[k], backgrounds[k] = lk, bk
     km = KeyMap(tactile, labels, backgrounds, offsets, label_offsets, images)
     for k in tactile:
         km.image(probe, k)
         km.positions(probe, k, 0)
     return km
-
-
-def _background_images(probe: dict, given: dict | None, tactile: tuple) -> dict:
-    """{tactile key: uint8 (H, W, 3)} of ``background_images`` (named by key or sensor name), read and checked."""
-    out = {}
-    for name, path in (given or {}).items():
-        key = next((c for c in (name, tactile_key(name, HDF5), tactile_key(name, LEROBOT)) if c in tactile), None)
-        if key is None:
-            raise ValueError(f"background_images: {name!r} is not a tactile key; the tactile keys are {list(tactile)}")
-        if key in out:
-            raise ValueError(f"background_images: {key!r} is named twice")
-        out[key] = read_background_image(path)
-    return out
 
 
 def _check_background(probe: dict, key: str, bk: str, windowed: bool) -> None:
