@@ -57,7 +57,8 @@ class FrameRecord:
     status: name in STATUS; row: position of the image in the chunk's ``tactile_<j>.npy`` (-1: none
     stored); reference_force / target_force: [Fx, Fy, Fz] N or None (target_force: the force the
     generator used, after its range decision; for a skipped frame the requested one); noise_seed:
-    the generator's seed (None when not generated); background: "recorded" | "estimated"; pose_offset: the
+    the generator's seed (None when not generated); background: "recorded" (the items' or a given image's) |
+    "estimated" (ForceAugment's own estimate); pose_offset: the
     copy's rigid contact move [dx_px, dy_px, dtheta_rad] where stage 2 moved this frame's contact, else None.
     """
 
