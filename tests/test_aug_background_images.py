@@ -103,14 +103,14 @@ def test_a_jpeg_reads_as_rgb(tmp_path):
     ("missing", r"^background_images: .*nowhere.png is not a file"),
     ("not_an_image", r"^background_images: .*notes.png is not a readable image file"),
     ("empty", r"^background_images: .*empty.png is not a readable image file"),
-    ("not_a_path", r"^background_images: expected a dict \{tactile key: image file path\}"),
+    ("not_a_path", r"^background_images: expected \{tactile sensor: image file path\}"),
     ("grey", r"^background_images: .*grey.png is uint8 with 1 channel\(s\); expected an 8-bit RGB image"),
     ("sixteen_bit", r"^background_images: .*deep.png is uint16 with 3 channel\(s\)"),
     ("wrong_size", r"^background_images: the image for 'observation.images.gelsight' is 33x32 \(W x H\); its frames "
                    r"are 32x32"),
     ("unknown_key", r"^background_images: 'wrist' is not a tactile sensor of the data; those are "
                     r"\['observation.images.gelsight'\]"),
-    ("not_a_dict", r"^background_images: expected a dict \{tactile key: image file path\}"),
+    ("not_a_dict", r"^background_images: expected \{tactile sensor: image file path\}"),
 ])
 def test_a_bad_background_image_is_refused_naming_the_setting_and_the_file(gen, rest, tmp_path, case, match):
     (tmp_path / "notes.png").write_text("not an image")
@@ -136,3 +136,23 @@ def test_frames_without_labels_use_the_given_background_for_contact_and_the_esti
         estimated = ForceAugment(LeRobotLike(always), gen, **kw).summary()
     given = ForceAugment(LeRobotLike(always), gen, background_images={GEL: rest}, **kw).summary()
     assert given["no_contact"] == 0 < estimated["no_contact"] == estimated["tactile_frames"] == 6
+
+
+def test_the_command_on_episodes_without_backgrounds_takes_the_image_with_no_estimate(gen, tmp_path, monkeypatch):
+    """ACT episodes recorded without a background: the image stands for it in the dataset the command opens, so no
+    episode is estimated (nor warned about), and the cache records the image."""
+    import warnings
+
+    from controltac_il.augment import main
+    from controltac_il.generator.checkpoint import save_checkpoint
+
+    monkeypatch.setenv("CONTROLTAC_CACHE", str(tmp_path / "home-cache"))
+    root = make_folder(tmp_path / "demos", background=False)
+    rest = write_png(tmp_path / "rest.png", synthetic_episode(2, 0, ()).tactile_background["left"])
+    ckpt = save_checkpoint(tmp_path / "gen", gen.config, gen.autoencoder, gen.denoiser)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # an estimate would warn
+        assert main(["--dataset", str(root), "--out", str(tmp_path / "cache"), "--copies", "1", "--generator",
+                     str(ckpt), "--steps", "1", "--background-image", f"left={rest}"]) == 0
+    manifest = next((tmp_path / "cache").glob("*.json"))
+    assert "background_images" in manifest.read_text()

@@ -100,11 +100,20 @@ def test_train_act_takes_the_image_for_its_items_and_checkpoint(written, rest, t
     assert train_act.main(["--dataset", str(hdf5), "--out", str(tmp_path / "run_h5"), *flags,
                            "--background-image", f"left={dark}"]) == 0
     assert (load_checkpoint(tmp_path / "run_h5" / "last")[1]["left"] == 60).all()
+    capsys.readouterr()
+    grey = write_png(tmp_path / "grey.png", np.full((32, 32, 3), 110, np.uint8))
+    for other in (["--background-image", f"left={grey}"], []):  # another image, or none: never one run
+        assert train_act.main(["--dataset", str(hdf5), "--out", str(tmp_path / "run_h5"), *flags, "--resume",
+                               *other]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "was trained on other tactile backgrounds" in err, err
 
 
 def test_the_image_is_part_of_the_datas_identity_and_named_once(written, rest, tmp_path):
-    """A cache of ForceAugment copies over LeRobotEpisodes (train_act.py --augment force) is another cache when
-    the items' background changes; a camera named twice (its name and its key) is refused."""
+    """A cache of ForceAugment copies over a training split of LeRobotEpisodes (train_act.py --augment force) is
+    another cache when the items' background changes, or the split; a camera named twice is refused."""
+    from controltac_il.datasets import EpisodeSubset
+
     root = written[0]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
@@ -113,8 +122,10 @@ def test_the_image_is_part_of_the_datas_identity_and_named_once(written, rest, t
         assert given.backgrounds[(0, "gelsight_left")].mean() != plain.backgrounds[(0, "gelsight_left")].mean()
         assert set(given.fingerprint()) - set(plain.fingerprint()) == {"background_images"}
         generator = written[3].generator
-        settings = [ForceAugment(d, generator, copies=1, mode="online", progress=False).settings()["data"]
-                    for d in (plain, given)]
-    assert settings[0] != settings[1]
+        first, second = list(range(5)), list(range(6, 11))  # five frames of episode 0, of episode 1: one length
+        settings = [ForceAugment(EpisodeSubset(d, rows), generator, copies=1, mode="online", progress=False
+                                 ).settings()["data"] for d, rows in ((plain, first), (given, first), (plain, second))]
+    assert settings[0]["length"] == settings[2]["length"] and "root" not in settings[0]
+    assert settings[0] != settings[1] and settings[0]["subset_sha256"] != settings[2]["subset_sha256"]
     with pytest.raises(ValueError, match=r"^background_images: 'gelsight_left' is named twice"):
         LeRobotEpisodes(root, background_images={"gelsight_left": rest, LEFT: rest})

@@ -123,7 +123,9 @@ def test_residual_round_trip():
 
 
 @pytest.mark.parametrize("kwargs, says", [
-    ({"threshold": "12"}, "threshold: expected grey levels in [0, 255), got '12'"),
+    ({"threshold": "12"}, "threshold: expected grey levels in [0, 128) (a residual's magnitude is at most 128), "
+                          "got '12'"),
+    ({"threshold": 128}, "threshold: expected grey levels in [0, 128)"),
     ({"threshold": float("nan")}, "threshold: expected grey levels"),
     ({"threshold": -1.0}, "threshold: expected grey levels"),
     ({"min_pixels": 2.5}, "min_pixels: expected an int >= 0, got 2.5"),

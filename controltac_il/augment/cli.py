@@ -88,8 +88,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--background-image", nargs="+", default=None, metavar="TACTILE_KEY=PNG",
                    help="the no-contact image of a tactile sensor at rest (an RGB PNG at the frames' size, e.g. "
                         "gelsight_left=rest_left.png), used for every episode: for a LeRobot folder (which records "
-                        "no background) whose episodes start in contact (default: each episode's background "
-                        "estimated from its own no-contact frames)")
+                        "no background) whose episodes start in contact (default: the episodes' recorded "
+                        "background, else each episode's estimated from its own no-contact frames)")
     p.add_argument("--out", required=True, type=Path,
                    help="ACT episodes: the cache folder to create or complete. LeRobot: the augmented dataset folder "
                         "to write (new or empty; written under OUT.partial and renamed when complete)")
@@ -220,7 +220,7 @@ def _setup(args) -> ForceAugment:
             check_apart(args.dataset, args.out)
         except ValueError as exc:
             raise _field_error(exc, "--out") from exc
-    dataset = _open_dataset(args.dataset, _needed_keys(kwargs) if lerobot else None)
+    dataset = _open_dataset(args.dataset, _needed_keys(kwargs) if lerobot else None, kwargs.get("background_images"))
     generator, estimator = load_models(args, bool(kwargs.get("pose_offset")))
     if lerobot:
         from controltac_il.lerobot import staging_dir
@@ -310,9 +310,9 @@ def _needed_keys(kwargs: dict) -> list[str] | None:
     return [*kwargs["tactile_keys"], *(v for m in maps for v in m.values() if v)]
 
 
-def _open_dataset(root: Path, keys: list[str] | None = None):
+def _open_dataset(root: Path, keys: list[str] | None = None, background_images: dict | None = None):
     """--dataset: a LeRobot v3.x folder (it has meta/info.json; items of ``keys`` alone) or a folder of ACT
-    episodes."""
+    episodes (with ``background_images``, which then needs no estimate of its own)."""
     try:
         if (root / "meta" / "info.json").is_file():
             from controltac_il.lerobot import LeRobotFolder, read_info
@@ -322,7 +322,7 @@ def _open_dataset(root: Path, keys: list[str] | None = None):
                                  video_threads=0)  # the CLI never forks workers
         from controltac_il.datasets.act_dataset import EpisodeDataset
 
-        return EpisodeDataset(root, chunk_size=1, cameras=[])
+        return EpisodeDataset(root, chunk_size=1, cameras=[], background_images=background_images)
     except (ValueError, OSError) as exc:
         raise _field_error(exc, "--dataset") from exc
 

@@ -248,7 +248,7 @@ class ForceAugmentConfig:
             return None
         if not isinstance(v, dict) or not all(isinstance(k, str) and k and isinstance(p, (str, os.PathLike)) and str(p)
                                               for k, p in v.items()):
-            raise ValueError("expected a dict {tactile key: image file path}")
+            raise ValueError("expected {tactile sensor: image file path}")
         return {k: os.fspath(p) for k, p in v.items()}
 
     @field_validator("window_offsets", mode="before")

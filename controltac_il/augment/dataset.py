@@ -156,12 +156,9 @@ class ForceAugment(Dataset):
             cfg["estimator_hash"] = str(getattr(self.estimator, "checkpoint_hash", None))
         else:
             cfg.pop("estimated_reference")  # labels only: caches built before the setting existed stay valid
-        source, index = adapters.episode_source(self.dataset)
-        fp = getattr(source if source is not None else self.dataset, "fingerprint", None)
+        fp = getattr(self.dataset, "fingerprint", None)  # an EpisodeSubset's holds its indices' digest
         data = dict(fp()) if callable(fp) else {}
         data.pop("root", None)
-        if index is not None:
-            data["subset_sha256"] = hashlib.sha256(np.asarray(index, np.int64).tobytes()).hexdigest()[:16]
         cfg["data"] = {"type": type(self.dataset).__name__, "length": self.n_base, **data}
         return json.loads(json.dumps(cfg))
 

@@ -267,7 +267,13 @@ class EpisodeDataset(Dataset):
 
 
 class EpisodeSubset(Subset):
-    """A Subset of an EpisodeDataset (whole episodes: a train / validation split) that keeps ``frame_table()``."""
+    """A Subset of an EpisodeDataset or LeRobotEpisodes (whole episodes: a train / validation split) that keeps
+    ``frame_table()`` and ``fingerprint()``."""
+
+    def fingerprint(self) -> dict:
+        """The dataset's fingerprint and a digest of the subset's indices (a cache of one split is not another's)."""
+        index = np.asarray(self.indices, np.int64).tobytes()
+        return {**self.dataset.fingerprint(), "subset_sha256": hashlib.sha256(index).hexdigest()[:16]}
 
     def frame_table(self) -> tuple[np.ndarray, np.ndarray]:
         episodes, frames = self.dataset.frame_table()

@@ -101,7 +101,7 @@ def given_backgrounds(given, names: dict[str, tuple[str, ...]], frame_hw: dict[s
     if given is None:
         return {}
     if not isinstance(given, dict):
-        raise ValueError(f"background_images: expected {{tactile sensor: image file}}, got {type(given).__name__}")
+        raise ValueError(f"background_images: expected {{tactile sensor: image file path}}, got {type(given).__name__}")
     out = {}
     for name, path in given.items():
         s = next((s for s, keys in names.items() if name == s or name in keys), None)

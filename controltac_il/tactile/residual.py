@@ -39,12 +39,15 @@ def residual_magnitude(residual: np.ndarray) -> np.ndarray:
 
 
 def contact_mask(residual: np.ndarray, threshold: float = 12.0, min_pixels: int = 0) -> np.ndarray:
-    """Contact pixels: residual magnitude above ``threshold`` grey levels (sensor noise ≈ 1–2), bool (..., H, W).
+    """Contact pixels: residual magnitude above ``threshold`` grey levels (sensor noise ≈ 1–2; a magnitude is at most
+    128), bool (..., H, W).
 
     With ``min_pixels`` > 0, an image with fewer contact pixels than that is treated as no contact.
     """
-    if isinstance(threshold, bool) or not isinstance(threshold, (int, float, np.number)) or not 0 <= threshold < 255:
-        raise ValueError(f"threshold: expected grey levels in [0, 255), got {threshold!r}")
+    number = isinstance(threshold, (int, float, np.number)) and not isinstance(threshold, bool)
+    if not number or not 0 <= threshold < 128:
+        raise ValueError(f"threshold: expected grey levels in [0, 128) (a residual's magnitude is at most 128), got "
+                         f"{threshold!r}")
     if isinstance(min_pixels, bool) or not isinstance(min_pixels, (int, np.integer)) or min_pixels < 0:
         raise ValueError(f"min_pixels: expected an int >= 0, got {min_pixels!r}")
     mask = residual_magnitude(residual) > threshold

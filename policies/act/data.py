@@ -95,6 +95,9 @@ def load_training_data(root: str | Path, chunk_size: int, val_fraction: float = 
     data_options: how to read it: a LeRobot folder's ``tactile_keys`` / ``force_keys``, and for either kind
         ``background_images`` {tactile sensor: image file} (None: the defaults)."""
     options = dict(data_options or {})
+    unknown = sorted(set(options) - {"tactile_keys", "force_keys", "background_images"})
+    if unknown:
+        raise ValueError(f"data_options: unknown {unknown}; expected tactile_keys, force_keys, background_images")
     if (Path(root) / "meta" / "info.json").is_file():
         ds = LeRobotEpisodes(root, chunk_size=chunk_size, tactile_sensors=tactile_sensors, **options)
     elif set(options) - {"background_images"}:
