@@ -11,9 +11,9 @@ Output folder::
     OUT/best/        checkpoint with the lowest validation L1 (z = 0, as deployed)
     OUT/train_log.json   losses and validation curve up to the step last/ holds
 
-The folder is only written where it is new, empty, or holds this tool's own run: a previous run is refused
-unless resumed (``resume``) or replaced (``overwrite``: removes only what this tool wrote), and files of the
-user's are never replaced. A NaN / inf loss stops the run (``NonFiniteLoss``) with ``last/`` left at the last
+Only the entries above (and ``snapshots/``) are written, each where it is new or this tool's own: a previous run is
+refused unless resumed (``resume``) or replaced (``overwrite``: removes only what this tool wrote); a file of the
+user's at one of those names is refused, and files beside them are left alone. A NaN / inf loss stops the run (``NonFiniteLoss``) with ``last/`` left at the last
 good step; Ctrl-C saves the current step to ``last/`` before stopping (``TrainingInterrupted``).
 """
 
