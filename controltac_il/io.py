@@ -41,7 +41,7 @@ def cache_root() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "controltac_il"
 
 
-# --- permissions ----------------------------------------------------------------------------------
+# --- where an output may go, and its mode ---------------------------------------------------------
 
 def check_apart(source: str | os.PathLike, out: str | os.PathLike) -> None:
     """ValueError naming ``out`` where it is the ``source`` folder, inside it or around it: a tool's output never
