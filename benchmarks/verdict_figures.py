@@ -155,6 +155,7 @@ def headline_rows(doc: dict, source: str) -> list[list[str]]:
     """One README row per primary variant: its paired differences in every setting, their intervals and verdicts."""
     protocol = doc["protocol"]
     seeds, rows = len(protocol["train_seeds"]), []
+    primaries = sum(bool(c["primary"]) for c in doc["comparisons"])
     for v in dict.fromkeys(c["variant"] for c in doc["comparisons"] if c["primary"]):
         cs = [c for c in doc["comparisons"] if c["variant"] == v]
         where = " / ".join(setting_label(doc, c["setting"]) for c in cs)
@@ -164,7 +165,8 @@ def headline_rows(doc: dict, source: str) -> list[list[str]]:
                      " / ".join(f"{c['diff'] * 100:+.1f}" for c in cs) + f" points ({where}): "
                      + " / ".join(f"**{c['verdict'] or 'pending'}**" for c in cs),
                      " / ".join(ft.ci_points(c) for c in cs)
-                     + " (95 % CI); Holm p " + " / ".join(f"{c['p_holm']:.2g}" if c["p_holm"] is not None else "–"
+                     + f" (95 % CI, each alone); Holm p over the {primaries} primary comparisons "
+                     + " / ".join(f"{c['p_holm']:.2g}" if c["p_holm"] is not None else "–"
                                                           for c in cs), LINK, source])
     return rows
 

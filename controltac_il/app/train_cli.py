@@ -58,9 +58,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--copies", type=int, default=None,
                    help=f"ForceAugment copies per episode, 1-9 (default {COPIES}; with --augment force only)")
     p.add_argument("--generator", default=None,
-                   help="with --augment force: a shipped preset (default, fast, quality), a checkpoint folder, or a "
-                        "calibration bundle, whose estimator reads unlabelled frames where calibration says it may "
-                        "(default: default)")
+                   help="with --augment force: a shipped preset (default, quality; fast is for speed checks, its "
+                        "frames err more than the unchanged reference), a checkpoint folder, or a calibration bundle, "
+                        "whose estimator reads unlabelled frames where calibration says it may (default: default)")
     p.add_argument("--demos", type=int, default=None,
                    help=f"episodes collected for the embedded default, without --dataset (default {DEMO_EPISODES})")
     p.add_argument("--resume", action="store_true", help="continue from OUT/last (same dataset and options)")

@@ -95,9 +95,10 @@ def parser() -> argparse.ArgumentParser:
                         "to write (new or empty; written under OUT.partial and renamed when complete)")
     add_config_flags(p)
     p.add_argument("--generator", default=None,
-                   help="generator: a shipped preset (default, fast: faster, quality: lowest error, slower), a checkpoint "
-                        "folder, or a calibration bundle (python -m controltac_il.calibrate; its estimator too) "
-                        "(default: default)")
+                   help="generator: a shipped preset (default; quality: lowest error, slower; fast: the fastest, "
+                        "but on the pairs ForceAugment asks for its frames err more than the unchanged reference, "
+                        "docs/generator.md: for speed checks, not training data), a checkpoint folder, or a "
+                        "calibration bundle (python -m controltac_il.calibrate; its estimator too) (default: default)")
     p.add_argument("--estimator", default=None, help="force estimator checkpoint (only for data without force labels)")
     p.add_argument("--pose-adapter", default=None,
                    help="with --pose-offset: the stage-2 pose adapter folder (default: pose, shipped for the default)")
