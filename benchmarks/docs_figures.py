@@ -84,9 +84,12 @@ def _calibration_row(cal: dict, source: str) -> list[str]:
     unseen = [r for r in cal["rows"] if not r["sensor"].startswith("sim_record") and "draw" not in r]
     m, t, h = cal["mean"], cal["targets"], cal.get("heldout_objects")
     frames = sorted({r["cal_frames"] for r in unseen})
+    right = None if not h else round(h["decision_accuracy"] * h["cases"])
     heldout = "" if not h else (
         f"; on objects it never saw ({h['cases']} cases): its use-or-decline decision right in "
-        f"{h['decision_accuracy']:.0%} (target ≥ {h['targets']['decision_accuracy']:.0%}), the estimator where used "
+        f"{h['decision_accuracy']:.0%} ({right} of {h['cases']}, Wilson 95 % "
+        + "–".join(f"{x * 100:.0f}" for x in wilson_interval(right, h["cases"]))
+        + f" %; target ≥ {h['targets']['decision_accuracy']:.0%}), the estimator where used "
         + ("never" if h["used_estimator_ratio"] is None else f"{h['used_estimator_ratio']:.2f}×")
         + f" the constant's, generator {h['generator_ratio']:.2f}×")
     return [f"few-shot calibration of {len(unseen)} simulated sensor instances never seen "
