@@ -167,3 +167,17 @@ def test_the_benchmarks_mean_leaves_out_a_sensor_calibrate_gave_no_cross_validat
     out = summary(rows, argparse.Namespace(out="x.json", k=10), t0=0.0)
     assert out["mean"]["cv_ratio"] == pytest.approx(0.6) and out["mean"]["calibrated_ratio"] == pytest.approx(0.5)
     assert summary(rows[:1], argparse.Namespace(out="x.json"), t0=0.0)["mean"]["cv_ratio"] is None
+
+
+def test_resamples_of_grasps_whose_constant_has_no_error_leave_the_interval_without_an_upper_end():
+    """Two of three grasps read exactly the constant: a resample of those two has no ratio, so the interval has no
+    upper end (None, valid JSON), the estimator is declined and the sentence says so instead of printing 1e12."""
+    import json
+
+    r = rows([0.5, 0.6, 0.4], [1.0, 1e-9, 1e-9])
+    for row in r[1:]:
+        row["constant_mae_n"], row["ratio"] = 0.0, None
+    d = decide(r)
+    assert d["interval"][1] is None and 0 < d["interval"][0] < 1 and not d["use"]
+    assert "the interval has no upper end" in d["why"] and "with no upper end over 3 grasps" in d["why"]
+    assert json.loads(json.dumps(d, allow_nan=False)) == d

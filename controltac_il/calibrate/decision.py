@@ -15,6 +15,8 @@ import numpy as np
 MIN_GRASPS = 3  # below this no grasp-level interval exists: refused
 BOOTSTRAP = 2000  # resamples of the grasps
 LEVEL = 0.95
+NO_ERROR = 1e-12  # N: a resample's constant error sum below this has no ratio; its quotient exceeds UNBOUNDED
+UNBOUNDED = 1e6  # a ratio end above this comes only from such resamples
 
 
 def per_grasp(pred: np.ndarray, fz: np.ndarray, constant: np.ndarray, grasps: np.ndarray) -> list[dict]:
@@ -31,20 +33,22 @@ def per_grasp(pred: np.ndarray, fz: np.ndarray, constant: np.ndarray, grasps: np
     return rows
 
 
-def ratio_interval(rows: list[dict], level: float = LEVEL) -> tuple[float, float]:
+def ratio_interval(rows: list[dict], level: float = LEVEL) -> tuple[float, float | None]:
     """``level`` percentile bootstrap interval, over grasps resampled with replacement, of the frame-weighted MAE ratio
-    sum(estimator's absolute errors) ÷ sum(the constant's)."""
+    sum(estimator's absolute errors) ÷ sum(the constant's); upper end None where the resamples that reach it draw
+    only grasps whose constant has no error (no ratio exists: the interval has no upper end)."""
     from scipy import stats
 
     est = np.array([r["mae_n"] * r["frames"] for r in rows])
     const = np.array([r["constant_mae_n"] * r["frames"] for r in rows])
 
     def ratio(e, c, axis=-1):
-        return e.sum(axis) / np.maximum(c.sum(axis), 1e-12)
+        return e.sum(axis) / np.maximum(c.sum(axis), NO_ERROR)
 
     res = stats.bootstrap((est, const), ratio, paired=True, vectorized=True, n_resamples=BOOTSTRAP,
                           confidence_level=level, method="percentile", random_state=0)
-    return float(res.confidence_interval.low), float(res.confidence_interval.high)
+    high = float(res.confidence_interval.high)
+    return float(res.confidence_interval.low), high if high < UNBOUNDED else None
 
 
 def decide(rows: list[dict], level: float = LEVEL) -> dict:
@@ -63,13 +67,15 @@ def decide(rows: list[dict], level: float = LEVEL) -> dict:
     ratio, mae, const = est_sum / const_sum, est_sum / frames, const_sum / frames
     low, high = ratio_interval(rows, level)
     wins = sum(r["mae_n"] < r["constant_mae_n"] for r in rows)
-    use = bool(high < 1.0) and wins > len(rows) / 2  # a NaN end is no evidence: declined
+    use = high is not None and bool(high < 1.0) and wins > len(rows) / 2  # a NaN end is no evidence: declined
+    ends = f"from {low:.2f} with no upper end" if high is None else f"{low:.2f}-{high:.2f}"
     figures = (f"held-out Fz MAE {mae:.2f} N against the constant's {const:.2f} N ({ratio:.2f}x, "
-               f"{level:.0%} interval {low:.2f}-{high:.2f} over {len(rows)} grasps; better on {wins} of {len(rows)})")
+               f"{level:.0%} interval {ends} over {len(rows)} grasps; better on {wins} of {len(rows)})")
     if use:
         why = f"estimator used for unlabelled frames: {figures}"
     else:
-        missing = " and ".join(m for m, failed in (("the interval reaches 1", bool(high >= 1.0)),
+        reach = "the interval has no upper end" if high is None else "the interval reaches 1"
+        missing = " and ".join(m for m, failed in ((reach, high is None or bool(high >= 1.0)),
                                                    ("it loses on most grasps", wins <= len(rows) / 2)) if failed)
         missing = missing or "no finite interval"
         why = (f"estimator declined ({missing}): {figures}; ForceAugment takes the nominal reference force for "
