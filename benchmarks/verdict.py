@@ -426,7 +426,7 @@ def analyse_look(results: dict, proto: Protocol, units: dict, k: int, look: Look
                  reps: int = 4000) -> dict:
     """Look ``k`` over ``seeds``: {"complete": False} until every (variant, seed) is tested at its step; then its
     seed-level table and comparisons (made the report's), and for a sequential protocol the primary decision."""
-    from benchmarks.verdict_report import look_decision, summarise_seed_level
+    from benchmarks.verdict_report import comparison_sentence, look_decision, summarise_seed_level
 
     steps = {v: s["step"] for v, s in results.get("steps", {}).items()}
     last = proto.snapshots[-1]
@@ -451,6 +451,7 @@ def analyse_look(results: dict, proto: Protocol, units: dict, k: int, look: Look
                              last=k == len(proto.looks))
     verdict = ("helps" if primary["diff"] > 0 else "hurts") if decision["reject"] else "no detectable effect"
     primary["verdict"] = verdict if decision["stop"] != "continue" else None
+    primary["sentence"] = comparison_sentence(primary)
     entry.update(decision, verdict=primary["verdict"], diff=primary["diff"], ci95=primary["ci95"],
                  sentence=f"{decision['stop']}: {verdict if decision['stop'] != 'continue' else 'continue to the next look'}"
                           f" ({primary['variant']} - real at {primary['setting']}: {primary['diff'] * 100:+.1f} points,"

@@ -260,12 +260,18 @@ def summarise_seed_level(tests: list[dict], variants, seeds, settings, primary, 
             c["p_holm"] = p
             c["verdict"] = seed_level_verdict(c["diff"], p)
     for c in comparisons:
-        what = c["verdict"] or ("secondary" if not c["primary"] else "pending")
-        c["sentence"] = (f"{c['variant']} vs real, {c['setting']}: {what} ({c['diff'] * 100:+.1f} points over "
-                         f"{len(c['per_seed_diff'])} paired seeds, 95 % CI {c['ci95'][0] * 100:+.1f} to "
-                         f"{c['ci95'][1] * 100:+.1f}, sign-flip p {c['p_sign_flip']:.3g}"
-                         + (f", Holm {c['p_holm']:.3g})" if c["p_holm"] is not None else ")"))
+        c["sentence"] = comparison_sentence(c)
     return table, comparisons
+
+
+def comparison_sentence(c: dict) -> str:
+    """One comparison in words: its verdict (``secondary``, or ``pending`` for a primary one without a verdict yet),
+    the mean paired difference with its interval and its p-values."""
+    what = c["verdict"] or ("secondary" if not c["primary"] else "pending")
+    return (f"{c['variant']} vs real, {c['setting']}: {what} ({c['diff'] * 100:+.1f} points over "
+            f"{len(c['per_seed_diff'])} paired seeds, 95 % CI {c['ci95'][0] * 100:+.1f} to "
+            f"{c['ci95'][1] * 100:+.1f}, sign-flip p {c['p_sign_flip']:.3g}"
+            + (f", Holm {c['p_holm']:.3g})" if c["p_holm"] is not None else ")"))
 
 
 def _success_row(variant: str, setting: str, outcomes, real_worst: float | None, reps: int) -> dict:
@@ -318,7 +324,7 @@ def plot_paired(looks: list[dict], comparisons: list[dict], path: Path) -> None:
     done = [lk for lk in looks if lk["complete"]]
     if c is None or not done:
         return
-    fig, ax = plt.subplots(figsize=(6.4, 3.6))
+    fig, ax = plt.subplots(figsize=(6.4, 4.0), layout="constrained")
     start = 0
     for lk in done:
         d = c["per_seed_diff"][start:len(lk["seeds"])]
@@ -331,7 +337,6 @@ def plot_paired(looks: list[dict], comparisons: list[dict], path: Path) -> None:
     ax.axhline(c["diff"] * 100, color="tab:red", lw=1.5)
     ax.set_xlabel("training seed (both variants trained with it)")
     ax.set_ylabel(f"{c['variant']} - real, points ({c['setting']})")
-    ax.legend(fontsize=7, loc="upper right")
+    fig.legend(fontsize=7, loc="outside lower center", ncols=2)  # below the axes: no dot hidden behind it
     ax.grid(alpha=0.3)
-    fig.tight_layout()
     save_figure(fig, path, dpi=110)

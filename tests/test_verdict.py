@@ -251,6 +251,18 @@ def test_look_two_adds_seeds_to_look_ones_statistic_and_decides_at_its_alpha(tmp
     assert first["stop"] == "continue" and first["verdict"] is None
     assert second["seeds"] == seeds and second["stop"] == "efficacy" and second["p"] < 0.049
     assert len(res["comparisons"][0]["per_seed_diff"]) == 24 and res["augment_digests"] == ["d"]
+    assert res["comparisons"][0]["sentence"].startswith("fa2 vs real, nominal: helps (+12.5 points")
+
+
+def test_a_final_look_that_does_not_reject_says_no_detectable_effect_in_every_sentence(tmp_path):
+    v3, seeds = vp.PROTOCOLS["v3"], list(range(12, 36))
+    rates = {"real": lambda s: 0.6, "fa2": lambda s: 0.7 if s % 2 else 0.55}  # +10 and -5 alternately
+    res = _results(seeds, rates, {"real": 8000, "fa2": 8000})
+    verdict.report(res, v3, seeds, tmp_path, None, picture=False, reps=50)
+    second, primary = res["looks"][1], res["comparisons"][0]
+    assert second["stop"] == "final" and second["p"] > 0.049 and second["verdict"] == "no detectable effect"
+    assert primary["verdict"] == "no detectable effect"
+    assert primary["sentence"].startswith("fa2 vs real, nominal: no detectable effect (+2.5 points")
 
 
 # --- units ---------------------------------------------------------------------------------------------------------
