@@ -249,6 +249,63 @@ def calibration_heldout() -> str:
     return ft.table(head, rows) + "\n\n" + summary + "\n\n" + ft.source("calibration.json", doc)
 
 
+def calibration_rule() -> str:
+    """The decision's interval level, case by case on the validation and test draws: each level's upper end and
+    decision beside the test on objects it never saw; each level's scores per split, validation's choice marked;
+    the test's figures of ``calibrate``'s own decisions against the targets."""
+    from benchmarks.calibration import SENSORS
+    from benchmarks.calibration_rule import LEVELS
+    from controltac_il.calibrate.decision import decide
+
+    doc = ft.load("calibration_rule.json")
+    splits = [s for s in ("validation", "test") if doc.get(s, {}).get("rows")]
+    rows, scores = [], []
+    for split in splits:
+        for r in sorted(doc[split]["rows"], key=lambda r: (r["draw"], r["sensor"])):
+            ds = [decide(r["cv_per_grasp"], level) for level in LEVELS]
+            ends = " / ".join("–" if d["interval"][1] is None else f"{d['interval'][1]:.2f}" for d in ds)
+            rows.append([split, f"`{r['sensor']}`", r["draw"], f"{r['cv_ratio']:.2f}×", ends,
+                         f"{r['cv_wins']} of {r['cv_grasps']}", " / ".join("used" if d["use"] else "declined" for d in ds),
+                         f"{r['calibrated_ratio']:.2f}×", "yes" if r["calibrated_ratio"] < 1 else "**no**",
+                         _minutes(r["minutes"])])
+        complete = len(doc[split]["rows"]) == len(SENSORS) * len(doc["protocol"]["splits"][split])
+        chosen = doc[split].get("chosen_level", doc[split].get("level")) if complete else None
+        scores += [[split, f"**{s['level']:.0%}**" if s["level"] == chosen else f"{s['level']:.0%}",
+                    f"{s['decision_accuracy']:.0%}", s["false_uses"], s["missed_uses"], s["used"]]
+                   for s in doc[split]["levels"]]
+    levels = " / ".join(f"{level:.0%}" for level in LEVELS)
+    head = ["split", "sensor", "draw", "held-out estimate", f"upper end at {levels}", "grasps won",
+            f"decision at {levels}", "test MAE ÷ constant's (held-out objects)", "beats the constant", "minutes"]
+    out = ft.table(head, rows) + "\n\n" + ft.table(["split", "level (bold: chosen, once the split is complete)",
+                                                      "decision right", "false uses", "missed uses", "used"], scores)
+    out += "\n\n" + _rule_summary(doc)
+    return out + "\n\n" + "\n".join(ft.source("calibration_rule.json", doc[s]) for s in splits)
+
+
+def _rule_summary(doc: dict) -> str:
+    """How far each split is, the level validation chose, and the test's figures against the targets."""
+    from benchmarks.calibration import SENSORS
+
+    need = {s: len(draws) * len(SENSORS) for s, draws in doc["protocol"]["splits"].items()}
+    val, test = doc.get("validation", {}), doc.get("test", {})
+    line = f"Validation: {len(val.get('rows', []))} of {need['validation']} cases"
+    if len(val.get("rows", [])) == need["validation"]:
+        line += f", chose the {val['chosen_level']:.0%} level"
+    line += f". Test: {len(test.get('rows', []))} of {need['test']} cases"
+    f = test.get("figures")
+    if not f:
+        return line + "."
+    used = "–" if f["used_estimator_ratio"] is None else f"{f['used_estimator_ratio']:.2f}×"
+    ok = {k: "met" if v else "missed" for k, v in f["meets"].items()}
+    return line + (f" at the {test['level']:.0%} level: decision right in **{f['decision_accuracy']:.0%}** (target ≥ "
+                   f"{f['targets']['decision_accuracy']:.0%}: {ok['decision_accuracy']}; false uses "
+                   f"{f['false_uses']}, missed uses {f['missed_uses']}); used in {f['used']}, where the test MAE is "
+                   f"**{used}** the constant's (target ≤ {f['targets']['used_estimator_ratio']}×: "
+                   f"{ok['used_estimator_ratio']}); generator **{f['generator_ratio']:.2f}×** a copy's (target ≤ "
+                   f"{f['targets']['generator_ratio']}×: {ok['generator_ratio']}); **{_minutes(f['minutes'])}** min a "
+                   "calibration on two cores.")
+
+
 def calibration_methods() -> str:
     """Each estimator calibration method at every K: its test MAE's ratio to the constant's, over sensors x draws."""
     doc = ft.load("calibration_methods.json")
@@ -394,7 +451,7 @@ def _speed(row: dict) -> str:
 
 
 BLOCKS = {"calibration": calibration, "calibration-heldout": calibration_heldout,
-          "calibration-methods": calibration_methods, "sensor": sensor,
+          "calibration-methods": calibration_methods, "calibration-rule": calibration_rule, "sensor": sensor,
           "env-speed": env_speed, "hardware": hardware, "generation-chunk": generation_chunk,
           "force-scaling": force_scaling, "headline": headline, "generator-frontier": generator_frontier,
           "generator-device": generator_device,

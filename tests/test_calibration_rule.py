@@ -128,3 +128,34 @@ def test_options_no_case_can_run_with_are_refused_by_flag_before_any_case(tmp_pa
         rule.parse(["--split", "validation", "--out", str(tmp_path / "r.json"), *flags])
     err = capsys.readouterr().err.strip().splitlines()
     assert exc.value.code == 2 and len(err) == 1 and says in err[0] and not (tmp_path / "r.json").exists()
+
+
+def _rendered(monkeypatch, validation_rows: list[dict], test_rows: list[dict] | None = None) -> str:
+    """``docs_figures.calibration_rule`` over a results file made of these rows."""
+    from benchmarks import docs_figures
+    from benchmarks import figure_text as ft
+
+    machine = {"cpu": "AMD EPYC", "cores": 2, "git_commit": "abc1234", "date_utc": "2026-11-29T00:00:00"}
+    rows = [dict(r, cv_ratio=0.9, cv_wins=7, cv_grasps=10) for r in validation_rows]
+    doc = {"benchmark": "calibration_rule", "protocol": {"levels": list(LEVELS), "splits": rule.SPLITS},
+           "validation": {"rows": rows, "levels": level_scores(rows), "chosen_level": choose(level_scores(rows)),
+                          "machine": machine}}
+    if test_rows:
+        test = [dict(r, cv_ratio=0.9, cv_wins=7, cv_grasps=10) for r in test_rows]
+        doc["test"] = {"rows": test, "levels": level_scores(test), "level": 0.80, "machine": machine,
+                       "figures": rule.heldout_summary(test)}
+    monkeypatch.setattr(ft, "load", lambda name: doc)
+    return docs_figures.calibration_rule()
+
+
+def test_the_rendered_table_gives_each_levels_decision_and_marks_the_choice_only_once_validation_is_complete(
+        monkeypatch):
+    partial = _rendered(monkeypatch, [case(0.5)])
+    assert "| validation | `unseen_00/three_light` | 3 | 0.90× |" in partial
+    assert "| declined / declined / used | 0.50× | yes | 9.0 |" in partial
+    assert "**80%**" not in partial and "Validation: 1 of 9 cases. Test: 0 of 9 cases." in partial
+    full = _rendered(monkeypatch, [case(0.5, draw=d) for d in (3, 4, 5) for _ in range(3)],
+                     [case(1.2, draw=6, level=0.80)])
+    assert "| validation | **80%** | 100% | 0 | 0 | 9 |" in full and "| test | **80%** |" not in full
+    assert "chose the 80% level. Test: 1 of 9 cases at the 80% level: decision right in **0%**" in full
+    assert "| test | `unseen_00/three_light` | 6 | 0.90× |" in full and "| **no** |" in full
