@@ -2,7 +2,7 @@
 sequential design, success per variant at its validated step, the seed-level comparisons, validation curves,
 ForceAugment's targets) and the README's headline rows.
 
-``python -m benchmarks.verdict_figures RUNS.json`` prints the block of a grid still running: test tables read
+``python -m benchmarks.verdict_figures RUNS.json`` prints a grid's block, running or decided: test tables read
 "pending" until a look is complete, and a look's statistics exist only then; ``--look K`` refuses, in one line,
 a look whose units are not all tested; ``--pictures`` draws the grid's pictures from the JSON (a grid that goes on
 after a look draws them only when it ends).
@@ -191,8 +191,8 @@ def headline_rows_v3(doc: dict, source: str) -> list[list[str]]:
 
 
 def main(argv=None) -> int:
-    p = ArgumentParser(prog=PROG, description="Print the verdict's docs block and README rows from a (running) grid's --out "
-                       "JSON (python -m benchmarks.verdict).")
+    p = ArgumentParser(prog=PROG, description="Print the verdict's docs block and README rows from a grid's --out JSON, "
+                       "running or decided (python -m benchmarks.verdict).")
     p.add_argument("json", type=Path, help="the grid's --out JSON")
     p.add_argument("--look", type=int, default=None, help="print look K's decision; refused until its units are tested")
     p.add_argument("--pictures", action="store_true",
