@@ -49,7 +49,13 @@ def guard(prog: str, job: Callable[[], int | None], interrupted: str = "interrup
 
 def key_value_pairs(flag: str, values: list[str], form: str) -> dict[str, str]:
     """{key: value} of a flag's ``KEY=VALUE`` arguments (``form`` names them, e.g. TACTILE_KEY=PNG); ValueError
-    "<flag>: expected <form> pairs, got ..." for another form."""
+    "<flag>: expected <form> pairs, got ..." for another form, and naming a key given twice (no value silently
+    replaces another)."""
     if not all("=" in x and all(x.split("=", 1)) for x in values):
         raise ValueError(f"{flag}: expected {form} pairs, got {' '.join(values)}")
-    return dict(x.split("=", 1) for x in values)
+    pairs = [x.split("=", 1) for x in values]
+    keys = [k for k, _ in pairs]
+    twice = next((k for k in keys if keys.count(k) > 1), None)
+    if twice is not None:
+        raise ValueError(f"{flag}: {twice!r} is given twice; give each key one value")
+    return dict(pairs)

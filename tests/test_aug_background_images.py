@@ -99,18 +99,31 @@ def test_a_jpeg_reads_as_rgb(tmp_path):
     assert image.shape == (16, 24, 3) and np.abs(image.astype(int) - rgb).max() <= 2
 
 
+def test_a_truncated_png_or_an_empty_path_is_refused_in_one_line_and_nothing_else_on_stderr(tmp_path, capfd):
+    """OpenCV warns about a truncated PNG on the process's stderr itself; the refusal must be the only line."""
+    ok, encoded = cv2.imencode(".png", np.full((16, 24, 3), 110, np.uint8))
+    (tmp_path / "cut.png").write_bytes(encoded.tobytes()[: len(encoded) // 2])
+    with pytest.raises(ValueError, match=r"^background_images: .*cut.png is not a readable image file"):
+        read_background_image(tmp_path / "cut.png")
+    with pytest.raises(ValueError, match=r"^--background-image: the image file's path is empty"):
+        read_background_image("", "--background-image")
+    assert capfd.readouterr().err == ""
+
+
 @pytest.mark.parametrize("case, match", [
     ("missing", r"^background_images: .*nowhere.png is not a file"),
     ("not_an_image", r"^background_images: .*notes.png is not a readable image file"),
     ("empty", r"^background_images: .*empty.png is not a readable image file"),
-    ("not_a_path", r"^background_images: expected \{tactile sensor: image file path\}"),
+    ("not_a_path", r"^background_images: 'observation.images.gelsight': expected an image file path, got 3"),
+    ("empty_path", r"^background_images: 'observation.images.gelsight': expected an image file path, got ''"),
+    ("empty_key", r"^background_images: expected \{tactile sensor: image file path\}, got the key ''"),
     ("grey", r"^background_images: .*grey.png is uint8 with 1 channel\(s\); expected an 8-bit RGB image"),
     ("sixteen_bit", r"^background_images: .*deep.png is uint16 with 3 channel\(s\)"),
     ("wrong_size", r"^background_images: the image for 'observation.images.gelsight' is 33x32 \(W x H\); its frames "
                    r"are 32x32"),
     ("unknown_key", r"^background_images: 'wrist' is not a tactile sensor of the data; those are "
                     r"\['observation.images.gelsight'\]"),
-    ("not_a_dict", r"^background_images: expected \{tactile sensor: image file path\}"),
+    ("not_a_dict", r"^background_images: expected \{tactile sensor: image file path\}, got list"),
 ])
 def test_a_bad_background_image_is_refused_naming_the_setting_and_the_file(gen, rest, tmp_path, case, match):
     (tmp_path / "notes.png").write_text("not an image")
@@ -121,7 +134,8 @@ def test_a_bad_background_image_is_refused_naming_the_setting_and_the_file(gen, 
     given = {"missing": {GEL: tmp_path / "nowhere.png"}, "not_an_image": {GEL: tmp_path / "notes.png"},
              "grey": {GEL: tmp_path / "grey.png"}, "sixteen_bit": {GEL: tmp_path / "deep.png"},
              "wrong_size": {GEL: tmp_path / "wide.png"}, "unknown_key": {"wrist": rest},
-             "not_a_dict": [rest], "empty": {GEL: tmp_path / "empty.png"}, "not_a_path": {GEL: 3}}[case]
+             "not_a_dict": [rest], "empty": {GEL: tmp_path / "empty.png"}, "not_a_path": {GEL: 3},
+             "empty_path": {GEL: ""}, "empty_key": {"": rest}}[case]
     with pytest.raises(ValueError, match=match):
         wrap(LeRobotLike(episodes(), labels=True), gen, background_images=given, mode="online")
 

@@ -48,11 +48,16 @@ def test_the_command_uses_the_image_and_records_its_digest(written, rest, tmp_pa
         assert np.array_equal(written_copy[n + i][LEFT].numpy(), wrapper[n + i][LEFT].numpy()), i
     capsys.readouterr()
     wide = write_png(tmp_path / "wide.png", np.full((H, W + 1, 3), 100, np.uint8))
-    for flag_value, expected in (("gelsight_left", "--background-image: expected TACTILE_KEY=PNG pairs"),
-                                 (f"gelsight_left={tmp_path / 'none.png'}", "--background-image: "),
-                                 (f"gelsight_left={wide}", f"--background-image: the image for '{LEFT}' is 33x32"),
-                                 (f"wrist={rest}", "--background-image: 'wrist' is not a tactile sensor of the data")):
-        assert main([*base, "--out", str(tmp_path / "bad"), "--background-image", flag_value]) == 2, flag_value
+    flag = "--background-image"
+    for flags, expected in (([flag, "gelsight_left"], "--background-image: expected TACTILE_KEY=PNG pairs"),
+                            ([flag, f"gelsight_left={tmp_path / 'none.png'}"], "--background-image: "),
+                            ([flag, f"gelsight_left={wide}"], f"--background-image: the image for '{LEFT}' is 33x32"),
+                            ([flag, f"wrist={rest}"], "--background-image: 'wrist' is not a tactile sensor of the data"),
+                            ([flag, f"gelsight_left={rest}", f"gelsight_left={wide}"],  # no value silently dropped
+                             "--background-image: 'gelsight_left' is given twice"),
+                            ([flag, f"gelsight_right={wide}", flag, f"gelsight_left={rest}"],  # the flag twice: both
+                             f"--background-image: the image for '{RIGHT}' is 33x32")):
+        assert main([*base, "--out", str(tmp_path / "bad"), *flags]) == 2, flags
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and expected in err, err
     assert not (tmp_path / "bad").exists()
@@ -129,3 +134,26 @@ def test_the_image_is_part_of_the_datas_identity_and_named_once(written, rest, t
     assert settings[0] != settings[1] and settings[0]["subset_sha256"] != settings[2]["subset_sha256"]
     with pytest.raises(ValueError, match=r"^background_images: 'gelsight_left' is named twice"):
         LeRobotEpisodes(root, background_images={"gelsight_left": rest, LEFT: rest})
+
+
+def test_a_run_records_every_episodes_background_so_resume_tells_episode_0s_image_from_the_recorded_ones(tmp_path):
+    """Saving episode 0's recorded background as the image and resuming with it changes what episodes 1.. train on:
+    the digests cover every episode, so the training data differs (and the resume is refused)."""
+    from aug_fixtures import synthetic_episode
+
+    from controltac_il.datasets import write_episode
+    from controltac_il.datasets.background import episode_background_digests
+    from policies.act.data import load_training_data
+
+    for i, level in enumerate((110, 90)):
+        ep = synthetic_episode(10, i, range(3, 8))
+        ep.tactile_background["left"] = np.full_like(ep.tactile_background["left"], level)
+        write_episode(tmp_path / "demos" / f"episode_{i}.hdf5", ep)
+    ep0 = write_png(tmp_path / "ep0.png", np.full((32, 32, 3), 110, np.uint8))
+    recorded = load_training_data(tmp_path / "demos", chunk_size=4)
+    given = load_training_data(tmp_path / "demos", chunk_size=4, data_options={"background_images": {"left": ep0}})
+    assert (recorded.backgrounds["left"] == given.backgrounds["left"]).all()  # episode 0's: the same pixels
+    assert recorded.background_digests["left"] != given.background_digests["left"]
+    a, b = (np.full((2, 2, 3), v, np.uint8) for v in (1, 2))
+    assert episode_background_digests({(0, "s"): a, (1, "s"): b}) == episode_background_digests({(1, "s"): b, (0, "s"): a})
+    assert episode_background_digests({(0, "s"): a, (1, "s"): b}) != episode_background_digests({(0, "s"): b, (1, "s"): a})

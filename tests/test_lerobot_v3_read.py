@@ -26,6 +26,7 @@ import torch
 from controltac_il.augment.items import index_columns
 from controltac_il.datasets.stage import FrameTable
 from controltac_il.lerobot import FrameTimestampError, LeRobotFolder
+from aug_fixtures import tiny_generator
 
 FPS = 10
 LENGTHS = (5, 4, 6)
@@ -469,7 +470,6 @@ def test_a_force_feature_found_by_name_must_be_three_forces(folder, tmp_path):
 
 def test_force_augment_wraps_a_folder_with_windows_and_labels(folder, tmp_path):
     from controltac_il.augment import ForceAugment
-    from aug_fixtures import tiny_generator
 
     ds = LeRobotFolder(folder, delta_timestamps={LEFT: [-0.1, 0.0]})
     aug = ForceAugment(ds, tiny_generator(), tactile_keys=[LEFT], force_keys={LEFT: FORCE}, copies=1, mode="online")
@@ -483,7 +483,6 @@ def test_force_augment_wraps_a_folder_with_windows_and_labels(folder, tmp_path):
 def test_cli_takes_a_lerobot_folder_and_its_force_keys(folder, tmp_path, capsys):
     from controltac_il.augment import main
     from controltac_il.generator.checkpoint import save_checkpoint
-    from aug_fixtures import tiny_generator
 
     g = tiny_generator()
     ckpt = save_checkpoint(tmp_path / "gen", g.config, g.autoencoder, g.denoiser)
@@ -493,8 +492,9 @@ def test_cli_takes_a_lerobot_folder_and_its_force_keys(folder, tmp_path, capsys)
     assert "6 episodes (3 original + 1 copies of each), 30 frames" in capsys.readouterr().out
     assert main([*args, "--force-keys", LEFT]) == 2
     assert "--force-keys: expected TACTILE_KEY=FORCE_KEY" in capsys.readouterr().err
-    bogus = ["--dataset", str(folder), "--out", str(tmp_path / "bogus"), "--generator", str(ckpt),
-             "--tactile-keys", "bogus"]
+    named = [*args[:2], "--out", str(tmp_path / "named"), *args[4:-2], "gelsight_left", "gelsight_right"]  # by name
+    assert main([*named, "--force-keys", f"{LEFT}={FORCE}"]) == 0 and "30 frames" in capsys.readouterr().out
+    bogus = [*args[:2], "--out", str(tmp_path / "bogus"), "--generator", str(ckpt), "--tactile-keys", "bogus"]
     assert main(bogus) == 2
     err = capsys.readouterr().err
     assert f"--tactile-keys: 'bogus' is not a camera of {folder}; its cameras are [" in err and LEFT in err, err

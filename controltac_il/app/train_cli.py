@@ -33,12 +33,12 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="folder of episode_<i>.hdf5 files, or a LeRobot v3.0 folder (observation.state, action; "
                         "tactile cameras are those named gelsight / tactile / digit, their force labels "
                         "observation.<camera>.force) (default: collect/reuse the embedded MuJoCo demos)")
-    p.add_argument("--tactile-keys", nargs="+", default=None, metavar="KEY",
+    p.add_argument("--tactile-keys", nargs="+", action="extend", default=None, metavar="KEY",
                    help="LeRobot folder: its tactile cameras, by name (gs_left) or key (observation.images.gs_left) "
                         "(default: cameras named gelsight / tactile / digit)")
-    p.add_argument("--force-keys", nargs="+", default=None, metavar="TACTILE_KEY=FORCE_KEY",
+    p.add_argument("--force-keys", nargs="+", action="extend", default=None, metavar="TACTILE_KEY=FORCE_KEY",
                    help="LeRobot folder: the force label of each tactile camera (default: observation.<camera>.force)")
-    p.add_argument("--background-image", nargs="+", default=None, metavar="TACTILE_KEY=PNG",
+    p.add_argument("--background-image", nargs="+", action="extend", default=None, metavar="TACTILE_KEY=PNG",
                    help="the no-contact image of a tactile sensor at rest (an RGB PNG at its frames' size; a "
                         "LeRobot camera's name or key, or an episode folder's sensor name), its background in every "
                         "episode and in the checkpoint (default: the episodes' recorded one, else estimated per "

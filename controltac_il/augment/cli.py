@@ -81,11 +81,11 @@ def parser() -> argparse.ArgumentParser:
                    help="folder of episode_<i>.hdf5 files, or a LeRobot v3.0 dataset folder (meta/info.json; its "
                         "tactile cameras are those named gelsight / tactile / digit unless --tactile-keys names them, "
                         "as for train_act.py); read-only")
-    p.add_argument("--force-keys", nargs="+", default=None, metavar="TACTILE_KEY=FORCE_KEY",
+    p.add_argument("--force-keys", nargs="+", action="extend", default=None, metavar="TACTILE_KEY=FORCE_KEY",
                    help="the force label [Fx, Fy, Fz] N of each tactile key, e.g. observation.images.gelsight_left="
                         "observation.gelsight_left.force (default: observation.<camera>.force where a LeRobot folder "
                         "has it, else our layout's rule; unlabelled keys use the estimator)")
-    p.add_argument("--background-image", nargs="+", default=None, metavar="TACTILE_KEY=PNG",
+    p.add_argument("--background-image", nargs="+", action="extend", default=None, metavar="TACTILE_KEY=PNG",
                    help="the no-contact image of a tactile sensor at rest (an RGB PNG at the frames' size, e.g. "
                         "gelsight_left=rest_left.png), used for every episode: for a LeRobot folder (which records "
                         "no background) whose episodes start in contact (default: the episodes' recorded "
@@ -317,9 +317,11 @@ def _open_dataset(root: Path, keys: list[str] | None = None, background_images: 
     try:
         if (root / "meta" / "info.json").is_file():
             from controltac_il.lerobot import LeRobotFolder, read_info
+            from controltac_il.streams import LEROBOT, tactile_key
 
             known = read_info(root)["features"]  # an unknown key is the wrapper's to name (its flag)
-            return LeRobotFolder(root, keys=None if keys is None else [k for k in keys if k in known],
+            full = None if keys is None else [k if k in known else tactile_key(k, LEROBOT) for k in keys]  # a name
+            return LeRobotFolder(root, keys=None if full is None else [k for k in full if k in known],
                                  video_threads=0)  # the CLI never forks workers
         from controltac_il.datasets.act_dataset import EpisodeDataset
 

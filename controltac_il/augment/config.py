@@ -110,7 +110,7 @@ class ForceAugmentConfig:
     tactile_keys: tuple[str, ...] | None = _setting(
         None, "item keys of the tactile images; None = every key containing 'tactile' (but not "
               "'tactile_background'); a plain sensor name s means observation.tactile.s, or "
-              "observation.images.s where the items have that", nargs="+")
+              "observation.images.s where the items have that", nargs="+", action="extend")
     mode: str = _setting("cache", "'cache' (generate once, store, read back) or 'online' (generate on access; the "
                                   "same bytes as a cache built with the same torch thread count, which a cache "
                                   "records: DataLoader workers run one thread)",
@@ -246,9 +246,13 @@ class ForceAugmentConfig:
     def _images(cls, v):
         if v is None:
             return None
-        if not isinstance(v, dict) or not all(isinstance(k, str) and k and isinstance(p, (str, os.PathLike)) and str(p)
-                                              for k, p in v.items()):
-            raise ValueError("expected {tactile sensor: image file path}")
+        if not isinstance(v, dict):
+            raise ValueError(f"expected {{tactile sensor: image file path}}, got {type(v).__name__}")
+        for k, p in v.items():
+            if not isinstance(k, str) or not k:
+                raise ValueError(f"expected {{tactile sensor: image file path}}, got the key {k!r}")
+            if not isinstance(p, (str, os.PathLike)) or not os.fspath(p):
+                raise ValueError(f"{k!r}: expected an image file path, got {p!r}")
         return {k: os.fspath(p) for k, p in v.items()}
 
     @field_validator("window_offsets", mode="before")

@@ -73,11 +73,12 @@ def read_background_image(path, field: str = "background_images") -> np.ndarray:
     (H, W, 3) RGB; ValueError naming ``field`` and the file for a missing, unreadable or non-RGB one."""
     if not isinstance(path, (str, os.PathLike)):
         raise ValueError(f"{field}: expected an image file's path, got {type(path).__name__}")
+    if not os.fspath(path):  # Path("") would be ".", the working folder
+        raise ValueError(f"{field}: the image file's path is empty (expected the sensor's no-contact image, a PNG)")
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"{field}: {path} is not a file (expected the sensor's no-contact image, a PNG)")
-    data = np.fromfile(path, np.uint8)
-    image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if len(data) else None  # OpenCV asserts on empty bytes
+    image = _decode(np.fromfile(path, np.uint8))
     if image is None:
         raise ValueError(f"{field}: {path} is not a readable image file (expected a PNG or JPEG)")
     if image.dtype != np.uint8 or image.ndim != 3 or image.shape[-1] != 3:
@@ -85,6 +86,20 @@ def read_background_image(path, field: str = "background_images") -> np.ndarray:
         raise ValueError(f"{field}: {path} is {image.dtype} with {channels} channel(s); expected an 8-bit RGB image "
                          "(the tactile camera's own frames)")
     return np.ascontiguousarray(image[..., ::-1])
+
+
+def _decode(data: np.ndarray) -> np.ndarray | None:
+    """An encoded image's pixels, or None where OpenCV cannot read it (empty bytes, on which it asserts, included),
+    with its own warning about a truncated file kept off stderr: the caller's refusal is the one line."""
+    if not len(data):
+        return None
+    log = cv2.utils.logging
+    level = log.getLogLevel()
+    log.setLogLevel(log.LOG_LEVEL_ERROR)
+    try:
+        return cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    finally:
+        log.setLogLevel(level)
 
 
 def check_background_size(image: np.ndarray, frame_hw: tuple, field: str, where: str) -> None:
@@ -112,6 +127,19 @@ def given_backgrounds(given, names: dict[str, tuple[str, ...]], frame_hw: dict[s
             raise ValueError(f"background_images: {s!r} is named twice")
         out[s] = read_background_image(path)
         check_background_size(out[s], frame_hw[s], "background_images", repr(names[s][0]))
+    return out
+
+
+def episode_background_digests(backgrounds: dict) -> dict[str, str]:
+    """{sensor: the first 16 hex digits of the SHA-256 of every episode's background pixels, in episode order} of
+    ``backgrounds`` {(episode, sensor): uint8 (H, W, 3)}: what a training run records of the backgrounds it trained
+    on, so that resuming on the same frames with another episode's background (or any other) is told apart."""
+    out = {}
+    for s in dict.fromkeys(s for _, s in backgrounds):
+        h = hashlib.sha256()
+        for e in sorted(e for e, t in backgrounds if t == s):
+            h.update(np.ascontiguousarray(backgrounds[(e, s)]).tobytes())
+        out[s] = h.hexdigest()[:16]
     return out
 
 

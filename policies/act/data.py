@@ -13,6 +13,7 @@ import numpy as np
 from torch.utils.data import Dataset
 
 from controltac_il.datasets import EpisodeDataset, EpisodeSubset
+from controltac_il.datasets.background import episode_background_digests
 from controltac_il.lerobot import LeRobotEpisodes
 from controltac_il.streams import LOOP, image_key, tactile_key
 from policies.act.configuration_act import ACTConfig
@@ -79,7 +80,8 @@ class TrainingData:
     val: Dataset | None
     spec: DataSpec
     stats: dict
-    backgrounds: dict[str, np.ndarray]
+    backgrounds: dict[str, np.ndarray]  # episode 0's, per sensor: the policy's own (its checkpoint keeps it)
+    background_digests: dict[str, str]  # every episode's, per sensor (``episode_background_digests``)
     n_episodes: int
     val_episodes: int
     longest_episode: int = 0
@@ -111,6 +113,7 @@ def load_training_data(root: str | Path, chunk_size: int, val_fraction: float = 
     backgrounds = {s: np.asarray(ds.backgrounds[(0, s)]) for s in ds.tactile_sensors}
     return TrainingData(
         train=EpisodeSubset(ds, train_idx), val=EpisodeSubset(ds, val_idx) if val_idx else None, spec=DataSpec.of(ds),
-        stats=stats, backgrounds=backgrounds, n_episodes=len(np.unique(episodes)),
+        stats=stats, backgrounds=backgrounds, background_digests=episode_background_digests(ds.backgrounds),
+        n_episodes=len(np.unique(episodes)),
         val_episodes=len(np.unique(episodes[val_idx])) if val_idx else 0,
         longest_episode=int(np.bincount(np.unique(episodes, return_inverse=True)[1]).max()) if len(episodes) else 0)
