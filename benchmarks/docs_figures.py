@@ -259,16 +259,18 @@ def calibration_rule() -> str:
 
     doc = ft.load("calibration_rule.json")
     splits = [s for s in ("validation", "test") if doc.get(s, {}).get("rows")]
+    counts = {s: (len(doc.get(s, {}).get("rows", [])), len(draws) * len(SENSORS))  # (cases in, cases of the split)
+              for s, draws in doc["protocol"]["splits"].items()}
     rows, scores = [], []
     for split in splits:
         for r in sorted(doc[split]["rows"], key=lambda r: (r["draw"], r["sensor"])):
             ds = [decide(r["cv_per_grasp"], level) for level in LEVELS]
             ends = " / ".join("–" if d["interval"][1] is None else f"{d['interval'][1]:.2f}" for d in ds)
+            uses = " / ".join("used" if d["use"] else "declined" for d in ds)
             rows.append([split, f"`{r['sensor']}`", r["draw"], f"{r['cv_ratio']:.2f}×", ends,
-                         f"{r['cv_wins']} of {r['cv_grasps']}", " / ".join("used" if d["use"] else "declined" for d in ds),
-                         f"{r['calibrated_ratio']:.2f}×", "yes" if r["calibrated_ratio"] < 1 else "**no**",
+                         f"{r['cv_wins']} of {r['cv_grasps']}", uses, f"{r['calibrated_ratio']:.2f}×", "yes" if r["calibrated_ratio"] < 1 else "**no**",
                          _minutes(r["minutes"])])
-        complete = len(doc[split]["rows"]) == len(SENSORS) * len(doc["protocol"]["splits"][split])
+        complete = counts[split][0] == counts[split][1]
         chosen = doc[split].get("chosen_level", doc[split].get("level")) if complete else None
         scores += [[split, f"**{s['level']:.0%}**" if s["level"] == chosen else f"{s['level']:.0%}",
                     f"{s['decision_accuracy']:.0%}", s["false_uses"], s["missed_uses"], s["used"]]
@@ -278,20 +280,18 @@ def calibration_rule() -> str:
             f"decision at {levels}", "test MAE ÷ constant's (held-out objects)", "beats the constant", "minutes"]
     out = ft.table(head, rows) + "\n\n" + ft.table(["split", "level (bold: chosen, once the split is complete)",
                                                       "decision right", "false uses", "missed uses", "used"], scores)
-    out += "\n\n" + _rule_summary(doc)
+    out += "\n\n" + _rule_summary(doc, counts)
     return out + "\n\n" + "\n".join(ft.source("calibration_rule.json", doc[s]) for s in splits)
 
 
-def _rule_summary(doc: dict) -> str:
-    """How far each split is, the level validation chose, and the test's figures against the targets."""
-    from benchmarks.calibration import SENSORS
-
-    need = {s: len(draws) * len(SENSORS) for s, draws in doc["protocol"]["splits"].items()}
+def _rule_summary(doc: dict, counts: dict) -> str:
+    """How far each split is (``counts``: {split: (cases in, cases of the split)}), the level validation chose, and
+    the test's figures against the targets."""
     val, test = doc.get("validation", {}), doc.get("test", {})
-    line = f"Validation: {len(val.get('rows', []))} of {need['validation']} cases"
-    if len(val.get("rows", [])) == need["validation"]:
+    line = "Validation: {} of {} cases".format(*counts["validation"])
+    if counts["validation"][0] == counts["validation"][1]:
         line += f", chose the {val['chosen_level']:.0%} level"
-    line += f". Test: {len(test.get('rows', []))} of {need['test']} cases"
+    line += ". Test: {} of {} cases".format(*counts["test"])
     f = test.get("figures")
     if not f:
         return line + "."

@@ -52,7 +52,8 @@ def test_the_command_uses_the_image_and_records_its_digest(written, rest, tmp_pa
     for flags, expected in (([flag, "gelsight_left"], "--background-image: expected TACTILE_KEY=PNG pairs"),
                             ([flag, f"gelsight_left={tmp_path / 'none.png'}"], "--background-image: "),
                             ([flag, f"gelsight_left={wide}"], f"--background-image: the image for '{LEFT}' is 33x32"),
-                            ([flag, f"wrist={rest}"], "--background-image: 'wrist' is not a tactile sensor of the data"),
+                            ([flag, f"wrist={rest}"],
+                             "--background-image: 'wrist' is not a tactile sensor of the data"),
                             ([flag, f"gelsight_left={rest}", f"gelsight_left={wide}"],  # no value silently dropped
                              "--background-image: 'gelsight_left' is given twice"),
                             ([flag, f"gelsight_right={wide}", flag, f"gelsight_left={rest}"],  # the flag twice: both
@@ -136,24 +137,39 @@ def test_the_image_is_part_of_the_datas_identity_and_named_once(written, rest, t
         LeRobotEpisodes(root, background_images={"gelsight_left": rest, LEFT: rest})
 
 
-def test_a_run_records_every_episodes_background_so_resume_tells_episode_0s_image_from_the_recorded_ones(tmp_path):
+def test_a_run_records_every_episodes_background_so_resume_tells_episode_0s_image_from_the_recorded_ones(
+        tmp_path, capsys):
     """Saving episode 0's recorded background as the image and resuming with it changes what episodes 1.. train on:
-    the digests cover every episode, so the training data differs (and the resume is refused)."""
+    the digests cover every episode, so the resume is refused; a run that records only episode 0's digest is still
+    checked by it."""
+    import json
+
     from aug_fixtures import synthetic_episode
 
+    from controltac_il.app import train_cli as train_act
     from controltac_il.datasets import write_episode
     from controltac_il.datasets.background import episode_background_digests
-    from policies.act.data import load_training_data
 
     for i, level in enumerate((110, 90)):
         ep = synthetic_episode(10, i, range(3, 8))
         ep.tactile_background["left"] = np.full_like(ep.tactile_background["left"], level)
         write_episode(tmp_path / "demos" / f"episode_{i}.hdf5", ep)
     ep0 = write_png(tmp_path / "ep0.png", np.full((32, 32, 3), 110, np.uint8))
-    recorded = load_training_data(tmp_path / "demos", chunk_size=4)
-    given = load_training_data(tmp_path / "demos", chunk_size=4, data_options={"background_images": {"left": ep0}})
-    assert (recorded.backgrounds["left"] == given.backgrounds["left"]).all()  # episode 0's: the same pixels
-    assert recorded.background_digests["left"] != given.background_digests["left"]
+    dark = write_png(tmp_path / "dark.png", np.full((32, 32, 3), 60, np.uint8))
+    run = ["--dataset", str(tmp_path / "demos"), "--out", str(tmp_path / "run"), "--steps", "1", "--batch-size", "2",
+           "--chunk-size", "4", "--val-every", "1", "--threads", "1"]
+    assert train_act.main(run) == 0
+    assert train_act.main([*run, "--resume", "--background-image", f"left={ep0}"]) == 2
+    assert "was trained on other tactile backgrounds" in capsys.readouterr().err
+    config = tmp_path / "run" / "last" / "config.json"  # as a run that records episode 0's digest alone
+    doc = json.loads(config.read_text())
+    del doc["meta"]["episode_backgrounds"]
+    config.write_text(json.dumps(doc))
+    assert train_act.main([*run, "--resume", "--background-image", f"left={dark}"]) == 2  # episode 0's digest alone
+    assert "was trained on other tactile backgrounds" in capsys.readouterr().err
     a, b = (np.full((2, 2, 3), v, np.uint8) for v in (1, 2))
-    assert episode_background_digests({(0, "s"): a, (1, "s"): b}) == episode_background_digests({(1, "s"): b, (0, "s"): a})
-    assert episode_background_digests({(0, "s"): a, (1, "s"): b}) != episode_background_digests({(0, "s"): b, (1, "s"): a})
+    digest = episode_background_digests
+    assert digest({(0, "s"): a, (1, "s"): b}) == digest({(1, "s"): b, (0, "s"): a})  # in episode order
+    assert digest({(0, "s"): a, (1, "s"): b}) != digest({(0, "s"): b, (1, "s"): a})
+    with pytest.raises(ValueError, match=r"^backgrounds: episode 1's 's' is NoneType, not a uint8 \(H, W, 3\) image"):
+        digest({(0, "s"): a, (1, "s"): None})

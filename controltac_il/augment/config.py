@@ -25,7 +25,7 @@ BUILD = ("now", "require", "manual")
 
 def _setting(default, help: str, flag: bool = True, **argparse_kwargs):
     """A config field: its default, its help, and how the CLI reads it (``flag=False`` keeps it off the
-    command line; ``argparse_kwargs``: type, nargs, choices, metavar of its flag)."""
+    command line; ``argparse_kwargs``: type, nargs, action, choices, metavar of its flag)."""
     return field(default=default, metadata={"help": help, "cli": argparse_kwargs if flag else None})
 
 

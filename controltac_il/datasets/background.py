@@ -138,7 +138,11 @@ def episode_background_digests(backgrounds: dict) -> dict[str, str]:
     for s in dict.fromkeys(s for _, s in backgrounds):
         h = hashlib.sha256()
         for e in sorted(e for e, t in backgrounds if t == s):
-            h.update(np.ascontiguousarray(backgrounds[(e, s)]).tobytes())
+            bg = backgrounds[(e, s)]
+            if not isinstance(bg, np.ndarray) or bg.dtype != np.uint8 or bg.ndim != 3:
+                raise ValueError(f"backgrounds: episode {e}'s {s!r} is {type(bg).__name__}, not a uint8 (H, W, 3) "
+                                 "image")
+            h.update(np.ascontiguousarray(bg).tobytes())
         out[s] = h.hexdigest()[:16]
     return out
 

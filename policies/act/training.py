@@ -34,6 +34,7 @@ from torch.utils.data import DataLoader, Dataset
 from tqdm import tqdm
 
 from controltac_il.config import PosInt, STRICT, one_line_errors
+from controltac_il.datasets.background import image_digests
 from controltac_il.io import write_json
 from controltac_il.outputs import claim_output, own_checkpoint, own_json
 from controltac_il.streams import HDF5_STATE
@@ -171,11 +172,12 @@ def _resume(out_dir: Path, model: ACT, optimizer: torch.optim.Optimizer, act_con
         raise CheckpointError(f"--resume: {out_dir / 'last'} was trained on another dataset (its normalisation "
                               f"statistics differ: {detail}{where}); a run never mixes two training sets: "
                               "use a new --out folder, or resume on the same dataset")
-    backgrounds = (last_meta.get("episode_backgrounds"), meta.get("episode_backgrounds"))
-    if None not in backgrounds and backgrounds[0] != backgrounds[1]:  # e.g. another --background-image
-        raise CheckpointError(f"--resume: {out_dir / 'last'} was trained on other tactile backgrounds (pixel digests "
-                              f"{backgrounds[0]} -> {backgrounds[1]}); a run never mixes two: use a new --out "
-                              "folder, or resume with the same --background-image")
+    for key in ("episode_backgrounds", "tactile_backgrounds"):  # every episode's; episode 0's (all older runs have)
+        backgrounds = (last_meta.get(key), meta.get(key))
+        if None not in backgrounds and backgrounds[0] != backgrounds[1]:  # e.g. another --background-image
+            raise CheckpointError(f"--resume: {out_dir / 'last'} was trained on other tactile backgrounds (pixel "
+                                  f"digests {backgrounds[0]} -> {backgrounds[1]}); a run never mixes two: use a new "
+                                  "--out folder, or resume with the same --background-image")
     change = augment_change(last_meta.get("augment"), meta.get("augment"))
     if change:  # e.g. a retrained generator: the run would mix two training sets
         raise CheckpointError(f"--resume: {out_dir / 'last'} was trained with different augmentation ({change}); "
@@ -331,6 +333,7 @@ def train_on_folder(dataset: str | Path, out_dir: str | Path, *, preset: str = "
     train_set = augmented.dataset if augmented is not None else data.train
     meta = {"dataset": str(Path(dataset).resolve()), "episodes": data.n_episodes, "val_episodes": data.val_episodes,
             "train_frames": len(train_set), "episode_backgrounds": data.background_digests,
+            "tactile_backgrounds": image_digests(data.backgrounds),
             "augment": None if augment is None else {**augment.description, "summary": augmented.summary}}
     summary = train(act_config, train_config, train_set, data.val, out_dir, stats=data.stats,
                     backgrounds=data.backgrounds, resume=resume, overwrite=overwrite, meta=meta, progress=progress)
