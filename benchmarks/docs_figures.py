@@ -80,18 +80,32 @@ def force_scaling() -> str:
 
 # -- the README's one table of headline figures ----------------------------------------------------------------
 
-def _calibration_row(cal: dict, source: str) -> list[str]:
+def _decision_figures(h: dict) -> str:
+    """A held-out-object summary (``benchmarks.calibration.heldout_summary``) in words: the decision's accuracy with
+    its count and Wilson interval, the estimator's ratio where used, the generator's."""
+    right = round(h["decision_accuracy"] * h["cases"])
+    return (f"right in {h['decision_accuracy']:.0%} ({right} of {h['cases']}, Wilson 95 % "
+            + "–".join(f"{x * 100:.0f}" for x in wilson_interval(right, h["cases"]))
+            + f" %; target ≥ {h['targets']['decision_accuracy']:.0%}), the estimator where used "
+            + ("never" if h["used_estimator_ratio"] is None else f"{h['used_estimator_ratio']:.2f}×")
+            + f" the constant's, generator {h['generator_ratio']:.2f}×")
+
+
+def _calibration_row(cal: dict, rule: dict, src: dict) -> list[str]:
+    """The few-shot calibration's headline row; with the decision's level tested once on new cases
+    (``calibration_rule.json``'s complete test split), those figures beside the first held-out cases'."""
+    from benchmarks.calibration import SENSORS
+
     unseen = [r for r in cal["rows"] if not r["sensor"].startswith("sim_record") and "draw" not in r]
     m, t, h = cal["mean"], cal["targets"], cal.get("heldout_objects")
     frames = sorted({r["cal_frames"] for r in unseen})
-    right = None if not h else round(h["decision_accuracy"] * h["cases"])
-    heldout = "" if not h else (
-        f"; on objects it never saw ({h['cases']} cases): its use-or-decline decision right in "
-        f"{h['decision_accuracy']:.0%} ({right} of {h['cases']}, Wilson 95 % "
-        + "–".join(f"{x * 100:.0f}" for x in wilson_interval(right, h["cases"]))
-        + f" %; target ≥ {h['targets']['decision_accuracy']:.0%}), the estimator where used "
-        + ("never" if h["used_estimator_ratio"] is None else f"{h['used_estimator_ratio']:.2f}×")
-        + f" the constant's, generator {h['generator_ratio']:.2f}×")
+    heldout = "" if not h else f"; on objects it never saw ({h['cases']} cases): its use-or-decline decision " + \
+        _decision_figures(h)
+    test, source = rule.get("test", {}), src["calibration.json"]
+    if test.get("figures") and len(test["rows"]) == len(SENSORS) * len(rule["protocol"]["splits"]["test"]):
+        heldout += (f"; its {test['level']:.0%} level, chosen on {len(rule['validation']['rows'])} other cases and "
+                    f"tested once on {len(test['rows'])} more: " + _decision_figures(test["figures"]))
+        source += ", " + src["calibration_rule.json"]
     return [f"few-shot calibration of {len(unseen)} simulated sensor instances never seen "
             f"({'-'.join(map(str, frames[::max(1, len(frames) - 1)]))} labelled frames each)",
             f"estimator Fz MAE {m['calibrated_ratio']:.2f}× the constant's (target ≤ {t['estimator_ratio']}×), generator "
@@ -118,8 +132,8 @@ def headline() -> str:
     """One row per headline figure: what, the figure, its spread or interval, its docs section, its JSON."""
     names = ("generator.json", "finetune.json", "calibration.json", "touch_il_verdict.json", "env.json", "act.json",
              "generator_speed.json", "touch_il_verdict_v2.json", "finetune_quality.json", "touch_il_verdict_v3.json",
-             "generator_speed_gpu.json", "generator_fa.json")
-    gen, fin, cal, ver, env, act, speed, v2, fin_q, v3, gpu, fa = docs = [ft.load(n) for n in names]
+             "generator_speed_gpu.json", "generator_fa.json", "calibration_rule.json")
+    gen, fin, cal, ver, env, act, speed, v2, fin_q, v3, gpu, fa, rule = docs = [ft.load(n) for n in names]
     src = {n: f"`{n}` ({doc['machine']['git_commit']}, {doc['machine']['date_utc'][:10]})"
            + (" *History*" if ft.source(n, doc).startswith("*History") else "") for n, doc in zip(names, docs)}
     first, last, first_q = fin["rows"][0], fin["rows"][-1], fin_q["rows"][0]
@@ -140,7 +154,7 @@ def headline() -> str:
          + f" SD over {last['n']} pairs",
          "[calibration](docs/calibration.md#what-calibration-buys-the-fine-tuning-curve)",
          f"{src['finetune.json']}, {src['finetune_quality.json']}"],
-        _calibration_row(cal, src["calibration.json"]),
+        _calibration_row(cal, rule, src),
         *verdict_figures.headline_rows_v3(v3, src["touch_il_verdict_v3.json"]),
         *verdict_figures.headline_rows(v2, src["touch_il_verdict_v2.json"]),
         ["touch matters: ACT without its tactile streams vs with them, grip as in the demos",

@@ -159,3 +159,24 @@ def test_the_rendered_table_gives_each_levels_decision_and_marks_the_choice_only
     assert "| validation | **80%** | 100% | 0 | 0 | 9 |" in full and "| test | **80%** |" not in full
     assert "chose the 80% level. Test: 1 of 9 cases at the 80% level: decision right in **0%**" in full
     assert "| test | `unseen_00/three_light` | 6 | 0.90× |" in full and "| **no** |" in full
+
+
+def test_the_readme_row_quotes_the_test_split_only_once_it_is_complete():
+    from benchmarks.docs_figures import _calibration_row
+
+    cal = {"rows": [{"sensor": "unseen_00/three_light", "cal_frames": 50, "calibrated_ratio": 0.4,
+                     "generator_calibrated_ratio": 0.3}],
+           "mean": {"calibrated_ratio": 0.4, "generator_calibrated_ratio": 0.3, "minutes": 7.0},
+           "targets": {"estimator_ratio": 0.5, "generator_ratio": 0.35}}
+    src = {"calibration.json": "`calibration.json`", "calibration_rule.json": "`calibration_rule.json`"}
+    test = [case(0.5, draw=d, level=0.80) for d in (6, 7, 8) for _ in range(3)]
+    doc = {"protocol": {"splits": dict(rule.SPLITS)}, "validation": {"rows": test},
+           "test": {"rows": test[:8], "level": 0.80, "figures": rule.heldout_summary(test[:8])}}
+    partial = _calibration_row(cal, doc, src)
+    assert "tested once" not in partial[1] and partial[-1] == "`calibration.json`"
+    doc["test"].update(rows=test, figures=rule.heldout_summary(test))
+    full = _calibration_row(cal, doc, src)
+    assert full[1].endswith("; its 80% level, chosen on 9 other cases and tested once on 9 more: right in 100% (9 of 9, "
+                            "Wilson 95 % 70–100 %; target ≥ 90%), the estimator where used 0.50× the constant's, "
+                            "generator 0.40×")
+    assert full[-1] == "`calibration.json`, `calibration_rule.json`"
