@@ -130,7 +130,7 @@ def touch_il_verdict_v3() -> str:
 
 def headline() -> str:
     """One row per headline figure: what, the figure, its spread or interval, its docs section, its JSON."""
-    names = ("generator.json", "finetune.json", "calibration.json", "touch_il_verdict.json", "env.json", "act.json",
+    names = ("generator.json", "finetune.json", "calibration.json", "touch_il_verdict.json", "env.json", "act_speed.json",
              "generator_speed.json", "touch_il_verdict_v2.json", "finetune_quality.json", "touch_il_verdict_v3.json",
              "generator_speed_gpu.json", "generator_fa.json", "calibration_rule.json")
     gen, fin, cal, ver, env, act, speed, v2, fin_q, v3, gpu, fa, rule = docs = [ft.load(n) for n in names]
@@ -166,7 +166,7 @@ def headline() -> str:
          "[scene](docs/act_and_deployment.md#scene-speed)", src["env.json"]],
         [f"ACT latency ({cpu['preset']} preset, {cpu['threads']} torch thread, CPU)",
          f"{cpu['ms_per_chunk']:.1f} ms per chunk of {cpu['chunk']} (target {cpu['target_ms']:.0f})",
-         timing_spread(cpu, "call", "calls"), "[ACT](docs/act_and_deployment.md#speed)", src["act.json"]]]
+         timing_spread(cpu, "call", "calls"), "[ACT](docs/act_and_deployment.md#speed)", src["act_speed.json"]]]
     return ft.table(["what", "measured", "error or interval", "details", "source (`benchmarks/results/`)"], rows)
 
 

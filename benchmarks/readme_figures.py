@@ -196,7 +196,9 @@ ACT_GENERATOR = ("e87cbc3c3742019b", (" (act.json does not record it: the shippe
 
 
 def act_speed() -> str:
-    doc = load("act.json")
+    """ACT's latency per chunk and training throughput per preset (``act_speed.json``: ``benchmarks.act
+    --skip-experiment``, measured apart from the experiment, on a quiet machine)."""
+    doc = load("act_speed.json")
     thr = {t["preset"]: t for t in ([doc["training_throughput"]] if isinstance(doc["training_throughput"], dict)
                                     else doc["training_throughput"])}
     rows = [[r["preset"], f"{r['params_M']:.2f} M",
@@ -205,7 +207,7 @@ def act_speed() -> str:
             for r in doc["latency"]]
     header = ["preset", "parameters", f"ms per chunk of {doc['latency'][0]['chunk']} (CPU)",
               f"training samples/s (batch {doc['settings']['batch_size']})", "torch threads"]
-    return table(header, rows) + "\n\n" + provenance("act.json", doc, None)
+    return table(header, rows) + "\n\n" + provenance("act_speed.json", doc, None)
 
 
 def act() -> str:
