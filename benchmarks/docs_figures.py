@@ -91,7 +91,7 @@ def _decision_figures(h: dict) -> str:
             + f" the constant's, generator {h['generator_ratio']:.2f}×")
 
 
-def _calibration_row(cal: dict, rule: dict, src: dict) -> list[str]:
+def calibration_row(cal: dict, rule: dict, src: dict) -> list[str]:
     """The few-shot calibration's headline row; with the decision's level tested once on new cases
     (``calibration_rule.json``'s complete test split), those figures beside the first held-out cases'."""
     from benchmarks.calibration import SENSORS
@@ -154,7 +154,7 @@ def headline() -> str:
          + f" SD over {last['n']} pairs",
          "[calibration](docs/calibration.md#what-calibration-buys-the-fine-tuning-curve)",
          f"{src['finetune.json']}, {src['finetune_quality.json']}"],
-        _calibration_row(cal, rule, src),
+        calibration_row(cal, rule, src),
         *verdict_figures.headline_rows_v3(v3, src["touch_il_verdict_v3.json"]),
         *verdict_figures.headline_rows(v2, src["touch_il_verdict_v2.json"]),
         ["touch matters: ACT without its tactile streams vs with them, grip as in the demos",

@@ -162,7 +162,7 @@ def test_the_rendered_table_gives_each_levels_decision_and_marks_the_choice_only
 
 
 def test_the_readme_row_quotes_the_test_split_only_once_it_is_complete():
-    from benchmarks.docs_figures import _calibration_row
+    from benchmarks.docs_figures import calibration_row
 
     cal = {"rows": [{"sensor": "unseen_00/three_light", "cal_frames": 50, "calibrated_ratio": 0.4,
                      "generator_calibrated_ratio": 0.3}],
@@ -172,10 +172,10 @@ def test_the_readme_row_quotes_the_test_split_only_once_it_is_complete():
     test = [case(0.5, draw=d, level=0.80) for d in (6, 7, 8) for _ in range(3)]
     doc = {"protocol": {"splits": dict(rule.SPLITS)}, "validation": {"rows": test},
            "test": {"rows": test[:8], "level": 0.80, "figures": rule.heldout_summary(test[:8])}}
-    partial = _calibration_row(cal, doc, src)
+    partial = calibration_row(cal, doc, src)
     assert "tested once" not in partial[1] and partial[-1] == "`calibration.json`"
     doc["test"].update(rows=test, figures=rule.heldout_summary(test))
-    full = _calibration_row(cal, doc, src)
+    full = calibration_row(cal, doc, src)
     assert full[1].endswith("; its 80% level, chosen on 9 other cases and tested once on 9 more: right in 100% (9 of 9, "
                             "Wilson 95 % 70–100 %; target ≥ 90%), the estimator where used 0.50× the constant's, "
                             "generator 0.40×")
