@@ -33,11 +33,12 @@ def sensor() -> str:
 
 def env_speed() -> str:
     doc = ft.load("env.json")
-    rows = [[r["setting"], f"{r['ms_per_step']:.1f}", f"{r['steps_per_s']:.0f}", f"{r['realtime_factor']:.1f}×"]
-            for r in doc["step_timing"]]
+    rows = [[r["setting"], f"{r['ms_per_step']:.1f}", timing_spread(r, "step", "steps"), f"{r['steps_per_s']:.0f}",
+             f"{r['realtime_factor']:.1f}×"] for r in doc["step_timing"]]
     experts = "; ".join(f"Ø{e['hole_diameter_mm']:g} mm hole {e['successes']}/{e['episodes']}, median "
                         f"{e['median_steps_to_success']:.0f} steps" for e in doc["expert"])
-    return (ft.table(["rendered per 100 ms control step", "ms per step", "steps/s", "real time ×"], rows)
+    return (ft.table(["rendered per 100 ms control step", "ms per step (median)", "spread", "steps/s", "real time ×"],
+                     rows)
             + f"\n\nTarget: ≥ {doc['targets']['realtime_factor_full']:g}× real time with everything rendered. "
             f"Scripted expert: {experts}.\n\n" + ft.source("env.json", doc))
 
