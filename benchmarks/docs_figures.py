@@ -95,15 +95,14 @@ def _decision_figures(h: dict) -> str:
 def calibration_row(cal: dict, rule: dict, src: dict) -> list[str]:
     """The few-shot calibration's headline row; with the decision's level tested once on new cases
     (``calibration_rule.json``'s complete test split), those figures beside the first held-out cases'."""
-    from benchmarks.calibration import SENSORS
-
     unseen = [r for r in cal["rows"] if not r["sensor"].startswith("sim_record") and "draw" not in r]
     m, t, h = cal["mean"], cal["targets"], cal.get("heldout_objects")
     frames = sorted({r["cal_frames"] for r in unseen})
     heldout = "" if not h else f"; on objects it never saw ({h['cases']} cases): its use-or-decline decision " + \
         _decision_figures(h)
     test, source = rule.get("test", {}), src["calibration.json"]
-    if test.get("figures") and len(test["rows"]) == len(SENSORS) * len(rule["protocol"]["splits"]["test"]):
+    done, of = rule_counts(rule)["test"]
+    if test.get("figures") and done == of:
         heldout += (f"; its {test['level']:.0%} level, chosen on {len(rule['validation']['rows'])} other cases and "
                     f"tested once on {len(test['rows'])} more: " + _decision_figures(test["figures"]))
         source += ", " + src["calibration_rule.json"]
@@ -268,22 +267,21 @@ def calibration_rule() -> str:
     """The decision's interval level, case by case on the validation and test draws: each level's upper end and
     decision beside the test on objects it never saw; each level's scores per split, validation's choice marked;
     the test's figures of ``calibrate``'s own decisions against the targets."""
-    from benchmarks.calibration import SENSORS
     from benchmarks.calibration_rule import LEVELS
     from controltac_il.calibrate.decision import decide
 
     doc = ft.load("calibration_rule.json")
     splits = [s for s in ("validation", "test") if doc.get(s, {}).get("rows")]
-    counts = {s: (len(doc.get(s, {}).get("rows", [])), len(draws) * len(SENSORS))  # (cases in, cases of the split)
-              for s, draws in doc["protocol"]["splits"].items()}
+    counts = rule_counts(doc)
     rows, scores = [], []
     for split in splits:
         for r in sorted(doc[split]["rows"], key=lambda r: (r["draw"], r["sensor"])):
             ds = [decide(r["cv_per_grasp"], level) for level in LEVELS]
             ends = " / ".join("–" if d["interval"][1] is None else f"{d['interval'][1]:.2f}" for d in ds)
             uses = " / ".join("used" if d["use"] else "declined" for d in ds)
+            beats = "yes" if r["calibrated_ratio"] < 1 else "**no**"
             rows.append([split, f"`{r['sensor']}`", r["draw"], f"{r['cv_ratio']:.2f}×", ends,
-                         f"{r['cv_wins']} of {r['cv_grasps']}", uses, f"{r['calibrated_ratio']:.2f}×", "yes" if r["calibrated_ratio"] < 1 else "**no**",
+                         f"{r['cv_wins']} of {r['cv_grasps']}", uses, f"{r['calibrated_ratio']:.2f}×", beats,
                          _minutes(r["minutes"])])
         complete = counts[split][0] == counts[split][1]
         chosen = doc[split].get("chosen_level", doc[split].get("level")) if complete else None
@@ -297,6 +295,15 @@ def calibration_rule() -> str:
                                                       "decision right", "false uses", "missed uses", "used"], scores)
     out += "\n\n" + _rule_summary(doc, counts)
     return out + "\n\n" + "\n".join(ft.source("calibration_rule.json", doc[s]) for s in splits)
+
+
+def rule_counts(doc: dict) -> dict[str, tuple[int, int]]:
+    """{split: (cases in, cases of the split)} of ``calibration_rule.json``: a split is complete when they are equal
+    (every sensor of ``benchmarks.calibration`` at every draw of the split)."""
+    from benchmarks.calibration import SENSORS
+
+    return {s: (len(doc.get(s, {}).get("rows", [])), len(draws) * len(SENSORS))
+            for s, draws in doc["protocol"]["splits"].items()}
 
 
 def _rule_summary(doc: dict, counts: dict) -> str:

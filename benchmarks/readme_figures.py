@@ -201,11 +201,9 @@ def act_speed() -> str:
     doc = load("act_speed.json")
     thr = {t["preset"]: t for t in ([doc["training_throughput"]] if isinstance(doc["training_throughput"], dict)
                                     else doc["training_throughput"])}
-    from benchmarks.docs_figures import timing_spread
-
     rows = [[r["preset"], f"{r['params_M']:.2f} M",
              f"{r['ms_per_chunk']:.1f}" + (f" (target {r['target_ms']:.0f})" if r["target_ms"] else ""),
-             timing_spread(r, "call", "calls"),
+             docs_figures.timing_spread(r, "call", "calls"),
              f"{thr[r['preset']]['samples_per_s']:.0f}" if r["preset"] in thr else "–", r["threads"]]
             for r in doc["latency"]]
     header = ["preset", "parameters", f"ms per chunk of {doc['latency'][0]['chunk']} (CPU, median)", "spread",

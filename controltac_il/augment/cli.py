@@ -299,8 +299,14 @@ def _lerobot_defaults(root: Path, kwargs: dict) -> None:
     if unknown:
         raise UsageError("--tactile-keys", f"{unknown[0]!r} is not a camera of {root}; its cameras are {cameras}")
     if kwargs.get("force_keys") is None and kwargs.get("tactile_keys"):
-        full = [k if k in features else tactile_key(k, LEROBOT) for k in kwargs["tactile_keys"]]
-        kwargs["force_keys"] = default_force_keys(full, features) or None
+        kwargs["force_keys"] = default_force_keys(_feature_keys(kwargs["tactile_keys"], features), features) or None
+
+
+def _feature_keys(keys, features: dict) -> list[str]:
+    """``keys`` as a LeRobot folder's feature keys: a camera's name (gelsight_left) is its observation.images key."""
+    from controltac_il.streams import LEROBOT, tactile_key
+
+    return [k if k in features else tactile_key(k, LEROBOT) for k in keys]
 
 
 def _needed_keys(kwargs: dict) -> list[str] | None:
@@ -317,11 +323,10 @@ def _open_dataset(root: Path, keys: list[str] | None = None, background_images: 
     try:
         if (root / "meta" / "info.json").is_file():
             from controltac_il.lerobot import LeRobotFolder, read_info
-            from controltac_il.streams import LEROBOT, tactile_key
 
             known = read_info(root)["features"]  # an unknown key is the wrapper's to name (its flag)
-            full = None if keys is None else [k if k in known else tactile_key(k, LEROBOT) for k in keys]  # a name
-            return LeRobotFolder(root, keys=None if full is None else [k for k in full if k in known],
+            return LeRobotFolder(root, keys=None if keys is None else [k for k in _feature_keys(keys, known)
+                                                                       if k in known],
                                  video_threads=0)  # the CLI never forks workers
         from controltac_il.datasets.act_dataset import EpisodeDataset
 
