@@ -86,8 +86,8 @@ def parser() -> argparse.ArgumentParser:
                         "observation.gelsight_left.force (default: observation.<camera>.force where a LeRobot folder "
                         "has it, else our layout's rule; unlabelled keys use the estimator)")
     p.add_argument("--background-image", nargs="+", action="extend", default=None, metavar="TACTILE_KEY=PNG",
-                   help="the no-contact image of a tactile sensor at rest (an RGB PNG at the frames' size, e.g. "
-                        "gelsight_left=rest_left.png), used for every episode: for a LeRobot folder (which records "
+                   help="the no-contact image of a tactile sensor at rest (an RGB PNG, or JPEG, at the frames' size, "
+                        "e.g. gelsight_left=rest_left.png), used for every episode: for a LeRobot folder (which records "
                         "no background) whose episodes start in contact (default: the episodes' recorded "
                         "background, else each episode's estimated from its own no-contact frames)")
     p.add_argument("--out", required=True, type=Path,
@@ -212,7 +212,7 @@ def _setup(args) -> ForceAugment:
             check_destination(args.dataset, args.out)
         except ValueError as exc:
             raise _field_error(exc, "--out") from exc
-        _lerobot_defaults(args.dataset, kwargs)
+        features = _lerobot_defaults(args.dataset, kwargs)
     elif args.out.exists() and not args.out.is_dir():
         raise UsageError("--out", f"expected a cache folder (new, empty, or a cache of these settings); "
                                   f"{args.out} is a file")
@@ -221,7 +221,8 @@ def _setup(args) -> ForceAugment:
             check_apart(args.dataset, args.out)
         except ValueError as exc:
             raise _field_error(exc, "--out") from exc
-    dataset = _open_dataset(args.dataset, _needed_keys(kwargs) if lerobot else None, kwargs.get("background_images"))
+    dataset = _open_dataset(args.dataset, kwargs.get("background_images"), features if lerobot else None,
+                            _needed_keys(kwargs) if lerobot else None)
     generator, estimator = load_models(args, bool(kwargs.get("pose_offset")))
     if lerobot:
         from controltac_il.lerobot import staging_dir
@@ -280,10 +281,10 @@ def _pairs(args) -> dict[str, dict[str, str]]:
     return out
 
 
-def _lerobot_defaults(root: Path, kwargs: dict) -> None:
+def _lerobot_defaults(root: Path, kwargs: dict) -> dict:
     """Where --tactile-keys / --force-keys are not given, a LeRobot folder's tactile cameras and force labels as
     train_act.py takes them: cameras named gelsight / tactile / digit, labels observation.<camera>.force; a named
-    tactile key that is none of its cameras is refused, naming them."""
+    tactile key that is none of its cameras is refused, naming them. Returns the folder's features (info.json)."""
     from controltac_il.lerobot import read_info
     from controltac_il.lerobot.episodes import default_force_keys, tactile_cameras
     from controltac_il.streams import LEROBOT, tactile_key
@@ -300,6 +301,7 @@ def _lerobot_defaults(root: Path, kwargs: dict) -> None:
         raise UsageError("--tactile-keys", f"{unknown[0]!r} is not a camera of {root}; its cameras are {cameras}")
     if kwargs.get("force_keys") is None and kwargs.get("tactile_keys"):
         kwargs["force_keys"] = default_force_keys(_feature_keys(kwargs["tactile_keys"], features), features) or None
+    return features
 
 
 def _feature_keys(keys, features: dict) -> list[str]:
@@ -317,16 +319,17 @@ def _needed_keys(kwargs: dict) -> list[str] | None:
     return [*kwargs["tactile_keys"], *(v for m in maps for v in m.values() if v)]
 
 
-def _open_dataset(root: Path, keys: list[str] | None = None, background_images: dict | None = None):
-    """--dataset: a LeRobot v3.x folder (it has meta/info.json; items of ``keys`` alone) or a folder of ACT
-    episodes (with ``background_images``, which then needs no estimate of its own)."""
+def _open_dataset(root: Path, background_images: dict | None, features: dict | None, keys: list[str] | None):
+    """--dataset: a LeRobot v3.x folder of ``features`` (its info.json's; items of ``keys`` alone, None: all) or,
+    with ``features`` None, a folder of ACT episodes (with ``background_images``, which then needs no estimate of
+    its own)."""
     try:
-        if (root / "meta" / "info.json").is_file():
-            from controltac_il.lerobot import LeRobotFolder, read_info
+        if features is not None:
+            from controltac_il.lerobot import LeRobotFolder
 
-            known = read_info(root)["features"]  # an unknown key is the wrapper's to name (its flag)
-            return LeRobotFolder(root, keys=None if keys is None else [k for k in _feature_keys(keys, known)
-                                                                       if k in known],
+            # an unknown key is the wrapper's to name (its flag)
+            return LeRobotFolder(root, keys=None if keys is None else [k for k in _feature_keys(keys, features)
+                                                                       if k in features],
                                  video_threads=0)  # the CLI never forks workers
         from controltac_il.datasets.act_dataset import EpisodeDataset
 
