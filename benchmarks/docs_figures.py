@@ -132,8 +132,8 @@ def headline() -> str:
     """One row per headline figure: what, the figure, its spread or interval, its docs section, its JSON."""
     names = ("generator.json", "finetune.json", "calibration.json", "touch_il_verdict.json", "env.json", "act_speed.json",
              "generator_speed.json", "touch_il_verdict_v2.json", "finetune_quality.json", "touch_il_verdict_v3.json",
-             "generator_speed_gpu.json", "generator_fa.json", "calibration_rule.json")
-    gen, fin, cal, ver, env, act, speed, v2, fin_q, v3, gpu, fa, rule = docs = [ft.load(n) for n in names]
+             "generator_speed_gpu.json", "calibration_rule.json")
+    gen, fin, cal, ver, env, act, speed, v2, fin_q, v3, gpu, rule = docs = [ft.load(n) for n in names]
     src = {n: f"`{n}` ({doc['machine']['git_commit']}, {doc['machine']['date_utc'][:10]})"
            + (" *History*" if ft.source(n, doc).startswith("*History") else "") for n, doc in zip(names, docs)}
     first, last, first_q = fin["rows"][0], fin["rows"][-1], fin_q["rows"][0]
@@ -144,7 +144,7 @@ def headline() -> str:
     cpu = next(r for r in act["latency"] if r["preset"] == "cpu")
     verdict_link = "[experiments](docs/experiments.md#the-verdict-v1)"
     rows = [
-        *(_preset_row(gen, speed, gpu, fa, name, src) for name in ("fast", "default", "quality")),
+        *(_preset_row(gen, speed, gpu, name, src) for name in ("fast", "default", "quality")),
         [f"calibration to a held-out sensor ({last['images']:,} presses)".replace(",", " "), f"generator from `default` "
          f"{last['mse_ratio_to_copy']:.3f}× a copy's MSE (zero-shot {first['mse_ratio_to_copy']:.3f}×), from `quality` "
          + (f"{last_q['mse_ratio_to_copy']:.3f}×" if last_q else "not yet measured")
@@ -178,14 +178,15 @@ def timing_spread(row: dict, unit: str, count: str) -> str:
     return f"{lo:.1f}–{hi:.1f} ms per {unit} (interquartile, {row[count]} {count})"
 
 
-def _preset_row(gen: dict, speed: dict, gpu: dict, fa: dict, name: str, src: dict) -> list:
+def _preset_row(gen: dict, speed: dict, gpu: dict, name: str, src: dict) -> list:
     """A shipped generator preset at DDIM-1: its speed on the CPU and on the GPU (median, range over rounds) and,
-    beside each, its error at 240×320 on the pairs ForceAugment asks for (``generator_fa.json``: the nominal sensor,
-    held-out objects) and on the symmetric held-out-object pairs."""
+    beside each, its error at 240×320 on the pairs ForceAugment asks for (``generator.json``'s split: the nominal
+    sensor, held-out objects) and on the symmetric held-out-object pairs."""
     m = next(m for m in gen["methods"] if m["method"] == f"{name} DDIM-1")
     s = next(r for r in speed["rows"] if (r["checkpoint"], r["frames"], r["steps"]) == (name, "240", 1) and b32(r))
     g = next(r for r in gpu["rows"] if (r["checkpoint"], r["frames"], r["batch"]) == (name, "240", "auto"))
-    f = next(r for r in fa["rows"] if (r["size"], r["sensor"]) == ("240", "nominal"))["presets"][name]
+    fa = gen["forceaugment_split"]["rows"]
+    f = next(r for r in fa if (r["size"], r["sensor"]) == ("240", "nominal"))["presets"][name]
     copy = next(m for m in gen["methods"] if m["kind"] == "copy")["unseen_240"]["mse"]
     ratio, q = m["unseen_240"]["mse"] / copy, m["unseen_240"]
     objects, threads = len(gen["settings"]["splits"]["unseen_240"]["objects"]), speed["settings"]["threads"]
@@ -199,8 +200,7 @@ def _preset_row(gen: dict, speed: dict, gpu: dict, fa: dict, name: str, src: dic
             f"rounds (H200 {min(g['img_per_s_rounds']):.0f}–{max(g['img_per_s_rounds']):.0f}); MSE {q['mse']:.1f} ± "
             f"{q['mse_sd']:.1f} SD over {q['n']} symmetric pairs, {f['all']['pairs']} ForceAugment pairs",
             "[generator](docs/generator.md#where-forceaugment-uses-it)",
-            f"{src['generator.json']}, {src['generator_speed.json']}, {src['generator_speed_gpu.json']}, "
-            f"{src['generator_fa.json']}"]
+            f"{src['generator.json']}, {src['generator_speed.json']}, {src['generator_speed_gpu.json']}"]
 
 
 def calibration() -> str:

@@ -25,7 +25,7 @@ from controltac_il.cli import ArgumentParser
 from controltac_il.generator.shipped import FRONTIER_SIZES, SHIPPED
 from controltac_il.io import atomic_path
 
-from benchmarks import docs_figures
+from benchmarks import docs_figures, generator_fa_figures
 from benchmarks.figure_text import (RESULTS, ROOT, SHIPPED_GENERATOR, ci_points, load, pct, provenance,
                                     recorded_generator, table)
 
@@ -344,7 +344,7 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "pose-estimation": pose_estimation, "act-speed": act_speed, "act": act, "touch-il": touch_il,
     "touch-il-reruns": touch_il_reruns, "results-provenance": results_provenance,
     "augment-lerobot-write": augment_lerobot_write, "touch-il-verdict": touch_il_verdict,
-    "estimator": estimator, **docs_figures.BLOCKS,
+    "estimator": estimator, **docs_figures.BLOCKS, **generator_fa_figures.BLOCKS,
 }
 
 # model cards whose ``benchmark`` copies the figures of one JSON: card -> (JSON, the card's view of it)

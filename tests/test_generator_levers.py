@@ -72,3 +72,13 @@ def test_validation_objects_must_be_defaults_and_never_test_objects():
     leak = {"control": {"validation_objects": [HELDOUT_OBJECTS[0]]}}
     with pytest.raises(SystemExit, match="are test objects"):
         validation_objects(leak, card, quick=True)
+
+
+def test_a_target_is_met_at_its_bound_and_the_worst_object_decides_the_third():
+    from benchmarks.generator_fa_figures import TARGETS, against_targets
+
+    scores = {"increase": {"ratio": TARGETS["increase"]}, "all": {"ratio": TARGETS["all"] + 1e-9},
+              "objects": {"cube_face": {"ratio": 0.95}, "usb_c": {"ratio": 0.2}}}
+    t = against_targets(scores)
+    assert t["meets"] == {"increase": True, "all": False, "worst_object": False}
+    assert (t["worst_object"], t["figures"]["worst_object"]) == ("cube_face", 0.95)
