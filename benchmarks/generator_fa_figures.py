@@ -87,7 +87,7 @@ def levers() -> str:
     val, runs = doc["validation"]["generators"], doc["variants"]
     rows = [[f"`{k}`" + (" (chosen)" if k == doc["chosen"] else ""),
              " ".join(doc["settings"]["variants"].get(k, [])) or ("none (the steps alone)" if k in runs else
-                                                                   "the shipped checkpoint"),
+                                                                   "shipped, not fine-tuned"),
              f"{runs[k]['wall_s'] / 60:.0f}" if k in runs else "–",
              f"{s['all']['ratio']:.4f}", f"{s['increase']['ratio']:.4f}"] for k, s in val.items()]
     objects = len(doc["settings"]["validation_objects"])

@@ -10,10 +10,12 @@
 Each variant fine-tunes ``default``'s DiT for ``--steps`` on it with ``default``'s own recipe (its card's command:
 the same flags, the same ``--val-objects 10 --seed 5``, so the same ten procedural objects are held out; peak LR
 ``--lr``) plus its lever (``VARIANTS``): ``control`` has none and measures what the extra steps alone give.
+The shipped sizes of ``--shipped`` (``frontier_tiny``, ``frontier_small`` between ``default`` and ``quality``,
+and ``quality``) are candidates too, untrained here: each held out ``default``'s validation objects.
 
 Validation: the ForceAugment split (``benchmarks.generator_fa``'s pairs: references at the demos' grip, ΔF as
 ForceAugment draws it) on those held-out procedural objects, 240×320, nominal sensor. The candidate with the lowest
-MSE ÷ a copy's over all pairs is chosen, ``default`` itself among them. Test, once, for the chosen one and
+MSE ÷ a copy's over all pairs is chosen, ``default`` and the shipped sizes among them. Test, once, for the chosen one and
 ``default``: the same split on fresh pairs of the benchmark's held-out objects, against ``TARGETS``. Runs live in
 ``--runs``: a finished variant is reused only if its command is this one's, a stopped one continues; nothing is
 shipped from here.
@@ -34,6 +36,7 @@ from benchmarks.generator_fa import GRIP_FZ, SIZES, fa_pairs, floors, score, sen
 from benchmarks.generator_fa_figures import TARGETS, against_targets
 from controltac_il.checkpoint import read_json
 from controltac_il.io import write_json
+from controltac_il.generator.shipped import FRONTIER_SIZES, locate_checkpoint
 from controltac_il.tactile import HELDOUT_OBJECTS
 
 VARIANTS = {"control": [], "increase": ["--increase-prob", "0.6"], "new_contact": ["--new-contact-weight", "2"],
@@ -122,10 +125,13 @@ def parse(argv):
     p.add_argument("--threads", type=int, default=2, help="torch threads per training and for the scoring")
     p.add_argument("--jobs", type=int, default=1, help="variants trained at once")
     p.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    p.add_argument("--shipped", nargs="*", default=[*FRONTIER_SIZES, "quality"], choices=[*FRONTIER_SIZES, "quality"],
+                   help="shipped checkpoints scored as candidates beside default, untrained here (default: "
+                        "frontier_tiny frontier_small quality; none with --quick)")
     args = p.parse_args(argv)
     args.runs = args.runs or Path("runs/generator_levers" + ("_quick" if args.quick else ""))
     if args.quick:  # a smoke run on a small DATA: two steps, one validation object, four pairs
-        args.steps, args.pairs, args.val_pairs = 2, 4, 4
+        args.steps, args.pairs, args.val_pairs, args.shipped = 2, 4, 4, []
     return args
 
 
@@ -133,7 +139,6 @@ def main(argv=None) -> dict:
     import torch
 
     from controltac_il.generator import ForceGenerator
-    from controltac_il.generator.shipped import locate_checkpoint
 
     args = parse(argv)
     card = read_json(locate_checkpoint("default") / "model_card.json")
@@ -144,9 +149,10 @@ def main(argv=None) -> dict:
     t0 = time.perf_counter()
     with ThreadPoolExecutor(args.jobs) as pool:
         runs = dict(zip(args.variants, pool.map(lambda v: train(args, v, base), args.variants)))
-    objects = validation_objects(runs, card, args.quick)
+    objects = validation_objects(runs, card, args.quick, args.shipped)
     torch.set_num_threads(args.threads)
     gens = {"default": ForceGenerator.from_pretrained("default"),
+            **{name: ForceGenerator.from_pretrained(name) for name in args.shipped},
             **{v: ForceGenerator.from_pretrained(args.runs / v / "final") for v in runs}}
     validation = split(gens, objects, args.val_pairs, seed=1)
     chosen = min(validation["generators"], key=lambda k: validation["generators"][k]["all"]["ratio"])
@@ -156,7 +162,7 @@ def main(argv=None) -> dict:
            "settings": {"data": str(args.data), "steps": args.steps, "lr": args.lr, "val_pairs": args.val_pairs,
                         "pairs": args.pairs, "device": args.device, "threads": args.threads, "jobs": args.jobs,
                         "quick": args.quick, "grip_fz": list(GRIP_FZ), "validation_objects": list(objects),
-                        "test_seed": 2, "variants": {v: VARIANTS[v] for v in runs},
+                        "test_seed": 2, "variants": {v: VARIANTS[v] for v in runs}, "shipped": args.shipped,
                         "checkpoints": {k: g.checkpoint_hash for k, g in gens.items()}},
            "variants": runs, "validation": validation, "chosen": chosen, "test": test,
            "targets": {k: against_targets(s) for k, s in test["generators"].items()},
@@ -165,8 +171,9 @@ def main(argv=None) -> dict:
     return write_results(args.out, doc)
 
 
-def validation_objects(runs: dict, card: dict, quick: bool) -> tuple[str, ...]:
-    """The objects every variant held out: ``default``'s own, none of the benchmark's held-out objects."""
+def validation_objects(runs: dict, card: dict, quick: bool, shipped: list[str]) -> tuple[str, ...]:
+    """The objects every variant and every ``shipped`` candidate held out: ``default``'s own, none of the
+    benchmark's held-out objects."""
     held = {tuple(r["validation_objects"]) for r in runs.values()}
     if len(held) != 1:
         raise SystemExit(f"the variants held out different validation objects: {sorted(held)}")
@@ -176,6 +183,10 @@ def validation_objects(runs: dict, card: dict, quick: bool) -> tuple[str, ...]:
                          f"{card['denoiser']['validation']['objects']}; render DATA with default's data command")
     if set(objects) & set(HELDOUT_OBJECTS):
         raise SystemExit(f"--data: validation objects {sorted(set(objects) & set(HELDOUT_OBJECTS))} are test objects")
+    for name in shipped:
+        held = read_json(locate_checkpoint(name) / "model_card.json")["denoiser"].get("validation", {}).get("objects")
+        if tuple(held or ()) != objects:
+            raise SystemExit(f"--shipped: {name} held out {held}, not default's validation objects {list(objects)}")
     return objects
 
 

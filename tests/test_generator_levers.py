@@ -62,16 +62,30 @@ def test_validation_objects_must_be_defaults_and_never_test_objects():
 
     card = {"denoiser": {"validation": {"objects": ["procedural_0020", "procedural_0024"]}}}
     runs = {v: {"validation_objects": ["procedural_0020", "procedural_0024"]} for v in ("control", "both")}
-    assert validation_objects(runs, card, quick=False) == ("procedural_0020", "procedural_0024")
+    assert validation_objects(runs, card, quick=False, shipped=[]) == ("procedural_0020", "procedural_0024")
     runs["both"] = {"validation_objects": ["procedural_0020", "procedural_0025"]}
     with pytest.raises(SystemExit, match="different validation objects"):
-        validation_objects(runs, card, quick=False)
+        validation_objects(runs, card, quick=False, shipped=[])
     other = {"control": {"validation_objects": ["procedural_0001"]}}
     with pytest.raises(SystemExit, match="not default's validation objects"):
-        validation_objects(other, card, quick=False)
+        validation_objects(other, card, quick=False, shipped=[])
     leak = {"control": {"validation_objects": [HELDOUT_OBJECTS[0]]}}
     with pytest.raises(SystemExit, match="are test objects"):
-        validation_objects(leak, card, quick=True)
+        validation_objects(leak, card, quick=True, shipped=[])
+    with pytest.raises(SystemExit, match="--shipped: quality held out"):
+        validation_objects({"control": runs["control"]}, card, quick=False, shipped=["quality"])
+
+
+def test_the_shipped_sizes_held_out_defaults_validation_objects():
+    from benchmarks.generator_levers import parse, validation_objects
+    from controltac_il.checkpoint import read_json
+    from controltac_il.generator.shipped import locate_checkpoint
+
+    card = read_json(locate_checkpoint("default") / "model_card.json")
+    runs = {"control": {"validation_objects": card["denoiser"]["validation"]["objects"]}}
+    shipped = parse(["--data", "d"]).shipped
+    assert shipped == ["frontier_tiny", "frontier_small", "quality"]
+    assert validation_objects(runs, card, quick=False, shipped=shipped) == tuple(runs["control"]["validation_objects"])
 
 
 def test_a_target_is_met_at_its_bound_and_the_worst_object_decides_the_third():
