@@ -305,6 +305,11 @@ def test_cli_writes_and_refuses_in_one_line_naming_the_flag(written, tmp_path, c
     assert read_record(out)["video_round_trip_mse"] is None
     assert main(["--dataset", str(root), "--out", str(out), *base]) == 0
     assert "already holds this augmented dataset" in capsys.readouterr().out
+    # the cameras by name, in --tactile-keys and in --force-keys: the same write
+    named = {k.rsplit(".", 1)[-1]: v for k, v in FORCES.items()}
+    assert main(["--dataset", str(root), "--out", str(out), *base[:6], "--tactile-keys", *named,
+                 "--force-keys", *(f"{k}={v}" for k, v in named.items())]) == 0
+    assert "already holds this augmented dataset" in capsys.readouterr().out
     (tmp_path / "foreign").mkdir()
     (tmp_path / "foreign" / "notes.txt").write_text("mine")
     (tmp_path / "v2").mkdir()
@@ -333,6 +338,8 @@ def test_cli_writes_and_refuses_in_one_line_naming_the_flag(written, tmp_path, c
          "--tactile-keys: "),
         (["--dataset", str(root), "--out", str(tmp_path / "o5"), *base, "--tactile-keys", "observation.state"],
          "--tactile-keys: "),
+        (["--dataset", str(root), "--out", str(tmp_path / "o9"), *base, "--force-keys",
+          f"gelsight_left={FORCES[LEFT]}"], "--force-keys: a camera is given twice, by its name and by its key"),
         (["--dataset", str(tmp_path / "parquet"), "--out", str(tmp_path / "o6"), *base],
          f"--dataset: {broken['parquet']} is not a readable parquet file (Parquet magic bytes not found"),
         (["--dataset", str(tmp_path / "mp4"), "--out", str(tmp_path / "o7"), *base],

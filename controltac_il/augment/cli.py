@@ -82,13 +82,14 @@ def parser() -> argparse.ArgumentParser:
                         "tactile cameras are those named gelsight / tactile / digit unless --tactile-keys names them, "
                         "as for train_act.py); read-only")
     p.add_argument("--force-keys", nargs="+", action="extend", default=None, metavar="TACTILE_KEY=FORCE_KEY",
-                   help="the force label [Fx, Fy, Fz] N of each tactile key, e.g. observation.images.gelsight_left="
-                        "observation.gelsight_left.force (default: observation.<camera>.force where a LeRobot folder "
-                        "has it, else our layout's rule; unlabelled keys use the estimator)")
+                   help="the force label [Fx, Fy, Fz] N of each tactile key (for a LeRobot folder, or its camera's "
+                        "name), e.g. observation.images.gelsight_left=observation.gelsight_left.force (default: "
+                        "observation.<camera>.force where a LeRobot folder has it, else our layout's rule; unlabelled "
+                        "keys use the estimator)")
     p.add_argument("--background-image", nargs="+", action="extend", default=None, metavar="TACTILE_KEY=PNG",
-                   help="the no-contact image of a tactile sensor at rest (an RGB PNG, or JPEG, at the frames' size, "
-                        "e.g. gelsight_left=rest_left.png), used for every episode: for a LeRobot folder (which records "
-                        "no background) whose episodes start in contact (default: the episodes' recorded "
+                   help="the no-contact image of a tactile sensor at rest (an RGB PNG, or JPEG, at the frames' "
+                        "size, e.g. gelsight_left=rest_left.png), used for every episode: for a LeRobot folder (which "
+                        "records no background) whose episodes start in contact (default: the episodes' recorded "
                         "background, else each episode's estimated from its own no-contact frames)")
     p.add_argument("--out", required=True, type=Path,
                    help="ACT episodes: the cache folder to create or complete. LeRobot: the augmented dataset folder "
@@ -284,7 +285,8 @@ def _pairs(args) -> dict[str, dict[str, str]]:
 def _lerobot_defaults(root: Path, kwargs: dict) -> dict:
     """Where --tactile-keys / --force-keys are not given, a LeRobot folder's tactile cameras and force labels as
     train_act.py takes them: cameras named gelsight / tactile / digit, labels observation.<camera>.force; a named
-    tactile key that is none of its cameras is refused, naming them. Returns the folder's features (info.json)."""
+    tactile key that is none of its cameras is refused, naming them; the keys of --force-keys and
+    --background-image may be camera names too. Returns the folder's features (info.json)."""
     from controltac_il.lerobot import read_info
     from controltac_il.lerobot.episodes import default_force_keys, tactile_cameras
     from controltac_il.streams import LEROBOT, tactile_key
@@ -299,6 +301,13 @@ def _lerobot_defaults(root: Path, kwargs: dict) -> dict:
     unknown = [k for k in kwargs.get("tactile_keys") or () if k not in cameras and tactile_key(k, LEROBOT) not in cameras]
     if unknown:
         raise UsageError("--tactile-keys", f"{unknown[0]!r} is not a camera of {root}; its cameras are {cameras}")
+    for name, (flag, _) in MAP_FLAGS.items():  # a camera's name stands for its key, as in --tactile-keys
+        given = kwargs.get(name)
+        if given:
+            keys = _feature_keys(given, features)
+            if len(set(keys)) < len(keys):
+                raise UsageError(flag, f"a camera is given twice, by its name and by its key: {list(given)}")
+            kwargs[name] = dict(zip(keys, given.values()))
     if kwargs.get("force_keys") is None and kwargs.get("tactile_keys"):
         kwargs["force_keys"] = default_force_keys(_feature_keys(kwargs["tactile_keys"], features), features) or None
     return features
