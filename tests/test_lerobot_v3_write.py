@@ -305,11 +305,6 @@ def test_cli_writes_and_refuses_in_one_line_naming_the_flag(written, tmp_path, c
     assert read_record(out)["video_round_trip_mse"] is None
     assert main(["--dataset", str(root), "--out", str(out), *base]) == 0
     assert "already holds this augmented dataset" in capsys.readouterr().out
-    # the cameras by name, in --tactile-keys and in --force-keys: the same write
-    named = {k.rsplit(".", 1)[-1]: v for k, v in FORCES.items()}
-    assert main(["--dataset", str(root), "--out", str(out), *base[:6], "--tactile-keys", *named,
-                 "--force-keys", *(f"{k}={v}" for k, v in named.items())]) == 0
-    assert "already holds this augmented dataset" in capsys.readouterr().out
     (tmp_path / "foreign").mkdir()
     (tmp_path / "foreign" / "notes.txt").write_text("mine")
     (tmp_path / "v2").mkdir()
@@ -338,8 +333,6 @@ def test_cli_writes_and_refuses_in_one_line_naming_the_flag(written, tmp_path, c
          "--tactile-keys: "),
         (["--dataset", str(root), "--out", str(tmp_path / "o5"), *base, "--tactile-keys", "observation.state"],
          "--tactile-keys: "),
-        (["--dataset", str(root), "--out", str(tmp_path / "o9"), *base, "--force-keys",
-          f"gelsight_left={FORCES[LEFT]}"], "--force-keys: a camera is given twice, by its name and by its key"),
         (["--dataset", str(tmp_path / "parquet"), "--out", str(tmp_path / "o6"), *base],
          f"--dataset: {broken['parquet']} is not a readable parquet file (Parquet magic bytes not found"),
         (["--dataset", str(tmp_path / "mp4"), "--out", str(tmp_path / "o7"), *base],
@@ -352,6 +345,26 @@ def test_cli_writes_and_refuses_in_one_line_naming_the_flag(written, tmp_path, c
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and expected in err, (args, err)
     assert (tmp_path / "foreign" / "notes.txt").read_text() == "mine" and not (root / "inside").exists()
+
+
+def test_cli_takes_cameras_by_name_in_every_key_flag(written, tmp_path, capsys):
+    from controltac_il.generator.checkpoint import save_checkpoint
+
+    root, _, _, reference = written
+    g = reference.generator
+    ckpt = save_checkpoint(tmp_path / "gen", g.config, g.autoencoder, g.denoiser)
+    base = ["--dataset", str(root), "--out", str(tmp_path / "out"), "--generator", str(ckpt), "--steps", "1"]
+    assert main([*base, "--tactile-keys", LEFT, RIGHT, "--force-keys", *(f"{k}={v}" for k, v in FORCES.items())]) == 0
+    capsys.readouterr()
+    named = {k.rsplit(".", 1)[-1]: v for k, v in FORCES.items()}  # gelsight_left=observation.gelsight_left.force
+    assert main([*base, "--tactile-keys", *named, "--force-keys", *(f"{k}={v}" for k, v in named.items())]) == 0
+    assert "already holds this augmented dataset" in capsys.readouterr().out  # the same write
+    twice = [f"gelsight_left={FORCES[LEFT]}", f"{LEFT}={FORCES[LEFT]}"]
+    for keys, says in ((twice, "--force-keys: a camera is given twice, by its name and by its key"),
+                       ([f"bogus={FORCES[LEFT]}"], "--force-keys: ['bogus'] are not tactile keys")):
+        assert main([*base[:3], str(tmp_path / "o2"), *base[4:], "--force-keys", *keys]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and says in err, err
 
 
 @pytest.mark.parametrize("values", [[7], [0, 255], [3] * 5, list(range(256)) * 3 + [9], "random"])

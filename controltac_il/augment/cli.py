@@ -285,8 +285,8 @@ def _pairs(args) -> dict[str, dict[str, str]]:
 def _lerobot_defaults(root: Path, kwargs: dict) -> dict:
     """Where --tactile-keys / --force-keys are not given, a LeRobot folder's tactile cameras and force labels as
     train_act.py takes them: cameras named gelsight / tactile / digit, labels observation.<camera>.force; a named
-    tactile key that is none of its cameras is refused, naming them; the keys of --force-keys and
-    --background-image may be camera names too. Returns the folder's features (info.json)."""
+    tactile key that is none of its cameras is refused, naming them; the keys of --force-keys may be camera names
+    too (ForceAugment itself takes them in --background-image). Returns the folder's features (info.json)."""
     from controltac_il.lerobot import read_info
     from controltac_il.lerobot.episodes import default_force_keys, tactile_cameras
     from controltac_il.streams import LEROBOT, tactile_key
@@ -301,23 +301,23 @@ def _lerobot_defaults(root: Path, kwargs: dict) -> dict:
     unknown = [k for k in kwargs.get("tactile_keys") or () if k not in cameras and tactile_key(k, LEROBOT) not in cameras]
     if unknown:
         raise UsageError("--tactile-keys", f"{unknown[0]!r} is not a camera of {root}; its cameras are {cameras}")
-    for name, (flag, _) in MAP_FLAGS.items():  # a camera's name stands for its key, as in --tactile-keys
-        given = kwargs.get(name)
-        if given:
-            keys = _feature_keys(given, features)
-            if len(set(keys)) < len(keys):
-                raise UsageError(flag, f"a camera is given twice, by its name and by its key: {list(given)}")
-            kwargs[name] = dict(zip(keys, given.values()))
+    if kwargs.get("force_keys"):  # a camera's name stands for its key, as in --tactile-keys (and --background-image)
+        keys = _feature_keys(kwargs["force_keys"], features)
+        if len(set(keys)) < len(keys):
+            raise UsageError("--force-keys", f"a camera is given twice, by its name and by its key: "
+                                             f"{list(kwargs['force_keys'])}")
+        kwargs["force_keys"] = dict(zip(keys, kwargs["force_keys"].values()))
     if kwargs.get("force_keys") is None and kwargs.get("tactile_keys"):
         kwargs["force_keys"] = default_force_keys(_feature_keys(kwargs["tactile_keys"], features), features) or None
     return features
 
 
 def _feature_keys(keys, features: dict) -> list[str]:
-    """``keys`` as a LeRobot folder's feature keys: a camera's name (gelsight_left) is its observation.images key."""
+    """``keys`` as a LeRobot folder's feature keys: a camera's name (gelsight_left) is its observation.images key
+    where the folder has that key; any other key stays as given (for its refusal to name it)."""
     from controltac_il.streams import LEROBOT, tactile_key
 
-    return [k if k in features else tactile_key(k, LEROBOT) for k in keys]
+    return [tactile_key(k, LEROBOT) if k not in features and tactile_key(k, LEROBOT) in features else k for k in keys]
 
 
 def _needed_keys(kwargs: dict) -> list[str] | None:
