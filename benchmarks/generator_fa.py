@@ -13,16 +13,21 @@ Per preset: MSE ÷ a reference copy's over all pairs and broken down by the sign
 and by object. Two floors: the noise floor (two renders of the target that differ only in the noise draw, ÷ the
 copy's) and the contact split, the generator's and the copy's MSE on the pixels of the reference's contact area
 and on the new contact (the target's contact pixels outside it: there the reference shows nothing of the object).
-Beside ``--out``: the picture, each pair's MSE ÷ its copy's against ΔFz per preset, the noise floor drawn in. Real frames (the
+Beside ``--out``: the picture, each pair's MSE ÷ its copy's against ΔFz per preset with its median per 1 N, the
+noise floor drawn in, and the contact split (``--plot-from JSON`` redraws it from a results JSON). Real frames (the
 GelSight Mini frames of ../shared, when present): the shipped estimator's Fz read-back of outputs at each ΔFz of
 ``REAL_DFZ`` and the slope of read-back against ΔFz (1 N per N is ideal).
 """
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 
 from benchmarks.common import base_parser, print_table, save_figure, write_results
+from benchmarks.generator_fa_figures import DFZ_BINS, bin_label
 from benchmarks.response import real_references
 from benchmarks.verdict_protocols import NOMINAL, SETTINGS
 from controltac_il.augment.config import ForceAugmentConfig
@@ -33,7 +38,6 @@ from controltac_il.tactile.instances import sensor_instance
 
 SIZES = {"240": (240, 320), "120": (120, 160)}
 GRIP_FZ = SETTINGS[NOMINAL]  # N: the verdict demos' grip
-DFZ_BINS = ((0.0, 2.0), (2.0, 5.0), (5.0, np.inf))  # |ΔFz| N
 REAL_DFZ = (-2.0, 0.0, 2.0, 4.0, 6.0)  # N
 COPIES = 2  # fa2
 
@@ -77,7 +81,7 @@ def breakdown(pred_mse: np.ndarray, copy_mse: np.ndarray, dfz: np.ndarray, objec
 
     out = {"all": cell(np.ones(len(dfz), bool)), "increase": cell(dfz > 0), "decrease": cell(dfz < 0)}
     size = np.abs(dfz)
-    out.update({f"|dFz| {lo:g}-{hi:g} N": cell(((size > lo) | (lo == 0)) & (size <= hi)) for lo, hi in DFZ_BINS})
+    out.update({bin_label(lo, hi): cell(((size > lo) | (lo == 0)) & (size <= hi)) for lo, hi in DFZ_BINS})
     out["objects"] = {str(o): cell(objects == o) for o in np.unique(objects)}
     return out
 
@@ -120,26 +124,62 @@ def real_readback(generator, estimator) -> dict | None:
 
 
 def save_plot(path, rows: list[dict]) -> None:
-    """PNG: per pair, MSE ÷ its copy's against ΔFz, one panel per size on the nominal sensor, one colour per preset,
-    the noise floor (÷ the copy's, over the pairs) as a dashed line."""
+    """PNG: per pair, MSE ÷ its copy's against ΔFz with each preset's median per 1 N bin, one panel per size on the
+    nominal sensor, the noise floor (÷ the copy's, over the pairs) dashed; beside them the contact split at 240×320:
+    each preset's and the copy's MSE on the reference's contact and on the new contact."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     nominal = [r for r in rows if r["sensor"] == "nominal"]
-    fig, axes = plt.subplots(1, len(nominal), figsize=(5.5 * len(nominal), 4), squeeze=False)
+    fig, axes = plt.subplots(1, len(nominal) + 1, figsize=(5.2 * (len(nominal) + 1), 4.6), squeeze=False)
     for ax, row in zip(axes[0], nominal):
-        for name, s in row["presets"].items():
-            ax.scatter(s["per_pair"]["dfz"], s["per_pair"]["ratio"], s=9, alpha=0.6,
-                       label=f"{name} ({s['all']['ratio']:.2f}x over all)")
+        for k, (name, s) in enumerate(row["presets"].items()):
+            dfz, ratio = np.asarray(s["per_pair"]["dfz"]), np.asarray(s["per_pair"]["ratio"])
+            ax.scatter(dfz, ratio, s=8, alpha=0.35, color=f"C{k}")
+            centres, medians = _binned_medians(dfz, ratio)
+            ax.plot(centres, medians, color=f"C{k}", lw=2, marker="o", ms=3, label=f"{name} (line: median per 1 N)")
         ax.axhline(row["noise_ratio_to_copy"], color="black", ls="--", lw=1, label="noise floor")
         ax.axhline(1.0, color="grey", ls=":", lw=1, label="a copy")
-        ax.set(xlabel="ΔFz asked (N)", ylabel="MSE ÷ a copy's", title=f"{'×'.join(map(str, SIZES[row['size']]))} frames, nominal sensor",
-               yscale="log")
-        ax.legend(fontsize=7)
-    fig.tight_layout()
+        over_all = ", ".join(f"{n} {s['all']['ratio']:.2f}×" for n, s in row["presets"].items())
+        ax.set(xlabel="ΔFz asked (N)", ylabel="MSE ÷ a copy's", yscale="log")
+        ax.set_title(f"{'×'.join(map(str, SIZES[row['size']]))} frames, nominal sensor\nover all: {over_all}\n"
+                     f"noise floor {row['noise_ratio_to_copy']:.2f}×", fontsize=9)
+    _contact_bars(axes[0][-1], next(r for r in nominal if r["size"] == "240"))
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
     save_figure(fig, path)
+
+
+def _binned_medians(dfz: np.ndarray, ratio: np.ndarray, min_pairs: int = 3) -> tuple[list[float], list[float]]:
+    """The median of ``ratio`` per 1 N bin of ``dfz`` (N) holding at least ``min_pairs`` pairs, at the bin's centre."""
+    edges = np.arange(np.floor(dfz.min()), np.ceil(dfz.max()) + 1.0)
+    centres, medians = [], []
+    for lo in edges[:-1]:
+        inside = (dfz >= lo) & (dfz < lo + 1.0)
+        if inside.sum() >= min_pairs:
+            centres.append(lo + 0.5)
+            medians.append(float(np.median(ratio[inside])))
+    return centres, medians
+
+
+def _contact_bars(ax, row: dict) -> None:
+    """Grouped bars: MSE (grey levels²) on the reference's contact and on the new contact, a copy's and each
+    preset's."""
+    first = next(iter(row["presets"].values()))
+    bars = {"a copy": (first["copy_reference_contact_mse"], first["copy_new_contact_mse"]),
+            **{n: (s["generator_reference_contact_mse"], s["generator_new_contact_mse"])
+               for n, s in row["presets"].items()}}
+    width = 0.8 / len(bars)
+    for k, (name, values) in enumerate(bars.items()):
+        ax.bar(np.arange(2) + (k - (len(bars) - 1) / 2) * width, values, width,
+               color="grey" if name == "a copy" else f"C{k - 1}", label=name)
+    ax.set_xticks(range(2), ["on the reference's contact", "on new contact"])
+    ax.set(ylabel="MSE (grey levels²)")
+    ax.set_title("where the error lies\n240×320 frames, nominal sensor", fontsize=9)
+    ax.legend(fontsize=8)
 
 
 def sensors(instances: int, size: tuple[int, int]) -> dict[str, TactileSensor]:
@@ -176,7 +216,19 @@ def main(argv=None) -> dict:
     p.add_argument("--checkpoints", nargs="+", default=["fast", "default", "quality"], help="default: the presets")
     p.add_argument("--pairs", type=int, default=None, help="pairs per sensor and size (default 96, quick 6)")
     p.add_argument("--instances", type=int, default=None, help="randomised sensor instances (default 2, quick 0)")
+    p.add_argument("--plot-from", type=Path, default=None, metavar="JSON",
+                   help="measure nothing: redraw the picture of a results JSON (this benchmark's, or generator.json "
+                        "with its forceaugment_split) as generator_fa.png beside it")
     a = p.parse_args(argv)
+    if a.plot_from is not None:
+        try:
+            doc = json.loads(a.plot_from.read_text())
+            rows = (doc.get("forceaugment_split") or doc)["rows"]
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+            p.error(f"--plot-from: {a.plot_from} is not a results JSON holding a ForceAugment split "
+                    f"(this benchmark's, or generator.json's forceaugment_split): {type(exc).__name__}: {exc}")
+        save_plot(a.plot_from.with_name("generator_fa.png"), rows)
+        return doc
     for flag, value, low in (("--pairs", a.pairs, 1), ("--instances", a.instances, 0)):
         if value is not None and value < low:
             p.error(f"{flag}: expected an int >= {low}, got {value}")

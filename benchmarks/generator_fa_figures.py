@@ -5,9 +5,18 @@ validation objects and tested once (``generator_levers.json``). Reads committed 
 
 from __future__ import annotations
 
+import math
+
 from benchmarks import figure_text as ft
 
-BINS = ("|dFz| 0-2 N", "|dFz| 2-5 N", "|dFz| 5-inf N")  # benchmarks.generator_fa's |ΔFz| bins, as it names them
+DFZ_BINS = ((0.0, 2.0), (2.0, 5.0), (5.0, math.inf))  # |ΔFz| N: benchmarks.generator_fa's breakdown
+
+
+def bin_label(lo: float, hi: float) -> str:
+    """The JSON key of the |ΔFz| bin (lo, hi] N."""
+    return f"|dFz| {lo:g}-{hi:g} N"
+
+
 # the targets on ForceAugment's pairs of the held-out objects, 240×320, nominal sensor (MSE ÷ a copy's)
 TARGETS = {"increase": 0.40, "all": 0.30, "worst_object": 0.60}
 LABELS = {"increase": "pressing harder", "all": "all pairs", "worst_object": "worst object"}
@@ -36,7 +45,7 @@ def _target_header(first: str) -> list[str]:
 
 
 def _ratio(s: dict, key: str) -> str:
-    return f"{s[key]['ratio']:.3f} ({s[key]['pairs']})" if s[key]["pairs"] else "–"
+    return f"{s[key]['ratio']:.3f} ({s[key]['pairs']})" if s[key] else "–"  # None: no pair in the cell
 
 
 def forceaugment_split() -> str:
@@ -51,7 +60,7 @@ def forceaugment_split() -> str:
         for name, s in r["presets"].items():
             obj, ratio = worst_object(s)
             rows.append([f"{r['size']}, {r['sensor']}", f"`{name}`", f"**{s['all']['ratio']:.3f}**",
-                         _ratio(s, "increase"), _ratio(s, "decrease"), *(_ratio(s, b) for b in BINS),
+                         _ratio(s, "increase"), _ratio(s, "decrease"), *(_ratio(s, bin_label(*b)) for b in DFZ_BINS),
                          f"{obj} {ratio:.2f}", f"{r['noise_ratio_to_copy']:.3f}"])
     header = ["frames, sensor", "preset", "all", "pressing harder (pairs)", "easing (pairs)", "|ΔFz| ≤ 2 N",
               "2–5 N", "> 5 N", "worst object", "noise floor"]
@@ -91,8 +100,9 @@ def levers() -> str:
              f"{runs[k]['wall_s'] / 60:.0f}" if k in runs else "–",
              f"{s['all']['ratio']:.4f}", f"{s['increase']['ratio']:.4f}"] for k, s in val.items()]
     objects = len(doc["settings"]["validation_objects"])
-    val_table = ft.table(["candidate", f"lever (fine-tune of {doc['settings']['steps']} steps)", "training (min)", f"validation: all ({doc['settings']['val_pairs']} "
-                          f"pairs, {objects} objects)", "validation: pressing harder"], rows)
+    val_table = ft.table(["candidate", f"lever (fine-tune of {doc['settings']['steps']} steps)", "training (min)",
+                          f"validation: all ({doc['settings']['val_pairs']} pairs, {objects} objects)",
+                          "validation: pressing harder"], rows)
     trows = [[f"`{k}`", *_against(t), t["worst_object"]] for k, t in doc["targets"].items()]
     test_table = ft.table([*_target_header(f"test, {doc['settings']['pairs']} held-out pairs"), "worst object"], trows)
     return "\n\n".join([val_table, test_table, f"Noise floor of the test pairs: "

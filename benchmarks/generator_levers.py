@@ -138,8 +138,6 @@ def parse(argv):
 def main(argv=None) -> dict:
     import torch
 
-    from controltac_il.generator import ForceGenerator
-
     args = parse(argv)
     card = read_json(locate_checkpoint("default") / "model_card.json")
     base = recipe(card)
@@ -151,9 +149,7 @@ def main(argv=None) -> dict:
         runs = dict(zip(args.variants, pool.map(lambda v: train(args, v, base), args.variants)))
     objects = validation_objects(runs, card, args.quick, args.shipped)
     torch.set_num_threads(args.threads)
-    gens = {"default": ForceGenerator.from_pretrained("default"),
-            **{name: ForceGenerator.from_pretrained(name) for name in args.shipped},
-            **{v: ForceGenerator.from_pretrained(args.runs / v / "final") for v in runs}}
+    gens = candidates(args, runs)
     validation = split(gens, objects, args.val_pairs, seed=1)
     chosen = min(validation["generators"], key=lambda k: validation["generators"][k]["all"]["ratio"])
     # fresh pairs of the held-out objects (generator_fa's are seed 0), scored once, after the choice
@@ -169,6 +165,15 @@ def main(argv=None) -> dict:
            "wall_s_this_invocation": round(time.perf_counter() - t0, 1)}
     report(doc)
     return write_results(args.out, doc)
+
+
+def candidates(args, runs: dict) -> dict:
+    """{name: ForceGenerator} chosen among: ``default``, the shipped sizes of ``--shipped``, each trained variant."""
+    from controltac_il.generator import ForceGenerator
+
+    return {"default": ForceGenerator.from_pretrained("default"),
+            **{name: ForceGenerator.from_pretrained(name) for name in args.shipped},
+            **{v: ForceGenerator.from_pretrained(args.runs / v / "final") for v in runs}}
 
 
 def validation_objects(runs: dict, card: dict, quick: bool, shipped: list[str]) -> tuple[str, ...]:

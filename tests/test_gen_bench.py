@@ -146,3 +146,21 @@ def test_the_forceaugment_pairs_ask_what_forceaugment_asks():
         asked = plan_frame(ForceAugmentConfig(), k, 1 + k % 2, 0, 0, pairs["ref_f"][k]).target[2]
         assert pairs["tgt_f"][k, 2] == np.clip(asked, *VALIDATED_RANGE.fz)
     assert not np.array_equal(pairs["tgt"], pairs["noise"])  # another noise draw of the same target
+
+
+def test_the_committed_forceaugment_picture_is_drawn_from_the_committed_json(tmp_path):
+    """``--plot-from`` redraws generator_fa.png from a results JSON, measuring nothing: the committed picture is the
+    one the committed generator.json gives, pixel for pixel."""
+    import shutil
+
+    from benchmarks.figure_text import RESULTS
+    from benchmarks.generator_fa import main
+
+    shutil.copy(RESULTS / "generator.json", tmp_path / "generator.json")
+    main(["--plot-from", str(tmp_path / "generator.json")])
+    drawn, committed = (cv2.imread(str(p / "generator_fa.png")) for p in (tmp_path, RESULTS))
+    assert drawn is not None and drawn.shape == committed.shape and (drawn == committed).all()
+    shutil.copy(RESULTS / "env.json", tmp_path / "env.json")  # a results JSON without the split
+    with pytest.raises(SystemExit) as refused:
+        main(["--plot-from", str(tmp_path / "env.json")])
+    assert refused.value.code == 2

@@ -83,9 +83,25 @@ def test_the_shipped_sizes_held_out_defaults_validation_objects():
 
     card = read_json(locate_checkpoint("default") / "model_card.json")
     runs = {"control": {"validation_objects": card["denoiser"]["validation"]["objects"]}}
-    shipped = parse(["--data", "d"]).shipped
-    assert shipped == ["frontier_tiny", "frontier_small", "quality"]
-    assert validation_objects(runs, card, quick=False, shipped=shipped) == tuple(runs["control"]["validation_objects"])
+    args = parse(["--data", "d"])
+    assert args.shipped == ["frontier_tiny", "frontier_small", "quality"]
+    assert parse(["--data", "d", "--quick"]).shipped == []
+    held = validation_objects(runs, card, quick=False, shipped=args.shipped)
+    assert held == tuple(runs["control"]["validation_objects"])
+
+
+def test_the_candidates_are_default_the_shipped_sizes_and_each_trained_variant(tmp_path):
+    from benchmarks.generator_levers import candidates, parse
+    from controltac_il.generator.checkpoint import checkpoint_hash
+    from controltac_il.generator.shipped import locate_checkpoint
+
+    (tmp_path / "control").mkdir()
+    (tmp_path / "control" / "final").symlink_to(locate_checkpoint("frontier_tiny"))  # a finished run's folder
+    args = parse(["--data", "d", "--runs", str(tmp_path), "--shipped", "quality"])
+    gens = candidates(args, {"control": {}})
+    assert list(gens) == ["default", "quality", "control"]
+    assert [g.checkpoint_hash for g in gens.values()] == [checkpoint_hash(locate_checkpoint(n))
+                                                          for n in ("default", "quality", "frontier_tiny")]
 
 
 def test_a_target_is_met_at_its_bound_and_the_worst_object_decides_the_third():
