@@ -40,7 +40,8 @@ from controltac_il.generator.shipped import FRONTIER_SIZES, locate_checkpoint
 from controltac_il.tactile import HELDOUT_OBJECTS
 
 VARIANTS = {"control": [], "increase": ["--increase-prob", "0.6"], "new_contact": ["--new-contact-weight", "2"],
-            "both": ["--increase-prob", "0.6", "--new-contact-weight", "2"]}  # 0.6: about 80 % of pairs press harder
+            "both": ["--increase-prob", "0.6", "--new-contact-weight", "2"],  # 0.6: about 80 % of pairs press harder
+            "reference_force": ["--reference-force"]}
 # the recipe's flags that each run sets itself (with their values)
 OWN_FLAGS = ("--data", "--out", "--autoencoder-from", "--denoiser-from", "--dit-steps", "--dit-lr", "--device",
              "--threads")

@@ -368,3 +368,39 @@ def test_non_finite_or_non_positive_config_values_are_refused_in_one_line(tmp_pa
         ForceGenerator.from_pretrained(ckpt)
     msg = str(info.value)
     assert "\n" not in msg and field in msg and str(ckpt / "config.json") in msg
+
+
+def test_a_dit_conditioned_on_the_reference_force_starts_as_the_dit_it_is_loaded_from():
+    """Its reference embedder's last layer starts at zero: loaded from an unconditioned DiT, it predicts exactly
+    what that DiT does whatever F_ref; once that layer moves, F_ref changes the prediction; a force condition of the
+    other width is refused."""
+    from controltac_il.generator.dit import force_condition
+
+    plain = randomised(ForceDiT(SMALL_DIT))
+    cond_cfg = dataclasses.replace(SMALL_DIT, reference_force=True)
+    conditioned = ForceDiT(cond_cfg)
+    missing, unexpected = conditioned.load_state_dict(plain.state_dict(), strict=False)
+    assert not unexpected and missing and all(k.startswith("r_embedder.") for k in missing)
+    x, z, t = torch.randn(2, 4, 4, 5), torch.randn(2, 4, 4, 5), torch.tensor([10, 900])
+    delta, f_ref = np.array([[0, 0, 2.0], [0.5, 0, -1.0]]), np.array([[0, 0, 4.0], [0, 0, 9.0]])
+    with torch.no_grad():
+        want = plain(x, z, t, torch.from_numpy(force_condition(delta, None, SMALL_DIT)))
+        got = conditioned(x, z, t, torch.from_numpy(force_condition(delta, f_ref, cond_cfg)))
+        assert torch.equal(want, got)
+        randomised(conditioned.r_embedder, seed=1)
+        assert not torch.allclose(got, conditioned(x, z, t, torch.from_numpy(force_condition(delta, f_ref, cond_cfg))))
+        with pytest.raises(ValueError, match=r"the force condition is \(B, 6\)"):
+            conditioned(x, z, t, torch.from_numpy(force_condition(delta, None, SMALL_DIT)))
+    with pytest.raises(ValueError, match="reference_force .* is required"):
+        force_condition(delta, None, cond_cfg)
+
+
+def test_a_generator_conditioned_on_the_reference_force_asks_for_it():
+    cfg = small_config()
+    cfg = dataclasses.replace(cfg, dit=dataclasses.replace(cfg.dit, reference_force=True))
+    gen = ForceGenerator(cfg, TactileAutoencoder(cfg.autoencoder), randomised(ForceDiT(cfg.dit)))
+    ref = np.full((2, 32, 40, 3), 127, np.uint8)
+    with pytest.raises(ValueError, match="reference_force .* is required"):
+        gen.generate(ref, np.zeros((2, 3)))
+    out = gen.generate(ref, np.zeros((2, 3)), reference_force=np.array([[0, 0, 3.0], [0, 0, 6.0]]))
+    assert out.shape == ref.shape and not np.array_equal(out[0], out[1])  # the same frame, two reference forces

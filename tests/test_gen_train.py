@@ -352,3 +352,16 @@ def test_every_training_flag_says_what_it_sets():
             if a.option_strings and a.help != argparse.SUPPRESS
             and (not a.help or a.help.startswith("(default"))]
     assert bare == []
+
+
+def test_a_run_may_add_the_reference_force_condition_to_its_source_but_not_drop_it(tmp_path):
+    import dataclasses
+
+    from controltac_il.generator.config import GeneratorConfig
+    from controltac_il.generator.training.stage1 import check_same_models
+
+    plain = GeneratorConfig()
+    conditioned = dataclasses.replace(plain, dit=dataclasses.replace(plain.dit, reference_force=True))
+    check_same_models(tmp_path, plain, conditioned)  # its embedder starts at zero
+    with pytest.raises(ValueError, match="reference_force"):
+        check_same_models(tmp_path, conditioned, plain)

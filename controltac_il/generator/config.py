@@ -72,6 +72,9 @@ class DiTConfig(JsonConfig):
     conv_head_width: channels of the local refinement head (three 3x3 convolutions at latent
         resolution on [DiT output, reference latent, noisy latent], last one zero-initialised, added to
         the DiT output; restores detail finer than a patch). 0 = no head (the plain DiT).
+    reference_force: also conditioned on the reference's own force F_ref (N, scaled by ``force_scale``), through
+        a second embedder whose last layer starts at zero: where on its force-response curve the contact starts.
+        Its force condition is then (B, 6) [ΔF, F_ref] (``dit.force_condition``).
     """
 
     in_channels: PosInt = 8
@@ -82,6 +85,7 @@ class DiTConfig(JsonConfig):
     mlp_ratio: Positive = 4.0
     force_scale: tuple[Positive, Positive, Positive] = (2.0, 2.0, 9.0)
     conv_head_width: Annotated[int, Field(ge=0)] = 0
+    reference_force: bool = False
 
     @model_validator(mode="after")
     def _heads(self):

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 from torch import nn
 from torch.nn import functional as F
@@ -100,6 +101,18 @@ class LocalRefinementHead(nn.Module):
         return self.net(torch.cat([out, z_ref, x_t], dim=1))
 
 
+def force_condition(delta_force: np.ndarray, reference_force: np.ndarray | None, config: DiTConfig) -> np.ndarray:
+    """What a DiT of ``config`` is conditioned on: ΔF (B, 3) N, with ``config.reference_force`` followed by the
+    reference's force (B, 3) N, (B, 6) float32; ValueError when such a DiT gets no reference force."""
+    delta_force = np.asarray(delta_force, np.float32)
+    if not config.reference_force:
+        return delta_force
+    if reference_force is None:
+        raise ValueError("reference_force (B, 3) N is required: this generator is conditioned on the reference's "
+                         "own force")
+    return np.concatenate([delta_force, np.asarray(reference_force, np.float32)], axis=-1)
+
+
 class ForceDiT(nn.Module):
     """Denoiser ε_θ(x_t, z_ref, t, ΔF) (or x0 predictor): (B, C, h, w) latents -> (B, C, h, w)."""
 
@@ -110,6 +123,10 @@ class ForceDiT(nn.Module):
         self.patch_embed = nn.Conv2d(2 * c, d, kernel_size=p, stride=p)
         self.t_embedder = Embedder(256, d)
         self.f_embedder = Embedder(3, d)
+        self.r_embedder = Embedder(3, d) if config.reference_force else None
+        if self.r_embedder is not None:  # starts as the model without it (a fine-tune from one changes nothing)
+            nn.init.zeros_(self.r_embedder.mlp[2].weight)
+            nn.init.zeros_(self.r_embedder.mlp[2].bias)
         self.register_buffer("force_scale", torch.tensor(config.force_scale, dtype=torch.float32), persistent=False)
         self.blocks = nn.ModuleList(DiTBlock(d, config.num_heads, config.mlp_ratio) for _ in range(config.depth))
         self.final_norm = nn.LayerNorm(d, elementwise_affine=False, eps=1e-6)
@@ -128,13 +145,20 @@ class ForceDiT(nn.Module):
 
     def embed(self, x_t: torch.Tensor, z_ref: torch.Tensor, t: torch.Tensor, delta_force: torch.Tensor
               ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Patch tokens with positions (B, N, d) and the conditioning vector (B, d) of timestep + ΔF (N)."""
+        """Patch tokens with positions (B, N, d) and the conditioning vector (B, d) of timestep + the force
+        condition (B, 3) ΔF N, or (B, 6) [ΔF, F_ref] N with ``config.reference_force``)."""
+        width = 6 if self.r_embedder is not None else 3
+        if delta_force.shape[-1] != width:
+            raise ValueError(f"the force condition is (B, {width}) for this DiT (reference_force="
+                             f"{self.r_embedder is not None}), got {tuple(delta_force.shape)}")
         tok = self.patch_embed(torch.cat([x_t, z_ref], dim=1))  # (B, d, h/p, w/p)
         gh, gw = tok.shape[-2:]
         tok = tok.flatten(2).transpose(1, 2)
         tok = tok + self._pos(gh, gw, tok)
         cond = self.t_embedder(timestep_features(t, 256).to(tok.dtype))
-        cond = cond + self.f_embedder((delta_force.float() / self.force_scale).to(tok.dtype))
+        cond = cond + self.f_embedder((delta_force[:, :3].float() / self.force_scale).to(tok.dtype))
+        if self.r_embedder is not None:
+            cond = cond + self.r_embedder((delta_force[:, 3:].float() / self.force_scale).to(tok.dtype))
         return tok, cond
 
     def head(self, tok: torch.Tensor, cond: torch.Tensor, x_t: torch.Tensor, z_ref: torch.Tensor) -> torch.Tensor:

@@ -32,7 +32,7 @@ from controltac_il.generator.autoencoder import TactileAutoencoder
 from controltac_il.generator.batching import Footprint, free_bytes, rows_per_batch
 from controltac_il.generator.checkpoint import ADAPTER_FILE, checkpoint_hash, load_adapter, load_checkpoint
 from controltac_il.generator.config import DETAIL_GATE_SIGMA_PX, GeneratorConfig
-from controltac_il.generator.dit import ForceDiT
+from controltac_il.generator.dit import ForceDiT, force_condition
 from controltac_il.generator.forces import TargetDecision
 from controltac_il.generator.inputs import check_forces, check_options, check_residuals, decide_forces
 from controltac_il.generator.masks import target_masks
@@ -256,7 +256,8 @@ class ForceGenerator:
                              "ForceGenerator.from_pretrained(pose_adapter='pose') or gen.load_pose_adapter()")
         decision, delta = decide_forces(out_of_range, reference_force, delta, target, reference_out_of_range,
                                         stacklevel=3)
-        return Generation(self._sample_rows(ref, delta, seeds, steps, batch_size, decision.generated, masks),
+        condition = force_condition(delta, reference_force, self.config.dit)
+        return Generation(self._sample_rows(ref, condition, seeds, steps, batch_size, decision.generated, masks),
                           decision)
 
     def _sample_rows(self, ref: np.ndarray, delta: np.ndarray, seeds: list[int], steps: int, batch_size: int,
@@ -307,7 +308,8 @@ class ForceGenerator:
             torch.cuda.synchronize(self.device)
             base = torch.cuda.memory_allocated(self.device)
             torch.cuda.reset_peak_memory_stats(self.device)
-            self._sample_batch(ref[:rows], np.zeros((rows, 3), np.float32), noise[:rows], 1,
+            self._sample_batch(ref[:rows], force_condition(np.zeros((rows, 3)), np.zeros((rows, 3)), self.config.dit),
+                               noise[:rows], 1,
                                make_scheduler(self.config.diffusion), None)
             peaks.append(torch.cuda.max_memory_allocated(self.device) - base)
         per_row = max((peaks[1] - peaks[0]) // chunk, 2 * hw[0] * hw[1] * 3)
@@ -323,9 +325,9 @@ class ForceGenerator:
     @torch.no_grad()
     def _sample_batch(self, ref: np.ndarray, delta: np.ndarray, noise: torch.Tensor, steps: int, scheduler,
                       masks: np.ndarray | None) -> np.ndarray:
-        """One batch of whole chunks, on the device: reference residuals uint8 (b, H_in, W_in, 3), ΔF (b, 3) N,
-        seeded noise (b, C, h, w), target-pose masks bool (b, H_in, W_in) or None -> residuals uint8 (b, H_in,
-        W_in, 3). Its inputs go to the device at once, its chunks are queued, its output comes back at once;
+        """One batch of whole chunks, on the device: reference residuals uint8 (b, H_in, W_in, 3), the force
+        condition (b, 3 or 6) N (``force_condition``), seeded noise (b, C, h, w), target-pose masks bool (b, H_in,
+        W_in) or None -> residuals uint8 (b, H_in, W_in, 3). Its inputs go to the device at once, its chunks are queued, its output comes back at once;
         NonFiniteOutput rather than a NaN turned into a black pixel."""
         chunk = chunk_rows(self.device)
         ref_d, delta_d = self._to_device(ref), self._to_device(np.asarray(delta, np.float32))
@@ -348,8 +350,8 @@ class ForceGenerator:
     def _sample(self, ref: torch.Tensor, delta: torch.Tensor, noise: torch.Tensor, steps: int, scheduler,
                 masks: np.ndarray | None) -> torch.Tensor:
         """The sampling loop on one chunk, every step on the device: reference residuals uint8 (c, H_in, W_in, 3),
-        ΔF (c, 3) N, noise (c, C, h, w), masks bool (c, H_in, W_in) or None -> output grey levels float32 (c, H_in,
-        W_in, 3), not yet rounded. One shape per chunk whatever the batch: the same kernels."""
+        the force condition (c, 3 or 6) N, noise (c, C, h, w), masks bool (c, H_in, W_in) or None -> output grey
+        levels float32 (c, H_in, W_in, 3), not yet rounded. One shape per chunk whatever the batch: the same kernels."""
         size_in = tuple(ref.shape[1:3])
         # 1. latent: the reference residual at the model's size (area resize), encoded: z_ref (c, C, h, w)
         z_ref = self.encode(resize(ref, self.config.image_size, "area", self.resample_taps))

@@ -131,6 +131,9 @@ def stage1_options(p: argparse.ArgumentParser) -> None:
                         "(default 0: symmetric pairs)")
     p.add_argument("--new-contact-weight", type=float, default=0.0, metavar="W",
                    help="extra DiT loss weight on new contact, the target's contact beyond the reference's (default 0)")
+    p.add_argument("--reference-force", action="store_true",
+                   help="condition the DiT on the reference's own force too (where on its force response the contact "
+                        "starts); from a --denoiser-from without it, training starts from that DiT's outputs")
     p.add_argument("--detail-gate", type=float, default=0.0, metavar="G",
                    help="with anchoring: keep the reference's fine detail only where the target keeps its contact; "
                         "G grey levels (default 0 = always keep; the shipped default uses 4)")

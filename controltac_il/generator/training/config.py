@@ -67,7 +67,9 @@ class GeneratorTrainConfig:
     no_contact_prob: share of no-contact pairs; no_contact_frames: how many bare frames to render.
     increase_prob: share of pairs ordered so that the target presses harder than the reference (ΔFz >= 0), as most
         ForceAugment targets do; 0 keeps the pairs symmetric. new_contact_weight: extra loss weight on latent cells of
-        new contact (the target's contact beyond the reference's; 0 = none).
+        new contact (the target's contact beyond the reference's; 0 = none). reference_force: the DiT is also
+        conditioned on the reference's own force (``DiTConfig.reference_force``); from a ``denoiser_from`` without
+        it, its new embedder starts at zero, so training starts from that DiT's very outputs.
     distinct_pairs: never pair a frame with itself (ΔF = 0 exactly); by default 1 / forces-per-pose of the pairs
         are self-pairs, which teach the identity at ΔF = 0 apart from the response next to it.
     anchor_to_reference, detail_gate: inference settings stored in the config (see GeneratorConfig).
@@ -110,6 +112,7 @@ class GeneratorTrainConfig:
     distinct_pairs: bool = False
     increase_prob: Share = 0.0
     new_contact_weight: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
+    reference_force: bool = False
     anchor_to_reference: bool = False
     detail_gate: Annotated[float, Field(ge=0, allow_inf_nan=False)] = 0.0
     val_objects: Count = 0

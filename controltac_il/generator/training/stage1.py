@@ -40,7 +40,7 @@ from controltac_il.checkpoint import read_json
 from controltac_il.generator.autoencoder import TactileAutoencoder, autoencoder_loss
 from controltac_il.generator.checkpoint import load_checkpoint, save_checkpoint
 from controltac_il.generator.config import AutoencoderConfig, DiffusionConfig, GeneratorConfig
-from controltac_il.generator.dit import ForceDiT
+from controltac_il.generator.dit import ForceDiT, force_condition
 from controltac_il.generator.pipeline import ForceGenerator, residual_to_unit
 from controltac_il.generator.sampler import make_scheduler
 from controltac_il.generator.training.config import (DIT_PRESETS, GeneratorTrainConfig, legacy_provenance, model_card,
@@ -177,9 +177,12 @@ def source_denoiser(src: Path) -> tuple[GeneratorConfig, dict[str, torch.Tensor]
 
 
 def check_same_models(src: Path, source: GeneratorConfig, gcfg: GeneratorConfig) -> None:
+    """ValueError naming the fields where the source's networks differ from this run's; a run may add the
+    reference-force condition to a source without it (its embedder starts at zero)."""
     for part in ("dit", "autoencoder"):
         a, b = getattr(source, part).to_dict(), getattr(gcfg, part).to_dict()
-        diff = {k: (a.get(k), b.get(k)) for k in a.keys() | b.keys() if a.get(k) != b.get(k)}
+        diff = {k: (a.get(k), b.get(k)) for k in a.keys() | b.keys() if a.get(k) != b.get(k)
+                and not (k == "reference_force" and not a.get(k) and b.get(k))}
         if diff:
             raise ValueError(f"denoiser_from: {src} has another {part} config than this run "
                              f"(field: (source, this run)): {diff}")
@@ -209,7 +212,8 @@ def denoiser_loss(cfg: GeneratorTrainConfig, gcfg: GeneratorConfig, sched, z: to
     if cfg.new_contact_weight > 0:
         new = new_contact(data, ref_i, tgt_i, data.residuals.shape[1] // z.shape[-2])
         weight = 1.0 + cfg.new_contact_weight * torch.from_numpy(new).to(dev)
-    return prediction_loss(model(x_t, zr, t, torch.from_numpy(df).to(dev)), target, weight)
+    condition = force_condition(df, data.forces[ref_i], gcfg.dit)
+    return prediction_loss(model(x_t, zr, t, torch.from_numpy(condition).to(dev)), target, weight)
 
 
 def train_denoiser(cfg: GeneratorTrainConfig, gcfg: GeneratorConfig, z: torch.Tensor, data: PairData, out: Path,
@@ -220,7 +224,10 @@ def train_denoiser(cfg: GeneratorTrainConfig, gcfg: GeneratorConfig, z: torch.Te
     torch.manual_seed(cfg.seed + 1)
     dit, z = ForceDiT(gcfg.dit), z.to(cfg.device)
     if init is not None:
-        dit.load_state_dict(init)
+        missing, unexpected = dit.load_state_dict(init, strict=False)
+        if unexpected or any(not k.startswith("r_embedder.") for k in missing):  # only a new reference embedder
+            raise ValueError(f"denoiser_from: its DiT weights do not fit this run's DiT (missing {missing}, "
+                             f"unexpected {unexpected})")
     dit.to(cfg.device)
     ema = EMAModel(dit.parameters(), decay=cfg.ema_decay, update_after_step=-1)  # decay min(ema_decay, (1+n)/(10+n))
     opt = torch.optim.AdamW(dit.parameters(), lr=cfg.dit_lr, weight_decay=0.0)
@@ -232,7 +239,8 @@ def train_denoiser(cfg: GeneratorTrainConfig, gcfg: GeneratorConfig, z: torch.Te
     history = meta.get("history", []) + [{"from_step": meta["step"], "dit_steps": cfg.dit_steps, "lr": cfg.dit_lr,
                                           "prediction_type": gcfg.diffusion.prediction_type, "batch": cfg.dit_batch,
                                           "one_step_fraction": cfg.one_step_fraction, "denoiser_from": cfg.denoiser_from,
-                                          "increase_prob": cfg.increase_prob, "new_contact_weight": cfg.new_contact_weight}]
+                                          "increase_prob": cfg.increase_prob, "new_contact_weight": cfg.new_contact_weight,
+                                          "reference_force": cfg.reference_force}]
     best = None if validation is None else BestOnValidation(validation, out / "denoiser_best.safetensors", meta.get("validation"))
     model, per_rank, t0 = wrap(dit, world), max(1, cfg.dit_batch // world), time.perf_counter()
     noise_sched = make_scheduler(gcfg.diffusion)
@@ -298,10 +306,13 @@ def run(cfg: GeneratorTrainConfig) -> Path:
         diffusion=DiffusionConfig(prediction_type=cfg.prediction_type, default_steps=cfg.default_steps),
         latent_scale=lat, delta_scale=dsc, anchor_to_reference=cfg.anchor_to_reference, detail_gate=cfg.detail_gate,
     )
+    if cfg.reference_force:
+        gcfg = dataclasses.replace(gcfg, dit=dataclasses.replace(gcfg.dit, reference_force=True))
     if source is not None:
         check_same_models(Path(cfg.denoiser_from), source, gcfg)
     validate = None if split is None else Validation(split.objects, len(split.ref), lambda d: generation_error(
-        ForceGenerator(gcfg, ae, d, device=cfg.device), data.residuals[split.ref], data.residuals[split.tgt], split.delta))
+        ForceGenerator(gcfg, ae, d, device=cfg.device), data.residuals[split.ref], data.residuals[split.tgt], split.delta,
+        reference_force=data.forces[split.ref]))
     dit, dit_meta = train_denoiser(cfg, gcfg, z, train_data, out, rank, world, init, validate)
     final, ae, dit = out / "final", ae.cpu(), dit.cpu()
     if rank == 0:
