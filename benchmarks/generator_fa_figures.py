@@ -98,9 +98,12 @@ def levers() -> str:
              " ".join(doc["settings"]["variants"].get(k, [])) or ("none (the steps alone)" if k in runs else
                                                                    "shipped, not fine-tuned"),
              f"{runs[k]['wall_s'] / 60:.0f}" if k in runs else "–",
+             (f"{runs[k]['symmetric_validation']['ratio_to_copy']:.3f} (step {runs[k]['symmetric_validation']['step']})"
+              if k in runs else "–"),
              f"{s['all']['ratio']:.4f}", f"{s['increase']['ratio']:.4f}"] for k, s in val.items()]
     objects = len(doc["settings"]["validation_objects"])
     val_table = ft.table(["candidate", f"lever (fine-tune of {doc['settings']['steps']} steps)", "training (min)",
+                          "its run's symmetric validation (best)",
                           f"validation: all ({doc['settings']['val_pairs']} pairs, {objects} objects)",
                           "validation: pressing harder"], rows)
     trows = [[f"`{k}`", *_against(t), t["worst_object"]] for k, t in doc["targets"].items()]
