@@ -99,14 +99,15 @@ def test_figures(bundle: Path, base_generator: str, test: list[tuple], const: fl
         pred = ForceEstimator.from_pretrained(path).predict(res[touch], gate=False)[:, 2]
         out[f"{name}_mae_n"] = float(np.abs(pred - fz[touch]).mean())
         out[f"{name}_ratio"] = out[f"{name}_mae_n"] / out["constant_mae_n"]
-    rng, refs, tgts, delta = np.random.default_rng(0), [], [], []
+    rng, refs, tgts, delta, ref_f = np.random.default_rng(0), [], [], [], []
     for r, f, _ in test:
         ok = [(a, b) for a in range(len(f)) for b in range(len(f))
               if abs(f[b] - f[a]) >= 1.5 and 1 <= f[a] <= 10 and 1 <= f[b] <= 10]
         for k in rng.choice(len(ok), size=min(8, len(ok)), replace=False):
             a, b = ok[k]
             refs.append(r[a]), tgts.append(r[b]), delta.append([0.0, 0.0, f[b] - f[a]])
-    args = (resized(np.stack(refs)), resized(np.stack(tgts)), np.asarray(delta, np.float32))
+            ref_f.append([0.0, 0.0, f[a]])
+    args = (resized(np.stack(refs)), resized(np.stack(tgts)), np.asarray(delta, np.float32), np.asarray(ref_f))
     for name, path in (("zero_shot", base_generator), ("calibrated", bundle)):
         out[f"generator_{name}_ratio"] = generation_error(ForceGenerator.from_pretrained(path), *args)["ratio_to_copy"]
     out["generator_pairs"] = len(refs)

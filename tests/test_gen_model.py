@@ -404,3 +404,15 @@ def test_a_generator_conditioned_on_the_reference_force_asks_for_it():
         gen.generate(ref, np.zeros((2, 3)))
     out = gen.generate(ref, np.zeros((2, 3)), reference_force=np.array([[0, 0, 3.0], [0, 0, 6.0]]))
     assert out.shape == ref.shape and not np.array_equal(out[0], out[1])  # the same frame, two reference forces
+
+
+def test_a_reference_force_checkpoint_round_trips_and_generates_at_targets(tmp_path):
+    cfg = small_config()
+    cfg = dataclasses.replace(cfg, dit=dataclasses.replace(cfg.dit, reference_force=True))
+    gen = ForceGenerator(cfg, randomised(TactileAutoencoder(cfg.autoencoder)), randomised(ForceDiT(cfg.dit)))
+    loaded = ForceGenerator.from_pretrained(save_checkpoint(tmp_path / "ck", cfg, gen.autoencoder, gen.denoiser))
+    assert loaded.config.dit.reference_force and loaded.denoiser.r_embedder is not None
+    ref = np.full((2, 32, 40, 3), 127, np.uint8)
+    f_ref, f_tgt = np.array([[0, 0, 3.0], [0, 0, 3.0]]), np.array([[0, 0, 6.0], [0, 0, 6.0]])
+    res = loaded.generate_at(ref, f_ref, f_tgt)
+    assert np.array_equal(res.residuals, loaded.generate(ref, f_tgt - f_ref, reference_force=f_ref))

@@ -365,3 +365,12 @@ def test_a_run_may_add_the_reference_force_condition_to_its_source_but_not_drop_
     check_same_models(tmp_path, plain, conditioned)  # its embedder starts at zero
     with pytest.raises(ValueError, match="reference_force"):
         check_same_models(tmp_path, conditioned, plain)
+
+
+def test_a_calibration_fine_tune_keeps_its_bases_reference_force_condition(tmp_path):
+    from controltac_il.generator.training.finetune import base_flags
+
+    card = {"command": "python -m controltac_il.generator.training stage1 --data d --out o --dit-preset tiny "
+                       "--anchor-to-reference --reference-force --dit-steps 10"}
+    (tmp_path / "model_card.json").write_text(json.dumps(card))
+    assert base_flags(tmp_path) == ["--dit-preset", "tiny", "--anchor-to-reference", "--reference-force"]

@@ -170,7 +170,8 @@ def subset_presses(ds, rows: list[int], out: Path) -> Path:
 
 
 def held_out_pairs(ds, rows: list[int]) -> tuple:
-    """(reference residuals, target residuals, ΔF (P, 3) N) of frame pairs within each held-out grasp."""
+    """(reference residuals, target residuals, ΔF (P, 3) N, reference forces (P, 3) N) of frame pairs within each
+    held-out grasp (``generation_error``'s arguments)."""
     f = ds.forces()
     groups: dict = {}
     for i in rows:
@@ -182,7 +183,7 @@ def held_out_pairs(ds, rows: list[int]) -> tuple:
         return None
     ref = np.stack([ds.residual(i) for i, _ in pairs])
     tgt = np.stack([ds.residual(j) for _, j in pairs])
-    return ref, tgt, np.stack([f[j] - f[i] for i, j in pairs]).astype(np.float32)
+    return ref, tgt, np.stack([f[j] - f[i] for i, j in pairs]).astype(np.float32), f[[i for i, _ in pairs]]
 
 
 def generator_part(args, ds, staging: Path) -> dict:

@@ -66,7 +66,9 @@ def _generated_row(record: dict, ds, generator_dir: Path):
     targets = [float(np.clip(f[ref, 2] + d, *VALIDATED_RANGE.fz)) for d in REPORT_DFZ]
     real = [min(grasp, key=lambda i: abs(f[i, 2] - t)) for t in targets]
     delta = np.array([[0.0, 0.0, t - f[ref, 2]] for t in targets], np.float32)
-    gen = ForceGenerator.from_pretrained(generator_dir).generate(np.stack([ds.residual(ref)] * 3), delta, seed=0)
+    generator = ForceGenerator.from_pretrained(generator_dir)
+    f_ref = np.repeat(f[ref][None], len(delta), 0) if generator.config.dit.reference_force else None
+    gen = generator.generate(np.stack([ds.residual(ref)] * len(delta)), delta, seed=0, reference_force=f_ref)
     bg = ds.background_of(ref)
     return ([ds.image(i) for i in real], [from_residual(g, bg) for g in gen], [f[i, 2] for i in real],
             delta[:, 2] + f[ref, 2], ds.image(ref), f[ref, 2])

@@ -168,7 +168,8 @@ class ForceGenerator:
             step running one chunk at a time (memory only: a sample's bytes depend neither on it nor on its
             batch-mates; they do, rarely, on torch's thread count: ``numerics``); "auto": the largest batch that
             fits in the device's free memory (``batching``); an int batch that does not fit is refused (ValueError).
-        reference_force: optional (B, 3) N; then targets outside the validated range
+        reference_force: (B, 3) N, required by a checkpoint conditioned on it (``dit.reference_force``),
+            optional otherwise; with it, targets outside the validated range
             (``forces.VALIDATED_RANGE``) are handled by ``out_of_range`` ("clamp" moves the target into
             range, "error" raises, "skip" returns the reference unchanged); without it the same applies
             to ΔF beyond the range's span. Clamps are warned about (UserWarning with their count). A reference

@@ -44,7 +44,8 @@ def ddim_sample(denoiser: ForceDiT, scheduler: DDIMScheduler, z_ref: torch.Tenso
                 noise: torch.Tensor, steps: int) -> torch.Tensor:
     """Run ``steps`` DDIM steps from ``noise``; returns the clean normalised latent delta (B, C, h, w).
 
-    z_ref: normalised reference latent (B, C, h, w); delta_force: (B, 3) N; noise like z_ref.
+    z_ref: normalised reference latent (B, C, h, w); delta_force: the force condition, (B, 3) ΔF N or (B, 6)
+    [ΔF, F_ref] N (``dit.force_condition``); noise like z_ref.
     The scheduler arithmetic runs in float32 whatever the model's dtype.
     """
     scheduler.set_timesteps(steps)

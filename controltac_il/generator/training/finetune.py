@@ -11,14 +11,15 @@ from controltac_il.checkpoint import read_json
 
 
 def base_flags(base: Path) -> list[str]:
-    """The DiT flags of the base checkpoint's own training command (its model card), for a compatible DiT."""
+    """The DiT flags of the base checkpoint's own training command (its model card), for a compatible DiT (the
+    reference-force condition included)."""
     command = read_json(Path(base) / "model_card.json")["command"].split()
     keep, out = {"--dit-preset", "--dit-patch", "--dit-conv-head", "--prediction-type", "--default-steps",
                  "--one-step-fraction"}, []
     for k, v in zip(command, command[1:]):
         if k in keep:
             out += [k, v]
-    return out + (["--anchor-to-reference"] if "--anchor-to-reference" in command else [])
+    return out + [flag for flag in ("--anchor-to-reference", "--reference-force") if flag in command]
 
 
 def fine_tune(base: Path, data: Path, out: Path, steps: int, lr: float, ae_steps: int = 0, batch: int = 64,

@@ -32,6 +32,7 @@ from controltac_il.checkpoint import read_json
 from controltac_il.generator.adapter import PoseAdapter, masks_to_model
 from controltac_il.generator.checkpoint import checkpoint_hash, load_adapter, load_checkpoint, save_adapter
 from controltac_il.generator.config import PoseAdapterConfig
+from controltac_il.generator.dit import force_condition
 from controltac_il.generator.pipeline import ForceGenerator, residual_to_unit
 from controltac_il.generator.sampler import make_scheduler
 from controltac_il.generator.shipped import SHIPPED_ADAPTERS, locate_checkpoint
@@ -116,7 +117,8 @@ def _validation(cfg: PoseTrainConfig, gcfg, ae, dit, dev: torch.device) -> Valid
     delta = scenes.forces[pairs[:, 1]] - scenes.forces[pairs[:, 0]]
     masks = np.stack([target_mask(scenes, r, t) for r, t in pairs])
     return Validation(tuple(names), len(pairs), lambda adapter: generation_error(
-        ForceGenerator(gcfg, ae, dit, device=dev, pose_adapter=adapter), ref, tgt, delta, mask=masks))
+        ForceGenerator(gcfg, ae, dit, device=dev, pose_adapter=adapter), ref, tgt, delta,
+        reference_force=scenes.forces[pairs[:, 0]], mask=masks))
 
 
 def _fit(cfg: PoseTrainConfig, gcfg, acfg: PoseAdapterConfig, adapter, dit, scenes, z: torch.Tensor, stem: Path,
@@ -127,7 +129,8 @@ def _fit(cfg: PoseTrainConfig, gcfg, acfg: PoseAdapterConfig, adapter, dit, scen
     opt = torch.optim.AdamW(adapter.parameters(), lr=cfg.lr, weight_decay=0.0)
     meta: dict = {"step": 0, "wall_s": 0.0}
     if stem.with_suffix(".json").is_file():
-        if read_json(stem.with_suffix(".json")).get("config") != acfg.to_dict():
+        saved = read_json(stem.with_suffix(".json")).get("config")  # as written, before any later config field
+        if saved is None or PoseAdapterConfig.from_dict(saved) != acfg:
             raise ValueError(f"--resume: {stem}.json was trained over another stage-1 checkpoint than --base {cfg.base}")
         meta, tensors = load_run_state(stem, {"adapter": adapter}, opt)
         restore_ema(ema, adapter, tensors, meta["ema_step"])
@@ -143,11 +146,12 @@ def _fit(cfg: PoseTrainConfig, gcfg, acfg: PoseAdapterConfig, adapter, dit, scen
     def batch_loss(step: int) -> torch.Tensor:
         rng = np.random.default_rng([cfg.seed, 5, step])
         ref, tgt, df, masks = sample_pose_pairs(scenes, members, cfg.batch, rng, cfg.alignment_px, cfg.alignment_deg)
+        condition = torch.from_numpy(force_condition(df, scenes.forces[ref], gcfg.dit)).to(dev)
         ref, tgt = torch.from_numpy(ref).to(dev), torch.from_numpy(tgt).to(dev)
         x0 = (z[tgt] - z[ref]) / dlt_s
         x_t, t, target = noised_batch(gcfg, noise_sched, x0, cfg.one_step_fraction, int(rng.integers(0, 2**62)))
         m = torch.from_numpy(masks_to_model(masks, gcfg.image_size)).to(dev)
-        return prediction_loss(adapter(dit, x_t, z[ref] / lat_s, t, torch.from_numpy(df).to(dev), m), target)
+        return prediction_loss(adapter(dit, x_t, z[ref] / lat_s, t, condition, m), target)
 
     def save(step: int, loss: float) -> None:
         if best is not None:
