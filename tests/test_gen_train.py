@@ -374,3 +374,23 @@ def test_a_calibration_fine_tune_keeps_its_bases_reference_force_condition(tmp_p
                        "--anchor-to-reference --reference-force --dit-steps 10"}
     (tmp_path / "model_card.json").write_text(json.dumps(card))
     assert base_flags(tmp_path) == ["--dit-preset", "tiny", "--anchor-to-reference", "--reference-force"]
+
+
+def test_a_fine_tune_adds_the_reference_force_condition_and_its_resume_keeps_it(dataset, tmp_path, capsys):
+    """From an unconditioned run, --reference-force trains a conditioned DiT (the source's weights, a new embedder);
+    resuming it without the flag is refused naming it, in one line, the run left as it was."""
+    base = tmp_path / "base"
+    main(["stage1", "--data", str(dataset), "--out", str(base), "--image-size", "64", "80", *TINY])
+    run, common = tmp_path / "cond", ["--data", str(dataset), "--image-size", "64", "80", "--stage", "denoiser",
+                                      "--autoencoder-from", str(base), "--denoiser-from", str(base / "final"), *TINY]
+    main(["stage1", *common, "--out", str(run), "--reference-force"])
+    gen = ForceGenerator.from_pretrained(run / "final")
+    assert gen.config.dit.reference_force
+    card = json.loads((run / "final" / "model_card.json").read_text())
+    assert card["denoiser"]["history"][-1]["reference_force"] is True
+    before = (run / "denoiser_state.json").read_text()
+    capsys.readouterr()
+    assert main(["stage1", *common, "--out", str(run), "--resume"]) != 0
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "was trained with --reference-force" in err, err
+    assert (run / "denoiser_state.json").read_text() == before

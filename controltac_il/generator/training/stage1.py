@@ -190,7 +190,12 @@ def check_same_models(src: Path, source: GeneratorConfig, gcfg: GeneratorConfig)
 
 def restore_denoiser(stem: Path, dit: ForceDiT, ema: EMAModel, opt: torch.optim.Optimizer | None = None) -> dict:
     """Load a denoiser state into ``dit``, ``ema`` (and ``opt``); returns its metadata. States written before the
-    EMA's step count was recorded count one EMA update per step, as they were made."""
+    EMA's step count was recorded count one EMA update per step, as they were made. A state of a DiT with the
+    other reference-force condition is refused naming the flag (ValueError)."""
+    saved = read_json(stem.with_suffix(".json")).get("config", {}).get("dit", {}).get("reference_force", False)
+    if saved != dit.config.reference_force:
+        raise ValueError(f"--resume: {stem.parent} was trained {'with' if saved else 'without'} --reference-force; "
+                         f"resume it {'with' if saved else 'without'} it, or start another --out")
     meta, tensors = load_run_state(stem, {"denoiser": dit}, opt)
     restore_ema(ema, dit, tensors, meta.get("ema", {}).get("optimization_step", meta["step"]))
     return meta
