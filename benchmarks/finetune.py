@@ -101,7 +101,7 @@ def estimator_mae(path, eval_root: Path) -> dict:
 def score(checkpoint, pairs) -> dict:
     refs, tgts, rf, tf, bgs = pairs
     gen = ForceGenerator.from_pretrained(checkpoint)
-    pred = gen.generate(refs, tf - rf, seed=0, reference_force=rf if gen.config.dit.reference_force else None)
+    pred = gen.generate(refs, tf - rf, seed=0, reference_force=gen.condition_reference(rf))
     copy, q = quality(refs, tgts, bgs, refs), quality(pred, tgts, bgs, refs)
     return {"mse": q["mse"], "mse_sd": q["mse_sd"], "ssim": q["ssim"], "copy_mse": copy["mse"],
             "copy_ssim": copy["ssim"], "mse_ratio_to_copy": q["mse"] / copy["mse"], "n": q["n"]}

@@ -273,9 +273,8 @@ def predictor(kind: str, steps: int | None, gens: dict, sensors: dict):
         return lambda refs, rf, tf: np.stack([rerender(sensors[refs.shape[1:3]], r, a_, b_, noise_seed=k)
                                              for k, (r, a_, b_) in enumerate(zip(refs, rf, tf))])
     g = gens[kind]
-    conditioned = g.config.dit.reference_force  # then given the reference force too
     return lambda refs, rf, tf: g.generate(refs, tf - rf, steps=steps, seed=0, batch_size=32,
-                                           reference_force=rf if conditioned else None)
+                                           reference_force=g.condition_reference(rf))
 
 
 def timings(entry: dict, fn, data: dict, run: dict) -> None:

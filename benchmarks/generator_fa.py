@@ -89,8 +89,8 @@ def breakdown(pred_mse: np.ndarray, copy_mse: np.ndarray, dfz: np.ndarray, objec
 def score(generator, pairs: dict) -> dict:
     """One preset on one set of pairs: the breakdown, and the contact split beside the copy's."""
     bg, ref, tgt = pairs["background"], pairs["ref"], pairs["tgt"]
-    reference_force = pairs["ref_f"] if generator.config.dit.reference_force else None  # a condition, if it is one
-    pred = generator.generate(ref, pairs["tgt_f"] - pairs["ref_f"], seed=0, reference_force=reference_force)
+    pred = generator.generate(ref, pairs["tgt_f"] - pairs["ref_f"], seed=0,
+                              reference_force=generator.condition_reference(pairs["ref_f"]))
     copy_mse, pred_mse = _mse(ref, tgt, bg), _mse(pred, tgt, bg)
     dfz = pairs["tgt_f"][:, 2] - pairs["ref_f"][:, 2]
     regions = {"reference_contact": contact_mask(ref), "new_contact": contact_mask(tgt) & ~contact_mask(ref)}

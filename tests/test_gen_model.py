@@ -402,8 +402,11 @@ def test_a_generator_conditioned_on_the_reference_force_asks_for_it():
     ref = np.full((2, 32, 40, 3), 127, np.uint8)
     with pytest.raises(ValueError, match="reference_force .* is required"):
         gen.generate(ref, np.zeros((2, 3)))
-    out = gen.generate(ref, np.zeros((2, 3)), reference_force=np.array([[0, 0, 3.0], [0, 0, 6.0]]))
+    f_ref = np.array([[0, 0, 3.0], [0, 0, 6.0]])
+    out = gen.generate(ref, np.zeros((2, 3)), reference_force=gen.condition_reference(f_ref))
     assert out.shape == ref.shape and not np.array_equal(out[0], out[1])  # the same frame, two reference forces
+    plain = ForceGenerator(small_config(), TactileAutoencoder(SMALL_AE), ForceDiT(SMALL_DIT))
+    assert gen.condition_reference(f_ref) is f_ref and plain.condition_reference(f_ref) is None
 
 
 def test_a_reference_force_checkpoint_round_trips_and_generates_at_targets(tmp_path):

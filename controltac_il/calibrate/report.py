@@ -67,7 +67,7 @@ def _generated_row(record: dict, ds, generator_dir: Path):
     real = [min(grasp, key=lambda i: abs(f[i, 2] - t)) for t in targets]
     delta = np.array([[0.0, 0.0, t - f[ref, 2]] for t in targets], np.float32)
     generator = ForceGenerator.from_pretrained(generator_dir)
-    f_ref = np.repeat(f[ref][None], len(delta), 0) if generator.config.dit.reference_force else None
+    f_ref = generator.condition_reference(np.repeat(f[ref][None], len(delta), 0))
     gen = generator.generate(np.stack([ds.residual(ref)] * len(delta)), delta, seed=0, reference_force=f_ref)
     bg = ds.background_of(ref)
     return ([ds.image(i) for i in real], [from_residual(g, bg) for g in gen], [f[i, 2] for i in real],

@@ -208,6 +208,11 @@ class ForceGenerator:
                               seed=seed, batch_size=batch_size, mask=mask, object_mask=object_mask,
                               transform=transform)
 
+    def condition_reference(self, reference_force):
+        """``reference_force`` (B, 3) N where this generator is conditioned on it (``dit.reference_force``), else
+        None: for callers that hold the reference's force but want the range decision of a ΔF request alone."""
+        return reference_force if self.config.dit.reference_force else None
+
     def resolve_targets(self, target_force, out_of_range: str = "clamp", reference_force=None,
                         reference_out_of_range: str | None = None) -> TargetDecision:
         """What ``generate_at`` would decide for these target forces (B, 3) N (and, when given, these reference
@@ -328,8 +333,8 @@ class ForceGenerator:
                       masks: np.ndarray | None) -> np.ndarray:
         """One batch of whole chunks, on the device: reference residuals uint8 (b, H_in, W_in, 3), the force
         condition (b, 3 or 6) N (``force_condition``), seeded noise (b, C, h, w), target-pose masks bool (b, H_in,
-        W_in) or None -> residuals uint8 (b, H_in, W_in, 3). Its inputs go to the device at once, its chunks are queued, its output comes back at once;
-        NonFiniteOutput rather than a NaN turned into a black pixel."""
+        W_in) or None -> residuals uint8 (b, H_in, W_in, 3). Its inputs go to the device at once, its chunks are
+        queued, its output comes back at once; NonFiniteOutput rather than a NaN turned into a black pixel."""
         chunk = chunk_rows(self.device)
         ref_d, delta_d = self._to_device(ref), self._to_device(np.asarray(delta, np.float32))
         noise_d = self._to_device(noise)
@@ -352,7 +357,8 @@ class ForceGenerator:
                 masks: np.ndarray | None) -> torch.Tensor:
         """The sampling loop on one chunk, every step on the device: reference residuals uint8 (c, H_in, W_in, 3),
         the force condition (c, 3 or 6) N, noise (c, C, h, w), masks bool (c, H_in, W_in) or None -> output grey
-        levels float32 (c, H_in, W_in, 3), not yet rounded. One shape per chunk whatever the batch: the same kernels."""
+        levels float32 (c, H_in, W_in, 3), not yet rounded. One shape per chunk whatever the batch: the same
+        kernels."""
         size_in = tuple(ref.shape[1:3])
         # 1. latent: the reference residual at the model's size (area resize), encoded: z_ref (c, C, h, w)
         z_ref = self.encode(resize(ref, self.config.image_size, "area", self.resample_taps))

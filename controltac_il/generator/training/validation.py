@@ -72,8 +72,7 @@ def generation_error(generator, reference: np.ndarray, target: np.ndarray, delta
     (uint8 (P, H, W, 3) residuals) at ΔF ``delta`` (P, 3) N, from the reference's force ``reference_force`` (P, 3)
     N, which a generator conditioned on it is given (``masks``: stage 2's ``mask=`` target-pose masks): ``{"mse",
     "copy_mse", "ratio_to_copy"}``, MSE in grey levels²."""
-    conditioned = generator.config.dit.reference_force
-    pred = generator.generate(reference, delta, seed=0, reference_force=reference_force if conditioned else None,
+    pred = generator.generate(reference, delta, seed=0, reference_force=generator.condition_reference(reference_force),
                               **masks).astype(np.float64)
     tgt = target.astype(np.float64)
     mse, copy = float(((pred - tgt) ** 2).mean()), float(((reference.astype(np.float64) - tgt) ** 2).mean())
